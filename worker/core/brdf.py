@@ -1,0 +1,201 @@
+"""BRDF models of DESIGN.md §3, evaluable on arrays of local-frame directions.
+
+Every model is written as ``f = albedo/π + specular part`` and evaluated from a handful of
+cosines, so the NumPy reference and the C kernel share one parameterisation (``pack``):
+
+* ``lambert``      albedo/π
+* ``ggx``          albedo/π + specular·D(h)·G1(ωi)G1(ωo)/(4 cosθi cosθo); D and the separable
+                   Smith G exactly as Mitsuba 3 ``roughconductor`` (GGX, ``material: none``,
+                   i.e. Fresnel = 1 scaled by ``specular_reflectance``).
+* ``blinn-phong``  albedo/π + specular·(e+8)/(8π)·cos^e θh
+* ``lobes``        cacad-cosine-lobes eq. 1-3 in reciprocal form (see scene.Lobes)
+* ``srbf``         inverse-brdf-modeling eq. 11-12: p(h)·F(ωi·h)/(cosθi + cosθo − cosθi cosθo)
+* ``curve``        the same quotient form with p a piecewise-constant function of θh
+
+Directions are unit (…, 3) arrays in a local frame with the normal along +z, or given as cosines.
+Returns radiance-per-irradiance in 1/sr, float64 (…, 3) RGB. Below the horizon f = 0.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..scene import GGX, SRBF, BlinnPhong, Curve, Lambert, Lobes
+
+INV_PI = 1.0 / np.pi
+
+# kernel model ids (must match worker/native/src/glintk.c)
+K_LAMBERT, K_GGX, K_BLINN, K_LOBES, K_TABLE = 0, 1, 2, 3, 4
+N_PARAMS = 72
+TABLE_THETA, TABLE_PHI = 128, 256   # p(h) table over the hemisphere: θh ∈ [0, π/2], φh ∈ [0, 2π)
+
+
+def ggx_D(cos_h: np.ndarray, alpha: float) -> np.ndarray:
+    """GGX normal distribution D(h) (1/sr), Mitsuba's MicrofacetDistribution::eval."""
+    c2 = np.clip(cos_h, 0.0, 1.0) ** 2
+    a2 = alpha * alpha
+    denom = c2 * (a2 - 1.0) + 1.0
+    return np.where(cos_h > 0, a2 / (np.pi * denom * denom), 0.0)
+
+
+def ggx_G1(cos_v: np.ndarray, cos_vh: np.ndarray, alpha: float) -> np.ndarray:
+    """Smith G1 for GGX: 2/(1 + sqrt(1 + α² tan²θ)), zero when ω·h and cosθ disagree in sign."""
+    c2 = np.maximum(cos_v * cos_v, 1e-20)
+    tan2 = np.maximum(1.0 - c2, 0.0) / c2
+    g = 2.0 / (1.0 + np.sqrt(1.0 + alpha * alpha * tan2))
+    return np.where(cos_vh * cos_v > 0, g, 0.0)
+
+
+def schlick(f0: float, cos_d: np.ndarray) -> np.ndarray:
+    m = np.clip(1.0 - cos_d, 0.0, 1.0)
+    return f0 + (1.0 - f0) * m ** 5
+
+
+def distribution_static(cos_i, cos_o, cos_d, f0):
+    """The static function s of inverse-brdf-modeling eq. 11: F(ωi·h)/(ci + co − ci·co)."""
+    return schlick(f0, cos_d) / np.maximum(cos_i + cos_o - cos_i * cos_o, 1e-12)
+
+
+def srbf_p(h_local: np.ndarray, centers: np.ndarray, bandwidth: float, coef: np.ndarray) -> np.ndarray:
+    """p(h) = Σ_j c_j exp(λ(h·ξ_j − 1)) (inverse-brdf-modeling eq. 12).
+
+    h_local (…, 3), centers (J, 3), coef (J, 3) -> (…, 3)."""
+    g = np.exp(bandwidth * (h_local @ centers.T - 1.0))
+    return g @ coef
+
+
+def curve_p(cos_h: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Box basis over θh ∈ [0, π/2]: values (K, 3) -> p (…, 3)."""
+    k = len(values)
+    th = np.arccos(np.clip(cos_h, 0.0, 1.0))
+    idx = np.clip((th * (2.0 * k / np.pi)).astype(np.int64), 0, k - 1)
+    return values[idx]
+
+
+def hemisphere_table_dirs(nt: int = TABLE_THETA, nphi: int = TABLE_PHI) -> np.ndarray:
+    """(nt, nphi, 3) local directions at the table's sample points: θ = i·(π/2)/(nt−1), φ = j·2π/nphi."""
+    th = np.linspace(0.0, np.pi / 2, nt)[:, None]
+    ph = (np.arange(nphi) * (2.0 * np.pi / nphi))[None, :]
+    return np.stack(np.broadcast_arrays(np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)), axis=-1)
+
+
+def table_lookup(table: np.ndarray, h_local: np.ndarray) -> np.ndarray:
+    """Bilinear lookup of a (nt, nphi, 3) p(h) table at local half vectors h (…, 3)."""
+    nt, nphi, _ = table.shape
+    th = np.arccos(np.clip(h_local[..., 2], 0.0, 1.0)) * ((nt - 1) / (np.pi / 2))
+    ph = np.mod(np.arctan2(h_local[..., 1], h_local[..., 0]), 2 * np.pi) * (nphi / (2 * np.pi))
+    i0 = np.clip(np.floor(th).astype(np.int64), 0, nt - 2); ft = np.clip(th - i0, 0.0, 1.0)[..., None]
+    j0 = np.floor(ph).astype(np.int64) % nphi; fp = (ph - np.floor(ph))[..., None]
+    j1 = (j0 + 1) % nphi
+    a = table[i0, j0] * (1 - fp) + table[i0, j1] * fp
+    b = table[i0 + 1, j0] * (1 - fp) + table[i0 + 1, j1] * fp
+    return a * (1 - ft) + b * ft
+
+
+class PackedBRDF:
+    """A material in the kernel's flat form: model id, (N_PARAMS,) float32 params, optional
+    (TABLE_THETA, TABLE_PHI, 3) float32 p(h) table, and the lobe width used for refinement."""
+
+    def __init__(self, kind: int, params, table=None, lobe_width: float = np.inf):
+        self.kind = kind
+        self.params = np.zeros(N_PARAMS, np.float32)
+        self.params[: len(params)] = params
+        self.table = None if table is None else np.ascontiguousarray(table, dtype=np.float32)
+        self.lobe_width = float(lobe_width)
+
+
+def pack(m) -> PackedBRDF:
+    """Scene material model -> PackedBRDF."""
+    if isinstance(m, Lambert):
+        return PackedBRDF(K_LAMBERT, [*m.albedo])
+    if isinstance(m, GGX):
+        # most of D's mass lies within θh ≲ 2α; ωi moves twice as fast as h
+        return PackedBRDF(K_GGX, [*m.albedo, *m.specular, m.alpha], lobe_width=min(np.pi, 2 * np.arctan(2 * m.alpha)))
+    if isinstance(m, BlinnPhong):
+        width = min(np.pi, 2 * 2.0 / np.sqrt(m.exponent + 2.0))
+        return PackedBRDF(K_BLINN, [*m.albedo, *m.specular, m.exponent], lobe_width=width)
+    if isinstance(m, Lobes):
+        if not (len(m.exponents) == len(m.gloss) == len(m.directional_diffuse)):
+            raise ValueError("lobes: exponents, gloss and directional_diffuse must have equal length")
+        p = [*m.diffuse, float(len(m.exponents))]
+        for e, g, dd in zip(m.exponents, m.gloss, m.directional_diffuse):
+            p += [e, g + dd[0], g + dd[1], g + dd[2]]
+        width = min(np.pi, 2.0 / np.sqrt(max(m.exponents) + 2.0))
+        return PackedBRDF(K_LOBES, p, lobe_width=width)
+    if isinstance(m, SRBF):
+        d = hemisphere_table_dirs()
+        c = np.asarray(m.centers, np.float64)
+        c /= np.linalg.norm(c, axis=1, keepdims=True)
+        table = srbf_p(d, c, m.bandwidth, np.asarray(m.coefficients, np.float64))
+        width = min(np.pi, 2 * 2.0 / np.sqrt(m.bandwidth))
+        return PackedBRDF(K_TABLE, [*m.albedo, m.fresnel_f0], table, lobe_width=width)
+    if isinstance(m, Curve):
+        d = hemisphere_table_dirs()
+        v = np.asarray(m.values, np.float64)
+        table = curve_p(d[..., 2], v)
+        nz = np.nonzero(v.max(axis=1) > 0.05 * v.max())[0]
+        width = np.pi if len(nz) == 0 else min(np.pi, 2 * (nz.max() + 1) * (np.pi / 2) / len(v))
+        return PackedBRDF(K_TABLE, [*m.albedo, m.fresnel_f0], table, lobe_width=width)
+    raise TypeError(f"unknown material {type(m).__name__}")
+
+
+def eval_packed(b: PackedBRDF, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+    """f(ωi, ωo) for local-frame unit directions wi, wo (…, 3) -> (…, 3) float64 1/sr."""
+    wi = np.asarray(wi, np.float64); wo = np.asarray(wo, np.float64)
+    ci, co = wi[..., 2], wo[..., 2]
+    hv = wi + wo
+    h = hv / np.maximum(np.linalg.norm(hv, axis=-1, keepdims=True), 1e-20)
+    ch, cd = h[..., 2], np.einsum("...i,...i->...", wi, h)
+    p = b.params.astype(np.float64)
+    out = np.broadcast_to(p[0:3] * INV_PI, ci.shape + (3,)).copy()
+    if b.kind == K_GGX:
+        a = p[6]
+        spec = ggx_D(ch, a) * ggx_G1(ci, cd, a) * ggx_G1(co, np.einsum("...i,...i->...", wo, h), a)
+        spec = spec / np.maximum(4.0 * ci * co, 1e-20)
+        out += spec[..., None] * p[3:6]
+    elif b.kind == K_BLINN:
+        e = p[6]
+        out += ((e + 8.0) / (8.0 * np.pi) * np.clip(ch, 0, 1) ** e)[..., None] * p[3:6]
+    elif b.kind == K_LOBES:
+        rv = np.clip(2.0 * ci * co - np.einsum("...i,...i->...", wi, wo), 0.0, 1.0)
+        for k in range(int(p[3])):
+            e, w = p[4 + 4 * k], p[5 + 4 * k: 8 + 4 * k]
+            out += ((e + 2.0) / (2.0 * np.pi) * rv ** e)[..., None] * w
+    elif b.kind == K_TABLE:
+        out += table_lookup(b.table, h) * distribution_static(ci, co, cd, p[3])[..., None]
+    valid = (ci > 0) & (co > 0)
+    return np.where(valid[..., None], out, 0.0)
+
+
+def evaluate(material, wi, wo) -> np.ndarray:
+    """Evaluate a scene material (scene.Lambert, GGX, …) at local directions (…, 3)."""
+    return eval_packed(pack(material), wi, wo)
+
+
+def srbf_exact(m: SRBF, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+    """SRBF BRDF by the exact sum over centres (no table), for testing the table."""
+    wi = np.asarray(wi, np.float64); wo = np.asarray(wo, np.float64)
+    ci, co = wi[..., 2], wo[..., 2]
+    hv = wi + wo
+    h = hv / np.linalg.norm(hv, axis=-1, keepdims=True)
+    c = np.asarray(m.centers); c = c / np.linalg.norm(c, axis=1, keepdims=True)
+    p = srbf_p(h, c, m.bandwidth, np.asarray(m.coefficients))
+    f = np.asarray(m.albedo) * INV_PI + p * distribution_static(ci, co, np.einsum("...i,...i->...", wi, h), m.fresnel_f0)[..., None]
+    return np.where(((ci > 0) & (co > 0))[..., None], f, 0.0)
+
+
+def onb(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Tangent frames for unit normals (…, 3): Duff et al. 2017 branchless basis (as pbrt-v4).
+    Returns (t, b) with (t, b, n) right-handed."""
+    nx, ny, nz = n[..., 0], n[..., 1], n[..., 2]
+    s = np.where(nz >= 0, 1.0, -1.0)
+    a = -1.0 / (s + nz)
+    bb = nx * ny * a
+    t = np.stack([1.0 + s * nx * nx * a, s * bb, -s * nx], axis=-1)
+    b = np.stack([bb, s + ny * ny * a, -ny], axis=-1)
+    return t, b
+
+
+def to_local(v: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """World directions v (…, 3) into the frame (t, b, n) of normals n (…, 3)."""
+    t, b = onb(n)
+    return np.stack([(v * t).sum(-1), (v * b).sum(-1), (v * n).sum(-1)], axis=-1)

@@ -1,0 +1,331 @@
+/* Glint's multithreaded C kernels (OpenMP). Each has a NumPy reference of the same name in
+ * worker/core (cuts.py, render.py, tonemap.py); tests/core/test_native.py checks they agree.
+ *
+ * Loaded through ctypes (worker/native/__init__.py): plain C ABI, arrays are C-contiguous.
+ * The BRDF model ids and parameter layout match worker/core/brdf.py (pack / eval_packed).
+ */
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+#ifdef _OPENMP
+#include <omp.h>
+#endif
+
+#define K_LAMBERT 0
+#define K_GGX 1
+#define K_BLINN 2
+#define K_LOBES 3
+#define K_TABLE 4
+#define N_PARAMS 72
+#define TABLE_THETA 128
+#define TABLE_PHI 256
+#define INV_PI 0.31830988618379067
+#define PI 3.141592653589793
+
+int glk_max_threads(void) {
+#ifdef _OPENMP
+    return omp_get_max_threads();
+#else
+    return 1;
+#endif
+}
+
+void glk_set_threads(int n) {
+#ifdef _OPENMP
+    if (n > 0) omp_set_num_threads(n);
+#endif
+}
+
+/* ---------------------------------------------------------------------------------------
+ * Cut building (cyber-worlds §V, inverse-brdf-modeling §4.1). For each vertex, the leaf
+ * values v (N = 2^H floats, cosine-weighted visibility) are clustered: a node is kept when
+ * err = sqrt(n · Σ(v_i − mean)²) ≤ tau, which bounds its L1 error Σ|v_i − mean| ≤ tau
+ * (Cauchy-Schwarz); err only shrinks towards the leaves, so the cut is the set of kept nodes
+ * whose parent is not kept, emitted left to right as (height, quantised mean).
+ */
+void glk_build_cuts(const float *vals, int64_t B, int H, double tau, uint8_t *heights,
+                    uint8_t *quant, int32_t *counts) {
+    const int64_t N = (int64_t)1 << H;
+#pragma omp parallel
+    {
+        double *S = (double *)malloc(sizeof(double) * 2 * N);
+        double *Q = (double *)malloc(sizeof(double) * 2 * N);
+        int64_t *lev = (int64_t *)malloc(sizeof(int64_t) * (H + 2));
+        int64_t *stack = (int64_t *)malloc(sizeof(int64_t) * 2 * (H + 2));
+        lev[0] = 0;
+        for (int h = 0; h <= H; h++) lev[h + 1] = lev[h] + (N >> h);
+#pragma omp for schedule(dynamic, 4)
+        for (int64_t b = 0; b < B; b++) {
+            const float *v = vals + b * N;
+            for (int64_t i = 0; i < N; i++) { S[i] = v[i]; Q[i] = (double)v[i] * v[i]; }
+            for (int h = 1; h <= H; h++) {
+                double *s0 = S + lev[h - 1], *q0 = Q + lev[h - 1];
+                double *s1 = S + lev[h], *q1 = Q + lev[h];
+                for (int64_t j = 0; j < (N >> h); j++) {
+                    s1[j] = s0[2 * j] + s0[2 * j + 1];
+                    q1[j] = q0[2 * j] + q0[2 * j + 1];
+                }
+            }
+            uint8_t *ho = heights + b * N, *qo = quant + b * N;
+            int32_t c = 0;
+            int sp = 0;
+            stack[sp++] = H; stack[sp++] = 0;  /* (height, index within level) */
+            while (sp) {
+                int64_t j = stack[--sp];
+                int h = (int)stack[--sp];
+                double n = (double)((int64_t)1 << h);
+                double s = S[lev[h] + j], q = Q[lev[h] + j];
+                double sse = q - s * s / n;
+                double err = sse > 0 ? sqrt(n * sse) : 0.0;
+                if (h == 0 || err <= tau) {
+                    double m = s / n;
+                    m = m < 0 ? 0 : (m > 1 ? 1 : m);
+                    ho[c] = (uint8_t)h;
+                    qo[c] = (uint8_t)lrint(m * 255.0);
+                    c++;
+                } else {  /* right child first so the left one pops first */
+                    stack[sp++] = h - 1; stack[sp++] = 2 * j + 1;
+                    stack[sp++] = h - 1; stack[sp++] = 2 * j;
+                }
+            }
+            counts[b] = c;
+        }
+        free(S); free(Q); free(lev); free(stack);
+    }
+}
+
+/* ---------------------------------------------------------------------------------------
+ * BRDF evaluation in the shared packed form (worker/core/brdf.py eval_packed).
+ */
+typedef struct { double x, y, z; } v3;
+static inline v3 mk(double x, double y, double z) { v3 r = {x, y, z}; return r; }
+static inline double dot(v3 a, v3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+static inline v3 add(v3 a, v3 b) { return mk(a.x + b.x, a.y + b.y, a.z + b.z); }
+static inline v3 scl(v3 a, double s) { return mk(a.x * s, a.y * s, a.z * s); }
+static inline v3 nrm(v3 a) { double l = sqrt(dot(a, a)); return l > 1e-30 ? scl(a, 1.0 / l) : a; }
+
+static inline double ggx_G1(double c, double ch, double a) {
+    if (c * ch <= 0) return 0.0;
+    double c2 = c * c; if (c2 < 1e-20) c2 = 1e-20;
+    double t2 = (1.0 - c2) / c2; if (t2 < 0) t2 = 0;
+    return 2.0 / (1.0 + sqrt(1.0 + a * a * t2));
+}
+
+static inline double table_lookup(const float *tab, int ch, v3 hl) {
+    double th = acos(hl.z < 0 ? 0 : (hl.z > 1 ? 1 : hl.z)) * ((TABLE_THETA - 1) / (PI / 2));
+    double ph = atan2(hl.y, hl.x); if (ph < 0) ph += 2 * PI;
+    ph *= TABLE_PHI / (2 * PI);
+    int i0 = (int)floor(th); if (i0 < 0) i0 = 0; if (i0 > TABLE_THETA - 2) i0 = TABLE_THETA - 2;
+    double ft = th - i0; ft = ft < 0 ? 0 : (ft > 1 ? 1 : ft);
+    int j0 = ((int)floor(ph)) % TABLE_PHI; double fp = ph - floor(ph);
+    int j1 = (j0 + 1) % TABLE_PHI;
+    const float *r0 = tab + (int64_t)i0 * TABLE_PHI * 3, *r1 = r0 + TABLE_PHI * 3;
+    double a = r0[j0 * 3 + ch] * (1 - fp) + r0[j1 * 3 + ch] * fp;
+    double b = r1[j0 * 3 + ch] * (1 - fp) + r1[j1 * 3 + ch] * fp;
+    return a * (1 - ft) + b * ft;
+}
+
+/* wi, wo, n, t, b world-space unit vectors; writes f (1/sr) to out[3]. */
+static inline void brdf_eval(int kind, const float *p, const float *tab, v3 wi, v3 wo, v3 n,
+                             v3 t, v3 bt, double *out) {
+    double ci = dot(wi, n), co = dot(wo, n);
+    out[0] = out[1] = out[2] = 0.0;
+    if (ci <= 0 || co <= 0) return;
+    out[0] = p[0] * INV_PI; out[1] = p[1] * INV_PI; out[2] = p[2] * INV_PI;
+    if (kind == K_LAMBERT) return;
+    v3 h = nrm(add(wi, wo));
+    double chh = dot(h, n), cd = dot(wi, h);
+    if (kind == K_GGX) {
+        double a = p[6], a2 = a * a;
+        double c2 = chh > 0 ? chh * chh : 0;
+        double den = c2 * (a2 - 1.0) + 1.0;
+        double D = chh > 0 ? a2 / (PI * den * den) : 0.0;
+        double G = ggx_G1(ci, cd, a) * ggx_G1(co, dot(wo, h), a);
+        double s = D * G / (4.0 * ci * co);
+        out[0] += s * p[3]; out[1] += s * p[4]; out[2] += s * p[5];
+    } else if (kind == K_BLINN) {
+        double e = p[6];
+        double s = (e + 8.0) / (8.0 * PI) * pow(chh > 0 ? (chh < 1 ? chh : 1) : 0, e);
+        out[0] += s * p[3]; out[1] += s * p[4]; out[2] += s * p[5];
+    } else if (kind == K_LOBES) {
+        double rv = 2.0 * ci * co - dot(wi, wo);
+        rv = rv < 0 ? 0 : (rv > 1 ? 1 : rv);
+        int m = (int)p[3];
+        for (int k = 0; k < m; k++) {
+            double e = p[4 + 4 * k];
+            double s = (e + 2.0) / (2.0 * PI) * pow(rv, e);
+            out[0] += s * p[5 + 4 * k]; out[1] += s * p[6 + 4 * k]; out[2] += s * p[7 + 4 * k];
+        }
+    } else if (kind == K_TABLE) {
+        v3 hl = mk(dot(h, t), dot(h, bt), chh);
+        double m = 1.0 - cd; m = m < 0 ? 0 : (m > 1 ? 1 : m);
+        double m2 = m * m;
+        double F = p[3] + (1.0 - p[3]) * m2 * m2 * m;
+        double den = ci + co - ci * co; if (den < 1e-12) den = 1e-12;
+        double s = F / den;
+        for (int c = 0; c < 3; c++) out[c] += s * table_lookup(tab, c, hl);
+    }
+}
+
+/* Duff et al. 2017 orthonormal basis, as worker/core/brdf.py onb. */
+static inline void onb(v3 n, v3 *t, v3 *b) {
+    double s = n.z >= 0 ? 1.0 : -1.0;
+    double a = -1.0 / (s + n.z);
+    double bb = n.x * n.y * a;
+    *t = mk(1.0 + s * n.x * n.x * a, s * bb, -s * n.x);
+    *b = mk(bb, s + n.y * n.y * a, -n.y);
+}
+
+/* ---------------------------------------------------------------------------------------
+ * Shading at points (cyber-worlds eq. 3, inverse-brdf-modeling eq. 22):
+ *   B = Σ_k l_k v_k f_r(ω_k, ω_o)
+ * over point p's cut (cut index cut_of[p]), where l_k comes from prefix sums PL and ω_k is the
+ * light-weighted centroid of the node (prefix sums PD), falling back to the node's geometric
+ * direction when the node is dark or its light is spread evenly around it.
+ * Nodes wider than half the BRDF lobe width that lie near the mirror direction are refined:
+ * their children inherit the parent's visibility but have their own light and direction,
+ * so glossy highlights stay sharp (DESIGN.md §4).
+ */
+void glk_shade_points(
+    int64_t P, const float *normals, const float *wo_dirs, const int32_t *cut_of,
+    const int32_t *mat_of, const int64_t *cut_off, const uint8_t *cut_h, const uint8_t *cut_q,
+    const double *PL, const double *PD, const float *node_dir, const float *node_radius,
+    const int64_t *level_off, int H, const int32_t *mat_kind, const float *mat_params,
+    const float *mat_lobe, const float *tables, const int64_t *table_off, float *out) {
+#pragma omp parallel
+    {
+        int64_t stack[2 * 64];
+#pragma omp for schedule(dynamic, 64)
+        for (int64_t p = 0; p < P; p++) {
+            v3 n = mk(normals[3 * p], normals[3 * p + 1], normals[3 * p + 2]);
+            v3 wo = mk(wo_dirs[3 * p], wo_dirs[3 * p + 1], wo_dirs[3 * p + 2]);
+            double acc[3] = {0, 0, 0};
+            double co = dot(n, wo);
+            int mi = mat_of[p];
+            if (co > 0 && cut_of[p] >= 0) {
+                int kind = mat_kind[mi];
+                const float *prm = mat_params + (int64_t)mi * N_PARAMS;
+                const float *tab = table_off[mi] >= 0 ? tables + table_off[mi] : NULL;
+                double lobe = mat_lobe[mi];
+                double refine_r = 0.5 * lobe;
+                v3 r = add(scl(n, 2.0 * co), scl(wo, -1.0));
+                v3 t, bt; onb(n, &t, &bt);
+                int64_t c0 = cut_off[cut_of[p]], c1 = cut_off[cut_of[p] + 1];
+                int64_t start = 0;
+                for (int64_t m = c0; m < c1; m++) {
+                    int h0 = cut_h[m];
+                    int64_t s0 = start;
+                    start += (int64_t)1 << h0;
+                    if (cut_q[m] == 0) continue;
+                    double q = cut_q[m] * (1.0 / 255.0);
+                    int sp = 0;
+                    stack[sp++] = h0; stack[sp++] = s0;
+                    while (sp) {
+                        int64_t s = stack[--sp];
+                        int h = (int)stack[--sp];
+                        int64_t idx = level_off[h] + (s >> h);
+                        v3 nd = mk(node_dir[3 * idx], node_dir[3 * idx + 1], node_dir[3 * idx + 2]);
+                        double R = node_radius[idx];
+                        if (h > 0 && R > refine_r) {
+                            double ang = acos(fmax(-1.0, fmin(1.0, dot(nd, r))));
+                            if (ang < R + 2.0 * lobe) {
+                                int64_t half = (int64_t)1 << (h - 1);
+                                stack[sp++] = h - 1; stack[sp++] = s + half;
+                                stack[sp++] = h - 1; stack[sp++] = s;
+                                continue;
+                            }
+                        }
+                        int64_t e = s + ((int64_t)1 << h);
+                        double l0 = PL[3 * e] - PL[3 * s], l1 = PL[3 * e + 1] - PL[3 * s + 1],
+                               l2 = PL[3 * e + 2] - PL[3 * s + 2];
+                        double lum = 0.2126 * l0 + 0.7152 * l1 + 0.0722 * l2;
+                        if (lum <= 0 && l0 <= 0 && l1 <= 0 && l2 <= 0) continue;
+                        v3 d = mk(PD[3 * e] - PD[3 * s], PD[3 * e + 1] - PD[3 * s + 1],
+                                  PD[3 * e + 2] - PD[3 * s + 2]);
+                        double dl = sqrt(dot(d, d));
+                        v3 wi = (dl > 1e-3 * fabs(lum) && dl > 1e-300) ? scl(d, 1.0 / dl) : nd;
+                        double f[3];
+                        /* a cluster straddling the horizon may have its centroid below it: its
+                         * visibility already carries the cosine, so evaluate f just above */
+                        double ci = dot(wi, n);
+                        if (ci < 1e-3) wi = nrm(add(wi, scl(n, 1e-3 - ci)));
+                        brdf_eval(kind, prm, tab, wi, wo, n, t, bt, f);
+                        acc[0] += l0 * q * f[0]; acc[1] += l1 * q * f[1]; acc[2] += l2 * q * f[2];
+                    }
+                }
+            }
+            out[3 * p] = (float)acc[0]; out[3 * p + 1] = (float)acc[1]; out[3 * p + 2] = (float)acc[2];
+        }
+    }
+}
+
+/* Barycentric interpolation of per-vertex radiance to pixels (Embree's u, v: hit =
+ * (1−u−v)·v0 + u·v1 + v·v2). tri < 0 leaves the pixel untouched. */
+void glk_interpolate(int64_t P, const int32_t *tri, const float *uv, const int32_t *faces,
+                     const float *vert_rgb, float *out) {
+#pragma omp parallel for schedule(static)
+    for (int64_t p = 0; p < P; p++) {
+        int32_t f = tri[p];
+        if (f < 0) continue;
+        float u = uv[2 * p], v = uv[2 * p + 1], w = 1.0f - u - v;
+        const float *a = vert_rgb + 3 * (int64_t)faces[3 * f], *b = vert_rgb + 3 * (int64_t)faces[3 * f + 1],
+                    *c = vert_rgb + 3 * (int64_t)faces[3 * f + 2];
+        for (int k = 0; k < 3; k++) out[3 * p + k] = w * a[k] + u * b[k] + v * c[k];
+    }
+}
+
+/* Bilinear lookup of an equirectangular map (DESIGN.md §2) for world directions, with the
+ * environment rotated by rot_rad about +Y (world φ reads map φ + rot) and scaled. */
+void glk_env_lookup(int64_t P, const float *dirs, const uint8_t *mask, const float *map, int Hm,
+                    int Wm, double rot_rad, double intensity, float *out) {
+#pragma omp parallel for schedule(static)
+    for (int64_t p = 0; p < P; p++) {
+        if (mask && !mask[p]) continue;
+        double x = dirs[3 * p], y = dirs[3 * p + 1], z = dirs[3 * p + 2];
+        double u = atan2(x, -z) / (2 * PI) + rot_rad / (2 * PI);
+        u -= floor(u);
+        double v = acos(fmax(-1.0, fmin(1.0, y))) / PI;
+        double fx = u * Wm - 0.5, fy = v * Hm - 0.5;
+        int x0 = (int)floor(fx), y0 = (int)floor(fy);
+        double ax = fx - x0, ay = fy - y0;
+        int x1 = x0 + 1, y1 = y0 + 1;
+        x0 = ((x0 % Wm) + Wm) % Wm; x1 = ((x1 % Wm) + Wm) % Wm;
+        y0 = y0 < 0 ? 0 : (y0 >= Hm ? Hm - 1 : y0); y1 = y1 < 0 ? 0 : (y1 >= Hm ? Hm - 1 : y1);
+        for (int k = 0; k < 3; k++) {
+            double a = map[((int64_t)y0 * Wm + x0) * 3 + k] * (1 - ax) + map[((int64_t)y0 * Wm + x1) * 3 + k] * ax;
+            double b = map[((int64_t)y1 * Wm + x0) * 3 + k] * (1 - ax) + map[((int64_t)y1 * Wm + x1) * 3 + k] * ax;
+            out[3 * p + k] = (float)(intensity * (a * (1 - ay) + b * ay));
+        }
+    }
+}
+
+/* Tone mapping (worker/core/tonemap.py): exposure (stops), curve, sRGB OETF, 8-bit. */
+static inline double tm_curve(int curve, double x) {
+    if (x <= 0) return 0;
+    if (curve == 1) { /* ACES filmic fit (Narkowicz 2015) */
+        double y = (x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14);
+        return y < 0 ? 0 : (y > 1 ? 1 : y);
+    }
+    if (curve == 2) { /* neutral: identity up to 0.8, then a smooth shoulder to 1 */
+        const double k = 0.8;
+        if (x <= k) return x;
+        double t = x - k;
+        return k + (1 - k) * t / (t + (1 - k));
+    }
+    return x > 1 ? 1 : x;
+}
+
+static inline double srgb_oetf(double c) {
+    return c <= 0.0031308 ? 12.92 * c : 1.055 * pow(c, 1.0 / 2.4) - 0.055;
+}
+
+void glk_tonemap(int64_t P, const float *rgb, double exposure, int curve, uint8_t *out) {
+    double scale = pow(2.0, exposure);
+#pragma omp parallel for schedule(static)
+    for (int64_t i = 0; i < 3 * P; i++) {
+        double c = srgb_oetf(tm_curve(curve, rgb[i] * scale));
+        int v = (int)lrint(c * 255.0);
+        out[i] = (uint8_t)(v < 0 ? 0 : (v > 255 ? 255 : v));
+    }
+}

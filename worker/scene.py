@@ -1,0 +1,290 @@
+"""Scene file version 1 (DESIGN.md §3): pydantic models, and loading of meshes and maps.
+
+Paths in a scene file are relative to the file. Errors name the bad field or file.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated, Literal, Union
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from .envmap import load_envmap
+
+Vec3 = tuple[float, float, float]
+Color = Annotated[tuple[float, float, float], Field(description="linear RGB")]
+
+
+class SceneError(ValueError):
+    """A scene that cannot be loaded; the message names the field or file."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class Lambert(_Strict):
+    model: Literal["lambert"] = "lambert"
+    albedo: Color = (0.5, 0.5, 0.5)
+
+
+class GGX(_Strict):
+    """albedo/π + specular·D·G/(4 cosθi cosθo); Mitsuba roughconductor, material none."""
+    model: Literal["ggx"] = "ggx"
+    alpha: float = Field(0.25, gt=0.0, le=2.0)
+    specular: Color = (1.0, 1.0, 1.0)
+    albedo: Color = (0.0, 0.0, 0.0)
+
+
+class BlinnPhong(_Strict):
+    """albedo/π + specular·(e+8)/(8π)·cos^e θh (normalised Blinn-Phong)."""
+    model: Literal["blinn-phong"] = "blinn-phong"
+    exponent: float = Field(50.0, ge=0.0, le=1e5)
+    specular: Color = (0.04, 0.04, 0.04)
+    albedo: Color = (0.5, 0.5, 0.5)
+
+
+class SRBF(_Strict):
+    """Distribution-based BRDF (inverse-brdf-modeling eq. 11-12).
+
+    albedo/π + p(h)·F(ωi·h)/(cosθi + cosθo − cosθi cosθo), with
+    p(h) = Σ_j c_j exp(λ (h·ξ_j − 1)) per RGB channel, h in the local frame (z = normal),
+    F Schlick's approximation with F0 = fresnel_f0.
+    """
+    model: Literal["srbf"] = "srbf"
+    centers: list[Vec3] = Field(min_length=1, description="SRBF centres ξ_j, unit vectors, local frame")
+    bandwidth: float = Field(gt=0.0, description="λ")
+    coefficients: list[Color] = Field(min_length=1, description="c_j per RGB channel, ≥ 0 when physical")
+    fresnel_f0: float = Field(1.0, ge=0.0, le=1.0)
+    albedo: Color = (0.0, 0.0, 0.0)
+
+    @field_validator("coefficients")
+    @classmethod
+    def _same_length(cls, v, info):
+        c = info.data.get("centers")
+        if c is not None and len(c) != len(v):
+            raise ValueError(f"{len(v)} coefficient rows for {len(c)} centres")
+        return v
+
+
+class Lobes(_Strict):
+    """Cosine lobes with fixed exponents (cacad-cosine-lobes eq. 1-3), in reciprocal form:
+    diffuse/π + Σ_i (gloss_i + dd_i) (E_i+2)/(2π) max(0, r·ωo)^E_i, r = reflect(ωi, n).
+    gloss weights are achromatic (first-surface), directional-diffuse weights are RGB."""
+    model: Literal["lobes"] = "lobes"
+    exponents: list[float] = Field(min_length=1, max_length=16)
+    gloss: list[float]
+    directional_diffuse: list[Color]
+    diffuse: Color = (0.3, 0.3, 0.3)
+
+
+class Curve(_Strict):
+    """Quotient model over a 1D half-angle curve (box basis over θh ∈ [0, π/2]):
+    albedo/π + p(θh)·F(ωi·h)/(cosθi + cosθo − cosθi cosθo), p piecewise constant."""
+    model: Literal["curve"] = "curve"
+    values: list[Color] = Field(min_length=1, max_length=1024)
+    fresnel_f0: float = Field(1.0, ge=0.0, le=1.0)
+    albedo: Color = (0.0, 0.0, 0.0)
+
+
+Material = Annotated[Union[Lambert, GGX, BlinnPhong, SRBF, Lobes, Curve], Field(discriminator="model")]
+
+
+class Transform(_Strict):
+    scale: float | Vec3 = 1.0
+    rotate_deg: Vec3 = (0.0, 0.0, 0.0)
+    translate: Vec3 = (0.0, 0.0, 0.0)
+
+    def matrix(self) -> np.ndarray:
+        """4×4 float64: scale, then rotate X, Y, Z (right-handed, degrees), then translate."""
+        s = np.ones(3) * np.asarray(self.scale, dtype=np.float64)
+        m = np.diag([*s, 1.0])
+        for axis, deg in zip(range(3), self.rotate_deg):
+            if deg:
+                m = _rot(axis, np.radians(deg)) @ m
+        m[:3, 3] += np.asarray(self.translate)
+        return m
+
+
+def _rot(axis: int, a: float) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    r = np.eye(4)
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    r[i, i], r[i, j], r[j, i], r[j, j] = c, -s, s, c
+    return r
+
+
+class Environment(_Strict):
+    map: str
+    rotation_deg: float = 0.0
+    intensity: float = Field(1.0, ge=0.0)
+
+
+class Camera(_Strict):
+    eye: Vec3
+    target: Vec3
+    up: Vec3 = (0.0, 1.0, 0.0)
+    fov_y_deg: float = Field(40.0, gt=0.0, lt=180.0)
+    width: int = Field(640, ge=1, le=8192)
+    height: int = Field(480, ge=1, le=8192)
+
+
+class SceneObject(_Strict):
+    name: str = Field(min_length=1)
+    mesh: str
+    transform: Transform = Transform()
+    material: Material = Lambert()
+
+
+class SceneFile(_Strict):
+    version: Literal[1] = 1
+    environment: Environment
+    camera: Camera
+    objects: list[SceneObject] = Field(min_length=1)
+
+    @field_validator("objects")
+    @classmethod
+    def _unique_names(cls, v):
+        names = [o.name for o in v]
+        dup = {n for n in names if names.count(n) > 1}
+        if dup:
+            raise ValueError(f"object names must be unique, repeated: {sorted(dup)}")
+        return v
+
+
+def _format_validation(e: ValidationError, source: str) -> str:
+    lines = [f"{source}: invalid scene file"]
+    for err in e.errors():
+        loc = ".".join(str(p) for p in err["loc"])
+        lines.append(f"  {loc}: {err['msg']}")
+    return "\n".join(lines)
+
+
+def parse_scene(data: dict | str, source: str = "scene") -> SceneFile:
+    try:
+        if isinstance(data, str):
+            return SceneFile.model_validate_json(data)
+        return SceneFile.model_validate(data)
+    except ValidationError as e:
+        raise SceneError(_format_validation(e, source)) from None
+
+
+class Mesh:
+    """A triangle mesh in world space.
+
+    vertices : (V, 3) float32, faces : (F, 3) int32, normals : (V, 3) float32 unit vertex normals.
+    """
+
+    def __init__(self, vertices, faces, normals):
+        self.vertices = np.ascontiguousarray(vertices, dtype=np.float32)
+        self.faces = np.ascontiguousarray(faces, dtype=np.int32)
+        self.normals = np.ascontiguousarray(normals, dtype=np.float32)
+
+
+def area_weighted_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(V, 3) unit vertex normals: sum of adjacent (unnormalised, so area-weighted) face normals."""
+    v = vertices.astype(np.float64)
+    fn = np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])
+    n = np.zeros_like(v)
+    for k in range(3):
+        np.add.at(n, faces[:, k], fn)
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    n = np.where(norm > 0, n / np.maximum(norm, 1e-300), [0.0, 1.0, 0.0])
+    return n
+
+
+def load_mesh(path: str | Path, transform: Transform | None = None) -> Mesh:
+    """Load OBJ (all groups), PLY, GLB/GLTF or STL through trimesh, apply the transform.
+
+    Vertex normals come from the file when present (OBJ `vn`, PLY nx/ny/nz, glTF NORMAL),
+    otherwise they are area-weighted face normals (DESIGN.md §2).
+    """
+    import trimesh
+
+    path = Path(path)
+    if not path.is_file():
+        raise SceneError(f"{path}: mesh file not found")
+    try:
+        loaded = trimesh.load(str(path), process=False, skip_materials=True)
+    except Exception as e:
+        raise SceneError(f"{path}: not a readable mesh ({type(e).__name__}: {e})") from None
+    geoms = list(loaded.dump()) if isinstance(loaded, trimesh.Scene) else [loaded]
+    geoms = [g for g in geoms if isinstance(g, trimesh.Trimesh) and len(g.faces)]
+    if not geoms:
+        raise SceneError(f"{path}: contains no triangles")
+    verts, faces, normals, base = [], [], [], 0
+    for g in geoms:
+        v = np.asarray(g.vertices, dtype=np.float64)
+        f = np.asarray(g.faces, dtype=np.int64)
+        # trimesh keeps file normals in its cache; only then are they "present"
+        file_n = g._cache.cache.get("vertex_normals") if hasattr(g, "_cache") else None
+        if file_n is not None and np.shape(file_n) == v.shape:
+            n = np.asarray(file_n, dtype=np.float64)
+            n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+        else:
+            n = area_weighted_normals(v, f)
+        verts.append(v); faces.append(f + base); normals.append(n); base += len(v)
+    v = np.concatenate(verts); f = np.concatenate(faces); n = np.concatenate(normals)
+    if not np.isfinite(v).all():
+        raise SceneError(f"{path}: vertex coordinates contain NaN or infinity")
+    if f.min() < 0 or f.max() >= len(v):
+        raise SceneError(f"{path}: face indices out of range")
+    if transform is not None:
+        m = transform.matrix()
+        v = v @ m[:3, :3].T + m[:3, 3]
+        n = n @ np.linalg.inv(m[:3, :3])  # inverse transpose for normals
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+    return Mesh(v, f, n)
+
+
+class LoadedScene:
+    """A scene with meshes loaded in world space and concatenated.
+
+    Attributes: spec (SceneFile), mesh (Mesh, all objects), object_of_vertex (V,) int32,
+    object_of_face (F,) int32, envmap (H, W, 3) float32, root (Path of the scene folder).
+    """
+
+    def __init__(self, spec: SceneFile, root: Path, envmap: np.ndarray | None = None):
+        self.spec = spec
+        self.root = root
+        meshes = []
+        for i, o in enumerate(spec.objects):
+            try:
+                meshes.append(load_mesh(self.resolve(o.mesh), o.transform))
+            except SceneError as e:
+                raise SceneError(f"objects[{i}] ({o.name!r}).mesh: {e}") from None
+        vs, fs, ns, ov, of, base = [], [], [], [], [], 0
+        for i, m in enumerate(meshes):
+            vs.append(m.vertices); fs.append(m.faces + base); ns.append(m.normals)
+            ov.append(np.full(len(m.vertices), i, np.int32)); of.append(np.full(len(m.faces), i, np.int32))
+            base += len(m.vertices)
+        self.mesh = Mesh(np.concatenate(vs), np.concatenate(fs), np.concatenate(ns))
+        self.object_of_vertex = np.concatenate(ov)
+        self.object_of_face = np.concatenate(of)
+        if envmap is None:
+            try:
+                envmap = load_envmap(self.resolve(spec.environment.map))
+            except ValueError as e:
+                raise SceneError(f"environment.map: {e}") from None
+        self.envmap = envmap
+
+    def resolve(self, rel: str) -> Path:
+        p = Path(rel)
+        return p if p.is_absolute() else (self.root / p)
+
+    @property
+    def materials(self):
+        return [o.material for o in self.spec.objects]
+
+
+def load_scene(path: str | Path) -> LoadedScene:
+    path = Path(path)
+    if not path.is_file():
+        raise SceneError(f"{path}: scene file not found")
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as e:
+        raise SceneError(f"{path}: not valid JSON (line {e.lineno}, column {e.colno}: {e.msg})") from None
+    return LoadedScene(parse_scene(data, str(path)), path.parent.resolve())
