@@ -1,0 +1,206 @@
+"""Radiance from cuts, lighting and BRDFs; images through primary rays.
+
+cyber-worlds eq. 3 / inverse-brdf-modeling eq. 22: B(x, ωo) = Σ_k l_k v_k f_r(ω_k, ωo) over the
+point's cut. Two shading modes:
+
+* ``vertex`` (default): radiance at the vertices of the triangles the camera sees, then
+  barycentric interpolation per pixel. Fast: cost scales with visible vertices.
+* ``pixel``: every pixel shades its three vertices' cuts with its own interpolated normal and
+  view direction and blends them by barycentric weight (equal to interpolating the cuts, the
+  integral being linear in visibility). Sharper glossy highlights on coarse meshes.
+
+``shade_points_numpy`` is the reference of the C kernel ``glk_shade_points``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .. import native
+from .brdf import PackedBRDF, eval_packed, onb
+from .cuts import CutSet
+from .directions import DirectionTree
+
+# --- camera -----------------------------------------------------------------------------------
+
+
+def camera_rays(eye, target, up, fov_y_deg: float, width: int, height: int):
+    """Primary rays through pixel centres, DESIGN.md §2 (pixel (0, 0) top-left, image right =
+    normalize(cross(forward, up))). Returns (origins (H*W, 3), dirs (H*W, 3)) float32."""
+    eye = np.asarray(eye, np.float64)
+    fwd = np.asarray(target, np.float64) - eye
+    fwd /= np.linalg.norm(fwd)
+    right = np.cross(fwd, np.asarray(up, np.float64))
+    right /= np.linalg.norm(right)
+    true_up = np.cross(right, fwd)
+    t = np.tan(np.radians(fov_y_deg) / 2.0)
+    aspect = width / height
+    xs = (2.0 * (np.arange(width) + 0.5) / width - 1.0) * t * aspect
+    ys = (1.0 - 2.0 * (np.arange(height) + 0.5) / height) * t
+    d = fwd[None, None, :] + xs[None, :, None] * right + ys[:, None, None] * true_up
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    d = d.reshape(-1, 3).astype(np.float32)
+    return np.broadcast_to(eye.astype(np.float32), d.shape).copy(), d
+
+
+# --- shading ----------------------------------------------------------------------------------
+
+
+class MaterialTable:
+    """Packed materials in the kernel's arrays: kind (M,) int32, params (M, 72) float32,
+    lobe (M,) float32 radians, tables (concatenated float32), table_off (M,) int64 (-1: none)."""
+
+    def __init__(self, packed: list[PackedBRDF]):
+        self.packed = packed
+        self.kind = np.array([p.kind for p in packed], np.int32)
+        self.params = np.stack([p.params for p in packed]).astype(np.float32)
+        self.lobe = np.array([min(p.lobe_width, 1e9) for p in packed], np.float32)
+        offs, tabs, pos = [], [], 0
+        for p in packed:
+            if p.table is None:
+                offs.append(-1)
+            else:
+                offs.append(pos); tabs.append(p.table.reshape(-1)); pos += p.table.size
+        self.table_off = np.array(offs, np.int64)
+        self.tables = np.concatenate(tabs).astype(np.float32) if tabs else np.zeros(1, np.float32)
+
+
+def shade_points_numpy(normals, wo, cut_of, mat_of, cuts: CutSet, pl, pd, tree: DirectionTree,
+                       mats: MaterialTable, chunk: int = 1024) -> np.ndarray:
+    """NumPy reference of glk_shade_points.
+
+    normals, wo : (P, 3) float32 unit vectors (shading normal, direction towards the viewer).
+    cut_of : (P,) int32 cut (vertex) index per point, -1 for none. mat_of : (P,) int32.
+    pl, pd : (N+1, 3) float64 prefix sums of leaf radiance and light-weighted directions.
+    Returns (P, 3) float32 outgoing radiance.
+    """
+    out = np.zeros((len(normals), 3), np.float64)
+    for s in range(0, len(normals), chunk):
+        e = min(s + chunk, len(normals))
+        out[s:e] = _shade_chunk(normals[s:e].astype(np.float64), wo[s:e].astype(np.float64),
+                                cut_of[s:e], mat_of[s:e], cuts, pl, pd, tree, mats)
+    return out.astype(np.float32)
+
+
+def _shade_chunk(n, wo, cut_of, mat_of, cuts, pl, pd, tree, mats):
+    co = (n * wo).sum(1)
+    live = np.nonzero((co > 0) & (cut_of >= 0))[0]
+    out = np.zeros((len(n), 3))
+    if len(live) == 0:
+        return out
+    a = cuts.offsets[cut_of[live]]
+    b = cuts.offsets[cut_of[live] + 1]
+    cnt = (b - a).astype(np.int64)
+    pt = np.repeat(live, cnt)
+    node = np.concatenate([np.arange(x, y) for x, y in zip(a, b)])
+    h = cuts.heights[node].astype(np.int64)
+    w = np.int64(1) << h
+    # start leaf of each node: running sum within each point's cut
+    csum = np.cumsum(w)
+    first = np.repeat(np.cumsum(cnt) - cnt, cnt)
+    start = csum - w - (csum[first] - w[first])
+    q = cuts.quant[node].astype(np.float64) / 255.0
+    keep = q > 0
+    pt, h, start, q = pt[keep], h[keep], start[keep], q[keep]
+    r = 2.0 * co[:, None] * n - wo                                   # mirror directions
+    lobe = mats.lobe[mat_of].astype(np.float64)
+    while True:
+        idx = tree.level_offset[h] + (start >> h)
+        R = tree.node_radius[idx].astype(np.float64)
+        nd = tree.node_dir[idx].astype(np.float64)
+        lp = lobe[pt]
+        ang = np.arccos(np.clip((nd * r[pt]).sum(1), -1.0, 1.0))
+        ref = (h > 0) & (R > 0.5 * lp) & (ang < R + 2.0 * lp)
+        if not ref.any():
+            break
+        k = np.nonzero(ref)[0]
+        half = np.int64(1) << (h[k] - 1)
+        stay = ~ref
+        pt = np.concatenate([pt[stay], pt[k], pt[k]])
+        q = np.concatenate([q[stay], q[k], q[k]])
+        start = np.concatenate([start[stay], start[k], start[k] + half])
+        h = np.concatenate([h[stay], h[k] - 1, h[k] - 1])
+    e = start + (np.int64(1) << h)
+    l = pl[e] - pl[start]
+    lum = l @ np.array([0.2126, 0.7152, 0.0722])
+    dark = (lum <= 0) & (l <= 0).all(1)
+    d = pd[e] - pd[start]
+    dl = np.linalg.norm(d, axis=1)
+    idx = tree.level_offset[h] + (start >> h)
+    nd = tree.node_dir[idx].astype(np.float64)
+    use_c = (dl > 1e-3 * np.abs(lum)) & (dl > 1e-300)
+    wi = np.where(use_c[:, None], d / np.where(dl > 0, dl, 1.0)[:, None], nd)
+    npt = n[pt]
+    ci = (wi * npt).sum(1)
+    low = ci < 1e-3
+    wi[low] += npt[low] * (1e-3 - ci[low])[:, None]
+    wi[low] /= np.linalg.norm(wi[low], axis=1, keepdims=True)
+    t, bt = onb(npt)
+    wi_l = np.stack([(wi * t).sum(1), (wi * bt).sum(1), (wi * npt).sum(1)], 1)
+    wop = wo[pt]
+    wo_l = np.stack([(wop * t).sum(1), (wop * bt).sum(1), (wop * npt).sum(1)], 1)
+    f = np.zeros((len(pt), 3))
+    for m in np.unique(mat_of[live]):
+        sel = mat_of[pt] == m
+        f[sel] = eval_packed(mats.packed[m], wi_l[sel], wo_l[sel])
+    contrib = np.where(dark[:, None], 0.0, l * q[:, None] * f)
+    for c in range(3):
+        out[:, c] = np.bincount(pt, weights=contrib[:, c], minlength=len(n))
+    return out
+
+
+def shade_points(normals, wo, cut_of, mat_of, cuts: CutSet, pl, pd, tree: DirectionTree,
+                 mats: MaterialTable, use_native: bool = True) -> np.ndarray:
+    """(P, 3) float32 radiance at points; the C kernel when built (see shade_points_numpy)."""
+    if not (use_native and native.available()):
+        return shade_points_numpy(normals, wo, cut_of, mat_of, cuts, pl, pd, tree, mats)
+    c = native.c
+    p = len(normals)
+    out = np.empty((p, 3), np.float32)
+    native.lib.glk_shade_points(
+        p, c(normals, np.float32), c(wo, np.float32), c(cut_of, np.int32), c(mat_of, np.int32),
+        c(cuts.offsets, np.int64), c(cuts.heights, np.uint8), c(cuts.quant, np.uint8),
+        c(pl, np.float64), c(pd, np.float64), tree.node_dir, tree.node_radius,
+        c(tree.level_offset, np.int64), tree.height, mats.kind, mats.params, mats.lobe,
+        mats.tables, mats.table_off, out)
+    return out
+
+
+def interpolate(tri, uv, faces, vert_rgb, out, use_native: bool = True):
+    """Barycentric interpolation of per-vertex (V, 3) radiance into out (P, 3) where tri ≥ 0."""
+    if use_native and native.available():
+        native.lib.glk_interpolate(len(tri), native.c(tri, np.int32), native.c(uv, np.float32),
+                                   native.c(faces, np.int32), native.c(vert_rgb, np.float32), out)
+        return out
+    hit = tri >= 0
+    f = faces[tri[hit]]
+    u, v = uv[hit, 0:1], uv[hit, 1:2]
+    out[hit] = (1 - u - v) * vert_rgb[f[:, 0]] + u * vert_rgb[f[:, 1]] + v * vert_rgb[f[:, 2]]
+    return out
+
+
+def env_lookup(dirs, envmap, rotation_deg: float, intensity: float, mask=None, out=None,
+               use_native: bool = True) -> np.ndarray:
+    """Bilinear lookup of the (rotated, scaled) environment along world directions (P, 3)."""
+    if out is None:
+        out = np.zeros((len(dirs), 3), np.float32)
+    if use_native and native.available():
+        m = native.c(mask, np.uint8) if mask is not None else None
+        native.lib.glk_env_lookup(len(dirs), native.c(dirs, np.float32),
+                                  m.ctypes.data if m is not None else None,
+                                  native.c(envmap, np.float32), envmap.shape[0], envmap.shape[1],
+                                  float(np.radians(rotation_deg)), float(intensity), out)
+        return out
+    sel = np.ones(len(dirs), bool) if mask is None else mask.astype(bool)
+    d = dirs[sel].astype(np.float64)
+    hm, wm, _ = envmap.shape
+    u = np.mod(np.arctan2(d[:, 0], -d[:, 2]) / (2 * np.pi) + rotation_deg / 360.0, 1.0)
+    v = np.arccos(np.clip(d[:, 1], -1, 1)) / np.pi
+    fx, fy = u * wm - 0.5, v * hm - 0.5
+    x0, y0 = np.floor(fx).astype(np.int64), np.floor(fy).astype(np.int64)
+    ax, ay = (fx - x0)[:, None], (fy - y0)[:, None]
+    x1 = (x0 + 1) % wm; x0 = x0 % wm
+    y1 = np.clip(y0 + 1, 0, hm - 1); y0 = np.clip(y0, 0, hm - 1)
+    a = envmap[y0, x0] * (1 - ax) + envmap[y0, x1] * ax
+    b = envmap[y1, x0] * (1 - ax) + envmap[y1, x1] * ax
+    out[sel] = (intensity * (a * (1 - ay) + b * ay)).astype(np.float32)
+    return out

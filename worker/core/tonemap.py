@@ -1,0 +1,48 @@
+"""Tone mapping for display: exposure (stops), a named tone curve, then the sRGB transfer
+function, to 8-bit. Radiance stays linear float32 everywhere else (DESIGN.md §2).
+
+Curves: ``linear`` (clip at 1), ``aces`` (Narkowicz's fit of the ACES filmic curve),
+``neutral`` (identity up to 0.8, then a smooth shoulder to 1: keeps product colours and
+mid-tones exact while rolling off highlights). NumPy reference of glk_tonemap.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .. import native
+
+CURVES = {"linear": 0, "aces": 1, "neutral": 2}
+
+
+def apply_curve(x: np.ndarray, curve: str) -> np.ndarray:
+    x = np.maximum(x, 0.0)
+    if curve == "aces":
+        return np.clip((x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14), 0.0, 1.0)
+    if curve == "neutral":
+        k = 0.8
+        t = np.maximum(x - k, 0.0)
+        return np.where(x <= k, x, k + (1 - k) * t / (t + (1 - k)))
+    if curve == "linear":
+        return np.minimum(x, 1.0)
+    raise ValueError(f"unknown tone curve {curve!r}; choose one of {sorted(CURVES)}")
+
+
+def srgb_oetf(c: np.ndarray) -> np.ndarray:
+    return np.where(c <= 0.0031308, 12.92 * c, 1.055 * np.power(np.maximum(c, 0.0031308), 1 / 2.4) - 0.055)
+
+
+def tonemap_numpy(rgb: np.ndarray, exposure: float = 0.0, curve: str = "neutral") -> np.ndarray:
+    """(…, 3) float linear radiance -> (…, 3) uint8 sRGB."""
+    c = srgb_oetf(apply_curve(rgb.astype(np.float64) * 2.0 ** exposure, curve))
+    return np.clip(np.rint(c * 255.0), 0, 255).astype(np.uint8)
+
+
+def tonemap(rgb: np.ndarray, exposure: float = 0.0, curve: str = "neutral", use_native: bool = True) -> np.ndarray:
+    if curve not in CURVES:
+        raise ValueError(f"unknown tone curve {curve!r}; choose one of {sorted(CURVES)}")
+    if not (use_native and native.available()):
+        return tonemap_numpy(rgb, exposure, curve)
+    src = native.c(rgb, np.float32)
+    out = np.empty(src.shape, np.uint8)
+    native.lib.glk_tonemap(src.size // 3, src, float(exposure), CURVES[curve], out)
+    return out
