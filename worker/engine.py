@@ -15,7 +15,7 @@ import numpy as np
 from .core import cuts as cutmod
 from .core.brdf import pack
 from .core.directions import get_tree
-from .core.lighting import LeafLighting
+from .core.lighting import LeafLighting, node_lighting
 from .core.render import MaterialTable, camera_rays, env_lookup, interpolate, shade_points
 from .core.tonemap import tonemap
 from .precompute import DEFAULT_TAU, precompute_cuts
@@ -100,7 +100,8 @@ class Engine:
     def prefix(self, rotation_deg: float, intensity: float):
         key = (float(rotation_deg), float(intensity))
         if key != self._light_key:
-            self._prefix = self.lighting.prefix_sums(rotation_deg, intensity)
+            l, ld = self.lighting.leaf_radiance(rotation_deg, intensity)
+            self._prefix = node_lighting(l, ld, self.tree)
             self._light_key = key
         return self._prefix
 

@@ -6,7 +6,7 @@ from worker import native
 from worker.core import render as R
 from worker.core.brdf import pack
 from worker.core.directions import get_tree
-from worker.core.lighting import LeafLighting
+from worker.core.lighting import LeafLighting, node_lighting
 from worker.core.tonemap import tonemap, tonemap_numpy
 from worker.scene import GGX, SRBF, BlinnPhong, Curve, Lambert, Lobes
 
@@ -23,7 +23,7 @@ MATS = [Lambert(albedo=(0.7, 0.5, 0.3)), GGX(alpha=0.08, specular=(0.9, 0.8, 0.6
 def test_shade_points_agree(bunny, k):
     scene, cuts = bunny
     tree = get_tree()
-    pl, pd = LeafLighting(scene.envmap, tree).prefix_sums(33.0, 1.3)
+    pl, pd = node_lighting(*LeafLighting(scene.envmap, tree).leaf_radiance(33.0, 1.3), tree)
     rng = np.random.default_rng(k)
     vi = rng.choice(len(scene.mesh.vertices), 300, replace=False).astype(np.int32)
     n = scene.mesh.normals[vi]

@@ -134,6 +134,28 @@ class LeafLighting:
         return pl, pd
 
 
+def node_lighting(l: np.ndarray, ld: np.ndarray, tree: DirectionTree):
+    """Per tree node, once per light change: (node_l (2N-1, 3) float32 radiance×sr,
+    node_w (2N-1, 3) float32 unit light-weighted centroid directions).
+
+    l, ld : (N, 3) per-leaf radiance and luminance-weighted direction sums (leaf_radiance).
+    Levels are built bottom-up from pair sums (a node is the union of its two children).
+    The centroid falls back to the node's geometric direction when the node is dark or its
+    light is spread evenly around it (|Σ lum·ω| ≤ 1e-3 Σ lum). Shading then needs one lookup
+    per cluster instead of a normalisation per (point, cluster)."""
+    ls, ds = [l], [ld]
+    for _ in range(tree.height):
+        ls.append(ls[-1].reshape(-1, 2, 3).sum(axis=1))
+        ds.append(ds[-1].reshape(-1, 2, 3).sum(axis=1))
+    node_l = np.concatenate(ls)
+    d = np.concatenate(ds)
+    lum = np.abs(node_l @ LUMA)
+    dl = np.linalg.norm(d, axis=1)
+    use = (dl > 1e-3 * lum) & (dl > 1e-300)
+    node_w = np.where(use[:, None], d / np.where(use, dl, 1.0)[:, None], tree.node_dir)
+    return node_l.astype(np.float32), node_w.astype(np.float32)
+
+
 def uniform_prefix_sums(tree: DirectionTree, radiance=(1.0, 1.0, 1.0)):
     """Prefix sums for a constant environment (white furnace tests): every leaf gets
     radiance × 4π/N, its centroid the leaf direction."""

@@ -64,24 +64,25 @@ class MaterialTable:
         self.tables = np.concatenate(tabs).astype(np.float32) if tabs else np.zeros(1, np.float32)
 
 
-def shade_points_numpy(normals, wo, cut_of, mat_of, cuts: CutSet, pl, pd, tree: DirectionTree,
+def shade_points_numpy(normals, wo, cut_of, mat_of, cuts: CutSet, node_l, node_w, tree: DirectionTree,
                        mats: MaterialTable, chunk: int = 1024) -> np.ndarray:
     """NumPy reference of glk_shade_points.
 
     normals, wo : (P, 3) float32 unit vectors (shading normal, direction towards the viewer).
     cut_of : (P,) int32 cut (vertex) index per point, -1 for none. mat_of : (P,) int32.
-    pl, pd : (N+1, 3) float64 prefix sums of leaf radiance and light-weighted directions.
+    node_l, node_w : (2N-1, 3) float32 per-node radiance and light-weighted centroid direction
+        (lighting.node_lighting).
     Returns (P, 3) float32 outgoing radiance.
     """
     out = np.zeros((len(normals), 3), np.float64)
     for s in range(0, len(normals), chunk):
         e = min(s + chunk, len(normals))
         out[s:e] = _shade_chunk(normals[s:e].astype(np.float64), wo[s:e].astype(np.float64),
-                                cut_of[s:e], mat_of[s:e], cuts, pl, pd, tree, mats)
+                                cut_of[s:e], mat_of[s:e], cuts, node_l, node_w, tree, mats)
     return out.astype(np.float32)
 
 
-def _shade_chunk(n, wo, cut_of, mat_of, cuts, pl, pd, tree, mats):
+def _shade_chunk(n, wo, cut_of, mat_of, cuts, node_l, node_w, tree, mats):
     co = (n * wo).sum(1)
     live = np.nonzero((co > 0) & (cut_of >= 0))[0]
     out = np.zeros((len(n), 3))
@@ -119,16 +120,10 @@ def _shade_chunk(n, wo, cut_of, mat_of, cuts, pl, pd, tree, mats):
         q = np.concatenate([q[stay], q[k], q[k]])
         start = np.concatenate([start[stay], start[k], start[k] + half])
         h = np.concatenate([h[stay], h[k] - 1, h[k] - 1])
-    e = start + (np.int64(1) << h)
-    l = pl[e] - pl[start]
-    lum = l @ np.array([0.2126, 0.7152, 0.0722])
-    dark = (lum <= 0) & (l <= 0).all(1)
-    d = pd[e] - pd[start]
-    dl = np.linalg.norm(d, axis=1)
     idx = tree.level_offset[h] + (start >> h)
-    nd = tree.node_dir[idx].astype(np.float64)
-    use_c = (dl > 1e-3 * np.abs(lum)) & (dl > 1e-300)
-    wi = np.where(use_c[:, None], d / np.where(dl > 0, dl, 1.0)[:, None], nd)
+    l = node_l[idx].astype(np.float64)
+    dark = (l <= 0).all(1)
+    wi = node_w[idx].astype(np.float64)
     npt = n[pt]
     ci = (wi * npt).sum(1)
     low = ci < 1e-3
@@ -148,18 +143,18 @@ def _shade_chunk(n, wo, cut_of, mat_of, cuts, pl, pd, tree, mats):
     return out
 
 
-def shade_points(normals, wo, cut_of, mat_of, cuts: CutSet, pl, pd, tree: DirectionTree,
+def shade_points(normals, wo, cut_of, mat_of, cuts: CutSet, node_l, node_w, tree: DirectionTree,
                  mats: MaterialTable, use_native: bool = True) -> np.ndarray:
     """(P, 3) float32 radiance at points; the C kernel when built (see shade_points_numpy)."""
     if not (use_native and native.available()):
-        return shade_points_numpy(normals, wo, cut_of, mat_of, cuts, pl, pd, tree, mats)
+        return shade_points_numpy(normals, wo, cut_of, mat_of, cuts, node_l, node_w, tree, mats)
     c = native.c
     p = len(normals)
     out = np.empty((p, 3), np.float32)
     native.lib.glk_shade_points(
         p, c(normals, np.float32), c(wo, np.float32), c(cut_of, np.int32), c(mat_of, np.int32),
         c(cuts.offsets, np.int64), c(cuts.heights, np.uint8), c(cuts.quant, np.uint8),
-        c(pl, np.float64), c(pd, np.float64), tree.node_dir, tree.node_radius,
+        c(node_l, np.float32), c(node_w, np.float32), tree.node_dir, tree.node_radius,
         c(tree.level_offset, np.int64), tree.height, mats.kind, mats.params, mats.lobe,
         mats.tables, mats.table_off, out)
     return out

@@ -128,7 +128,7 @@ static inline double table_lookup(const float *tab, int ch, v3 hl) {
 
 /* wi, wo, n, t, b world-space unit vectors; writes f (1/sr) to out[3]. */
 static inline void brdf_eval(int kind, const float *p, const float *tab, v3 wi, v3 wo, v3 n,
-                             v3 t, v3 bt, double *out) {
+                             v3 t, v3 bt, double gpo, double *out) {
     double ci = dot(wi, n), co = dot(wo, n);
     out[0] = out[1] = out[2] = 0.0;
     if (ci <= 0 || co <= 0) return;
@@ -137,12 +137,15 @@ static inline void brdf_eval(int kind, const float *p, const float *tab, v3 wi, 
     v3 h = nrm(add(wi, wo));
     double chh = dot(h, n), cd = dot(wi, h);
     if (kind == K_GGX) {
-        double a = p[6], a2 = a * a;
-        double c2 = chh > 0 ? chh * chh : 0;
-        double den = c2 * (a2 - 1.0) + 1.0;
-        double D = chh > 0 ? a2 / (PI * den * den) : 0.0;
-        double G = ggx_G1(ci, cd, a) * ggx_G1(co, dot(wo, h), a);
-        double s = D * G / (4.0 * ci * co);
+        /* D(h)·G1(ωi)·[G1(ωo)/(4 cosθo)] / cosθi; the bracket is per point (gpo) */
+        float a = p[6], a2 = a * a;
+        float c = (float)chh, c2 = c > 0 ? c * c : 0.0f;
+        float den = c2 * (a2 - 1.0f) + 1.0f;
+        float D = c > 0 ? a2 / ((float)PI * den * den) : 0.0f;
+        float fci = (float)ci, ci2 = fci * fci;
+        float t2 = (1.0f - ci2) / ci2;
+        float g1i = (cd > 0) ? 2.0f / (1.0f + sqrtf(1.0f + a2 * (t2 > 0 ? t2 : 0))) : 0.0f;
+        double s = (double)(D * g1i / fci) * gpo;
         out[0] += s * p[3]; out[1] += s * p[4]; out[2] += s * p[5];
     } else if (kind == K_BLINN) {
         double e = p[6];
@@ -180,9 +183,8 @@ static inline void onb(v3 n, v3 *t, v3 *b) {
 /* ---------------------------------------------------------------------------------------
  * Shading at points (cyber-worlds eq. 3, inverse-brdf-modeling eq. 22):
  *   B = Σ_k l_k v_k f_r(ω_k, ω_o)
- * over point p's cut (cut index cut_of[p]), where l_k comes from prefix sums PL and ω_k is the
- * light-weighted centroid of the node (prefix sums PD), falling back to the node's geometric
- * direction when the node is dark or its light is spread evenly around it.
+ * over point p's cut (cut index cut_of[p]). node_l / node_w hold, per tree node and per light
+ * change, the radiance l_k and the light-weighted centroid direction ω_k (lighting.node_lighting).
  * Nodes wider than half the BRDF lobe width that lie near the mirror direction are refined:
  * their children inherit the parent's visibility but have their own light and direction,
  * so glossy highlights stay sharp (DESIGN.md §4).
@@ -190,7 +192,7 @@ static inline void onb(v3 n, v3 *t, v3 *b) {
 void glk_shade_points(
     int64_t P, const float *normals, const float *wo_dirs, const int32_t *cut_of,
     const int32_t *mat_of, const int64_t *cut_off, const uint8_t *cut_h, const uint8_t *cut_q,
-    const double *PL, const double *PD, const float *node_dir, const float *node_radius,
+    const float *node_l, const float *node_w, const float *node_dir, const float *node_radius,
     const int64_t *level_off, int H, const int32_t *mat_kind, const float *mat_params,
     const float *mat_lobe, const float *tables, const int64_t *table_off, float *out) {
 #pragma omp parallel
@@ -211,6 +213,9 @@ void glk_shade_points(
                 double refine_r = 0.5 * lobe;
                 v3 r = add(scl(n, 2.0 * co), scl(wo, -1.0));
                 v3 t, bt; onb(n, &t, &bt);
+                /* GGX's per-point factor G1(ωo)/(4 cosθo): h·ωo > 0 always holds for h of ωi, ωo
+                 * in the upper hemisphere, so G1(ωo) does not depend on the cluster */
+                double gpo = kind == K_GGX ? ggx_G1(co, 1.0, prm[6]) / (4.0 * co) : 0.0;
                 int64_t c0 = cut_off[cut_of[p]], c1 = cut_off[cut_of[p] + 1];
                 int64_t start = 0;
                 for (int64_t m = c0; m < c1; m++) {
@@ -225,9 +230,9 @@ void glk_shade_points(
                         int64_t s = stack[--sp];
                         int h = (int)stack[--sp];
                         int64_t idx = level_off[h] + (s >> h);
-                        v3 nd = mk(node_dir[3 * idx], node_dir[3 * idx + 1], node_dir[3 * idx + 2]);
-                        double R = node_radius[idx];
-                        if (h > 0 && R > refine_r) {
+                        if (h > 0 && node_radius[idx] > refine_r) {
+                            double R = node_radius[idx];
+                            v3 nd = mk(node_dir[3 * idx], node_dir[3 * idx + 1], node_dir[3 * idx + 2]);
                             double ang = acos(fmax(-1.0, fmin(1.0, dot(nd, r))));
                             if (ang < R + 2.0 * lobe) {
                                 int64_t half = (int64_t)1 << (h - 1);
@@ -236,22 +241,16 @@ void glk_shade_points(
                                 continue;
                             }
                         }
-                        int64_t e = s + ((int64_t)1 << h);
-                        double l0 = PL[3 * e] - PL[3 * s], l1 = PL[3 * e + 1] - PL[3 * s + 1],
-                               l2 = PL[3 * e + 2] - PL[3 * s + 2];
-                        double lum = 0.2126 * l0 + 0.7152 * l1 + 0.0722 * l2;
-                        if (lum <= 0 && l0 <= 0 && l1 <= 0 && l2 <= 0) continue;
-                        v3 d = mk(PD[3 * e] - PD[3 * s], PD[3 * e + 1] - PD[3 * s + 1],
-                                  PD[3 * e + 2] - PD[3 * s + 2]);
-                        double dl = sqrt(dot(d, d));
-                        v3 wi = (dl > 1e-3 * fabs(lum) && dl > 1e-300) ? scl(d, 1.0 / dl) : nd;
+                        const float *L = node_l + 3 * idx;
+                        if (L[0] <= 0 && L[1] <= 0 && L[2] <= 0) continue;
+                        v3 wi = mk(node_w[3 * idx], node_w[3 * idx + 1], node_w[3 * idx + 2]);
                         double f[3];
                         /* a cluster straddling the horizon may have its centroid below it: its
                          * visibility already carries the cosine, so evaluate f just above */
                         double ci = dot(wi, n);
                         if (ci < 1e-3) wi = nrm(add(wi, scl(n, 1e-3 - ci)));
-                        brdf_eval(kind, prm, tab, wi, wo, n, t, bt, f);
-                        acc[0] += l0 * q * f[0]; acc[1] += l1 * q * f[1]; acc[2] += l2 * q * f[2];
+                        brdf_eval(kind, prm, tab, wi, wo, n, t, bt, gpo, f);
+                        acc[0] += L[0] * q * f[0]; acc[1] += L[1] * q * f[1]; acc[2] += L[2] * q * f[2];
                     }
                 }
             }
@@ -320,12 +319,24 @@ static inline double srgb_oetf(double c) {
     return c <= 0.0031308 ? 12.92 * c : 1.055 * pow(c, 1.0 / 2.4) - 0.055;
 }
 
+/* The sRGB OETF (a pow per channel) is read from a 16384-entry table over the curve's [0, 1]
+ * output, filled at first use: within 0.2 of an 8-bit level of the exact value. */
+#define OETF_N 16384
+static uint8_t oetf_lut[OETF_N + 1];
+static int oetf_ready = 0;
+
 void glk_tonemap(int64_t P, const float *rgb, double exposure, int curve, uint8_t *out) {
+    if (!oetf_ready) {
+        for (int i = 0; i <= OETF_N; i++) {
+            int v = (int)lrint(srgb_oetf((double)i / OETF_N) * 255.0);
+            oetf_lut[i] = (uint8_t)(v < 0 ? 0 : (v > 255 ? 255 : v));
+        }
+        oetf_ready = 1;
+    }
     double scale = pow(2.0, exposure);
 #pragma omp parallel for schedule(static)
     for (int64_t i = 0; i < 3 * P; i++) {
-        double c = srgb_oetf(tm_curve(curve, rgb[i] * scale));
-        int v = (int)lrint(c * 255.0);
-        out[i] = (uint8_t)(v < 0 ? 0 : (v > 255 ? 255 : v));
+        double y = tm_curve(curve, rgb[i] * scale);
+        out[i] = oetf_lut[(int)(y * OETF_N + 0.5)];
     }
 }
