@@ -79,7 +79,7 @@ class Engine:
         self.lighting = LeafLighting(scene.envmap, self.tree)
         self._view: View | None = None
         self._light_key = None
-        self._prefix = None
+        self._node_light = None
         self.set_materials(scene.materials)
 
     # -- state ------------------------------------------------------------------------------
@@ -97,13 +97,13 @@ class Engine:
         self._view = View(camera, tri, uv, d, visible)
         return self._view
 
-    def prefix(self, rotation_deg: float, intensity: float):
+    def node_light(self, rotation_deg: float, intensity: float):
         key = (float(rotation_deg), float(intensity))
         if key != self._light_key:
             l, ld = self.lighting.leaf_radiance(rotation_deg, intensity)
-            self._prefix = node_lighting(l, ld, self.tree)
+            self._node_light = node_lighting(l, ld, self.tree)
             self._light_key = key
-        return self._prefix
+        return self._node_light
 
     # -- rendering --------------------------------------------------------------------------
     def render(self, camera: Camera | None = None, rotation_deg: float | None = None,
@@ -114,7 +114,7 @@ class Engine:
         rot = env.rotation_deg if rotation_deg is None else rotation_deg
         inten = env.intensity if intensity is None else intensity
         v = self.view(camera)
-        pl, pd = self.prefix(rot, inten)
+        node_l, node_w = self.node_light(rot, inten)
         mesh = self.scene.mesh
         img = np.zeros((len(v.tri), 3), np.float32)
         bg = v.tri < 0
@@ -125,7 +125,7 @@ class Engine:
             wo = eye - mesh.vertices[vi]
             wo /= np.linalg.norm(wo, axis=1, keepdims=True)
             rad = shade_points(mesh.normals[vi], wo, vi, self.scene.object_of_vertex[vi], self.cuts,
-                               pl, pd, self.tree, self.mats, self.use_native)
+                               node_l, node_w, self.tree, self.mats, self.use_native)
             vert = np.zeros((len(mesh.vertices), 3), np.float32)
             vert[vi] = rad
             interpolate(v.tri, v.uv, mesh.faces, vert, img, self.use_native)
@@ -141,7 +141,7 @@ class Engine:
             wo /= np.linalg.norm(wo, axis=1, keepdims=True)
             k = len(hit)
             rad = shade_points(np.repeat(nrm, 3, 0), np.repeat(wo, 3, 0), f.reshape(-1).astype(np.int32),
-                               self.scene.object_of_vertex[f.reshape(-1)], self.cuts, pl, pd, self.tree,
+                               self.scene.object_of_vertex[f.reshape(-1)], self.cuts, node_l, node_w, self.tree,
                                self.mats, self.use_native).reshape(k, 3, 3)
             img[hit] = (bary[:, :, None] * rad).sum(1)
         else:

@@ -1,7 +1,7 @@
 import numpy as np
 
 from worker.core.directions import get_tree
-from worker.core.lighting import LeafLighting, pixel_directions, uniform_prefix_sums
+from worker.core.lighting import LeafLighting, node_lighting, pixel_directions
 
 
 def _map_integral(m):
@@ -28,12 +28,13 @@ def test_leaf_integrals_conserve_energy_real_map(shared_assets):
 def test_uniform_map_gives_equal_leaves():
     m = np.ones((128, 256, 3), np.float32)
     t = get_tree()
-    l, _ = LeafLighting(m, t).leaf_radiance()
+    l, ld = LeafLighting(m, t).leaf_radiance()
     # Voronoi cells of a near-uniform set: each leaf within 15% of 4π/N, total exact
     assert np.allclose(l.sum(0), 4 * np.pi)
     assert np.abs(l[:, 0] / t.leaf_solid_angle - 1).max() < 0.15
-    pl, _ = uniform_prefix_sums(t, (1, 1, 1))
-    assert np.isclose(pl[-1, 0], 4 * np.pi)
+    node_l, node_w = node_lighting(l, ld, t)
+    assert np.isclose(node_l[-1, 0], 4 * np.pi, rtol=1e-6)           # the root holds everything
+    np.testing.assert_allclose(np.linalg.norm(node_w, axis=1), 1, atol=1e-5)
 
 
 def test_rotation_moves_a_small_source_to_the_expected_direction():

@@ -23,7 +23,7 @@ MATS = [Lambert(albedo=(0.7, 0.5, 0.3)), GGX(alpha=0.08, specular=(0.9, 0.8, 0.6
 def test_shade_points_agree(bunny, k):
     scene, cuts = bunny
     tree = get_tree()
-    pl, pd = node_lighting(*LeafLighting(scene.envmap, tree).leaf_radiance(33.0, 1.3), tree)
+    nl, nw = node_lighting(*LeafLighting(scene.envmap, tree).leaf_radiance(33.0, 1.3), tree)
     rng = np.random.default_rng(k)
     vi = rng.choice(len(scene.mesh.vertices), 300, replace=False).astype(np.int32)
     n = scene.mesh.normals[vi]
@@ -31,8 +31,8 @@ def test_shade_points_agree(bunny, k):
     wo = eye - scene.mesh.vertices[vi]; wo /= np.linalg.norm(wo, axis=1, keepdims=True)
     mats = R.MaterialTable([pack(MATS[k])])
     mat_of = np.zeros(len(vi), np.int32)
-    a = R.shade_points(n, wo, vi, mat_of, cuts, pl, pd, tree, mats, use_native=True)
-    b = R.shade_points_numpy(n, wo, vi, mat_of, cuts, pl, pd, tree, mats)
+    a = R.shade_points(n, wo, vi, mat_of, cuts, nl, nw, tree, mats, use_native=True)
+    b = R.shade_points_numpy(n, wo, vi, mat_of, cuts, nl, nw, tree, mats)
     assert a.max() > 0
     np.testing.assert_allclose(a, b, rtol=2e-4, atol=1e-6 * b.max())
 

@@ -59,14 +59,14 @@ def test_only_what_changed_is_recomputed(bunny):
     scene, cuts = bunny
     eng = Engine(scene, cuts)
     eng.render()
-    view, prefix = eng._view, eng._prefix
+    view, prefix = eng._view, eng._node_light
     eng.render(rotation_deg=45.0)                 # light change: same hit buffer
-    assert eng._view is view and eng._prefix is not prefix
+    assert eng._view is view and eng._node_light is not prefix
     from worker.scene import GGX
     eng.set_materials([GGX()])
-    p2 = eng._prefix
+    p2 = eng._node_light
     eng.render(rotation_deg=45.0)                 # BRDF change: same hit buffer and lighting
-    assert eng._view is view and eng._prefix is p2
+    assert eng._view is view and eng._node_light is p2
     cam = scene.spec.camera.model_copy(update={"eye": (0.5, 0.6, 3.0)})
     eng.render(camera=cam, rotation_deg=45.0)     # view change: same lighting and cuts
-    assert eng._view is not view and eng._prefix is p2
+    assert eng._view is not view and eng._node_light is p2

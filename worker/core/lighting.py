@@ -10,10 +10,10 @@ matrix, built once per map size. Rotation about +Y by α is a column shift of th
 map by α·W/2π (fractional shifts interpolate linearly, as Mitsuba's bilinear lookup does), so a
 light change costs one roll and a sparse mat-vec, not a rebuild.
 
-Besides l_k, each leaf stores the luminance-weighted sum of its sub-pixel directions, and both
-go into prefix sums over the tree order: any node's radiance and its light-weighted centroid
-direction are O(1). Rendering evaluates the BRDF at that centroid, so a sun inside a wide cluster
-is seen at the sun's direction, not at the cluster's centre.
+Besides l_k, each leaf stores the luminance-weighted sum of its sub-pixel directions. Once per
+light change both are summed up the tree (node_lighting), so any cluster's radiance and its
+light-weighted centroid direction are one lookup. Rendering evaluates the BRDF at that centroid,
+so a sun inside a wide cluster is seen at the sun's direction, not at the cluster's centre.
 """
 from __future__ import annotations
 
@@ -122,17 +122,6 @@ class LeafLighting:
         ld = np.stack([wx @ lum, wy @ lum, wz @ lum], axis=1)
         return l, ld
 
-    def prefix_sums(self, rotation_deg: float = 0.0, intensity: float = 1.0):
-        """Prefix sums over tree order: (PL (N+1, 3), PD (N+1, 3)) float64, row 0 zero.
-        Node [a, b) radiance = PL[b] - PL[a]; its light-weighted centroid ∝ PD[b] - PD[a]."""
-        l, ld = self.leaf_radiance(rotation_deg, intensity)
-        n = len(l)
-        pl = np.zeros((n + 1, 3))
-        pd = np.zeros((n + 1, 3))
-        np.cumsum(l, axis=0, out=pl[1:])
-        np.cumsum(ld, axis=0, out=pd[1:])
-        return pl, pd
-
 
 def node_lighting(l: np.ndarray, ld: np.ndarray, tree: DirectionTree):
     """Per tree node, once per light change: (node_l (2N-1, 3) float32 radiance×sr,
@@ -154,14 +143,3 @@ def node_lighting(l: np.ndarray, ld: np.ndarray, tree: DirectionTree):
     use = (dl > 1e-3 * lum) & (dl > 1e-300)
     node_w = np.where(use[:, None], d / np.where(use, dl, 1.0)[:, None], tree.node_dir)
     return node_l.astype(np.float32), node_w.astype(np.float32)
-
-
-def uniform_prefix_sums(tree: DirectionTree, radiance=(1.0, 1.0, 1.0)):
-    """Prefix sums for a constant environment (white furnace tests): every leaf gets
-    radiance × 4π/N, its centroid the leaf direction."""
-    n = tree.n_leaves
-    l = np.tile(np.asarray(radiance, dtype=np.float64) * tree.leaf_solid_angle, (n, 1))
-    ld = tree.leaves.astype(np.float64) * (l @ LUMA)[:, None]
-    pl = np.zeros((n + 1, 3)); pd = np.zeros((n + 1, 3))
-    np.cumsum(l, axis=0, out=pl[1:]); np.cumsum(ld, axis=0, out=pd[1:])
-    return pl, pd
