@@ -40,18 +40,14 @@ def _cuts(scene, out_dir, quiet: bool, tau: float):
 
 
 def cmd_precompute(a) -> int:
-    from .core import cuts as cutmod
+    from .engine import storage_stats
 
     t0 = time.perf_counter()
     scene = _load(a.scene)
     out = Path(a.out) if a.out else None
     cs, stats, path = _cuts(scene, out, a.json, a.tau)
     if stats is None:  # cached: report what is stored
-        blob = path.read_bytes()
-        stats = {"seconds": 0.0, "cached": True, "vertices": cs.n_vertices, "directions": 1 << cs.height,
-                 "mean_cut_size": float(cs.sizes().mean()), "bytes_height_encoded": len(blob),
-                 "bytes_index_encoded": cutmod.index_encoded_bytes(cs), "path": str(path)}
-        stats["height_vs_index_saving"] = 1 - stats["bytes_height_encoded"] / stats["bytes_index_encoded"]
+        stats = {"seconds": 0.0, "cached": True, **storage_stats(cs, path.stat().st_size, path)}
     stats["seconds_total"] = time.perf_counter() - t0
     if a.json:
         print(json.dumps(stats))
@@ -74,7 +70,7 @@ def cmd_render(a) -> int:
     import numpy as np
     from PIL import Image
 
-    from .engine import to_srgb8
+    from .core.tonemap import tonemap
 
     eng = _engine(a)
     t0 = time.perf_counter()
@@ -82,7 +78,7 @@ def cmd_render(a) -> int:
     dt = time.perf_counter() - t0
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(to_srgb8(img, a.exposure, a.tone)).save(out)
+    Image.fromarray(tonemap(img, a.exposure, a.tone)).save(out)
     if a.raw:
         np.save(a.raw, img.astype(np.float32))
     print(f"wrote {out} ({img.shape[1]}×{img.shape[0]}, {dt * 1000:.0f} ms)" + (f" and {a.raw}" if a.raw else ""), file=sys.stderr)
@@ -133,7 +129,8 @@ def cmd_demo(a) -> int:
     from PIL import Image
 
     from .assets import demo_scene
-    from .engine import Engine, to_srgb8
+    from .core.tonemap import tonemap
+    from .engine import Engine
 
     path = demo_scene(Path(a.dir) if a.dir else None)
     print(f"demo scene: {path}", file=sys.stderr)
@@ -142,7 +139,7 @@ def cmd_demo(a) -> int:
     img = Engine(scene, cs).render()
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(to_srgb8(img)).save(out)
+    Image.fromarray(tonemap(img)).save(out)
     print(f"rendered the demo scene to {out.resolve()}")
     return 0
 

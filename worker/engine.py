@@ -17,7 +17,6 @@ from .core.brdf import pack
 from .core.directions import get_tree
 from .core.lighting import LeafLighting, node_lighting
 from .core.render import MaterialTable, camera_rays, env_lookup, interpolate, shade_points
-from .core.tonemap import tonemap
 from .precompute import DEFAULT_TAU, precompute_cuts
 from .scene import Camera, LoadedScene
 from .trace.embree import Tracer
@@ -174,16 +173,17 @@ def load_or_precompute(scene: LoadedScene, cache_dir: Path | None = None, tau: f
     blob = cutmod.encode(cs)
     atomic_write(path, blob)
     stats = {
-        "seconds": st.seconds, "vertices": st.vertices, "directions": st.directions,
-        "rays_traced": st.rays, "samples_per_second": st.vertices * st.directions / max(st.seconds, 1e-9),
-        "mean_cut_size": st.mean_cut_size, "tau": tau,
-        "bytes_height_encoded": len(blob), "bytes_index_encoded": cutmod.index_encoded_bytes(cs),
-        "bytes_index_encoded_deflated": cutmod.index_encoded_bytes(cs, deflate=True),
-        "path": str(path),
+        "seconds": st.seconds, "rays_traced": st.rays,
+        "samples_per_second": st.vertices * st.directions / max(st.seconds, 1e-9), "tau": tau,
+        **storage_stats(cs, len(blob), path),
     }
-    stats["height_vs_index_saving"] = 1.0 - stats["bytes_height_encoded"] / stats["bytes_index_encoded"]
     return cs, stats, path
 
 
-def to_srgb8(img: np.ndarray, exposure: float = 0.0, curve: str = "neutral", use_native: bool = True) -> np.ndarray:
-    return tonemap(img, exposure, curve, use_native)
+def storage_stats(cs: cutmod.CutSet, blob_bytes: int, path: Path) -> dict:
+    """Sizes of stored cuts: height-encoded (as stored) against index-encoded."""
+    idx = cutmod.index_encoded_bytes(cs)
+    return {"vertices": cs.n_vertices, "directions": 1 << cs.height, "mean_cut_size": float(cs.sizes().mean()),
+            "bytes_height_encoded": blob_bytes, "bytes_index_encoded": idx,
+            "bytes_index_encoded_deflated": cutmod.index_encoded_bytes(cs, deflate=True),
+            "height_vs_index_saving": 1.0 - blob_bytes / idx, "path": str(path)}

@@ -31,8 +31,9 @@ class PrecomputeStats:
 
 
 def vertex_visibility(tracer: Tracer, tree: DirectionTree, points: np.ndarray, normals: np.ndarray,
-                      eps: float) -> np.ndarray:
-    """(B, N) float32 cosine-weighted visibility at B points with unit normals (B, 3).
+                      eps: float) -> tuple[np.ndarray, int]:
+    """(B, N) float32 cosine-weighted visibility at B points with unit normals (B, 3), and the
+    number of rays traced (directions above each point's horizon).
 
     Origins are pushed eps along the normal and along the ray (Embree's tnear is 0)."""
     dirs = tree.leaves
@@ -40,12 +41,12 @@ def vertex_visibility(tracer: Tracer, tree: DirectionTree, points: np.ndarray, n
     out = np.zeros_like(cos)
     bi, li = np.nonzero(cos > 0)
     if len(bi) == 0:
-        return out
+        return out, 0
     d = dirs[li]
     o = points[bi] + eps * normals[bi] + eps * d
     vis = ~tracer.occluded(o, d)
     out[bi[vis], li[vis]] = cos[bi[vis], li[vis]]
-    return out
+    return out, len(bi)
 
 
 def precompute_cuts(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray,
@@ -70,10 +71,10 @@ def precompute_cuts(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray
     def work(k: int):
         s = starts[k]
         e = min(s + batch, nv)
-        vis = vertex_visibility(tracer, tree, vertices[s:e], normals[s:e], eps)
+        vis, n_rays = vertex_visibility(tracer, tree, vertices[s:e], normals[s:e], eps)
         results[k] = build_cuts(vis, tau)
         with lock:
-            rays[0] += int((normals[s:e] @ tree.leaves.T > 0).sum())
+            rays[0] += n_rays
             if progress:
                 progress(e - s)
 
