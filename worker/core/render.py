@@ -47,13 +47,15 @@ def camera_rays(eye, target, up, fov_y_deg: float, width: int, height: int):
 
 class MaterialTable:
     """Packed materials in the kernel's arrays: kind (M,) int32, params (M, 72) float32,
-    lobe (M,) float32 radians, tables (concatenated float32), table_off (M,) int64 (-1: none)."""
+    refine, extent (M,) float32 radians (PackedBRDF), tables (concatenated float32),
+    table_off (M,) int64 (-1: none)."""
 
     def __init__(self, packed: list[PackedBRDF]):
         self.packed = packed
         self.kind = np.array([p.kind for p in packed], np.int32)
         self.params = np.stack([p.params for p in packed]).astype(np.float32)
-        self.lobe = np.array([min(p.lobe_width, 1e9) for p in packed], np.float32)
+        self.refine = np.array([min(p.refine_radius, 1e9) for p in packed], np.float32)
+        self.extent = np.array([min(p.extent, 1e9) for p in packed], np.float32)
         offs, tabs, pos = [], [], 0
         for p in packed:
             if p.table is None:
@@ -82,17 +84,19 @@ def shade_points_numpy(normals, wo, cut_of, mat_of, cuts: CutSet, node_l, node_w
     return out.astype(np.float32)
 
 
-def _shade_chunk(n, wo, cut_of, mat_of, cuts, node_l, node_w, tree, mats):
-    co = (n * wo).sum(1)
-    live = np.nonzero((co > 0) & (cut_of >= 0))[0]
-    out = np.zeros((len(n), 3))
-    if len(live) == 0:
-        return out
-    a = cuts.offsets[cut_of[live]]
-    b = cuts.offsets[cut_of[live] + 1]
+def expand_cut_entries(cut_of, cuts: CutSet, tree: DirectionTree, mirror, refine, extent):
+    """The cluster list each point shades: its cut's nodes with non-zero visibility, refined
+    where the BRDF needs it (children inherit the parent's visibility).
+
+    cut_of : (P,) cut index per point (≥ 0). mirror : (P, 3) float64 mirror directions.
+    refine, extent : (P,) float64 radians (PackedBRDF.refine_radius / extent).
+    Returns (pt, idx, q): (M,) point index, flat tree-node index and visibility in [0, 1].
+    """
+    a = cuts.offsets[cut_of]
+    b = cuts.offsets[cut_of + 1]
     cnt = (b - a).astype(np.int64)
-    pt = np.repeat(live, cnt)
-    node = np.concatenate([np.arange(x, y) for x, y in zip(a, b)])
+    pt = np.repeat(np.arange(len(cut_of)), cnt)
+    node = np.concatenate([np.arange(x, y) for x, y in zip(a, b)]) if len(a) else np.zeros(0, np.int64)
     h = cuts.heights[node].astype(np.int64)
     w = np.int64(1) << h
     # start leaf of each node: running sum within each point's cut
@@ -102,17 +106,14 @@ def _shade_chunk(n, wo, cut_of, mat_of, cuts, node_l, node_w, tree, mats):
     q = cuts.quant[node].astype(np.float64) / 255.0
     keep = q > 0
     pt, h, start, q = pt[keep], h[keep], start[keep], q[keep]
-    r = 2.0 * co[:, None] * n - wo                                   # mirror directions
-    lobe = mats.lobe[mat_of].astype(np.float64)
     while True:
         idx = tree.level_offset[h] + (start >> h)
         R = tree.node_radius[idx].astype(np.float64)
         nd = tree.node_dir[idx].astype(np.float64)
-        lp = lobe[pt]
-        ang = np.arccos(np.clip((nd * r[pt]).sum(1), -1.0, 1.0))
-        ref = (h > 0) & (R > 0.5 * lp) & (ang < R + 2.0 * lp)
+        ang = np.arccos(np.clip((nd * mirror[pt]).sum(1), -1.0, 1.0))
+        ref = (h > 0) & (R > refine[pt]) & (ang < R + extent[pt])
         if not ref.any():
-            break
+            return pt, idx, q
         k = np.nonzero(ref)[0]
         half = np.int64(1) << (h[k] - 1)
         stay = ~ref
@@ -120,23 +121,43 @@ def _shade_chunk(n, wo, cut_of, mat_of, cuts, node_l, node_w, tree, mats):
         q = np.concatenate([q[stay], q[k], q[k]])
         start = np.concatenate([start[stay], start[k], start[k] + half])
         h = np.concatenate([h[stay], h[k] - 1, h[k] - 1])
-    idx = tree.level_offset[h] + (start >> h)
+
+
+def cluster_directions(node_w, idx, n):
+    """Representative incident directions (M, 3) of clusters idx for points with normals n
+    (M, 3): the light-weighted centroid, nudged just above the horizon when a cluster straddling
+    it has its centroid below (its visibility already carries the cosine)."""
+    wi = node_w[idx].astype(np.float64)
+    ci = (wi * n).sum(1)
+    low = ci < 1e-3
+    wi[low] += n[low] * (1e-3 - ci[low])[:, None]
+    wi[low] /= np.linalg.norm(wi[low], axis=1, keepdims=True)
+    return wi
+
+
+def _shade_chunk(n, wo, cut_of, mat_of, cuts, node_l, node_w, tree, mats):
+    co = (n * wo).sum(1)
+    live = np.nonzero((co > 0) & (cut_of >= 0))[0]
+    out = np.zeros((len(n), 3))
+    if len(live) == 0:
+        return out
+    r = 2.0 * co[live, None] * n[live] - wo[live]                      # mirror directions
+    m = mat_of[live]
+    p, idx, q = expand_cut_entries(cut_of[live], cuts, tree, r, mats.refine[m].astype(np.float64),
+                                   mats.extent[m].astype(np.float64))
+    pt = live[p]
     l = node_l[idx].astype(np.float64)
     dark = (l <= 0).all(1)
-    wi = node_w[idx].astype(np.float64)
     npt = n[pt]
-    ci = (wi * npt).sum(1)
-    low = ci < 1e-3
-    wi[low] += npt[low] * (1e-3 - ci[low])[:, None]
-    wi[low] /= np.linalg.norm(wi[low], axis=1, keepdims=True)
+    wi = cluster_directions(node_w, idx, npt)
     t, bt = onb(npt)
     wi_l = np.stack([(wi * t).sum(1), (wi * bt).sum(1), (wi * npt).sum(1)], 1)
     wop = wo[pt]
     wo_l = np.stack([(wop * t).sum(1), (wop * bt).sum(1), (wop * npt).sum(1)], 1)
     f = np.zeros((len(pt), 3))
-    for m in np.unique(mat_of[live]):
-        sel = mat_of[pt] == m
-        f[sel] = eval_packed(mats.packed[m], wi_l[sel], wo_l[sel])
+    for mi in np.unique(mat_of[live]):
+        sel = mat_of[pt] == mi
+        f[sel] = eval_packed(mats.packed[mi], wi_l[sel], wo_l[sel])
     contrib = np.where(dark[:, None], 0.0, l * q[:, None] * f)
     for c in range(3):
         out[:, c] = np.bincount(pt, weights=contrib[:, c], minlength=len(n))
@@ -155,7 +176,7 @@ def shade_points(normals, wo, cut_of, mat_of, cuts: CutSet, node_l, node_w, tree
         p, c(normals, np.float32), c(wo, np.float32), c(cut_of, np.int32), c(mat_of, np.int32),
         c(cuts.offsets, np.int64), c(cuts.heights, np.uint8), c(cuts.quant, np.uint8),
         c(node_l, np.float32), c(node_w, np.float32), tree.node_dir, tree.node_radius,
-        c(tree.level_offset, np.int64), tree.height, mats.kind, mats.params, mats.lobe,
+        c(tree.level_offset, np.int64), tree.height, mats.kind, mats.params, mats.refine, mats.extent,
         mats.tables, mats.table_off, out)
     return out
 

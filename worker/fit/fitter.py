@@ -1,0 +1,312 @@
+"""Paint-to-BRDF for one object of a scene: saved views, strokes, fits (inverse-brdf-modeling §3-4).
+
+A ``Fitter`` holds, per saved view, the object's pixels at a reduced fit resolution (default a
+quarter of the view: 160×120 for 640×480), their transfer matrix for the SRBF basis under the
+view's lighting, and the base rendering B' those pixels show with the material the design started
+from. The fit target is a pure function of (bases, stroke history): undo and redo re-fit
+exactly, and a session can be rebuilt from its stored strokes.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from ..core.render import camera_rays, shade_points
+from ..engine import Engine
+from ..scene import SRBF, Camera, Lobes, Material
+from .basis import DEFAULT_NL, SRBFBasis, default_basis
+from .brush import Stroke, StrokeHistory, apply_stroke, stroke_weights
+from .solve import FitRows, SolveResult, gram, solve
+from .transfer import transfer
+
+DEFAULT_UNPAINTED_WEIGHT = 1.0
+
+
+def albedo_of(material) -> tuple[float, float, float]:
+    """The diffuse albedo ρ_d of any scene material (lobes: its diffuse weight)."""
+    return tuple(material.diffuse if isinstance(material, Lobes) else material.albedo)
+
+
+class FitError(ValueError):
+    """A fit request that cannot be served (no object pixels, unknown view, bad target)."""
+
+
+@dataclass
+class FitView:
+    """One saved view of the edited object at fit resolution.
+
+    camera : the view camera (full resolution, as the designer sees it).
+    size : (w, h) fit resolution. pix : (N,) flat fit-pixel indices of object pixels.
+    xy : (N, 2) their centres in view-image pixels. T : (3, N, J) float32, E : (N, 3) float32
+    (transfer.py). base : (N, 3) float64 radiance B' with the base material. gram : (3, J, J).
+    """
+    camera: Camera
+    rotation_deg: float
+    intensity: float
+    size: tuple[int, int]
+    pix: np.ndarray
+    xy: np.ndarray
+    T: np.ndarray
+    E: np.ndarray
+    base: np.ndarray
+    gram: np.ndarray
+    seconds_transfer: float
+    # geometry of the fit pixels, kept to re-shade the base when the base material changes
+    geo: dict = field(repr=False, default_factory=dict)
+
+    @property
+    def n(self) -> int:
+        return len(self.pix)
+
+    @property
+    def footprint(self) -> float:
+        """Half a fit pixel, in view-image pixels."""
+        return 0.5 * max(self.camera.width / self.size[0], self.camera.height / self.size[1])
+
+    def image(self, values: np.ndarray, fill=np.nan) -> np.ndarray:
+        """Scatter per-pixel values (N, C) into an (h, w, C) fit-resolution image."""
+        w, h = self.size
+        out = np.full((h * w, values.shape[1]), fill, np.float64)
+        out[self.pix] = values
+        return out.reshape(h, w, -1)
+
+
+@dataclass
+class FitOutcome:
+    material: SRBF
+    solve: SolveResult
+    pixels: int
+    painted: int
+    notes: list[str]
+    seconds_transfer: float
+
+
+class Fitter:
+    """Fits an ``srbf`` material for one object of an ``Engine``.
+
+    Parameters
+    ----------
+    engine : the scene's Engine (its current materials give the base appearance).
+    object_name : the edited object.
+    basis : SRBF basis (default: J = 147, σ = π/40, F0 from ``fresnel_f0``).
+    fit_scale : fit resolution as a fraction of the view resolution (0.25: 640×480 → 160×120).
+    albedo : diffuse albedo ρ_d (3,); default: the object's current material's.
+    """
+
+    def __init__(self, engine: Engine, object_name: str, basis: SRBFBasis | None = None,
+                 fit_scale: float = 0.25, albedo=None, fresnel_f0: float = 1.0, use_native: bool = True):
+        names = [o.name for o in engine.scene.spec.objects]
+        if object_name not in names:
+            raise FitError(f"no object named {object_name!r} (objects: {', '.join(names)})")
+        if not 0.0 < fit_scale <= 1.0:
+            raise FitError(f"fit_scale must be in (0, 1], got {fit_scale}")
+        self.engine = engine
+        self.object_name = object_name
+        self.obj = names.index(object_name)
+        self.basis = basis or default_basis(fresnel_f0=fresnel_f0)
+        self.basis.energy_rows()        # once per basis (≈0.3 s), not on the first fit
+        self.fit_scale = fit_scale
+        self.use_native = use_native
+        self.base_material: Material = engine.materials[self.obj]
+        self.albedo = np.asarray(albedo_of(self.base_material) if albedo is None else albedo, np.float64)
+        if self.albedo.shape != (3,) or np.any(self.albedo < 0) or np.any(self.albedo > 1):
+            raise FitError(f"diffuse albedo must be 3 values in [0, 1], got {self.albedo.tolist()}")
+        self.views: list[FitView] = []
+        self.history = StrokeHistory()
+        self._last: np.ndarray | None = None
+
+    # -- views ----------------------------------------------------------------------------------
+    def fit_size(self, camera: Camera) -> tuple[int, int]:
+        return (max(1, round(camera.width * self.fit_scale)), max(1, round(camera.height * self.fit_scale)))
+
+    def add_view(self, camera: Camera | None = None, rotation_deg: float | None = None,
+                 intensity: float | None = None) -> int:
+        """Save a view (default: the scene's camera and lighting); returns its index."""
+        env = self.engine.scene.spec.environment
+        camera = camera or self.engine.scene.spec.camera
+        rot = env.rotation_deg if rotation_deg is None else float(rotation_deg)
+        inten = env.intensity if intensity is None else float(intensity)
+        t0 = time.perf_counter()
+        fw, fh = self.fit_size(camera)
+        o, d = camera_rays(camera.eye, camera.target, camera.up, camera.fov_y_deg, fw, fh)
+        tri, uv, _ = self.engine.tracer.first_hit(o, d)
+        mesh = self.engine.scene.mesh
+        obj_of = np.where(tri >= 0, self.engine.scene.object_of_face[np.maximum(tri, 0)], -1)
+        pix = np.nonzero(obj_of == self.obj)[0]
+        if len(pix) == 0:
+            raise FitError(f"object {self.object_name!r} covers no pixel of this view at the fit "
+                           f"resolution {fw}×{fh}; move the camera closer or raise fit_scale")
+        f = mesh.faces[tri[pix]]
+        u, v = uv[pix, 0:1], uv[pix, 1:2]
+        bary = np.concatenate([1 - u - v, u, v], axis=1).astype(np.float32)
+        nrm = (bary[:, :, None] * mesh.normals[f]).sum(1)
+        nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+        pos = (bary[:, :, None] * mesh.vertices[f]).sum(1)
+        wo = np.asarray(camera.eye, np.float32) - pos
+        wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+        node_l, node_w = self.engine.node_light(rot, inten)
+        T, E = transfer(nrm.astype(np.float32), wo.astype(np.float32), f.astype(np.int32), bary,
+                        self.engine.cuts, node_l, node_w, self.engine.tree, self.basis, self.use_native)
+        gr = gram(T)
+        secs = time.perf_counter() - t0
+        sx, sy = camera.width / fw, camera.height / fh
+        xy = np.stack([(pix % fw + 0.5) * sx, (pix // fw + 0.5) * sy], axis=1)
+        geo = {"normals": nrm.astype(np.float32), "wo": wo.astype(np.float32), "verts": f.astype(np.int32),
+               "bary": bary}
+        view = FitView(camera, rot, inten, (fw, fh), pix, xy, T, E, np.zeros((len(pix), 3)), gr, secs, geo)
+        view.base = self._shade_base(view)
+        self.views.append(view)
+        return len(self.views) - 1
+
+    def _shade_base(self, view: FitView) -> np.ndarray:
+        """B' (N, 3): the base material at the view's fit pixels, shaded like the renderer's
+        pixel mode (each corner's cut with the pixel's normal, blended by barycentric weight)."""
+        g = view.geo
+        n = len(view.pix)
+        node_l, node_w = self.engine.node_light(view.rotation_deg, view.intensity)
+        mat_of = np.full(3 * n, self.obj, np.int32)
+        rad = shade_points(np.repeat(g["normals"], 3, 0), np.repeat(g["wo"], 3, 0), g["verts"].reshape(-1),
+                           mat_of, self.engine.cuts, node_l, node_w, self.engine.tree, self.engine.mats,
+                           self.use_native).reshape(n, 3, 3)
+        return (g["bary"][:, :, None] * rad).sum(1).astype(np.float64)
+
+    def set_base_material(self, material: Material, albedo=None) -> None:
+        """Strokes now paint over this material's appearance (bases are re-shaded)."""
+        mats = list(self.engine.materials)
+        mats[self.obj] = material
+        self.engine.set_materials(mats)
+        self.base_material = material
+        self.albedo = np.asarray(albedo_of(material) if albedo is None else albedo, np.float64)
+        for v in self.views:
+            v.base = self._shade_base(v)
+
+    # -- strokes --------------------------------------------------------------------------------
+    def add_stroke(self, stroke: Stroke | dict) -> list[str]:
+        """Record a stroke; returns notes (e.g. a stroke that touches no pixel of the object)."""
+        stroke = stroke if isinstance(stroke, Stroke) else Stroke.model_validate(stroke)
+        if stroke.view >= len(self.views):
+            raise FitError(f"stroke refers to view {stroke.view} but {len(self.views)} view(s) are saved")
+        self.history.push(stroke)
+        return self._stroke_notes(len(self.history) - 1, stroke)
+
+    def _stroke_notes(self, i: int, stroke: Stroke) -> list[str]:
+        v = self.views[stroke.view]
+        if not np.any(stroke_weights(stroke, v.xy, v.footprint) > 0):
+            return [f"stroke {i + 1} touches no pixel of object {self.object_name!r} in view {stroke.view}; "
+                    "it is ignored"]
+        return []
+
+    def undo(self) -> Stroke | None:
+        return self.history.undo()
+
+    def redo(self) -> Stroke | None:
+        return self.history.redo()
+
+    def targets(self):
+        """Per view: (target (N, 3) float64, painted (N,) bool), and notes for ignored strokes."""
+        out = [(v.base.copy(), np.zeros(v.n, bool)) for v in self.views]
+        notes = []
+        for i, s in enumerate(self.history.strokes):
+            v = self.views[s.view]
+            w = stroke_weights(s, v.xy, v.footprint)
+            if not np.any(w > 0):
+                notes += self._stroke_notes(i, s)
+                continue
+            apply_stroke(out[s.view][0], s, w)
+            out[s.view][1][w > 0] = True
+        return out, notes
+
+    # -- fitting --------------------------------------------------------------------------------
+    def fit(self, constrained: bool = True, unpainted_weight: float = DEFAULT_UNPAINTED_WEIGHT,
+            n_l: int = DEFAULT_NL, targets=None) -> FitOutcome:
+        """Solve for the SRBF coefficients matching the strokes (or given per-view targets:
+        a list of (target (N, 3), painted/valid (N,) bool) as from ``targets()``)."""
+        if not self.views:
+            raise FitError("no view saved: add_view() first")
+        if unpainted_weight < 0:
+            raise FitError("unpainted_weight must be ≥ 0")
+        notes = []
+        if targets is None:
+            targets, notes = self.targets()
+        rows = []
+        painted = 0
+        for v, (tgt, pmask) in zip(self.views, targets):
+            w = np.where(pmask, 1.0, unpainted_weight)
+            painted += int(pmask.sum())
+            rows.append(FitRows(v.T, v.E, tgt, w, v.gram))
+        if not any(np.any(r.weight > 0) for r in rows):
+            raise FitError("nothing to fit: no painted pixel and unpainted_weight is 0")
+        prior = self._prior()
+        res = solve(rows, self.basis, self.albedo, constrained=constrained, n_l=n_l, prior=prior,
+                    warm=self._last if constrained else None)
+        if constrained:
+            self._last = res.coefficients
+        mat = SRBF.model_validate(self.basis.to_material(res.coefficients, self.albedo))
+        return FitOutcome(mat, res, sum(v.n for v in self.views), painted, notes,
+                          sum(v.seconds_transfer for v in self.views))
+
+    def _prior(self) -> np.ndarray | None:
+        """c₀ of the proximal term: the base material's coefficients when it is an SRBF over
+        this basis (unseen directions keep their look), else zero."""
+        m = self.base_material
+        if isinstance(m, SRBF) and len(m.centers) == self.basis.J and abs(m.bandwidth - self.basis.bandwidth) < 1e-9 \
+                and np.allclose(np.asarray(m.centers), self.basis.centers, atol=1e-6):
+            return np.asarray(m.coefficients, np.float64)
+        return None
+
+    def target_rows(self, view: int, image: np.ndarray, mask: np.ndarray | None = None):
+        """Per-pixel target (N, 3) and validity (N,) for a view from an image of linear radiance
+        (h, w, 3) at any resolution with the view's aspect ratio, sampled bilinearly at the fit
+        pixels' centres. A fit pixel is valid where all four bilinear taps lie on the object (in
+        a render of the object mask at the image's resolution) and, if given, mask (h, w) > 0."""
+        v = self.views[view]
+        img = np.asarray(image, np.float32)
+        if img.ndim != 3 or img.shape[2] < 3:
+            raise FitError(f"target must be an (H, W, 3) image, got shape {img.shape}")
+        img = np.ascontiguousarray(img[:, :, :3])
+        if not np.all(np.isfinite(img)):
+            raise FitError("target contains NaN or infinite values")
+        th, tw = img.shape[:2]
+        if abs(tw / th - v.camera.width / v.camera.height) > 0.02 * v.camera.width / v.camera.height:
+            raise FitError(f"target is {tw}×{th} but the view is {v.camera.width}×{v.camera.height}: "
+                           "the aspect ratios differ")
+        cam = v.camera.model_copy(update={"width": tw, "height": th})
+        objmask = (self.engine.object_mask(cam) == self.obj).astype(np.float32)
+        if mask is not None:
+            m = np.asarray(mask)
+            if m.shape[:2] != (th, tw):
+                raise FitError(f"mask is {m.shape[1]}×{m.shape[0]} but the target is {tw}×{th}")
+            objmask *= (m.reshape(th, tw, -1)[:, :, 0] > 0)
+        mx = (v.xy[:, 0] * tw / v.camera.width - 0.5).astype(np.float32)
+        my = (v.xy[:, 1] * th / v.camera.height - 0.5).astype(np.float32)
+        tgt = cv2.remap(img, mx[None, :], my[None, :], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)[0]
+        x0, y0 = np.floor(mx).astype(np.int64), np.floor(my).astype(np.int64)
+        valid = np.ones(v.n, bool)
+        for dx in (0, 1):
+            for dy in (0, 1):
+                xi, yi = np.clip(x0 + dx, 0, tw - 1), np.clip(y0 + dy, 0, th - 1)
+                valid &= objmask[yi, xi] > 0
+        return tgt.astype(np.float64), valid
+
+    def fit_targets(self, images: list, masks: list | None = None, constrained: bool = True,
+                    n_l: int = DEFAULT_NL) -> FitOutcome:
+        """Fit to one target image per saved view (automation: ``glint fit --target``)."""
+        if len(images) != len(self.views):
+            raise FitError(f"{len(images)} target image(s) for {len(self.views)} view(s)")
+        masks = masks or [None] * len(images)
+        targets = []
+        for i, (img, m) in enumerate(zip(images, masks)):
+            tgt, valid = self.target_rows(i, img, m)
+            if not valid.any():
+                raise FitError(f"target {i} covers no pixel of object {self.object_name!r}")
+            targets.append((tgt, valid))
+        # only valid pixels count: weight 1 inside, 0 elsewhere
+        return self.fit(constrained=constrained, unpainted_weight=0.0, n_l=n_l, targets=targets)
+
+    def predicted(self, coefficients: np.ndarray, view: int = 0) -> np.ndarray:
+        """Radiance (N, 3) the fit predicts at a view's fit pixels for coefficients (J, 3)."""
+        v = self.views[view]
+        return self.albedo * v.E + np.stack([v.T[c] @ coefficients[:, c] for c in range(3)], axis=1)

@@ -1,0 +1,110 @@
+"""Transfer functions of the SRBF basis at the pixels of one view (inverse-brdf-modeling eq. 6, 21).
+
+    T_j(x) = Σ_k l_k v_k(x) s(ω_k, ω_o(x)) G(h_k · ξ_j, λ)          (eq. 21)
+    E(x)   = Σ_k l_k v_k(x) / π                                      (eq. 3: B_d = ρ_d E)
+
+over the clusters k of the point's cut, with l_k the light integral over the cluster (radiance ×
+sr), v_k the mean cosine-weighted visibility and ω_k the light-weighted centroid direction, the
+same quantities the renderer shades with (core/render.py), refined the same way, so a fitted
+material re-renders as the fit predicted. A pixel's visibility is the barycentric blend of its
+triangle's three vertex cuts (§4.1); its normal and view direction are its own.
+
+``transfer_numpy`` is the reference of the C kernel ``glk_transfer``.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from .. import native
+from ..core.brdf import onb
+from ..core.cuts import CutSet
+from ..core.directions import DirectionTree
+from ..core.render import cluster_directions, expand_cut_entries
+from .basis import CUBE_CELLS, SRBFBasis
+
+
+def _local(v, t, b, n):
+    return np.stack([(v * t).sum(1), (v * b).sum(1), (v * n).sum(1)], 1)
+
+
+def transfer_numpy(normals, wo, verts, bary, cuts: CutSet, node_l, node_w, tree: DirectionTree,
+                   basis: SRBFBasis, chunk: int = 16):
+    """Transfer matrix at P points.
+
+    normals, wo : (P, 3) unit shading normals and directions towards the eye.
+    verts : (P, 3) int32 vertex (cut) indices of the triangle; bary : (P, 3) barycentric weights.
+    node_l, node_w : (2N-1, 3) float32 per-node light and direction (lighting.node_lighting).
+    Returns T (3, P, J) float32 (channel-major: radiance per unit coefficient, per RGB channel
+    of the light) and E (P, 3) float32 (radiance of a white Lambertian surface, ρ_d = 1).
+    """
+    P, J = len(normals), basis.J
+    T = np.zeros((3, P, J), np.float32)
+    E = np.zeros((P, 3), np.float32)
+    ref = basis.refinement()
+    for s in range(0, P, chunk):
+        e = min(s + chunk, P)
+        T[:, s:e], E[s:e] = _transfer_chunk(normals[s:e].astype(np.float64), wo[s:e].astype(np.float64),
+                                         verts[s:e], bary[s:e].astype(np.float64), cuts, node_l, node_w,
+                                         tree, basis, ref)
+    return T, E
+
+
+def _transfer_chunk(n, wo, verts, bary, cuts, node_l, node_w, tree, basis, ref):
+    p_n, J = len(n), basis.J
+    T = np.zeros((3, p_n, J))
+    E = np.zeros((p_n, 3))
+    co = (n * wo).sum(1)
+    live = np.nonzero(co > 0)[0]
+    if len(live) == 0:
+        return T, E
+    k = np.repeat(live, 3)                                   # (pixel, corner) pairs
+    cut_of = verts[live].reshape(-1)
+    r = 2.0 * co[k, None] * n[k] - wo[k]
+    pair, idx, q = expand_cut_entries(cut_of, cuts, tree, r, np.full(len(k), ref["refine_radius"]),
+                                      np.full(len(k), ref["extent"]))
+    px = k[pair]
+    wgt = bary[live].reshape(-1)[pair] * q
+    l = node_l[idx].astype(np.float64)
+    lit = ~(l <= 0).all(1)
+    px, idx, wgt, l = px[lit], idx[lit], wgt[lit], l[lit]
+    npx = n[px]
+    wi = cluster_directions(node_w, idx, npx)
+    t, b = onb(npx)
+    wi_l, wo_l = _local(wi, t, b, npx), _local(wo[px], t, b, npx)
+    hv = wi_l + wo_l
+    h = hv / np.linalg.norm(hv, axis=1, keepdims=True)
+    ci, cw = wi_l[:, 2], wo_l[:, 2]
+    cd = (wi_l * h).sum(1)
+    m = np.clip(1.0 - cd, 0.0, 1.0)
+    F = basis.fresnel_f0 + (1.0 - basis.fresnel_f0) * m ** 5
+    s_static = F / np.maximum(ci + cw - ci * cw, 1e-12)      # eq. 11's static function
+    a = l * wgt[:, None]                                     # (M, 3) light × visibility × bary
+    for c in range(3):
+        E[:, c] = np.bincount(px, weights=a[:, c], minlength=p_n) / np.pi
+    G = basis.G(h)                                           # (M, J)
+    S = sp.csr_matrix((s_static, (px, np.arange(len(px)))), shape=(p_n, len(px)))
+    for c in range(3):
+        T[c] = S @ (G * a[:, c:c + 1])
+    return T, E
+
+
+def transfer(normals, wo, verts, bary, cuts: CutSet, node_l, node_w, tree: DirectionTree,
+             basis: SRBFBasis, use_native: bool = True):
+    """Transfer matrix (T (3, P, J), E (P, 3)) float32; the C kernel when built (see transfer_numpy)."""
+    if not (use_native and native.available()):
+        return transfer_numpy(normals, wo, verts, bary, cuts, node_l, node_w, tree, basis)
+    c = native.c
+    P, J = len(normals), basis.J
+    T = np.empty((3, P, J), np.float32)
+    E = np.empty((P, 3), np.float32)
+    ref = basis.refinement()
+    cell_off, cell_idx, gtab = basis.kernel_tables()
+    native.lib.glk_transfer(
+        P, c(normals, np.float32), c(wo, np.float32), c(verts, np.int32), c(bary, np.float32),
+        c(cuts.offsets, np.int64), c(cuts.heights, np.uint8), c(cuts.quant, np.uint8),
+        c(node_l, np.float32), c(node_w, np.float32), tree.node_dir, tree.node_radius,
+        c(tree.level_offset, np.int64), tree.height, float(ref["refine_radius"]), float(ref["extent"]),
+        J, c(basis.centers, np.float32), float(basis.cutoff_cos), float(basis.fresnel_f0),
+        CUBE_CELLS, cell_off, cell_idx, gtab, len(gtab), T, E)
+    return T, E
