@@ -41,3 +41,54 @@ def test_bad_scene_is_a_clear_error(tmp_path):
     r = glint("render", str(p), "--out", str(tmp_path / "x.png"), check=False)
     assert r.returncode == 2
     assert "camera.eye" in r.stderr and "objects" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_fit_to_a_target_and_render_it(tmp_path, cache_dir, bunny):
+    """glint fit --target (a GGX render) writes an srbf material that glint render accepts."""
+    scene = json.loads(Path(SCENE).read_text())
+    scene["objects"][0]["material"] = {"model": "ggx", "alpha": 0.3, "specular": [0.5, 0.5, 0.5], "albedo": [0.3, 0.3, 0.3]}
+    for o in scene["objects"]:
+        o["mesh"] = str((ROOT / "tests" / "scenes" / o["mesh"]).resolve())
+    scene["environment"]["map"] = str((ROOT / "tests" / "scenes" / scene["environment"]["map"]).resolve())
+    ggx = tmp_path / "ggx.json"
+    ggx.write_text(json.dumps(scene))
+    target = tmp_path / "target.npy"
+    glint("render", str(ggx), "--out", str(tmp_path / "t.png"), "--raw", str(target), "--cuts", str(cache_dir), "--per-pixel")
+    mat = tmp_path / "material.json"
+    res = json.loads(glint("fit", SCENE, "--object", "bunny", "--target", str(target), "--out", str(mat),
+                           "--fit-scale", "0.5", "--cuts", str(cache_dir), "--json").stdout)
+    for k in ("seconds_transfer", "seconds_solve", "pixels", "basis", "residual_rms", "energy_max"):
+        assert k in res
+    assert res["basis"] == 147 and res["pixels"] > 1000 and res["constrained"]
+    # ρ_d is the scene material's (Lambert 0.7), not the target's 0.3: a poor fit, but a valid one
+    assert res["energy_max"] <= res["energy_bound"] + 1e-7
+    m = json.loads(mat.read_text())
+    assert m["model"] == "srbf" and len(m["coefficients"]) == 147
+    raw = tmp_path / "again.npy"
+    glint("render", SCENE, "--material", f"bunny={mat}", "--out", str(tmp_path / "a.png"), "--raw", str(raw), "--cuts", str(cache_dir))
+    assert np.load(raw).max() > 0
+    b = json.loads(glint("bench", "fit", SCENE, "--fit-scale", "1", "--repeat", "2", "--json", "--cuts", str(cache_dir)).stdout)
+    assert b["ms_transfer"] > 0 and b["ms_solve"] > 0 and b["basis"] == 147 and b["energy_rows"] == 192
+
+
+def test_fit_strokes_file_and_bad_input(tmp_path, cache_dir, bunny):
+    strokes = tmp_path / "strokes.json"
+    strokes.write_text(json.dumps({"version": 1, "albedo": [0.3, 0.3, 0.3], "fit_scale": 1.0, "strokes": [
+        {"points": [[70, 60], [90, 62]], "color": [3, 3, 3], "diameter": 8},
+        {"points": [[2, 2]], "color": [3, 3, 3], "diameter": 2}]}))
+    mat = tmp_path / "m.json"
+    r = glint("fit", SCENE, "--object", "bunny", "--strokes", str(strokes), "--out", str(mat), "--cuts", str(cache_dir), "--json")
+    res = json.loads(r.stdout)
+    assert res["painted"] > 0 and any("touches no pixel" in n for n in res["notes"])
+    unc = json.loads(glint("fit", SCENE, "--object", "bunny", "--strokes", str(strokes), "--out", str(mat),
+                           "--cuts", str(cache_dir), "--unconstrained", "--json").stdout)
+    assert not unc["constrained"]
+    # user errors: one clear line, exit 2, no traceback
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"strokes": [{"points": [[0, 0]], "diameter": "big"}]}))
+    for args in (["--strokes", str(bad)], ["--strokes", str(tmp_path / "missing.json")],
+                 ["--target", str(strokes)], ["--strokes", str(strokes), "--target", str(strokes)]):
+        r = glint("fit", SCENE, "--object", "bunny", *args, "--out", str(mat), "--cuts", str(cache_dir), check=False)
+        assert r.returncode == 2 and "Traceback" not in r.stderr and "error" in r.stderr, r.stderr
+    r = glint("fit", SCENE, "--object", "teapot", "--strokes", str(strokes), "--out", str(mat), "--cuts", str(cache_dir), check=False)
+    assert r.returncode == 2 and "teapot" in r.stderr

@@ -4,7 +4,8 @@ Conventions match DESIGN.md §2 by construction: ``envmap`` with to_world = rota
 ``perspective`` with fov_axis y and look_at(eye, target, up), meshes written as PLY with our
 vertex normals so both renderers shade the same surface. Materials: ``lambert`` → ``diffuse``;
 ``ggx`` → ``roughconductor`` (distribution ggx, material none, specular_reflectance), with a
-diffuse part added through ``blendbsdf`` at weight ½ and doubled reflectances (f = a + b).
+diffuse part added through ``blendbsdf`` ((1 − w)·diffuse(a/(1 − w)) + w·conductor(s/w) = a + s,
+with w = max s / (max s + max a) so both scaled reflectances stay within Mitsuba's [0, 1]).
 Requires the optional dependency ``mitsuba`` (``pip install glint-studio[mitsuba]``).
 """
 from __future__ import annotations
@@ -25,9 +26,12 @@ def _bsdf(m):
                 "specular_reflectance": {"type": "rgb", "value": list(m.specular)}}
         if max(m.albedo) <= 0:
             return spec
-        spec["specular_reflectance"]["value"] = [2 * x for x in m.specular]
-        return {"type": "blendbsdf", "weight": 0.5,
-                "bsdf_0": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [2 * x for x in m.albedo]}},
+        w = max(m.specular) / (max(m.specular) + max(m.albedo))
+        if max(m.specular) + max(m.albedo) > 1.0:
+            raise ValueError("Mitsuba cannot blend reflectances whose maxima sum above 1")
+        spec["specular_reflectance"]["value"] = [x / w for x in m.specular]
+        return {"type": "blendbsdf", "weight": w,
+                "bsdf_0": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [x / (1 - w) for x in m.albedo]}},
                 "bsdf_1": spec}
     raise NotImplementedError(f"no Mitsuba equivalent wired for {type(m).__name__}")
 
