@@ -26,7 +26,9 @@ INV_PI = 1.0 / np.pi
 # kernel model ids (must match worker/native/src/glintk.c)
 K_LAMBERT, K_GGX, K_BLINN, K_LOBES, K_TABLE = 0, 1, 2, 3, 4
 N_PARAMS = 72
-TABLE_THETA, TABLE_PHI = 128, 256   # p(h) table over the hemisphere: θh ∈ [0, π/2], φh ∈ [0, 2π)
+# p(h) tables over the upper hemisphere in hemi-octahedral coordinates (hemisphere_table_dirs):
+# N×N samples, ~0.9° apart; a lookup costs one division instead of an acos and an atan2
+TABLE_N = 160
 
 
 def ggx_D(cos_h: np.ndarray, alpha: float) -> np.ndarray:
@@ -71,29 +73,41 @@ def curve_p(cos_h: np.ndarray, values: np.ndarray) -> np.ndarray:
     return values[idx]
 
 
-def hemisphere_table_dirs(nt: int = TABLE_THETA, nphi: int = TABLE_PHI) -> np.ndarray:
-    """(nt, nphi, 3) local directions at the table's sample points: θ = i·(π/2)/(nt−1), φ = j·2π/nphi."""
-    th = np.linspace(0.0, np.pi / 2, nt)[:, None]
-    ph = (np.arange(nphi) * (2.0 * np.pi / nphi))[None, :]
-    return np.stack(np.broadcast_arrays(np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)), axis=-1)
+def octa_uv(h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Hemi-octahedral coordinates (u, v) ∈ [−1, 1]² of upper-hemisphere unit vectors (…, 3):
+    project onto |x| + |y| + z = 1, then rotate the diamond by 45° onto the square."""
+    s = np.abs(h[..., 0]) + np.abs(h[..., 1]) + np.maximum(h[..., 2], 0.0)
+    s = np.maximum(s, 1e-30)
+    px, py = h[..., 0] / s, h[..., 1] / s
+    return px + py, px - py
+
+
+def hemisphere_table_dirs(n: int = TABLE_N) -> np.ndarray:
+    """(n, n, 3) local unit directions at the table's samples: u_i, v_j = −1 + 2i/(n − 1)."""
+    g = np.linspace(-1.0, 1.0, n)
+    U, V = np.meshgrid(g, g, indexing="ij")
+    px, py = 0.5 * (U + V), 0.5 * (U - V)
+    z = np.maximum(1.0 - np.abs(px) - np.abs(py), 0.0)
+    d = np.stack([px, py, z], axis=-1)
+    return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
 
 def table_lookup(table: np.ndarray, h_local: np.ndarray) -> np.ndarray:
-    """Bilinear lookup of a (nt, nphi, 3) p(h) table at local half vectors h (…, 3)."""
-    nt, nphi, _ = table.shape
-    th = np.arccos(np.clip(h_local[..., 2], 0.0, 1.0)) * ((nt - 1) / (np.pi / 2))
-    ph = np.mod(np.arctan2(h_local[..., 1], h_local[..., 0]), 2 * np.pi) * (nphi / (2 * np.pi))
-    i0 = np.clip(np.floor(th).astype(np.int64), 0, nt - 2); ft = np.clip(th - i0, 0.0, 1.0)[..., None]
-    j0 = np.floor(ph).astype(np.int64) % nphi; fp = (ph - np.floor(ph))[..., None]
-    j1 = (j0 + 1) % nphi
-    a = table[i0, j0] * (1 - fp) + table[i0, j1] * fp
-    b = table[i0 + 1, j0] * (1 - fp) + table[i0 + 1, j1] * fp
-    return a * (1 - ft) + b * ft
+    """Bilinear lookup of an (n, n, 3) p(h) table at local half vectors h (…, 3)."""
+    n = table.shape[0]
+    u, v = octa_uv(h_local)
+    fu = np.clip((u + 1.0) * (0.5 * (n - 1)), 0.0, n - 1.0)
+    fv = np.clip((v + 1.0) * (0.5 * (n - 1)), 0.0, n - 1.0)
+    i0 = np.minimum(fu.astype(np.int64), n - 2); a = (fu - i0)[..., None]
+    j0 = np.minimum(fv.astype(np.int64), n - 2); b = (fv - j0)[..., None]
+    t0 = table[i0, j0] * (1 - b) + table[i0, j0 + 1] * b
+    t1 = table[i0 + 1, j0] * (1 - b) + table[i0 + 1, j0 + 1] * b
+    return t0 * (1 - a) + t1 * a
 
 
 class PackedBRDF:
     """A material in the kernel's flat form: model id, (N_PARAMS,) float32 params, optional
-    (TABLE_THETA, TABLE_PHI, 3) float32 p(h) table, and how the renderer refines clusters for it:
+    (TABLE_N, TABLE_N, 3) float32 p(h) table (hemi-octahedral), and how the renderer refines clusters for it:
     a cluster of radius R (radians) at angle a from the mirror direction is split while
     R > ``refine_radius`` and a < R + ``extent`` (the specular part is non-zero only within
     ``extent`` of the mirror direction). By default ``lobe_width`` w gives (w/2, 2w)."""

@@ -18,8 +18,7 @@
 #define K_LOBES 3
 #define K_TABLE 4
 #define N_PARAMS 72
-#define TABLE_THETA 128
-#define TABLE_PHI 256
+#define TABLE_N 160
 #define INV_PI 0.31830988618379067
 #define PI 3.141592653589793
 
@@ -112,18 +111,24 @@ static inline double ggx_G1(double c, double ch, double a) {
     return 2.0 / (1.0 + sqrt(1.0 + a * a * t2));
 }
 
-static inline double table_lookup(const float *tab, int ch, v3 hl) {
-    double th = acos(hl.z < 0 ? 0 : (hl.z > 1 ? 1 : hl.z)) * ((TABLE_THETA - 1) / (PI / 2));
-    double ph = atan2(hl.y, hl.x); if (ph < 0) ph += 2 * PI;
-    ph *= TABLE_PHI / (2 * PI);
-    int i0 = (int)floor(th); if (i0 < 0) i0 = 0; if (i0 > TABLE_THETA - 2) i0 = TABLE_THETA - 2;
-    double ft = th - i0; ft = ft < 0 ? 0 : (ft > 1 ? 1 : ft);
-    int j0 = ((int)floor(ph)) % TABLE_PHI; double fp = ph - floor(ph);
-    int j1 = (j0 + 1) % TABLE_PHI;
-    const float *r0 = tab + (int64_t)i0 * TABLE_PHI * 3, *r1 = r0 + TABLE_PHI * 3;
-    double a = r0[j0 * 3 + ch] * (1 - fp) + r0[j1 * 3 + ch] * fp;
-    double b = r1[j0 * 3 + ch] * (1 - fp) + r1[j1 * 3 + ch] * fp;
-    return a * (1 - ft) + b * ft;
+/* p(h) table in hemi-octahedral coordinates (worker/core/brdf.py octa_uv, table_lookup):
+ * bilinear over TABLE_N × TABLE_N samples, the three channels at once. */
+static inline void table_lookup3(const float *tab, v3 hl, double *out) {
+    double s = fabs(hl.x) + fabs(hl.y) + (hl.z > 0 ? hl.z : 0.0);
+    if (s < 1e-30) s = 1e-30;
+    double px = hl.x / s, py = hl.y / s;
+    double fu = (px + py + 1.0) * (0.5 * (TABLE_N - 1)), fv = (px - py + 1.0) * (0.5 * (TABLE_N - 1));
+    fu = fu < 0 ? 0 : (fu > TABLE_N - 1 ? TABLE_N - 1 : fu);
+    fv = fv < 0 ? 0 : (fv > TABLE_N - 1 ? TABLE_N - 1 : fv);
+    int i0 = (int)fu; if (i0 > TABLE_N - 2) i0 = TABLE_N - 2;
+    int j0 = (int)fv; if (j0 > TABLE_N - 2) j0 = TABLE_N - 2;
+    double a = fu - i0, b = fv - j0;
+    const float *r0 = tab + ((int64_t)i0 * TABLE_N + j0) * 3, *r1 = r0 + TABLE_N * 3;
+    for (int c = 0; c < 3; c++) {
+        double t0 = r0[c] * (1 - b) + r0[3 + c] * b;
+        double t1 = r1[c] * (1 - b) + r1[3 + c] * b;
+        out[c] = t0 * (1 - a) + t1 * a;
+    }
 }
 
 /* wi, wo, n, t, b world-space unit vectors; writes f (1/sr) to out[3]. */
@@ -167,7 +172,9 @@ static inline void brdf_eval(int kind, const float *p, const float *tab, v3 wi, 
         double F = p[3] + (1.0 - p[3]) * m2 * m2 * m;
         double den = ci + co - ci * co; if (den < 1e-12) den = 1e-12;
         double s = F / den;
-        for (int c = 0; c < 3; c++) out[c] += s * table_lookup(tab, c, hl);
+        double pt[3];
+        table_lookup3(tab, hl, pt);
+        out[0] += s * pt[0]; out[1] += s * pt[1]; out[2] += s * pt[2];
     }
 }
 
