@@ -30,9 +30,11 @@ def _load(scene_path: str):
 
 
 def _cuts(scene, out_dir, quiet: bool, tau: float):
-    from .engine import load_or_precompute
+    from .engine import cut_cache_path, load_or_precompute
 
-    bar = _progress(len(scene.mesh.vertices), "precompute", quiet)
+    # no bar when the cuts come from the cache (it would flash a "0%")
+    cached = cut_cache_path(scene, out_dir, tau).is_file()
+    bar = _progress(len(scene.mesh.vertices), "precompute", quiet or cached)
     try:
         cs, stats, path = load_or_precompute(scene, out_dir, tau=tau, progress=bar.update)
     finally:
@@ -146,7 +148,7 @@ def _fitter(eng, a, sf=None):
     from .fit.fitter import Fitter
 
     f0 = a.fresnel_f0 if a.fresnel_f0 is not None else (sf.fresnel_f0 if sf and sf.fresnel_f0 is not None else 1.0)
-    albedo = sf.albedo if sf and sf.albedo is not None else None
+    albedo = a.albedo if getattr(a, "albedo", None) else (sf.albedo if sf and sf.albedo is not None else None)
     scale = a.fit_scale if a.fit_scale is not None else (sf.fit_scale if sf and sf.fit_scale else 0.25)
     basis = default_basis(a.basis, a.sigma, f0)
     return Fitter(eng, a.object, basis=basis, fit_scale=scale, albedo=albedo)
@@ -309,6 +311,8 @@ def build_parser() -> argparse.ArgumentParser:
     ft.add_argument("--out", required=True, help="MATERIAL.json (an srbf material)")
     ft.add_argument("--unconstrained", action="store_true", help="drop non-negativity and energy conservation")
     ft.add_argument("--unpainted-weight", type=float, help="weight of unpainted pixels against painted ones (default 1)")
+    ft.add_argument("--albedo", type=float, nargs=3, metavar=("R", "G", "B"),
+                    help="diffuse albedo ρ_d (default: the object's current material's)")
     ft.add_argument("--json", action="store_true")
     fit_options(ft)
     ft.set_defaults(fn=cmd_fit)

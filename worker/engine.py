@@ -155,14 +155,18 @@ class Engine:
         return m.reshape(camera.height, camera.width)
 
 
+def cut_cache_path(scene: LoadedScene, cache_dir: Path | None = None, tau: float = DEFAULT_TAU) -> Path:
+    """Where the scene's cuts are (or will be) cached."""
+    cache_dir = Path(cache_dir) if cache_dir else default_cache_dir()
+    return cache_dir / f"{geometry_key(scene, tau, get_tree().height)}.cuts"
+
+
 def load_or_precompute(scene: LoadedScene, cache_dir: Path | None = None, tau: float = DEFAULT_TAU,
                        progress=None, threads: int = 2):
     """Cuts for the scene, read from the content-addressed cache or traced and stored there.
     Returns (CutSet, stats dict or None when read from cache, path)."""
     tree = get_tree()
-    cache_dir = Path(cache_dir) if cache_dir else default_cache_dir()
-    key = geometry_key(scene, tau, tree.height)
-    path = cache_dir / f"{key}.cuts"
+    path = cut_cache_path(scene, cache_dir, tau)
     if path.is_file():
         try:
             return cutmod.decode(path.read_bytes()), None, path

@@ -107,8 +107,8 @@ def table_lookup(table: np.ndarray, h_local: np.ndarray) -> np.ndarray:
 
 class PackedBRDF:
     """A material in the kernel's flat form: model id, (N_PARAMS,) float32 params, optional
-    (TABLE_N, TABLE_N, 3) float32 p(h) table (hemi-octahedral), and how the renderer refines clusters for it:
-    a cluster of radius R (radians) at angle a from the mirror direction is split while
+    (TABLE_N, TABLE_N, 3) float32 p(h) table (hemi-octahedral), and how the renderer refines
+    clusters for it: a cluster of radius R (radians) at angle a from the mirror direction is split while
     R > ``refine_radius`` and a < R + ``extent`` (the specular part is non-zero only within
     ``extent`` of the mirror direction). By default ``lobe_width`` w gives (w/2, 2w)."""
 

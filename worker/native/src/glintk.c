@@ -188,6 +188,41 @@ static inline void onb(v3 n, v3 *t, v3 *b) {
 }
 
 /* ---------------------------------------------------------------------------------------
+ * Walking one cut node down to the clusters to shade (DESIGN.md §4): a node wider than
+ * refine_r whose angle to the mirror direction r is below its radius plus the extent is split;
+ * children inherit the parent's visibility. Used by shading and by the transfer functions,
+ * so both see the same clusters.
+ */
+typedef struct { int64_t stack[2 * 64]; int sp; } cut_walk;
+
+static inline void walk_start(cut_walk *w, int h, int64_t start) {
+    w->sp = 0; w->stack[w->sp++] = h; w->stack[w->sp++] = start;
+}
+
+/* next flat tree-node index to shade, or −1 when the node is exhausted */
+static inline int64_t walk_next(cut_walk *w, const int64_t *level_off, const float *node_dir,
+                                const float *node_radius, v3 r, double refine_r, double extent) {
+    while (w->sp) {
+        int64_t s = w->stack[--w->sp];
+        int h = (int)w->stack[--w->sp];
+        int64_t idx = level_off[h] + (s >> h);
+        if (h > 0 && node_radius[idx] > refine_r) {
+            double R = node_radius[idx];
+            v3 nd = mk(node_dir[3 * idx], node_dir[3 * idx + 1], node_dir[3 * idx + 2]);
+            /* no angle can reach R + extent ≥ π: skip the acos */
+            if (R + extent >= PI || acos(fmax(-1.0, fmin(1.0, dot(nd, r)))) < R + extent) {
+                int64_t half = (int64_t)1 << (h - 1);
+                w->stack[w->sp++] = h - 1; w->stack[w->sp++] = s + half;
+                w->stack[w->sp++] = h - 1; w->stack[w->sp++] = s;
+                continue;
+            }
+        }
+        return idx;
+    }
+    return -1;
+}
+
+/* ---------------------------------------------------------------------------------------
  * Shading at points (cyber-worlds eq. 3, inverse-brdf-modeling eq. 22):
  *   B = Σ_k l_k v_k f_r(ω_k, ω_o)
  * over point p's cut (cut index cut_of[p]). node_l / node_w hold, per tree node and per light
@@ -206,7 +241,7 @@ void glk_shade_points(
     float *out) {
 #pragma omp parallel
     {
-        int64_t stack[2 * 64];
+        cut_walk walk;
 #pragma omp for schedule(dynamic, 64)
         for (int64_t p = 0; p < P; p++) {
             v3 n = mk(normals[3 * p], normals[3 * p + 1], normals[3 * p + 2]);
@@ -232,23 +267,8 @@ void glk_shade_points(
                     start += (int64_t)1 << h0;
                     if (cut_q[m] == 0) continue;
                     double q = cut_q[m] * (1.0 / 255.0);
-                    int sp = 0;
-                    stack[sp++] = h0; stack[sp++] = s0;
-                    while (sp) {
-                        int64_t s = stack[--sp];
-                        int h = (int)stack[--sp];
-                        int64_t idx = level_off[h] + (s >> h);
-                        if (h > 0 && node_radius[idx] > refine_r) {
-                            double R = node_radius[idx];
-                            v3 nd = mk(node_dir[3 * idx], node_dir[3 * idx + 1], node_dir[3 * idx + 2]);
-                            /* no angle can reach R + extent ≥ π: skip the acos */
-                            if (R + extent >= PI || acos(fmax(-1.0, fmin(1.0, dot(nd, r)))) < R + extent) {
-                                int64_t half = (int64_t)1 << (h - 1);
-                                stack[sp++] = h - 1; stack[sp++] = s + half;
-                                stack[sp++] = h - 1; stack[sp++] = s;
-                                continue;
-                            }
-                        }
+                    walk_start(&walk, h0, s0);
+                    for (int64_t idx; (idx = walk_next(&walk, level_off, node_dir, node_radius, r, refine_r, extent)) >= 0;) {
                         const float *L = node_l + 3 * idx;
                         if (L[0] <= 0 && L[1] <= 0 && L[2] <= 0) continue;
                         v3 wi = mk(node_w[3 * idx], node_w[3 * idx + 1], node_w[3 * idx + 2]);
@@ -382,7 +402,7 @@ void glk_transfer(
     const int64_t n_nodes = level_off[H] + 1;
 #pragma omp parallel
     {
-        int64_t stack[2 * 64];
+        cut_walk walk;
         double *acc = (double *)malloc(sizeof(double) * 3 * J);
         double *wsum = (double *)calloc(n_nodes, sizeof(double));
         int64_t cap = 4096, nt;
@@ -411,23 +431,8 @@ void glk_transfer(
                         start += (int64_t)1 << h0;
                         if (cut_q[m] == 0) continue;
                         double q = cut_q[m] * (1.0 / 255.0) * bw;
-                        int sp = 0;
-                        stack[sp++] = h0; stack[sp++] = s0;
-                        while (sp) {
-                            int64_t s = stack[--sp];
-                            int h = (int)stack[--sp];
-                            int64_t idx = level_off[h] + (s >> h);
-                            if (h > 0 && node_radius[idx] > refine_r) {
-                                double R = node_radius[idx];
-                                v3 nd = mk(node_dir[3 * idx], node_dir[3 * idx + 1], node_dir[3 * idx + 2]);
-                                /* no angle can reach R + extent ≥ π: skip the acos */
-                                if (R + extent >= PI || acos(fmax(-1.0, fmin(1.0, dot(nd, r)))) < R + extent) {
-                                    int64_t half = (int64_t)1 << (h - 1);
-                                    stack[sp++] = h - 1; stack[sp++] = s + half;
-                                    stack[sp++] = h - 1; stack[sp++] = s;
-                                    continue;
-                                }
-                            }
+                        walk_start(&walk, h0, s0);
+                        for (int64_t idx; (idx = walk_next(&walk, level_off, node_dir, node_radius, r, refine_r, extent)) >= 0;) {
                             if (wsum[idx] == 0.0) {
                                 if (nt == cap) { cap *= 2; touched = (int64_t *)realloc(touched, sizeof(int64_t) * cap); }
                                 touched[nt++] = idx;
