@@ -242,6 +242,64 @@ def cmd_bench_fit(a) -> int:
     return 0
 
 
+def cmd_serve(a) -> int:
+    import logging
+
+    import uvicorn
+
+    from server.config import Settings
+    from server.main import create_app
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    settings = Settings.from_env(host=a.host, port=a.port, data_dir=a.data_dir, workers=a.workers,
+                                 demo=False if a.no_demo else None)
+    if settings.host not in ("127.0.0.1", "localhost", "::1") and settings.allow_anonymous_loopback:
+        print("glint: listening beyond loopback; remote clients need an API token (glint token create)", file=sys.stderr)
+    uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level="info", ws_max_size=4 * 1024 * 1024)
+    return 0
+
+
+def cmd_token_create(a) -> int:
+    from server.config import Settings
+    from server.db import create_api_token, make_sessionmaker
+
+    settings = Settings.from_env(data_dir=a.data_dir)
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    token = create_api_token(make_sessionmaker(settings.db_url), a.name)
+    print(token)
+    print(f"glint: API token {a.name!r} created; send it as 'Authorization: Bearer <token>'. It is shown only once.",
+          file=sys.stderr)
+    return 0
+
+
+def openapi_yaml() -> str:
+    import yaml
+
+    from server.config import Settings
+    from server.main import create_app
+
+    return yaml.safe_dump(create_app(Settings(demo=False)).openapi(), sort_keys=False, allow_unicode=True, width=100)
+
+
+def cmd_openapi(a) -> int:
+    text = openapi_yaml()
+    if a.out:
+        Path(a.out).write_text(text)
+        print(f"wrote {a.out}", file=sys.stderr)
+    else:
+        sys.stdout.write(text)
+    return 0
+
+
+def cmd_bench_stream(a) -> int:
+    from .bench_stream import bench_stream
+
+    res = bench_stream(port=a.port, data_dir=a.data_dir, strokes=a.strokes, orbit_seconds=a.orbit_seconds,
+                       quiet=a.json)
+    print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items()))
+    return 0
+
+
 class _UsageError(Exception):
     pass
 
@@ -328,6 +386,28 @@ def build_parser() -> argparse.ArgumentParser:
     bf.add_argument("--repeat", type=int, default=7); bf.add_argument("--json", action="store_true")
     fit_options(bf)
     bf.set_defaults(fn=cmd_bench_fit)
+
+    bs = bsub.add_parser("stream", help="stroke-to-frame latency and orbit fps over a real WebSocket")
+    bs.add_argument("--port", type=int, help="use the server already on this loopback port (default: start one)")
+    bs.add_argument("--data-dir", help="data directory of the server this starts (default: a temporary copy of nothing; the demo scene is fetched)")
+    bs.add_argument("--strokes", type=int, default=20); bs.add_argument("--orbit-seconds", type=float, default=5.0)
+    bs.add_argument("--json", action="store_true")
+    bs.set_defaults(fn=cmd_bench_stream)
+
+    sv = sub.add_parser("serve", help="run the service (FastAPI + worker processes)")
+    sv.add_argument("--host", default=None, help="default 127.0.0.1"); sv.add_argument("--port", type=int, default=None, help="default 8000")
+    sv.add_argument("--data-dir", default=None, help="database, blobs and assets (default $GLINT_DATA_DIR or ~/.cache/glint)")
+    sv.add_argument("--workers", type=int, default=None, help="worker processes (default: cores)")
+    sv.add_argument("--no-demo", action="store_true", help="do not prepare the demo scene")
+    sv.set_defaults(fn=cmd_serve)
+
+    tk = sub.add_parser("token", help="API tokens"); tsub = tk.add_subparsers(dest="what", required=True)
+    tc = tsub.add_parser("create", help="create an API token (printed once)")
+    tc.add_argument("--name", default="automation"); tc.add_argument("--data-dir", default=None)
+    tc.set_defaults(fn=cmd_token_create)
+
+    oa = sub.add_parser("openapi", help="print (or write) the API description as YAML")
+    oa.add_argument("--out"); oa.set_defaults(fn=cmd_openapi)
 
     a = sub.add_parser("assets", help="demo assets"); asub = a.add_subparsers(dest="what", required=True)
     af = asub.add_parser("fetch", help="download CC0 demo assets from package registries")

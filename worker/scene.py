@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Annotated, Literal, Union
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from .envmap import load_envmap
 
@@ -130,6 +130,17 @@ class Camera(_Strict):
     width: int = Field(640, ge=1, le=8192)
     height: int = Field(480, ge=1, le=8192)
 
+    @model_validator(mode="after")
+    def _frame(self):
+        # a camera without a direction, or looking along its up vector, has no image plane
+        fwd = np.subtract(self.target, self.eye, dtype=np.float64)
+        n = np.linalg.norm(fwd)
+        if not np.isfinite(n) or n < 1e-12:
+            raise ValueError("eye and target must differ")
+        if np.linalg.norm(np.cross(fwd / n, np.asarray(self.up, np.float64))) < 1e-9:
+            raise ValueError("up must not be parallel to the viewing direction")
+        return self
+
 
 class SceneObject(_Strict):
     name: str = Field(min_length=1)
@@ -246,9 +257,10 @@ class LoadedScene:
     object_of_face (F,) int32, envmap (H, W, 3) float32, root (Path of the scene folder).
     """
 
-    def __init__(self, spec: SceneFile, root: Path, envmap: np.ndarray | None = None):
+    def __init__(self, spec: SceneFile, root: Path, envmap: np.ndarray | None = None, resolver=None):
         self.spec = spec
         self.root = root
+        self._resolver = resolver          # ref -> Path, for scenes whose files are stored blobs
         meshes = []
         for i, o in enumerate(spec.objects):
             try:
@@ -271,6 +283,8 @@ class LoadedScene:
         self.envmap = envmap
 
     def resolve(self, rel: str) -> Path:
+        if self._resolver is not None:
+            return self._resolver(rel)
         p = Path(rel)
         return p if p.is_absolute() else (self.root / p)
 

@@ -1,0 +1,154 @@
+"""Metadata in a relational database (SQLite by default, PostgreSQL by URL) through SQLAlchemy 2.
+
+Nothing is overwritten: materials are rows of versions, strokes are appended (undo and redo flip
+a flag), deletions archive. Blobs (meshes, maps, cuts, images) live in the blob store and are
+referenced here by SHA-256.
+"""
+from __future__ import annotations
+
+import datetime as dt
+import secrets
+import uuid
+
+from sqlalchemy import (JSON, Boolean, DateTime, Float, ForeignKey, Integer, String, UniqueConstraint,
+                        create_engine, event, select)
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, sessionmaker
+
+
+def now() -> dt.datetime:
+    return dt.datetime.now(dt.timezone.utc)
+
+
+def new_id() -> str:
+    return uuid.uuid4().hex[:16]
+
+
+def new_secret() -> str:
+    return secrets.token_urlsafe(24)
+
+
+class Base(DeclarativeBase):
+    type_annotation_map = {dict: JSON, list: JSON}
+
+
+class Asset(Base):
+    __tablename__ = "assets"
+    id: Mapped[str] = mapped_column(String(32), primary_key=True, default=new_id)
+    kind: Mapped[str] = mapped_column(String(16))            # mesh | envmap | image
+    filename: Mapped[str] = mapped_column(String(255))
+    sha256: Mapped[str] = mapped_column(String(64), index=True)
+    size: Mapped[int] = mapped_column(Integer)
+    meta: Mapped[dict] = mapped_column(JSON, default=dict)
+    created: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now)
+
+
+class Scene(Base):
+    __tablename__ = "scenes"
+    id: Mapped[str] = mapped_column(String(32), primary_key=True, default=new_id)
+    name: Mapped[str] = mapped_column(String(255), default="")
+    spec: Mapped[dict] = mapped_column(JSON)                  # scene file v1, asset ids for files
+    created: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now)
+
+
+class Precomputation(Base):
+    __tablename__ = "precomputations"
+    id: Mapped[str] = mapped_column(String(32), primary_key=True, default=new_id)
+    scene_id: Mapped[str] = mapped_column(ForeignKey("scenes.id"), index=True)
+    status: Mapped[str] = mapped_column(String(16), default="queued")   # queued running done failed
+    progress: Mapped[float] = mapped_column(Float, default=0.0)
+    message: Mapped[str] = mapped_column(String(1000), default="")
+    cuts_sha256: Mapped[str | None] = mapped_column(String(64), nullable=True)
+    stats: Mapped[dict] = mapped_column(JSON, default=dict)
+    created: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now)
+    updated: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now, onupdate=now)
+
+
+class MaterialDesign(Base):
+    __tablename__ = "materials"
+    id: Mapped[str] = mapped_column(String(32), primary_key=True, default=new_id)
+    name: Mapped[str] = mapped_column(String(255))
+    scene_id: Mapped[str | None] = mapped_column(String(32), nullable=True)
+    object: Mapped[str | None] = mapped_column(String(255), nullable=True)
+    archived: Mapped[bool] = mapped_column(Boolean, default=False)
+    created: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now)
+
+
+class MaterialVersion(Base):
+    __tablename__ = "material_versions"
+    __table_args__ = (UniqueConstraint("design_id", "version"),)
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    design_id: Mapped[str] = mapped_column(ForeignKey("materials.id"), index=True)
+    version: Mapped[int] = mapped_column(Integer)
+    body: Mapped[dict] = mapped_column(JSON)                  # a scene-file material
+    note: Mapped[str] = mapped_column(String(1000), default="")
+    created: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now)
+
+
+class Session(Base):
+    __tablename__ = "sessions"
+    id: Mapped[str] = mapped_column(String(32), primary_key=True, default=new_id)
+    scene_id: Mapped[str] = mapped_column(ForeignKey("scenes.id"), index=True)
+    token_sha256: Mapped[str] = mapped_column(String(64))
+    state: Mapped[dict] = mapped_column(JSON, default=dict)   # camera, light, materials, object, …
+    closed: Mapped[bool] = mapped_column(Boolean, default=False)
+    created: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now)
+    updated: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now, onupdate=now)
+
+
+class StrokeRow(Base):
+    __tablename__ = "strokes"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    session_id: Mapped[str] = mapped_column(ForeignKey("sessions.id"), index=True)
+    epoch: Mapped[int] = mapped_column(Integer, default=0)    # bumps when the base material changes
+    seq: Mapped[int] = mapped_column(Integer)
+    body: Mapped[dict] = mapped_column(JSON)                  # the stroke, with its view's camera
+    undone: Mapped[bool] = mapped_column(Boolean, default=False)
+    dropped: Mapped[bool] = mapped_column(Boolean, default=False)   # left on the redo stack when a new stroke came
+    created: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now)
+
+
+class ApiToken(Base):
+    __tablename__ = "api_tokens"
+    id: Mapped[str] = mapped_column(String(32), primary_key=True, default=new_id)
+    name: Mapped[str] = mapped_column(String(255))
+    token_sha256: Mapped[str] = mapped_column(String(64), unique=True)
+    revoked: Mapped[bool] = mapped_column(Boolean, default=False)
+    created: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now)
+
+
+def make_sessionmaker(url: str):
+    """Engine and session factory; creates the tables. SQLite gets WAL and a busy timeout so the
+    server's threads and the CLI can share the file."""
+    kw = {}
+    if url.startswith("sqlite"):
+        kw["connect_args"] = {"check_same_thread": False, "timeout": 30}
+    engine = create_engine(url, **kw)
+    if url.startswith("sqlite"):
+        @event.listens_for(engine, "connect")
+        def _pragmas(conn, _):
+            cur = conn.cursor()
+            cur.execute("PRAGMA journal_mode=WAL")
+            cur.execute("PRAGMA synchronous=NORMAL")
+            cur.execute("PRAGMA foreign_keys=ON")
+            cur.close()
+    Base.metadata.create_all(engine)
+    return sessionmaker(engine, expire_on_commit=False)
+
+
+def token_hash(token: str) -> str:
+    import hashlib
+
+    return hashlib.sha256(token.encode()).hexdigest()
+
+
+def create_api_token(Session_, name: str) -> str:
+    """Store a new API token (hashed); returns the token, shown once."""
+    token = "glint_" + secrets.token_urlsafe(32)
+    with Session_() as s, s.begin():
+        s.add(ApiToken(name=name, token_sha256=token_hash(token)))
+    return token
+
+
+def latest_version(s, design_id: str) -> MaterialVersion | None:
+    return s.scalars(select(MaterialVersion).where(MaterialVersion.design_id == design_id)
+                     .order_by(MaterialVersion.version.desc()).limit(1)).first()

@@ -1,0 +1,125 @@
+"""Request and response bodies of the REST API (pydantic v2)."""
+from __future__ import annotations
+
+import datetime as dt
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from worker.fit.brush import Stroke
+from worker.fit.files import ViewSpec
+from worker.scene import Camera, Color, Material
+
+
+class Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class AssetOut(BaseModel):
+    id: str
+    kind: str
+    filename: str
+    sha256: str
+    size: int
+    meta: dict
+    created: dt.datetime
+
+
+class PrecomputationOut(BaseModel):
+    id: str
+    scene_id: str
+    status: Literal["queued", "running", "done", "failed"]
+    progress: float
+    message: str
+    stats: dict
+    created: dt.datetime
+    updated: dt.datetime
+
+
+class SceneOut(BaseModel):
+    id: str
+    name: str
+    spec: dict
+    created: dt.datetime
+    precomputation: PrecomputationOut | None = None
+
+
+class RenderRequest(Strict):
+    scene_id: str
+    camera: Camera | None = None
+    rotation_deg: float | None = None
+    intensity: float | None = Field(None, ge=0.0)
+    materials: dict[str, Material] = Field(default_factory=dict, description="per object name")
+    mode: Literal["vertex", "pixel"] = "vertex"
+    format: Literal["png", "exr"] = "png"
+    exposure: float = Field(0.0, ge=-20, le=20)
+    tone: Literal["linear", "aces", "neutral"] = "neutral"
+
+
+class FitRequest(Strict):
+    scene_id: str
+    object: str
+    strokes: list[Stroke] = Field(default_factory=list, max_length=100_000)
+    views: list[ViewSpec] = Field(default_factory=list, max_length=64)
+    target_asset: str | None = Field(None, description="an uploaded image asset (linear .npy/.exr/.hdr, sRGB .png)")
+    mask_asset: str | None = None
+    constrained: bool = True
+    unpainted_weight: float = Field(1.0, ge=0.0)
+    albedo: Color | None = None
+    fresnel_f0: float | None = Field(None, ge=0.0, le=1.0)
+    fit_scale: float | None = Field(None, gt=0.0, le=1.0)
+    save_as: str | None = Field(None, max_length=200, description="save the result as a new material design")
+
+
+class FitOut(BaseModel):
+    material: dict
+    stats: dict
+    material_id: str | None = None
+    version: int | None = None
+
+
+class MaterialCreate(Strict):
+    name: str = Field(min_length=1, max_length=200)
+    material: Material
+    scene_id: str | None = None
+    object: str | None = None
+    note: str = Field("", max_length=1000)
+
+
+class MaterialUpdate(Strict):
+    material: Material
+    note: str = Field("", max_length=1000)
+
+
+class MaterialOut(BaseModel):
+    id: str
+    name: str
+    version: int
+    material: dict
+    scene_id: str | None
+    object: str | None
+    archived: bool
+    created: dt.datetime
+
+
+class VersionOut(BaseModel):
+    version: int
+    material: dict
+    note: str
+    created: dt.datetime
+
+
+class SessionCreate(Strict):
+    scene_id: str
+    object: str | None = None
+    camera: Camera | None = None
+
+
+class SessionOut(BaseModel):
+    id: str
+    token: str | None = None
+    scene_id: str
+    stream: str
+    state: dict[str, Any]
+    strokes: list[dict] = Field(default_factory=list)
+    worker_pid: int | None = None

@@ -1,0 +1,69 @@
+"""What the routes share: settings, the database, the blob store, the worker pool, and the
+payloads the workers need (a scene with its files and cuts; a session with its strokes)."""
+from __future__ import annotations
+
+import logging
+
+from sqlalchemy import select
+
+from .blobs import BlobStore
+from .config import Settings
+from .db import Asset, Precomputation, Scene, Session, StrokeRow, make_sessionmaker
+from .workers import LocalWorkerPool, WorkerPool
+
+log = logging.getLogger("glint")
+
+
+class NotFound(LookupError):
+    pass
+
+
+class Conflict(RuntimeError):
+    pass
+
+
+class AppState:
+    def __init__(self, settings: Settings, pool: WorkerPool | None = None):
+        self.settings = settings
+        settings.data_dir.mkdir(parents=True, exist_ok=True)
+        self.db = make_sessionmaker(settings.db_url)
+        self.blobs = BlobStore(settings.data_dir / "blobs")
+        self.pool = pool or LocalWorkerPool(settings.workers, str(self.blobs.root), restore=self.session_payload,
+                                            threads=settings.worker_threads)
+        self.precompute_tasks: dict[str, object] = {}
+
+    # -- payloads -------------------------------------------------------------------------------
+    def scene_payload(self, s, scene_id: str, need_cuts: bool = True) -> dict:
+        sc = s.get(Scene, scene_id)
+        if sc is None:
+            raise NotFound(f"no scene {scene_id!r}")
+        refs = [sc.spec["environment"]["map"]] + [o["mesh"] for o in sc.spec["objects"]]
+        files = {}
+        for r in refs:
+            a = s.get(Asset, r)
+            if a is None:
+                raise NotFound(f"scene {scene_id!r} refers to a missing asset {r!r}")
+            files[r] = {"sha256": a.sha256, "filename": a.filename}
+        pre = self.latest_precomputation(s, scene_id, done=True)
+        if need_cuts and pre is None:
+            raise Conflict(f"scene {scene_id!r} has no finished precomputation: POST /v1/scenes/{scene_id}/precompute first")
+        return {"scene_id": sc.id, "spec": sc.spec, "files": files, "cuts_sha256": pre.cuts_sha256 if pre else None}
+
+    @staticmethod
+    def latest_precomputation(s, scene_id: str, done: bool = False) -> Precomputation | None:
+        q = select(Precomputation).where(Precomputation.scene_id == scene_id)
+        if done:
+            q = q.where(Precomputation.status == "done")
+        return s.scalars(q.order_by(Precomputation.created.desc()).limit(1)).first()
+
+    def session_payload(self, sid: str) -> dict:
+        """Everything a worker needs to (re)build a session: scene, state, strokes."""
+        with self.db() as s:
+            row = s.get(Session, sid)
+            if row is None:
+                raise NotFound(f"no session {sid!r}")
+            st = dict(row.state or {})
+            strokes = s.scalars(select(StrokeRow).where(StrokeRow.session_id == sid, StrokeRow.epoch == st.get("epoch", 0),
+                                                        StrokeRow.dropped.is_(False)).order_by(StrokeRow.seq)).all()
+            return {"scene": self.scene_payload(s, row.scene_id), "state": st,
+                    "strokes": [{**r.body, "undone": r.undone} for r in strokes], "ack": int(st.get("last_seq", -1))}

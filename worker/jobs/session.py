@@ -1,0 +1,234 @@
+"""One interactive design session inside a worker process: the scene's engine, the paint-to-BRDF
+fitter of the edited object, and the state the client steers (camera, light, materials, display).
+
+The state is rebuilt exactly from what the server persisted (state + stroke list), so a worker
+that dies loses nothing: ``SessionRuntime(payload)`` on a new worker gives the same frames.
+"""
+from __future__ import annotations
+
+import io
+import json
+import time
+
+import numpy as np
+from PIL import Image
+
+from ..core.tonemap import tonemap
+from ..engine import Engine
+from ..fit.brush import Stroke
+from ..fit.fitter import FitError, Fitter
+from ..scene import Camera, Material, SRBF
+from .protocol import client_msg
+
+CURVE_SAMPLES = 91
+
+
+def brdf_curve(material, n: int = CURVE_SAMPLES) -> dict:
+    """The 1D half-angle distribution to plot: p(θh) averaged over φh for srbf, the curve's
+    values for curve, and f(θh) in the plane of incidence at normal viewing otherwise.
+    Returns {"theta_deg": [...], "values": [[r, g, b], ...], "quantity": str}."""
+    from ..core.brdf import evaluate, srbf_p
+
+    th = np.linspace(0.0, 90.0, n)
+    t = np.radians(th)
+    if isinstance(material, SRBF):
+        ph = np.linspace(0, 2 * np.pi, 48, endpoint=False)
+        T, P = np.meshgrid(t, ph, indexing="ij")
+        h = np.stack([np.sin(T) * np.cos(P), np.sin(T) * np.sin(P), np.cos(T)], -1)
+        c = np.asarray(material.centers, np.float64)
+        c /= np.linalg.norm(c, axis=1, keepdims=True)
+        vals = srbf_p(h, c, material.bandwidth, np.asarray(material.coefficients)).mean(axis=1)
+        q = "p(θh), mean over φh"
+    else:
+        # ωo = normal, ωi at 2θh in the x-z plane, so θh is the half angle
+        wo = np.broadcast_to([0.0, 0.0, 1.0], (n, 3))
+        wi = np.stack([np.sin(2 * t), np.zeros(n), np.cos(2 * t)], -1)
+        vals = evaluate(material, wi, wo)
+        vals[th >= 89.9] = vals[th < 89.9][-1] if (th < 89.9).any() else 0.0
+        q = "f(ωi, ωo = n), θh = θi / 2"
+    return {"theta_deg": th.round(3).tolist(), "values": np.asarray(vals, np.float64).round(6).tolist(), "quantity": q}
+
+
+class SessionRuntime:
+    """payload: {"scene": LoadedScene, "cuts": CutSet, "state": dict, "strokes": [{"stroke": {...},
+    "camera": {...}, "rotation_deg": r, "intensity": i, "undone": bool}, ...]} (see server/sessions)."""
+
+    def __init__(self, scene, cuts, state: dict, strokes: list[dict]):
+        self.scene = scene
+        self.engine = Engine(scene, cuts)
+        spec = scene.spec
+        names = [o.name for o in spec.objects]
+        self.names = names
+        self.object = state.get("object") or names[0]
+        if self.object not in names:
+            raise FitError(f"no object {self.object!r} in the scene")
+        self.camera = Camera.model_validate(state.get("camera") or spec.camera.model_dump())
+        self.rotation = float(state.get("rotation_deg", spec.environment.rotation_deg))
+        self.intensity = float(state.get("intensity", spec.environment.intensity))
+        mats = state.get("materials")
+        from pydantic import TypeAdapter
+        ta = TypeAdapter(Material)
+        self.materials = [ta.validate_python(m) for m in mats] if mats else list(scene.materials)
+        base = state.get("base_material")
+        self.base = ta.validate_python(base) if base else self.materials[names.index(self.object)]
+        self.exposure = float(state.get("exposure", 0.0))
+        self.tone = state.get("tone", "neutral")
+        self.quality = int(state.get("quality", 85))
+        self.constrained = bool(state.get("constrained", True))
+        self.unpainted_weight = float(state.get("unpainted_weight", 1.0))
+        self.frame_no = 0
+        self.fitter: Fitter | None = None
+        self.engine.set_materials(self.materials)
+        self._needs_fit = False
+        self._drag = False
+        # replay the persisted strokes (undone ones form the redo stack, most recent last)
+        active = [s for s in strokes if not s.get("undone")]
+        undone = [s for s in strokes if s.get("undone")]
+        for s in active:
+            self._add_stroke(s)
+        for s in undone:
+            self._add_stroke(s)
+        for _ in undone:
+            self.fitter.undo()
+        if strokes:
+            self._needs_fit = True
+        self.last_fit: dict | None = None
+
+    # -- state changes ---------------------------------------------------------------------
+    def _ensure_fitter(self):
+        if self.fitter is None:
+            mats = list(self.materials)
+            mats[self.names.index(self.object)] = self.base
+            self.engine.set_materials(mats)          # bases are shaded with the base material
+            self.fitter = Fitter(self.engine, self.object, fit_scale=0.25)
+            self.engine.set_materials(self.materials)
+        return self.fitter
+
+    def _view_index(self, camera: Camera, rot: float, inten: float) -> int:
+        fx = self._ensure_fitter()
+        for i, v in enumerate(fx.views):
+            if v.camera == camera and v.rotation_deg == rot and v.intensity == inten:
+                return i
+        mats = list(self.materials)
+        mats[self.names.index(self.object)] = self.base
+        self.engine.set_materials(mats)
+        try:
+            return fx.add_view(camera, rot, inten)
+        finally:
+            self.engine.set_materials(self.materials)
+
+    def _add_stroke(self, rec: dict) -> list[str]:
+        cam = Camera.model_validate(rec["camera"])
+        i = self._view_index(cam, float(rec["rotation_deg"]), float(rec["intensity"]))
+        st = Stroke.model_validate({**rec["stroke"], "view": i})
+        return self.fitter.add_stroke(st)
+
+    def stroke_record(self, stroke: Stroke) -> dict:
+        """What the server persists for a stroke: the stroke and the view it was painted in."""
+        return {"stroke": stroke.model_dump(), "camera": self.camera.model_dump(),
+                "rotation_deg": self.rotation, "intensity": self.intensity}
+
+    def apply(self, msg: dict) -> list[dict]:
+        """Apply one client message; returns JSON events for the client."""
+        m = client_msg.validate_python(msg)
+        ev = []
+        t = m.type
+        if t == "view":
+            upd = {k: getattr(m, k) for k in ("eye", "target", "up", "fov_y_deg") if getattr(m, k) is not None}
+            self.camera = Camera.model_validate({**self.camera.model_dump(), **upd})
+            self._drag = m.drag
+        elif t == "light":
+            if m.rotation_deg is not None:
+                self.rotation = float(m.rotation_deg)
+            if m.intensity is not None:
+                self.intensity = float(m.intensity)
+            self._drag = m.drag
+        elif t == "material":
+            name = m.object or self.object
+            if name not in self.names:
+                raise FitError(f"no object {name!r} in the scene")
+            self.materials[self.names.index(name)] = m.material
+            self.engine.set_materials(self.materials)
+            if name == self.object:
+                # strokes painted over the old material do not carry over to a new base
+                self.base = m.material
+                self.fitter = None
+                self._needs_fit = False
+            ev.append({"type": "curve", "seq": m.seq, "object": name, "curve": brdf_curve(m.material)})
+        elif t == "stroke":
+            notes = self._add_stroke(self.stroke_record(m.stroke))
+            self._needs_fit = True
+            ev.append({"type": "stroke", "seq": m.seq, "strokes": len(self.fitter.history), "notes": notes})
+        elif t in ("undo", "redo"):
+            if self.fitter is not None and (self.fitter.undo() if t == "undo" else self.fitter.redo()) is not None:
+                self._needs_fit = True
+            else:
+                ev.append({"type": "note", "seq": m.seq, "message": f"nothing to {t}"})
+        elif t == "fit":
+            if m.constrained is not None:
+                self.constrained = m.constrained
+            if m.unpainted_weight is not None:
+                self.unpainted_weight = m.unpainted_weight
+            self._needs_fit = True
+        elif t == "display":
+            if m.exposure is not None:
+                self.exposure = m.exposure
+            if m.tone is not None:
+                self.tone = m.tone
+            if m.quality is not None:
+                self.quality = m.quality
+        elif t == "save":
+            ev += self.fit_if_needed()
+            mat = self.materials[self.names.index(self.object)]
+            ev.append({"type": "save", "seq": m.seq, "object": self.object, "name": m.name,
+                       "material_id": m.material_id, "material": json.loads(mat.model_dump_json())})
+        return ev
+
+    def fit_if_needed(self) -> list[dict]:
+        if not self._needs_fit:
+            return []
+        self._needs_fit = False
+        fx = self.fitter
+        i = self.names.index(self.object)
+        if fx is None or len(fx.history) == 0:
+            self.materials[i] = self.base
+            self.engine.set_materials(self.materials)
+            return [{"type": "fit", "object": self.object, "material": json.loads(self.base.model_dump_json()),
+                     "curve": brdf_curve(self.base), "stats": {"strokes": 0}}]
+        out = fx.fit(constrained=self.constrained, unpainted_weight=self.unpainted_weight)
+        self.materials[i] = out.material
+        self.engine.set_materials(self.materials)
+        s = out.solve
+        stats = {"strokes": len(fx.history), "pixels": out.pixels, "painted": out.painted,
+                 "ms_solve": s.seconds * 1e3, "ms_transfer": out.seconds_transfer * 1e3,
+                 "residual_rel": s.residual_rel, "energy_max": s.energy_max,
+                 "energy_bound": float(s.energy_bound.min()), "constrained": s.constrained}
+        self.last_fit = stats
+        return [{"type": "fit", "object": self.object, "material": json.loads(out.material.model_dump_json()),
+                 "curve": brdf_curve(out.material), "stats": stats, "notes": out.notes}]
+
+    # -- frames --------------------------------------------------------------------------------
+    def frame(self, ack: int) -> tuple[dict, bytes]:
+        t0 = time.perf_counter()
+        img = self.engine.render(self.camera, self.rotation, self.intensity)
+        rgb = tonemap(img, self.exposure, self.tone)
+        t1 = time.perf_counter()
+        buf = io.BytesIO()
+        # lower quality while the user drags (DESIGN.md §5), full quality when still
+        Image.fromarray(rgb).save(buf, format="JPEG", quality=min(self.quality, 60) if self._drag else self.quality)
+        self.frame_no += 1
+        hdr = {"frame": self.frame_no, "ack": ack, "width": self.camera.width, "height": self.camera.height,
+               "format": "jpeg", "ms_render": round((t1 - t0) * 1e3, 2),
+               "ms_encode": round((time.perf_counter() - t1) * 1e3, 2)}
+        return hdr, buf.getvalue()
+
+
+def encode_frame(header: dict, image: bytes) -> bytes:
+    """Binary WebSocket frame: 4-byte big-endian header length | UTF-8 JSON header | image."""
+    h = json.dumps(header, separators=(",", ":")).encode()
+    return len(h).to_bytes(4, "big") + h + image
+
+
+def decode_frame(data: bytes) -> tuple[dict, bytes]:
+    n = int.from_bytes(data[:4], "big")
+    return json.loads(data[4:4 + n]), data[4 + n:]
