@@ -18,15 +18,18 @@ install: $(STAMP)
 build: install
 	$(PY) setup.py -q build_ext --inplace
 
-# Until the service exists (issue 4), serving renders the demo scene and says where it is.
+# The service on its embedded defaults: SQLite and blobs in $$GLINT_DATA_DIR (~/.cache/glint),
+# one worker per core, the demo scene fetched and precomputed on first start.
 serve: install
-	$(VENV)/bin/glint demo --out out/demo.png
+	$(VENV)/bin/glint serve $(SERVE_ARGS)
 
 test: install
 	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -ra
 
 bench: install
-	$(VENV)/bin/glint bench render tests/scenes/bunny.json --frames 60 --json
+	$(VENV)/bin/glint bench render bench/oakChair.json --frames 40 --json
+	$(VENV)/bin/glint bench fit bench/oakChair.json --json
+	$(VENV)/bin/glint bench stream --json
 
 clean:
 	rm -rf build $(VENV) worker/native/*.so .pytest_cache tests/.cache
