@@ -106,8 +106,11 @@ class Engine:
 
     # -- rendering --------------------------------------------------------------------------
     def render(self, camera: Camera | None = None, rotation_deg: float | None = None,
-               intensity: float | None = None, mode: str = "vertex") -> np.ndarray:
-        """(H, W, 3) float32 linear radiance. Defaults come from the scene file."""
+               intensity: float | None = None, mode: str = "vertex", vertex_override=None) -> np.ndarray:
+        """(H, W, 3) float32 linear radiance. Defaults come from the scene file.
+
+        vertex_override : optional (ids (K,) int, radiance (K, 3) float32): vertex-mode radiance
+            already known for these vertices (e.g. from a per-vertex transfer matrix), not shaded."""
         env = self.scene.spec.environment
         camera = camera or self.scene.spec.camera
         rot = env.rotation_deg if rotation_deg is None else rotation_deg
@@ -120,6 +123,8 @@ class Engine:
         env_lookup(v.dirs, self.lighting.map, rot, inten, mask=bg, out=img, use_native=self.use_native)
         if mode == "vertex":
             vi = v.visible
+            if vertex_override is not None:
+                vi = vi[~np.isin(vi, vertex_override[0])]
             eye = np.asarray(camera.eye, np.float32)
             wo = eye - mesh.vertices[vi]
             wo /= np.linalg.norm(wo, axis=1, keepdims=True)
@@ -127,6 +132,8 @@ class Engine:
                                node_l, node_w, self.tree, self.mats, self.use_native)
             vert = np.zeros((len(mesh.vertices), 3), np.float32)
             vert[vi] = rad
+            if vertex_override is not None:
+                vert[vertex_override[0]] = vertex_override[1]
             interpolate(v.tri, v.uv, mesh.faces, vert, img, self.use_native)
         elif mode == "pixel":
             hit = np.nonzero(~bg)[0]

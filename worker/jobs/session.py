@@ -93,6 +93,8 @@ class SessionRuntime:
         if strokes:
             self._needs_fit = True
         self.last_fit: dict | None = None
+        self._fitted = None       # the material the fitter produced last (identity)
+        self._vt = None           # per-vertex transfer of the edited object: (key, ids, T, E)
 
     # -- state changes ---------------------------------------------------------------------
     def _ensure_fitter(self):
@@ -197,7 +199,9 @@ class SessionRuntime:
                      "curve": brdf_curve(self.base), "stats": {"strokes": 0}}]
         out = fx.fit(constrained=self.constrained, unpainted_weight=self.unpainted_weight)
         self.materials[i] = out.material
+        self._fitted = out.material
         self.engine.set_materials(self.materials)
+        self._vertex_transfer()
         s = out.solve
         stats = {"strokes": len(fx.history), "pixels": out.pixels, "painted": out.painted,
                  "ms_solve": s.seconds * 1e3, "ms_transfer": out.seconds_transfer * 1e3,
@@ -208,9 +212,48 @@ class SessionRuntime:
                  "curve": brdf_curve(out.material), "stats": stats, "notes": out.notes}]
 
     # -- frames --------------------------------------------------------------------------------
+    def _view_key(self):
+        return (self.camera.model_dump_json(), self.rotation, self.intensity)
+
+    def _vertex_transfer(self):
+        """Per-vertex transfer of the edited object's visible vertices for the current view and
+        light (inverse-brdf-modeling eq. 22 with the basis): while only the fitted coefficients
+        change (strokes, undo, redo), a frame's shading of that object is one mat-vec."""
+        from ..fit.transfer import transfer
+
+        key = self._view_key()
+        if self._vt is not None and self._vt[0] == key:
+            return self._vt
+        eng, fx = self.engine, self.fitter
+        mesh = eng.scene.mesh
+        vis = eng.view(self.camera).visible
+        ids = vis[eng.scene.object_of_vertex[vis] == self.names.index(self.object)]
+        wo = np.asarray(self.camera.eye, np.float32) - mesh.vertices[ids]
+        wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+        node_l, node_w = eng.node_light(self.rotation, self.intensity)
+        verts = np.repeat(ids[:, None], 3, axis=1).astype(np.int32)
+        bary = np.zeros((len(ids), 3), np.float32)
+        bary[:, 0] = 1.0
+        T, E = transfer(mesh.normals[ids].astype(np.float32), wo.astype(np.float32), verts, bary, eng.cuts,
+                        node_l, node_w, eng.tree, fx.basis)
+        self._vt = (key, ids, T, E)
+        return self._vt
+
+    def _override(self):
+        """Known radiance of the edited object's vertices, when its material is the current fit
+        and the per-vertex transfer matches the view and light."""
+        i = self.names.index(self.object)
+        if self._fitted is None or self.materials[i] is not self._fitted or self._vt is None \
+                or self._vt[0] != self._view_key():
+            return None
+        _, ids, T, E = self._vt
+        c = np.asarray(self._fitted.coefficients, np.float32)
+        rad = np.asarray(self._fitted.albedo, np.float32) * E + np.stack([T[k] @ c[:, k] for k in range(3)], axis=1)
+        return ids, rad.astype(np.float32)
+
     def frame(self, ack: int) -> tuple[dict, bytes]:
         t0 = time.perf_counter()
-        img = self.engine.render(self.camera, self.rotation, self.intensity)
+        img = self.engine.render(self.camera, self.rotation, self.intensity, vertex_override=self._override())
         rgb = tonemap(img, self.exposure, self.tone)
         t1 = time.perf_counter()
         buf = io.BytesIO()
