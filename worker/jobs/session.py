@@ -81,6 +81,10 @@ class SessionRuntime:
         self.engine.set_materials(self.materials)
         self._needs_fit = False
         self._drag = False
+        # pay the basis's one-time costs (energy rows, solver import) at open, not on the first stroke
+        from ..fit.basis import default_basis
+        from ..fit import solve  # noqa: F401
+        default_basis().energy_rows()
         # replay the persisted strokes (undone ones form the redo stack, most recent last)
         active = [s for s in strokes if not s.get("undone")]
         undone = [s for s in strokes if s.get("undone")]
