@@ -106,9 +106,12 @@ class Engine:
 
     # -- rendering --------------------------------------------------------------------------
     def render(self, camera: Camera | None = None, rotation_deg: float | None = None,
-               intensity: float | None = None, mode: str = "vertex", vertex_override=None) -> np.ndarray:
+               intensity: float | None = None, mode: str = "vertex", vertex_override=None,
+               cuts: cutmod.CutSet | None = None) -> np.ndarray:
         """(H, W, 3) float32 linear radiance. Defaults come from the scene file.
 
+        cuts : optional cut set to shade with instead of the engine's (e.g. a coarsened one
+            while the user drags, ``cuts.coarsen``).
         vertex_override : optional (ids (K,) int, radiance (K, 3) float32): vertex-mode radiance
             already known for these vertices (e.g. from a per-vertex transfer matrix), not shaded."""
         env = self.scene.spec.environment
@@ -118,6 +121,7 @@ class Engine:
         v = self.view(camera)
         node_l, node_w = self.node_light(rot, inten)
         mesh = self.scene.mesh
+        cuts = cuts if cuts is not None else self.cuts
         img = np.zeros((len(v.tri), 3), np.float32)
         bg = v.tri < 0
         env_lookup(v.dirs, self.lighting.map, rot, inten, mask=bg, out=img, use_native=self.use_native)
@@ -128,7 +132,7 @@ class Engine:
             eye = np.asarray(camera.eye, np.float32)
             wo = eye - mesh.vertices[vi]
             wo /= np.linalg.norm(wo, axis=1, keepdims=True)
-            rad = shade_points(mesh.normals[vi], wo, vi, self.scene.object_of_vertex[vi], self.cuts,
+            rad = shade_points(mesh.normals[vi], wo, vi, self.scene.object_of_vertex[vi], cuts,
                                node_l, node_w, self.tree, self.mats, self.use_native)
             vert = np.zeros((len(mesh.vertices), 3), np.float32)
             vert[vi] = rad
@@ -147,7 +151,7 @@ class Engine:
             wo /= np.linalg.norm(wo, axis=1, keepdims=True)
             k = len(hit)
             rad = shade_points(np.repeat(nrm, 3, 0), np.repeat(wo, 3, 0), f.reshape(-1).astype(np.int32),
-                               self.scene.object_of_vertex[f.reshape(-1)], self.cuts, node_l, node_w, self.tree,
+                               self.scene.object_of_vertex[f.reshape(-1)], cuts, node_l, node_w, self.tree,
                                self.mats, self.use_native).reshape(k, 3, 3)
             img[hit] = (bary[:, :, None] * rad).sum(1)
         else:

@@ -64,3 +64,30 @@ def test_product_and_interpolation_of_cuts_match_leaf_level_operations():
     np.testing.assert_allclose(cuts.decode_to_leaves(h, val), sum(a * b for a, b in zip(w, leaves)), atol=1e-6)
     # the result is no finer than needed: each node is the smallest operand node
     assert len(h) <= sum(len(x[0]) for x in c)
+
+
+def test_coarsen_keeps_a_valid_cut_and_only_merges_within_tau():
+    from worker.core.cuts import build_cuts_numpy, coarsen, decode_to_leaves
+
+    rng = np.random.default_rng(5)
+    H = 10
+    # piecewise-constant visibility with noise: many small nodes at τ = 0.5
+    base = np.repeat(rng.random((6, 16)), (1 << H) // 16, axis=1)
+    vals = np.clip(base + 0.02 * rng.normal(size=base.shape), 0, 1).astype(np.float32)
+    fine = build_cuts_numpy(vals, 0.5)
+    fine.height = H
+    same = coarsen(fine, 0.0)              # τ = 0 merges only equal siblings: same leaves
+    for v in range(6):
+        a = decode_to_leaves(*fine.cut(v), height=H)
+        b = decode_to_leaves(*same.cut(v), height=H)
+        np.testing.assert_allclose(a, b, atol=1e-6)
+    coarse = coarsen(fine, 8.0)
+    assert coarse.sizes().sum() < 0.5 * fine.sizes().sum()
+    for v in range(6):
+        h, q = coarse.cut(v)
+        assert (np.int64(1) << h.astype(np.int64)).sum() == 1 << H     # every leaf once
+        a = decode_to_leaves(*fine.cut(v), height=H)
+        b = decode_to_leaves(h, q, height=H)
+        # the L1 error of each merged node is bounded by τ (between-children part) + the
+        # quantisation of the merged value
+        assert np.abs(a - b).sum() <= 8.0 * len(h) + (1 << H) / 255.0

@@ -55,3 +55,15 @@ def test_interpolate_env_lookup_tonemap_agree(bunny):
     for curve in ("linear", "aces", "neutral"):
         diff = np.abs(tonemap(x, 0.5, curve).astype(int) - tonemap_numpy(x, 0.5, curve).astype(int))
         assert diff.max() <= 1  # rounding of the last bit
+
+
+def test_coarsen_agrees(bunny):
+    from worker.core.cuts import coarsen
+
+    _, cuts = bunny
+    for tau in (2.0, 8.0):
+        a = coarsen(cuts, tau, use_native=True)
+        b = coarsen(cuts, tau, use_native=False)
+        np.testing.assert_array_equal(a.offsets, b.offsets)
+        np.testing.assert_array_equal(a.heights, b.heights)
+        assert np.abs(a.quant.astype(int) - b.quant.astype(int)).max() <= 1     # rounding of equal means

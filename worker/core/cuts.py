@@ -117,6 +117,64 @@ def decode_to_leaves(heights: np.ndarray, values: np.ndarray, height: int = 15) 
     return np.repeat(np.asarray(values, np.float32), 1 << np.asarray(heights, np.int64))
 
 
+def coarsen(cs: CutSet, tau: float, use_native: bool = True) -> CutSet:
+    """A coarser cut set for interaction (level of detail while the user drags).
+
+    Adjacent sibling nodes of a vertex's cut are merged into their parent, repeatedly, while the
+    parent's error from its children's means, sqrt(n · Σ_i n_i (m_i − m)²) in leaf units, stays
+    within τ. That is the build criterion of ``build_cuts`` with the children's own spread left
+    out (it is not stored), so the merged cut is what a coarser τ would give, approximately.
+    Vectorised over all vertices: one pass per tree level. The result covers every leaf once,
+    like its input; values are the children's mean (exact up to quantisation).
+    The C kernel ``glk_coarsen`` does the same with a per-vertex stack (same merges).
+    """
+    from .. import native
+
+    if use_native and native.available():
+        V = cs.n_vertices
+        oh = np.empty_like(cs.heights)
+        oq = np.empty_like(cs.quant)
+        counts = np.empty(V, np.int32)
+        native.lib.glk_coarsen(V, native.c(cs.offsets, np.int64), native.c(cs.heights, np.uint8),
+                               native.c(cs.quant, np.uint8), float(tau), oh, oq, counts)
+        off = np.zeros(V + 1, np.int64)
+        off[1:] = np.cumsum(counts)
+        keep = np.concatenate([np.arange(a, a + n) for a, n in zip(cs.offsets[:-1], counts)]) if V else np.zeros(0, np.int64)
+        return CutSet(off, oh[keep], oq[keep], cs.height)
+    V = cs.n_vertices
+    vert = np.repeat(np.arange(V), cs.sizes())
+    h = cs.heights.astype(np.int64)
+    m = cs.quant.astype(np.float64) / QMAX
+    w = np.int64(1) << h
+    csum = np.cumsum(w)
+    first = np.repeat(cs.offsets[:-1], cs.sizes())
+    start = csum - w - (csum[first] - w[first])            # first leaf of each node, per vertex
+    between = np.zeros(len(h))                             # Σ n_i (m_i − m)² of merged nodes
+    for _ in range(cs.height):
+        if len(h) < 2:
+            break
+        # a left child starts on a 2^(h+1) boundary and its right sibling follows it
+        sib = (vert[:-1] == vert[1:]) & (h[:-1] == h[1:]) & ((start[:-1] >> h[:-1]) % 2 == 0) \
+            & (start[1:] == start[:-1] + (np.int64(1) << h[:-1]))
+        i = np.nonzero(sib)[0]
+        n = (np.int64(1) << h[i]).astype(np.float64)
+        mm = 0.5 * (m[i] + m[i + 1])
+        bb = between[i] + between[i + 1] + n * ((m[i] - mm) ** 2 + (m[i + 1] - mm) ** 2)
+        ok = np.sqrt(2.0 * n * bb) <= tau
+        i, mm, bb = i[ok], mm[ok], bb[ok]
+        if len(i) == 0:
+            break
+        keep = np.ones(len(h), bool)
+        keep[i + 1] = False
+        h[i] += 1
+        m[i] = mm
+        between[i] = bb
+        h, m, between, vert, start = h[keep], m[keep], between[keep], vert[keep], start[keep]
+    off = np.zeros(V + 1, np.int64)
+    off[1:] = np.cumsum(np.bincount(vert, minlength=V))
+    return CutSet(off, h.astype(np.uint8), np.clip(np.rint(m * QMAX), 0, 255).astype(np.uint8), cs.height)
+
+
 def node_starts(heights: np.ndarray) -> np.ndarray:
     """First leaf of every node of one cut (the running sum of 2^h)."""
     w = 1 << np.asarray(heights, np.int64)

@@ -13,6 +13,8 @@ point's cut. Two shading modes:
 """
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from .. import native
@@ -25,21 +27,33 @@ from .directions import DirectionTree
 
 def camera_rays(eye, target, up, fov_y_deg: float, width: int, height: int):
     """Primary rays through pixel centres, DESIGN.md §2 (pixel (0, 0) top-left, image right =
-    normalize(cross(forward, up))). Returns (origins (H*W, 3), dirs (H*W, 3)) float32."""
+    normalize(cross(forward, up))). Returns (origins (H*W, 3), dirs (H*W, 3)) float32.
+
+    The unit directions in the camera frame depend only on the field of view and the image size
+    (cached); a view change rotates them into the world with one 3×3 product."""
     eye = np.asarray(eye, np.float64)
     fwd = np.asarray(target, np.float64) - eye
     fwd /= np.linalg.norm(fwd)
     right = np.cross(fwd, np.asarray(up, np.float64))
     right /= np.linalg.norm(right)
     true_up = np.cross(right, fwd)
+    basis = np.stack([right, true_up, fwd]).astype(np.float32)       # rows: camera axes in world
+    d = _camera_space_dirs(float(fov_y_deg), int(width), int(height)) @ basis
+    return np.broadcast_to(eye.astype(np.float32), d.shape).copy(), d
+
+
+@lru_cache(maxsize=8)
+def _camera_space_dirs(fov_y_deg: float, width: int, height: int) -> np.ndarray:
+    """(H*W, 3) float32 unit directions in the camera frame (x right, y up, z forward)."""
     t = np.tan(np.radians(fov_y_deg) / 2.0)
     aspect = width / height
     xs = (2.0 * (np.arange(width) + 0.5) / width - 1.0) * t * aspect
     ys = (1.0 - 2.0 * (np.arange(height) + 0.5) / height) * t
-    d = fwd[None, None, :] + xs[None, :, None] * right + ys[:, None, None] * true_up
-    d /= np.linalg.norm(d, axis=-1, keepdims=True)
-    d = d.reshape(-1, 3).astype(np.float32)
-    return np.broadcast_to(eye.astype(np.float32), d.shape).copy(), d
+    d = np.stack(np.broadcast_arrays(xs[None, :], ys[:, None], np.ones((1, 1))), axis=-1).reshape(-1, 3)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    d = d.astype(np.float32)
+    d.setflags(write=False)
+    return d
 
 
 # --- shading ----------------------------------------------------------------------------------

@@ -95,6 +95,51 @@ void glk_build_cuts(const float *vals, int64_t B, int H, double tau, uint8_t *he
 }
 
 /* ---------------------------------------------------------------------------------------
+ * Coarsening a cut set for interaction (worker/core/cuts.py coarsen, its NumPy reference):
+ * per vertex, nodes are pushed left to right; while the top two are siblings whose merge error
+ * sqrt(n · Σ n_i (m_i − m)²) stays within tau they are replaced by their parent. Writes each
+ * vertex's coarse cut in place of its input range (it is never longer) and its length to counts.
+ */
+void glk_coarsen(int64_t V, const int64_t *offsets, const uint8_t *heights, const uint8_t *quant, double tau,
+                 uint8_t *out_h, uint8_t *out_q, int32_t *counts) {
+#pragma omp parallel
+    {
+        int sh[64]; int64_t ss[64]; double sm[64], sb[64];
+#pragma omp for schedule(dynamic, 256)
+        for (int64_t v = 0; v < V; v++) {
+            int64_t a = offsets[v], b = offsets[v + 1], start = 0;
+            int64_t c = a;                 /* next output slot */
+            int sp = 0;
+            for (int64_t k = a; k < b; k++) {
+                int h = heights[k];
+                sh[sp] = h; ss[sp] = start; sm[sp] = quant[k] / 255.0; sb[sp] = 0.0; sp++;
+                start += (int64_t)1 << h;
+                while (sp >= 2) {
+                    int hl = sh[sp - 2], hr = sh[sp - 1];
+                    if (hl != hr || ((ss[sp - 2] >> hl) & 1) || ss[sp - 1] != ss[sp - 2] + ((int64_t)1 << hl)) break;
+                    double n = (double)((int64_t)1 << hl);
+                    double mm = 0.5 * (sm[sp - 2] + sm[sp - 1]);
+                    double dl = sm[sp - 2] - mm, dr = sm[sp - 1] - mm;
+                    double bb = sb[sp - 2] + sb[sp - 1] + n * (dl * dl + dr * dr);
+                    if (sqrt(2.0 * n * bb) > tau) break;
+                    sp--;
+                    sh[sp - 1] = hl + 1; sm[sp - 1] = mm; sb[sp - 1] = bb;
+                }
+                /* nodes below the stack's bottom two can no longer merge: flush them */
+                if (sp == 64) { out_h[c] = (uint8_t)sh[0]; out_q[c] = (uint8_t)lrint(sm[0] * 255.0); c++;
+                    memmove(sh, sh + 1, sizeof(int) * 63); memmove(ss, ss + 1, sizeof(int64_t) * 63);
+                    memmove(sm, sm + 1, sizeof(double) * 63); memmove(sb, sb + 1, sizeof(double) * 63); sp--; }
+            }
+            for (int i = 0; i < sp; i++) {
+                double m = sm[i] < 0 ? 0 : (sm[i] > 1 ? 1 : sm[i]);
+                out_h[c] = (uint8_t)sh[i]; out_q[c] = (uint8_t)lrint(m * 255.0); c++;
+            }
+            counts[v] = (int32_t)(c - a);
+        }
+    }
+}
+
+/* ---------------------------------------------------------------------------------------
  * BRDF evaluation in the shared packed form (worker/core/brdf.py eval_packed).
  */
 typedef struct { double x, y, z; } v3;
