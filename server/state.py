@@ -31,6 +31,15 @@ class AppState:
         self.pool = pool or LocalWorkerPool(settings.workers, str(self.blobs.root), restore=self.session_payload,
                                             threads=settings.worker_threads)
         self.precompute_tasks: dict[str, object] = {}
+        self._fail_interrupted()
+
+    def _fail_interrupted(self) -> None:
+        """Jobs of an earlier server process cannot finish: say so instead of showing them
+        running forever (a new request starts them again)."""
+        with self.db() as s, s.begin():
+            for p in s.scalars(select(Precomputation).where(Precomputation.status.in_(("queued", "running")))):
+                p.status = "failed"
+                p.message = "interrupted by a server restart; start the precomputation again"
 
     # -- payloads -------------------------------------------------------------------------------
     def scene_payload(self, s, scene_id: str, need_cuts: bool = True) -> dict:
