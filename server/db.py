@@ -107,6 +107,18 @@ class StrokeRow(Base):
     created: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now)
 
 
+class Publication(Base):
+    """A set of material designs published for the shopper viewer (read-only, public)."""
+    __tablename__ = "publications"
+    id: Mapped[str] = mapped_column(String(32), primary_key=True, default=new_id)
+    name: Mapped[str] = mapped_column(String(255))
+    scene_id: Mapped[str] = mapped_column(ForeignKey("scenes.id"))
+    object: Mapped[str] = mapped_column(String(255))
+    variants: Mapped[list] = mapped_column(JSON)        # [{"label", "material_id", "version", "material"}]
+    environments: Mapped[list] = mapped_column(JSON)    # [{"label", "asset_id", "rotation_deg"}]
+    created: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now)
+
+
 class ApiToken(Base):
     __tablename__ = "api_tokens"
     id: Mapped[str] = mapped_column(String(32), primary_key=True, default=new_id)

@@ -18,7 +18,7 @@ from fastapi.responses import HTMLResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 
 from .config import Settings
-from .routes import assets, materials, renders, scenes, sessions
+from .routes import assets, materials, publications, renders, scenes, sessions
 from .state import AppState
 
 log = logging.getLogger("glint")
@@ -80,18 +80,24 @@ def create_app(settings: Settings | None = None, pool=None) -> FastAPI:
         return {"status": "ok" if all(alive) else "degraded", "version": VERSION, "workers": len(alive),
                 "workers_alive": sum(alive), "worker_restarts": getattr(st.pool, "restarts", 0)}
 
-    for r in (assets, scenes, renders, materials, sessions):
+    for r in (assets, scenes, renders, materials, publications, sessions):
         app.include_router(r.router)
 
     web = Path(settings.web_dir)
-    if (web / "index.html").is_file():
-        app.mount("/web", StaticFiles(directory=web), name="web")
+    app.mount("/web", StaticFiles(directory=web, check_dir=False), name="web")
 
-        @app.get("/", include_in_schema=False)
-        async def index():
-            return HTMLResponse((web / "index.html").read_text())
-    else:
-        @app.get("/", include_in_schema=False)
-        async def index():
-            return HTMLResponse("<h1>Glint</h1><p>The API is described at <a href='/docs'>/docs</a>.</p>")
+    def page(name: str) -> HTMLResponse:
+        f = web / name
+        if not f.is_file():
+            return HTMLResponse("<h1>Glint</h1><p>The web client is missing; the API is at <a href='/docs'>/docs</a>.</p>")
+        # plain ES modules, no build step; no-cache so an updated studio is picked up at once
+        return HTMLResponse(f.read_text(), headers={"Cache-Control": "no-cache"})
+
+    @app.get("/", include_in_schema=False)
+    async def studio():
+        return page("index.html")
+
+    @app.get("/view/{pub_id}", include_in_schema=False)
+    async def viewer(pub_id: str):
+        return page("viewer.html")
     return app

@@ -82,6 +82,12 @@ class Engine:
         self.set_materials(scene.materials)
 
     # -- state ------------------------------------------------------------------------------
+    def set_envmap(self, envmap: np.ndarray) -> None:
+        """Light the scene with another equirectangular map (H, W, 3) float32 radiance. Cuts are
+        geometry only, so they stay; the per-node light is rebuilt on the next frame."""
+        self.lighting = LeafLighting(envmap, self.tree)
+        self._light_key = None
+
     def set_materials(self, materials) -> None:
         self.materials = list(materials)
         self.mats = MaterialTable([pack(m) for m in self.materials])

@@ -14,11 +14,11 @@ from fastapi.concurrency import run_in_threadpool
 from pydantic import ValidationError
 from sqlalchemy import select
 
-from worker.jobs.protocol import client_msg
+from worker.jobs.protocol import READONLY_TYPES, client_msg
 from worker.jobs.session import encode_frame
 from worker.scene import Camera
 
-from ..db import MaterialDesign, Scene, Session, StrokeRow, new_secret, token_hash
+from ..db import MaterialDesign, Publication, Scene, Session, StrokeRow, new_secret, token_hash
 from ..deps import DB, Client, State
 from ..schemas import SessionCreate, SessionOut
 from ..state import Conflict, NotFound
@@ -89,21 +89,42 @@ def close_session(sid: str, st: State, db: DB, x_session_token: str | None = Hea
 
 
 # -- persistence of client messages ---------------------------------------------------------------
-def persist(st, sid: str, msg) -> dict | None:
-    """Record a validated message before the worker sees it. Returns an error event when the
-    message is valid JSON but cannot apply (then nothing is stored or forwarded)."""
+def persist(st, sid: str, msg) -> tuple[dict | None, dict | None]:
+    """Record a validated message before the worker sees it. Returns (error event, None) when
+    the message cannot apply (nothing is stored or forwarded), else (None, message to forward)."""
     with st.db() as s, s.begin():
         row = s.get(Session, sid)
         state = dict(row.state)
         epoch = state.get("epoch", 0)
         t = msg.type
-        if t == "view":
+        fwd = msg.model_dump(mode="json")
+        if state.get("readonly") and t not in READONLY_TYPES:
+            return {"type": "error", "seq": msg.seq, "message": f"{t}: this is a read-only viewer session"}, None
+        if t in ("variant", "environment") and not state.get("readonly"):
+            return {"type": "error", "seq": msg.seq, "message": f"{t}: only viewer sessions have published {t}s"}, None
+        if t == "variant":
+            pub = s.get(Publication, state["publication"])
+            if not msg.index < len(pub.variants):
+                return {"type": "error", "seq": msg.seq, "message": f"variant: no variant {msg.index}"}, None
+            sc = s.get(Scene, row.scene_id)
+            names = [o["name"] for o in sc.spec["objects"]]
+            mats = list(state["materials"])
+            mats[names.index(state["object"])] = pub.variants[msg.index]["material"]
+            state.update(materials=mats, variant=msg.index)
+            # the worker gets the published material, never one from the client
+            fwd = {"seq": msg.seq, "type": "material", "material": pub.variants[msg.index]["material"]}
+        elif t == "environment":
+            if not msg.index < len(state.get("environments", [])):
+                return {"type": "error", "seq": msg.seq, "message": f"environment: no preset {msg.index}"}, None
+            state["environment_index"] = msg.index
+            state["rotation_deg"] = state["environments"][msg.index]["rotation_deg"]
+        elif t == "view":
             upd = {k: v for k, v in msg.model_dump(mode="json").items()
                    if k in ("eye", "target", "up", "fov_y_deg") and v is not None}
             try:
                 state["camera"] = Camera.model_validate({**state["camera"], **upd}).model_dump(mode="json")
             except ValidationError as e:
-                return {"type": "error", "seq": msg.seq, "message": f"view: {e.errors()[0]['msg']}"}
+                return {"type": "error", "seq": msg.seq, "message": f"view: {e.errors()[0]['msg']}"}, None
         elif t == "light":
             if msg.rotation_deg is not None:
                 state["rotation_deg"] = msg.rotation_deg
@@ -114,7 +135,7 @@ def persist(st, sid: str, msg) -> dict | None:
             names = [o["name"] for o in sc.spec["objects"]]
             name = msg.object or state["object"]
             if name not in names:
-                return {"type": "error", "seq": msg.seq, "message": f"material: no object {name!r}"}
+                return {"type": "error", "seq": msg.seq, "message": f"material: no object {name!r}"}, None
             mats = list(state["materials"])
             mats[names.index(name)] = msg.material.model_dump(mode="json")
             state["materials"] = mats
@@ -146,7 +167,7 @@ def persist(st, sid: str, msg) -> dict | None:
                     state[k] = getattr(msg, k)
         state["last_seq"] = max(int(state.get("last_seq", -1)), msg.seq)
         row.state = state
-    return None
+    return None, fwd
 
 
 def on_worker_event(st, sid: str, ev: dict) -> dict:
@@ -230,11 +251,11 @@ async def stream(ws: WebSocket, sid: str, token: str | None = Query(None)):
                 await ws.send_text(json.dumps({"type": "error", "seq": seq,
                                                "message": f"{'.'.join(str(x) for x in err['loc'])}: {err['msg']}"}))
                 continue
-            err = await run_in_threadpool(persist, st, sid, msg)
+            err, fwd = await run_in_threadpool(persist, st, sid, msg)
             if err is not None:
                 await ws.send_text(json.dumps(err))
                 continue
-            st.pool.send(sid, msg.model_dump(mode="json"))
+            st.pool.send(sid, fwd)
     except WebSocketDisconnect:
         pass
     except RuntimeError as e:   # sending on a socket the client already closed

@@ -74,6 +74,19 @@ class DisplayMsg(_Msg):
     quality: int | None = Field(None, ge=10, le=100)
 
 
-ClientMsg = Annotated[Union[ViewMsg, LightMsg, MaterialMsg, StrokeMsg, UndoMsg, RedoMsg, FitMsg, SaveMsg, DisplayMsg],
-                      Field(discriminator="type")]
+class VariantMsg(_Msg):
+    """Viewer: show published variant ``index`` (the server supplies its material)."""
+    type: Literal["variant"]
+    index: int = Field(ge=0, le=1000)
+
+
+class EnvironmentMsg(_Msg):
+    """Viewer: light the object with published environment preset ``index``."""
+    type: Literal["environment"]
+    index: int = Field(ge=0, le=1000)
+
+
+ClientMsg = Annotated[Union[ViewMsg, LightMsg, MaterialMsg, StrokeMsg, UndoMsg, RedoMsg, FitMsg, SaveMsg, DisplayMsg,
+                            VariantMsg, EnvironmentMsg], Field(discriminator="type")]
 client_msg = TypeAdapter(ClientMsg)
+READONLY_TYPES = {"view", "light", "display", "variant", "environment"}   # what a shopper may send

@@ -47,6 +47,7 @@ class SceneCache:
         self.size = size
         self._scenes: OrderedDict = OrderedDict()
         self._lock = threading.RLock()    # the job thread and the session loop share the cache
+        self._maps: dict = {}
 
     def scene(self, p: dict):
         with self._lock:
@@ -75,6 +76,18 @@ class SceneCache:
         while len(self._scenes) > self.size:
             self._scenes.popitem(last=False)
         return sc
+
+    def envmap(self, f: dict):
+        """An environment map blob (verified), decoded once."""
+        from worker.envmap import load_envmap
+
+        with self._lock:
+            key = ("env", f["sha256"])
+            if key not in self._maps:
+                if len(self._maps) > 8:
+                    self._maps.clear()
+                self._maps[key] = load_envmap(_linked(self, f))
+            return self._maps[key]
 
     def cuts(self, p: dict):
         from worker.core import cuts as cutmod
@@ -253,7 +266,8 @@ def worker_main(wid: int, inq, outq, blob_root: str) -> None:
                 try:
                     sc = cache.scene(p["scene"])
                     cuts = cache.cuts(p["scene"])
-                    sessions[key] = SessionRuntime(sc, cuts, p.get("state") or {}, p.get("strokes") or [])
+                    sessions[key] = SessionRuntime(sc, cuts, p.get("state") or {}, p.get("strokes") or [],
+                                                   env_loader=cache.envmap)
                     pending.setdefault(key, [])
                     pending[key].append({"_ack": int(p.get("ack", -1))})
                 except Exception as e:

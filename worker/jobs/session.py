@@ -66,8 +66,11 @@ class SessionRuntime:
     """payload: {"scene": LoadedScene, "cuts": CutSet, "state": dict, "strokes": [{"stroke": {...},
     "camera": {...}, "rotation_deg": r, "intensity": i, "undone": bool}, ...]} (see server/sessions)."""
 
-    def __init__(self, scene, cuts, state: dict, strokes: list[dict]):
+    def __init__(self, scene, cuts, state: dict, strokes: list[dict], env_loader=None):
         self.scene = scene
+        self.env_loader = env_loader      # file info -> (H, W, 3) map, for environment presets
+        self.environments = state.get("environments") or []
+        self.env_index = 0
         self.engine = Engine(scene, cuts)
         spec = scene.spec
         names = [o.name for o in spec.objects]
@@ -92,6 +95,8 @@ class SessionRuntime:
         self.frame_no = 0
         self.fitter: Fitter | None = None
         self.engine.set_materials(self.materials)
+        if self.environments:
+            self._set_environment(int(state.get("environment_index", 0)))
         self._needs_fit = False
         self._drag = False
         # pay the basis's one-time costs (energy rows, solver import) at open, not on the first stroke
@@ -143,6 +148,15 @@ class SessionRuntime:
         st = Stroke.model_validate({**rec["stroke"], "view": i})
         return self.fitter.add_stroke(st)
 
+    def _set_environment(self, index: int) -> None:
+        if not 0 <= index < len(self.environments) or self.env_loader is None:
+            raise FitError(f"no environment preset {index} (there are {len(self.environments)})")
+        env = self.environments[index]
+        self.engine.set_envmap(self.env_loader(env))
+        self.rotation = float(env.get("rotation_deg", self.rotation))
+        self.env_index = index
+        self._vt = None
+
     def stroke_record(self, stroke: Stroke) -> dict:
         """What the server persists for a stroke: the stroke and the view it was painted in."""
         return {"stroke": stroke.model_dump(), "camera": self.camera.model_dump(),
@@ -190,6 +204,10 @@ class SessionRuntime:
             if m.unpainted_weight is not None:
                 self.unpainted_weight = m.unpainted_weight
             self._needs_fit = True
+        elif t == "environment":
+            self._set_environment(m.index)
+        elif t == "variant":
+            raise FitError("variants are chosen by the server (viewer sessions only)")
         elif t == "display":
             if m.exposure is not None:
                 self.exposure = m.exposure

@@ -1,0 +1,216 @@
+"""The studio and the shopper viewer in headless Chromium (Debian's, driven by Playwright),
+against the real server fixture. Screenshots of every step go to test-artifacts/web-*.png."""
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+pw = pytest.importorskip("playwright.sync_api")
+
+# luminance on a coarse grid of the frame canvas, read in the page (a few KB, not 1.2 MB)
+GRID_JS = """(id) => {
+  const c = document.getElementById(id), g = c.getContext('2d');
+  const d = g.getImageData(0, 0, c.width, c.height).data, W = 64, H = 48, out = [];
+  for (let j = 0; j < H; j++) for (let i = 0; i < W; i++) {
+    const x = Math.floor((i + 0.5) * c.width / W), y = Math.floor((j + 0.5) * c.height / H), k = 4 * (y * c.width + x);
+    out.push(0.2126 * d[k] + 0.7152 * d[k + 1] + 0.0722 * d[k + 2]);
+  }
+  return out;
+}"""
+
+
+def grid(page, cid="view"):
+    return np.asarray(page.evaluate(GRID_JS, cid), np.float64).reshape(48, 64)
+
+
+def frame_no(page):
+    return int(page.evaluate("() => +(document.getElementById('view').dataset.frame || 0)"))
+
+
+def wait_new_frame(page, after, timeout=60_000):
+    page.wait_for_function(f"() => +(document.getElementById('view').dataset.frame || 0) > {after}", timeout=timeout)
+    page.wait_for_timeout(150)
+
+
+def settle(page, quiet_ms=1200, timeout=60_000):
+    """Wait until no new frame has arrived for quiet_ms (the last message's frame is in)."""
+    waited, last = 0, frame_no(page)
+    while waited < timeout:
+        page.wait_for_timeout(quiet_ms)
+        waited += quiet_ms
+        now = frame_no(page)
+        if now == last:
+            return
+        last = now
+    raise TimeoutError("frames kept coming")
+
+
+@pytest.fixture(scope="module")
+def browser():
+    with pw.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, headless=True,
+                              args=["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
+                                    "--disable-background-networking"])
+        yield b
+        b.close()
+
+
+def test_studio_and_viewer(server, bunny_scene, browser, artifacts):
+    base = server["base"]
+    ctx = browser.new_context(viewport={"width": 1280, "height": 860}, accept_downloads=True)
+    page = ctx.new_page()
+    errors = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(base + "/")
+    # 1. the studio loads and shows a non-blank frame
+    wait_new_frame(page, 0)
+    settle(page)
+    g0 = grid(page)
+    page.screenshot(path=str(artifacts / "web-1-loaded.png"))
+    assert g0.std() > 5, "the first frame is blank"
+    assert page.locator("#readout").inner_text().split()[0].isdigit()
+
+    canvas = page.locator("#view").bounding_box()
+    cx, cy, w, h = canvas["x"], canvas["y"], canvas["width"], canvas["height"]
+
+    # 2. a drag orbits the view
+    n = frame_no(page)
+    page.mouse.move(cx + 0.5 * w, cy + 0.5 * h)
+    page.mouse.down()
+    for k in range(1, 9):
+        page.mouse.move(cx + 0.5 * w + 12 * k, cy + 0.5 * h)
+        page.wait_for_timeout(30)
+    page.mouse.up()
+    wait_new_frame(page, n)
+    settle(page)
+    g1 = grid(page)
+    page.screenshot(path=str(artifacts / "web-2-orbited.png"))
+    assert np.abs(g1 - g0).mean() > 2, "dragging did not change the view"
+
+    # 3. a painted stroke brightens the pixels under it
+    page.check("#tool-brush")
+    page.fill("#brush-diameter", "30")
+    page.locator("#brush-strength").fill("6")
+    n = frame_no(page)
+    y = cy + 0.55 * h
+    page.mouse.move(cx + 0.42 * w, y)
+    page.mouse.down()
+    for k in range(1, 11):
+        page.mouse.move(cx + (0.42 + 0.014 * k) * w, y)
+        page.wait_for_timeout(20)
+    page.mouse.up()
+    wait_new_frame(page, n)
+    settle(page)
+    g2 = grid(page)
+    page.screenshot(path=str(artifacts / "web-3-stroke.png"))
+    rows = slice(int(0.55 * 48) - 2, int(0.55 * 48) + 3)
+    cols = slice(int(0.42 * 64), int(0.56 * 64) + 1)
+    under = (g2 - g1)[rows, cols].mean()
+    mask = np.ones_like(g2, bool)
+    mask[rows, cols] = False
+    assert under > 4 and under > 3 * np.abs(g2 - g1)[mask].mean(), (under, np.abs(g2 - g1)[mask].mean())
+    assert "fit" in page.locator("#status").inner_text()
+
+    # 4. dragging a point of the curve editor changes the material and the frame
+    pts = json.loads(page.locator("#curve").get_attribute("data-points"))
+    box = page.locator("#curve").bounding_box()
+    px, py = pts[1]
+    n = frame_no(page)
+    page.mouse.move(box["x"] + px * box["width"], box["y"] + py * box["height"])
+    page.mouse.down()
+    for k in range(1, 6):
+        page.mouse.move(box["x"] + px * box["width"], box["y"] + py * box["height"] - 10 * k)
+        page.wait_for_timeout(30)
+    page.mouse.up()
+    wait_new_frame(page, n)
+    settle(page)
+    g3 = grid(page)
+    page.screenshot(path=str(artifacts / "web-4-curve.png"))
+    assert page.locator("#model").input_value() == "curve"
+    assert np.abs(g3 - g2).mean() > 1, "editing the curve did not change the frame"
+
+    # 5. save the design, publish it, open the viewer
+    page.fill("#design-name", "curved bunny")
+    page.click("#save")
+    page.wait_for_function("() => document.getElementById('status').textContent.includes('saved')", timeout=60_000)
+    page.locator("#versions li").first.wait_for(timeout=30_000)          # the version list loads
+    page.click("#publish")
+    link = page.locator("#publish-link")
+    link.wait_for(state="visible", timeout=30_000)
+    href = link.get_attribute("href")
+    assert href.startswith("/view/")
+    page.screenshot(path=str(artifacts / "web-5-published.png"))
+
+    viewer = ctx.new_page()
+    viewer.on("pageerror", lambda e: errors.append(str(e)))
+    viewer.goto(base + href)
+    wait_new_frame(viewer, 0)
+    settle(viewer)
+    gv = grid(viewer)
+    viewer.screenshot(path=str(artifacts / "web-6-viewer.png"))
+    assert gv.std() > 5
+    assert viewer.locator(".swatch").count() == 1
+    assert viewer.locator("#design-name").count() == 0 and viewer.locator("#save").count() == 0   # read-only
+    # the screenshot downloads a PNG
+    with viewer.expect_download() as dl:
+        viewer.click("#screenshot")
+    path = dl.value.path()
+    assert open(path, "rb").read(8) == b"\x89PNG\r\n\x1a\n"
+    assert dl.value.suggested_filename.endswith(".png")
+    assert not errors, errors
+    ctx.close()
+
+
+def test_viewer_on_a_phone_and_read_only(server, bunny_scene, client, browser, artifacts):
+    # a design and a publication made through the API
+    m = client.post("/v1/materials", json={"name": "red", "material": {"model": "ggx", "alpha": 0.2, "specular": [0.5, 0.5, 0.5],
+                                                                       "albedo": [0.5, 0.05, 0.05]}}).json()
+    m2 = client.post("/v1/materials", json={"name": "blue", "material": {"model": "lambert", "albedo": [0.05, 0.1, 0.6]}}).json()
+    pub = client.post("/v1/publications", json={"name": "bunny colours", "scene_id": bunny_scene,
+                                                "variants": [{"material_id": m["id"]}, {"material_id": m2["id"]}],
+                                                "environments": [{"label": "sunset"}, {"label": "sunset, turned", "rotation_deg": 120}]})
+    assert pub.status_code == 201, pub.text
+    pid = pub.json()["id"]
+    ctx = browser.new_context(viewport={"width": 390, "height": 844}, is_mobile=True, has_touch=True)
+    page = ctx.new_page()
+    page.goto(server["base"] + f"/view/{pid}")
+    wait_new_frame(page, 0)
+    settle(page)
+    g0 = grid(page)
+    bb = page.locator("#view").bounding_box()
+    assert bb["width"] <= 390 and bb["width"] > 300                 # fits the phone
+    page.screenshot(path=str(artifacts / "web-7-phone.png"))
+    n = frame_no(page)
+    page.locator(".swatch").nth(1).click()                          # switch variant
+    wait_new_frame(page, n)
+    settle(page)
+    g1 = grid(page)
+    assert np.abs(g1 - g0).mean() > 2
+    n = frame_no(page)
+    page.select_option("#environment", "1")                         # another lighting preset
+    wait_new_frame(page, n)
+    settle(page)
+    assert np.abs(grid(page) - g1).mean() > 1
+    page.screenshot(path=str(artifacts / "web-8-phone-variant.png"))
+    ctx.close()
+
+    # a viewer session cannot edit: strokes, materials and saves are refused
+    from websockets.sync.client import connect      # (Playwright's sync API owns this thread's event loop)
+
+    ses = client.post(f"/v1/publications/{pid}/sessions").json()
+    with connect(f"ws://127.0.0.1:{server['port']}{ses['stream']}?token={ses['token']}", max_size=None) as ws:
+        ws.recv(timeout=30)
+        for msg in ({"seq": 1, "type": "stroke", "stroke": {"points": [[80, 60]]}},
+                    {"seq": 2, "type": "material", "material": {"model": "lambert"}},
+                    {"seq": 3, "type": "save", "name": "mine"}):
+            ws.send(json.dumps(msg))
+            while True:
+                x = ws.recv(timeout=30)
+                if isinstance(x, str):
+                    ev = json.loads(x)
+                    assert ev["type"] == "error" and "read-only" in ev["message"], ev
+                    break
+    # the published design is unchanged
+    assert client.get(f"/v1/materials/{m['id']}").json()["version"] == 1

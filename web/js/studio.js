@@ -1,0 +1,290 @@
+// The studio: pick or upload a scene, orbit and relight it, paint strokes, edit the material
+// and its curve, save versioned designs and publish them for the shopper viewer.
+import { api, SessionStream } from "./net.js";
+import { FrameView } from "./canvas.js";
+import { CurveEditor, drawLobe } from "./curve.js";
+import { toCurve } from "./brdf.js";
+import { orbit } from "./orbit.js";
+
+const $ = (id) => document.getElementById(id);
+const status = (t) => { $("status").textContent = t; };
+
+let session = null, stream = null, state = null, material = null, designId = null;
+const saved = [];                 // design ids saved from this page (publish candidates)
+const view = new FrameView($("view"), $("readout"));
+const overlay = $("overlay").getContext("2d");
+
+const srgbToLinear = (c) => (c <= 0.04045 ? c / 12.92 : ((c + 0.055) / 1.055) ** 2.4);
+const hexToLinear = (hex) => [1, 3, 5].map((i) => srgbToLinear(parseInt(hex.slice(i, i + 2), 16) / 255));
+
+// -- scenes --------------------------------------------------------------------------------------
+async function listScenes(select) {
+  const scenes = await api("/v1/scenes");
+  const sel = $("scene-select");
+  sel.innerHTML = "";
+  for (const s of scenes) {
+    const p = s.precomputation;
+    const o = new Option(`${s.name || s.id} — ${p ? p.status : "not precomputed"}`, s.id);
+    o.disabled = !p || p.status !== "done";
+    sel.append(o);
+  }
+  const ready = scenes.find((s) => s.id === select) || scenes.find((s) => s.name === "demo" && s.precomputation?.status === "done")
+    || scenes.find((s) => s.precomputation?.status === "done");
+  if (ready) sel.value = ready.id;
+  return { scenes, ready };
+}
+
+async function waitPrecompute(sceneId) {
+  const bar = $("progress");
+  bar.classList.remove("hidden");
+  for (;;) {
+    const s = await api(`/v1/scenes/${sceneId}`);
+    const p = s.precomputation;
+    if (p) {
+      bar.value = p.progress;
+      status(`precomputing ${s.name || s.id}: ${Math.round(100 * p.progress)}% ${p.message}`);
+      if (p.status === "done") break;
+      if (p.status === "failed") throw new Error(`precomputation failed: ${p.message}`);
+    }
+    await new Promise((r) => setTimeout(r, 700));
+  }
+  bar.classList.add("hidden");
+}
+
+async function upload() {
+  const mesh = $("mesh-file").files[0], env = $("env-file").files[0];
+  if (!mesh || !env) return status("choose a mesh and an HDRI first");
+  try {
+    status(`uploading ${mesh.name}…`);
+    const m = await api(`/v1/assets/meshes?filename=${encodeURIComponent(mesh.name)}`, { method: "POST", raw: mesh });
+    status(`uploading ${env.name}…`);
+    const e = await api(`/v1/assets/envmaps?filename=${encodeURIComponent(env.name)}`, { method: "POST", raw: env });
+    const [lo, hi] = m.meta.bounds;
+    const c = lo.map((x, i) => (x + hi[i]) / 2), r = Math.hypot(...hi.map((x, i) => x - lo[i])) / 2;
+    const scene = { version: 1, environment: { map: e.id },
+      camera: { eye: [c[0], c[1] + 0.4 * r, c[2] + 2.8 * r], target: c, up: [0, 1, 0], fov_y_deg: 40, width: 640, height: 480 },
+      objects: [{ name: mesh.name.replace(/\.[^.]+$/, ""), mesh: m.id, material: { model: "lambert", albedo: [0.6, 0.6, 0.6] } }] };
+    const s = await api(`/v1/scenes?name=${encodeURIComponent(mesh.name)}`, { method: "POST", body: scene });
+    await api(`/v1/scenes/${s.id}/precompute`, { method: "POST" });
+    await waitPrecompute(s.id);
+    await listScenes(s.id);
+    await openScene(s.id);
+  } catch (err) { status(`upload failed: ${err.message}`); }
+}
+
+async function openScene(id) {
+  if (stream) stream.close();
+  status("opening a session…");
+  session = await api("/v1/sessions", { method: "POST", body: { scene_id: id } });
+  state = session.state;
+  designId = null;
+  $("versions").innerHTML = "";
+  const objIdx = 0;
+  setMaterial(state.materials[objIdx]);
+  stream = new SessionStream(session, {
+    onFrame: (f) => view.push(f),
+    onEvent: onEvent,
+    onState: (s) => status(`${state.object}: ${s}`),
+  });
+  view.stream = stream;
+}
+
+function onEvent(ev) {
+  if (ev.type === "fit") {
+    setMaterial(ev.material);
+    const s = ev.stats || {};
+    status(s.strokes ? `fit: ${s.strokes} stroke(s), ${s.painted} painted px, solve ${s.ms_solve?.toFixed(1)} ms` +
+      (s.constrained ? `, albedo ≤ ${(s.energy_max + 0).toFixed(2)} of ${s.energy_bound.toFixed(2)}` : ", unconstrained") : "no strokes");
+    if (ev.notes?.length) status(ev.notes.join("; "));
+  } else if (ev.type === "stroke" && ev.notes?.length) {
+    status(ev.notes.join("; "));
+  } else if (ev.type === "saved") {
+    designId = ev.material_id;
+    if (!saved.includes(designId)) saved.push(designId);
+    status(`saved “${ev.name}” version ${ev.version}`);
+    loadVersions();
+  } else if (ev.type === "error") {
+    status(`error: ${ev.message}`);
+  } else if (ev.type === "note") {
+    status(ev.message);
+  }
+}
+
+// -- camera, light, display -----------------------------------------------------------------------
+let dragging = null, strokePts = [];
+const tool = () => document.querySelector("input[name=tool]:checked").value;
+
+$("view").addEventListener("pointerdown", (e) => {
+  if (!stream) return;
+  $("view").setPointerCapture(e.pointerId);
+  const mode = tool() === "brush" ? "brush" : (e.altKey || tool() === "light" ? "light" : "orbit");
+  dragging = { mode, x: e.clientX, y: e.clientY };
+  if (mode === "brush") { strokePts = [view.toFrame(e, state.camera.width, state.camera.height)]; drawStroke(); }
+});
+$("view").addEventListener("pointermove", (e) => {
+  if (!dragging) return;
+  const dx = e.clientX - dragging.x, dy = e.clientY - dragging.y;
+  if (dragging.mode === "brush") {
+    strokePts.push(view.toFrame(e, state.camera.width, state.camera.height));
+    drawStroke();
+    return;
+  }
+  dragging.x = e.clientX; dragging.y = e.clientY;
+  if (dragging.mode === "orbit") {
+    state.camera = orbit(state.camera, -dx * 0.01, dy * 0.01);
+    stream.send("view", { eye: state.camera.eye, drag: true });
+  } else {
+    state.rotation_deg = (state.rotation_deg || 0) + dx * 0.5;
+    stream.send("light", { rotation_deg: state.rotation_deg, drag: true });
+  }
+});
+$("view").addEventListener("pointerup", () => {
+  if (!dragging) return;
+  const mode = dragging.mode;
+  dragging = null;
+  if (mode === "brush") return sendStroke();
+  if (mode === "orbit") stream.send("view", { eye: state.camera.eye, drag: false });
+  else stream.send("light", { rotation_deg: state.rotation_deg, drag: false });
+});
+$("view").addEventListener("wheel", (e) => {
+  if (!stream) return;
+  e.preventDefault();
+  state.camera = orbit(state.camera, 0, 0, Math.exp(e.deltaY * 0.001));
+  stream.send("view", { eye: state.camera.eye });
+}, { passive: false });
+$("exposure").addEventListener("input", () => stream?.send("display", { exposure: +$("exposure").value }));
+$("tone").addEventListener("change", () => stream?.send("display", { tone: $("tone").value }));
+
+// -- brush -------------------------------------------------------------------------------------------
+function drawStroke() {
+  const c = $("overlay");
+  overlay.clearRect(0, 0, c.width, c.height);
+  if (!strokePts.length) return;
+  const s = c.width / state.camera.width;
+  overlay.strokeStyle = $("brush-sign").value === "1" ? "rgba(255,255,255,0.55)" : "rgba(20,20,20,0.55)";
+  overlay.lineWidth = +$("brush-diameter").value * s;
+  overlay.lineCap = overlay.lineJoin = "round";
+  overlay.beginPath();
+  strokePts.forEach(([x, y], i) => (i ? overlay.lineTo(x * s, y * s) : overlay.moveTo(x * s, y * s)));
+  if (strokePts.length === 1) overlay.lineTo(strokePts[0][0] * s + 0.1, strokePts[0][1] * s);
+  overlay.stroke();
+}
+
+function sendStroke() {
+  const k = +$("brush-strength").value * +$("brush-sign").value;
+  const color = hexToLinear($("brush-color").value).map((x) => x * k);
+  stream.send("stroke", { stroke: { points: strokePts.slice(0, 10000), color, diameter: +$("brush-diameter").value,
+    kappa: +$("brush-kappa").value, mode: $("brush-mode").value, scale: +$("brush-scale").value } });
+  setTimeout(() => { strokePts = []; drawStroke(); }, 250);
+}
+$("undo").onclick = () => stream?.send("undo");
+$("redo").onclick = () => stream?.send("redo");
+document.addEventListener("keydown", (e) => {
+  if ((e.ctrlKey || e.metaKey) && e.key.toLowerCase() === "z") { e.preventDefault(); stream?.send(e.shiftKey ? "redo" : "undo"); }
+});
+const sendFit = () => stream?.send("fit", { constrained: $("constrained").checked, unpainted_weight: +$("unpainted-weight").value });
+$("constrained").onchange = sendFit;
+$("unpainted-weight").onchange = sendFit;
+
+// -- material panel ----------------------------------------------------------------------------------
+const PARAMS = {
+  lambert: [["albedo", "color"]],
+  ggx: [["alpha", "range", 0.02, 1, 0.01], ["specular", "color"], ["albedo", "color"]],
+  "blinn-phong": [["exponent", "range", 1, 2000, 1], ["specular", "color"], ["albedo", "color"]],
+  curve: [["albedo", "color"], ["fresnel_f0", "range", 0, 1, 0.01]],
+  srbf: [["albedo", "color"], ["fresnel_f0", "range", 0, 1, 0.01]],
+};
+const toHex = (rgb) => "#" + rgb.map((c) => Math.round(255 * Math.min(1, Math.max(0, c <= 0.0031308 ? 12.92 * c : 1.055 * c ** (1 / 2.4) - 0.055))).toString(16).padStart(2, "0")).join("");
+const DEFAULTS = { lambert: { albedo: [0.5, 0.5, 0.5] }, ggx: { alpha: 0.25, specular: [0.5, 0.5, 0.5], albedo: [0.2, 0.2, 0.2] },
+  "blinn-phong": { exponent: 100, specular: [0.3, 0.3, 0.3], albedo: [0.3, 0.3, 0.3] } };
+
+const curveEditor = new CurveEditor($("curve"), (m) => { setMaterial(m, false); queueMaterial(); });
+let pendingMaterial = false;
+function queueMaterial() {
+  if (pendingMaterial) return;
+  pendingMaterial = true;
+  requestAnimationFrame(() => { pendingMaterial = false; stream?.send("material", { material }); });
+}
+
+function setMaterial(m, rebuild = true) {
+  material = structuredClone(m);
+  $("model").value = m.model;
+  if (rebuild) buildParams();
+  curveEditor.set(material);
+  drawLobe($("lobe"), material, +$("lobe-angle").value);
+}
+
+function buildParams() {
+  const box = $("params");
+  box.innerHTML = "";
+  for (const [key, kind, lo, hi, step] of PARAMS[material.model] || []) {
+    const label = document.createElement("label");
+    label.textContent = key;
+    const input = document.createElement("input");
+    input.id = `param-${key}`;
+    if (kind === "color") { input.type = "color"; input.value = toHex(material[key] || [0, 0, 0]); }
+    else { Object.assign(input, { type: "range", min: lo, max: hi, step, value: material[key] ?? lo }); }
+    input.addEventListener("input", () => {
+      material[key] = kind === "color" ? hexToLinear(input.value) : +input.value;
+      curveEditor.set(material);
+      drawLobe($("lobe"), material, +$("lobe-angle").value);
+      queueMaterial();
+    });
+    label.append(input);
+    box.append(label);
+  }
+}
+$("model").addEventListener("change", () => {
+  const model = $("model").value;
+  // a curve starts from the current BRDF's half-angle distribution, so the look carries over
+  if (model === "curve") setMaterial(toCurve(material));
+  else setMaterial({ model, ...(DEFAULTS[model] || {}) });
+  queueMaterial();
+});
+$("lobe-angle").addEventListener("input", () => drawLobe($("lobe"), material, +$("lobe-angle").value));
+
+// -- designs -------------------------------------------------------------------------------------------
+$("save").onclick = () => stream?.send("save", { name: $("design-name").value || "design", material_id: designId });
+async function loadVersions() {
+  if (!designId) return;
+  const vs = await api(`/v1/materials/${designId}/versions`);
+  const ul = $("versions");
+  ul.innerHTML = "";
+  for (const v of vs.reverse()) {
+    const li = document.createElement("li");
+    li.textContent = `v${v.version} · ${v.material.model} · ${new Date(v.created).toLocaleTimeString()}`;
+    const b = document.createElement("button");
+    b.textContent = "load";
+    b.onclick = () => { setMaterial(v.material); stream.send("material", { material: v.material }); };
+    li.append(b);
+    ul.append(li);
+  }
+}
+$("publish").onclick = async () => {
+  if (!saved.length) return status("save a design first");
+  try {
+    const p = await api("/v1/publications", { method: "POST", body: { name: $("design-name").value || "designs",
+      scene_id: session.scene_id, object: state.object, variants: saved.map((id) => ({ material_id: id })) } });
+    const a = $("publish-link");
+    a.href = p.viewer; a.textContent = `open the viewer (${p.variants.length} variant${p.variants.length > 1 ? "s" : ""})`;
+    a.classList.remove("hidden");
+    status(`published ${p.id}`);
+  } catch (err) { status(`publish failed: ${err.message}`); }
+};
+
+$("open-scene").onclick = () => $("scene-select").value && openScene($("scene-select").value);
+$("upload").onclick = upload;
+
+// -- start -----------------------------------------------------------------------------------------------
+(async () => {
+  try {
+    for (;;) {
+      const { scenes, ready } = await listScenes();
+      if (ready) { await openScene(ready.id); break; }
+      const pending = scenes.find((s) => s.precomputation && ["queued", "running"].includes(s.precomputation.status));
+      if (pending) { await waitPrecompute(pending.id); continue; }
+      status("no scene yet: upload a mesh and an HDRI");
+      break;
+    }
+  } catch (err) { status(`error: ${err.message}`); }
+})();
