@@ -79,7 +79,8 @@ async function openScene(id) {
   state = session.state;
   designId = null;
   $("versions").innerHTML = "";
-  const objIdx = 0;
+  const scene = await api(`/v1/scenes/${id}`);
+  const objIdx = Math.max(0, scene.spec.objects.findIndex((o) => o.name === state.object));
   setMaterial(state.materials[objIdx]);
   stream = new SessionStream(session, {
     onFrame: (f) => view.push(f),
