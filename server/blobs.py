@@ -12,6 +12,8 @@ import os
 import tempfile
 from pathlib import Path
 
+from worker.atomic import atomic_write
+
 
 class BlobError(RuntimeError):
     pass
@@ -80,14 +82,4 @@ class BlobStore:
         return tempfile.NamedTemporaryFile(dir=tmp, delete=False)
 
     def _write(self, dest: Path, data: bytes) -> None:
-        dest.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=dest.parent, suffix=".tmp")
-        try:
-            with os.fdopen(fd, "wb") as f:
-                f.write(data)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, dest)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        atomic_write(dest, data)

@@ -6,12 +6,12 @@ from __future__ import annotations
 
 import hashlib
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from .atomic import atomic_write  # noqa: F401  (re-exported: the CLI and tests use it here)
 from .core import cuts as cutmod
 from .core.brdf import pack
 from .core.directions import get_tree
@@ -29,21 +29,6 @@ def geometry_key(scene: LoadedScene, tau: float, height: int) -> str:
         h.update(np.ascontiguousarray(a).tobytes())
     h.update(f"tau={tau};H={height};v1".encode())
     return h.hexdigest()[:32]
-
-
-def atomic_write(path: Path, data: bytes) -> None:
-    """Write through a temporary file in the same folder, fsync, rename: never a torn file."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def default_cache_dir() -> Path:

@@ -47,6 +47,16 @@ def settle(page, quiet_ms=1200, timeout=60_000):
     raise TimeoutError("frames kept coming")
 
 
+def drag(page, x, y, dx, dy, steps=8):
+    """Press at (x, y) and move by (dx, dy) in steps, as a hand would."""
+    page.mouse.move(x, y)
+    page.mouse.down()
+    for k in range(1, steps + 1):
+        page.mouse.move(x + dx * k / steps, y + dy * k / steps)
+        page.wait_for_timeout(30)
+    page.mouse.up()
+
+
 @pytest.fixture(scope="module")
 def browser():
     with pw.sync_playwright() as p:
@@ -77,12 +87,7 @@ def test_studio_and_viewer(server, bunny_scene, browser, artifacts):
 
     # 2. a drag orbits the view
     n = frame_no(page)
-    page.mouse.move(cx + 0.5 * w, cy + 0.5 * h)
-    page.mouse.down()
-    for k in range(1, 9):
-        page.mouse.move(cx + 0.5 * w + 12 * k, cy + 0.5 * h)
-        page.wait_for_timeout(30)
-    page.mouse.up()
+    drag(page, cx + 0.5 * w, cy + 0.5 * h, 96, 0)
     wait_new_frame(page, n)
     settle(page)
     g1 = grid(page)
@@ -94,13 +99,7 @@ def test_studio_and_viewer(server, bunny_scene, browser, artifacts):
     page.fill("#brush-diameter", "30")
     page.locator("#brush-strength").fill("6")
     n = frame_no(page)
-    y = cy + 0.55 * h
-    page.mouse.move(cx + 0.42 * w, y)
-    page.mouse.down()
-    for k in range(1, 11):
-        page.mouse.move(cx + (0.42 + 0.014 * k) * w, y)
-        page.wait_for_timeout(20)
-    page.mouse.up()
+    drag(page, cx + 0.42 * w, cy + 0.55 * h, 0.14 * w, 0, steps=10)
     wait_new_frame(page, n)
     settle(page)
     g2 = grid(page)
@@ -118,12 +117,7 @@ def test_studio_and_viewer(server, bunny_scene, browser, artifacts):
     box = page.locator("#curve").bounding_box()
     px, py = pts[1]
     n = frame_no(page)
-    page.mouse.move(box["x"] + px * box["width"], box["y"] + py * box["height"])
-    page.mouse.down()
-    for k in range(1, 6):
-        page.mouse.move(box["x"] + px * box["width"], box["y"] + py * box["height"] - 10 * k)
-        page.wait_for_timeout(30)
-    page.mouse.up()
+    drag(page, box["x"] + px * box["width"], box["y"] + py * box["height"], 0, -50, steps=5)
     wait_new_frame(page, n)
     settle(page)
     g3 = grid(page)
