@@ -95,7 +95,7 @@ function onEvent(ev) {
     setMaterial(ev.material);
     const s = ev.stats || {};
     status(s.strokes ? `fit: ${s.strokes} stroke(s), ${s.painted} painted px, solve ${s.ms_solve?.toFixed(1)} ms` +
-      (s.constrained ? `, albedo ≤ ${(s.energy_max + 0).toFixed(2)} of ${s.energy_bound.toFixed(2)}` : ", unconstrained") : "no strokes");
+      (s.constrained ? `, specular albedo ${s.energy_max.toFixed(2)} (bound ${s.energy_bound.toFixed(2)})` : ", unconstrained") : "no strokes");
     if (ev.notes?.length) status(ev.notes.join("; "));
   } else if (ev.type === "stroke" && ev.notes?.length) {
     status(ev.notes.join("; "));

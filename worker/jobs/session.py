@@ -56,15 +56,16 @@ def brdf_curve(material, n: int = CURVE_SAMPLES) -> dict:
         # ωo = normal, ωi at 2θh in the x-z plane, so θh is the half angle
         wo = np.broadcast_to([0.0, 0.0, 1.0], (n, 3))
         wi = np.stack([np.sin(2 * t), np.zeros(n), np.cos(2 * t)], -1)
-        vals = evaluate(material, wi, wo)
-        vals[th >= 89.9] = vals[th < 89.9][-1] if (th < 89.9).any() else 0.0
+        vals = evaluate(material, wi, wo)       # zero past θh = 45°, where ωi is below the horizon
         q = "f(ωi, ωo = n), θh = θi / 2"
     return {"theta_deg": th.round(3).tolist(), "values": np.asarray(vals, np.float64).round(6).tolist(), "quantity": q}
 
 
 class SessionRuntime:
-    """payload: {"scene": LoadedScene, "cuts": CutSet, "state": dict, "strokes": [{"stroke": {...},
-    "camera": {...}, "rotation_deg": r, "intensity": i, "undone": bool}, ...]} (see server/sessions)."""
+    """scene : LoadedScene, cuts : CutSet, state : the session state the server stores (camera,
+    light, materials, edited object, display, fit options, environment presets), strokes :
+    [{"stroke": {...}, "camera": {...}, "rotation_deg": r, "intensity": i, "undone": bool}, ...]
+    in painting order (server/routes/sessions.py persist)."""
 
     def __init__(self, scene, cuts, state: dict, strokes: list[dict], env_loader=None):
         self.scene = scene
