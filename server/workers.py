@@ -22,10 +22,6 @@ from typing import Callable
 log = logging.getLogger("glint.workers")
 
 
-class WorkerDied(RuntimeError):
-    pass
-
-
 class JobFailed(RuntimeError):
     def __init__(self, message: str, status: int = 500):
         super().__init__(message)
@@ -131,9 +127,6 @@ class LocalWorkerPool(WorkerPool):
                 q.close()
                 q.cancel_join_thread()
 
-    def pids(self) -> list[int]:
-        return [w.proc.pid for w in self.workers]
-
     # -- routing --------------------------------------------------------------------------------
     def _least_loaded(self) -> _Worker:
         return min(self.workers, key=lambda w: (len(w.sessions) + len(w.jobs), w.wid))
@@ -165,9 +158,6 @@ class LocalWorkerPool(WorkerPool):
                 self.owner[sid] = w
         w.inq.put(("open", sid, payload))
         return q
-
-    def is_open(self, sid: str) -> bool:
-        return sid in self.owner
 
     def send(self, sid: str, msg: dict) -> None:
         w = self.owner.get(sid)

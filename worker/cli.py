@@ -124,7 +124,7 @@ def cmd_bench_render(a) -> int:
     base = eng.materials
     for _ in range(2):  # warm-up: hit buffer, lighting matrices, caches
         tonemap(eng.render(mode=mode))
-    times, shade = [], []
+    times = []
     for i in range(a.frames):
         rot = (i * 360.0 / max(a.frames, 1)) % 360.0
         t0 = time.perf_counter()
@@ -159,9 +159,9 @@ def cmd_fit(a) -> int:
     from .fit.fitter import DEFAULT_UNPAINTED_WEIGHT
 
     if bool(a.strokes) == bool(a.target):
-        raise _usage("give exactly one of --strokes and --target")
+        raise _UsageError("give exactly one of --strokes and --target")
     if a.mask and not a.target:
-        raise _usage("--mask goes with --target")
+        raise _UsageError("--mask goes with --target")
     eng = _engine(a, quiet=a.json)
     sf = files.load_strokes(a.strokes) if a.strokes else None
     fx = _fitter(eng, a, sf)
@@ -302,10 +302,6 @@ def cmd_bench_stream(a) -> int:
 
 class _UsageError(Exception):
     pass
-
-
-def _usage(msg: str) -> _UsageError:
-    return _UsageError(msg)
 
 
 def cmd_assets_fetch(a) -> int:

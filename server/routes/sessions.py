@@ -63,6 +63,11 @@ def create_session(req: SessionCreate, st: State, db: DB, _: Client):
     return SessionOut(id=row.id, token=token, scene_id=sc.id, stream=_stream_url(row.id), state=row.state)
 
 
+def _object_names(s, row: Session) -> list[str]:
+    """Object names of the session's scene, in the order of state["materials"]."""
+    return [o["name"] for o in s.get(Scene, row.scene_id).spec["objects"]]
+
+
 def _authorised(row: Session | None, token: str | None) -> bool:
     return row is not None and token is not None and hmac.compare_digest(row.token_sha256, token_hash(token))
 
@@ -106,8 +111,7 @@ def persist(st, sid: str, msg) -> tuple[dict | None, dict | None]:
             pub = s.get(Publication, state["publication"])
             if not msg.index < len(pub.variants):
                 return {"type": "error", "seq": msg.seq, "message": f"variant: no variant {msg.index}"}, None
-            sc = s.get(Scene, row.scene_id)
-            names = [o["name"] for o in sc.spec["objects"]]
+            names = _object_names(s, row)
             mats = list(state["materials"])
             mats[names.index(state["object"])] = pub.variants[msg.index]["material"]
             state.update(materials=mats, variant=msg.index)
@@ -131,8 +135,7 @@ def persist(st, sid: str, msg) -> tuple[dict | None, dict | None]:
             if msg.intensity is not None:
                 state["intensity"] = msg.intensity
         elif t == "material":
-            sc = s.get(Scene, row.scene_id)
-            names = [o["name"] for o in sc.spec["objects"]]
+            names = _object_names(s, row)
             name = msg.object or state["object"]
             if name not in names:
                 return {"type": "error", "seq": msg.seq, "message": f"material: no object {name!r}"}, None
@@ -177,8 +180,7 @@ def on_worker_event(st, sid: str, ev: dict) -> dict:
         with st.db() as s, s.begin():
             row = s.get(Session, sid)
             state = dict(row.state)
-            sc = s.get(Scene, row.scene_id)
-            names = [o["name"] for o in sc.spec["objects"]]
+            names = _object_names(s, row)
             mats = list(state["materials"])
             mats[names.index(ev["object"])] = ev["material"]
             state["materials"] = mats

@@ -2,7 +2,6 @@
 import numpy as np
 import trimesh
 
-from worker.core.directions import get_tree
 from worker.core.lighting import pixel_directions
 from worker.engine import Engine, load_or_precompute
 from worker.scene import LoadedScene, parse_scene

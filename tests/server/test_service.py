@@ -119,7 +119,7 @@ def test_stream_errors_keep_the_session_alive(server, client, bunny_scene):
             hdr, _ = await next_frame(ws, 8)
             assert hdr["ack"] == 8
         # unknown session and wrong token
-        for path, token, code in ((f"/v1/sessions/nosuch/stream", "x", 4404), (ses["stream"], "wrong", 4403)):
+        for path, token, code in (("/v1/sessions/nosuch/stream", "x", 4404), (ses["stream"], "wrong", 4403)):
             async with websockets.connect(ws_url(server, path, token)) as ws:
                 ev = json.loads(await ws.recv())
                 assert ev["type"] == "error" and ev["code"] in (403, 404)

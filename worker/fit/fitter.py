@@ -66,13 +66,6 @@ class FitView:
         """Half a fit pixel, in view-image pixels."""
         return 0.5 * max(self.camera.width / self.size[0], self.camera.height / self.size[1])
 
-    def image(self, values: np.ndarray, fill=np.nan) -> np.ndarray:
-        """Scatter per-pixel values (N, C) into an (h, w, C) fit-resolution image."""
-        w, h = self.size
-        out = np.full((h * w, values.shape[1]), fill, np.float64)
-        out[self.pix] = values
-        return out.reshape(h, w, -1)
-
 
 @dataclass
 class FitOutcome:

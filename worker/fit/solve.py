@@ -51,7 +51,6 @@ class SolveResult:
     seconds: float
     iterations: list = field(default_factory=list)
     constrained: bool = True
-    energy_rows_used: list = field(default_factory=list)   # per channel, rows handed to the QP
 
 
 def gram(T: np.ndarray) -> np.ndarray:
@@ -136,7 +135,7 @@ def solve(rows: list[FitRows], basis: SRBFBasis, albedo, constrained: bool = Tru
         raise ValueError(f"diffuse albedo {rho.tolist()} exceeds 1: no energy-conserving specular part exists")
     H_all, f_all = normal_equations(rows, rho)
     coef = np.zeros((J, 3))
-    iters, used = [], []
+    iters = []
     seed = None
     # channels share work: the three problems differ only by the light's colour, so each
     # channel starts from the previous channel's solution and active energy rows
@@ -155,7 +154,6 @@ def solve(rows: list[FitRows], basis: SRBFBasis, albedo, constrained: bool = Tru
         coef[:, c], it, rows_used = _qp(Hs, fs, G, bound[c], w, tol, seed)
         seed = rows_used
         iters.append(it)
-        used.append(int(rows_used.sum()))
     seconds = time.perf_counter() - t0
     # report on the rows that count (w > 0), unweighted
     sse, n, tss = 0.0, 0, 0.0
@@ -168,4 +166,4 @@ def solve(rows: list[FitRows], basis: SRBFBasis, albedo, constrained: bool = Tru
     rms = np.sqrt(sse / max(n, 1))
     emax = float((G @ coef).max())
     return SolveResult(coef, float(rms), float(rms / max(np.sqrt(tss / max(n, 1)), 1e-30)), emax, bound,
-                       seconds, iters, constrained, used)
+                       seconds, iters, constrained)

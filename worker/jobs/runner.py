@@ -65,11 +65,7 @@ class SceneCache:
             f = p["files"].get(ref)
             if f is None:
                 raise SceneError(f"{ref!r} is not an uploaded asset")
-            src = self.blobs.verified_path(f["sha256"])
-            link = self.tmp / (f["sha256"] + Path(f["filename"]).suffix.lower())
-            if not link.exists():
-                os.symlink(src, link)
-            return link
+            return _linked(self, f)
 
         sc = LoadedScene(parse_scene(p["spec"]), self.tmp, resolver=resolve)
         self._scenes[key] = [sc, {}]

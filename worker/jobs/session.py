@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import io
 import json
+from contextlib import contextmanager
 import threading
 import time
 
@@ -121,13 +122,22 @@ class SessionRuntime:
         self._vt = None           # per-vertex transfer of the edited object: (key, ids, T, E)
 
     # -- state changes ---------------------------------------------------------------------
+    @contextmanager
+    def _base_shading(self):
+        """The engine shades the edited object with the base material (what strokes paint
+        over) inside the block, with the current materials after it."""
+        mats = list(self.materials)
+        mats[self.names.index(self.object)] = self.base
+        self.engine.set_materials(mats)
+        try:
+            yield
+        finally:
+            self.engine.set_materials(self.materials)
+
     def _ensure_fitter(self):
         if self.fitter is None:
-            mats = list(self.materials)
-            mats[self.names.index(self.object)] = self.base
-            self.engine.set_materials(mats)          # bases are shaded with the base material
-            self.fitter = Fitter(self.engine, self.object, fit_scale=0.25)
-            self.engine.set_materials(self.materials)
+            with self._base_shading():
+                self.fitter = Fitter(self.engine, self.object, fit_scale=0.25)
         return self.fitter
 
     def _view_index(self, camera: Camera, rot: float, inten: float) -> int:
@@ -135,13 +145,8 @@ class SessionRuntime:
         for i, v in enumerate(fx.views):
             if v.camera == camera and v.rotation_deg == rot and v.intensity == inten:
                 return i
-        mats = list(self.materials)
-        mats[self.names.index(self.object)] = self.base
-        self.engine.set_materials(mats)
-        try:
+        with self._base_shading():
             return fx.add_view(camera, rot, inten)
-        finally:
-            self.engine.set_materials(self.materials)
 
     def _add_stroke(self, rec: dict) -> list[str]:
         cam = Camera.model_validate(rec["camera"])
