@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 
 .PHONY: install build serve test bench clean
 
-$(STAMP): pyproject.toml setup.py worker/native/src/glintk.c
+$(STAMP): pyproject.toml setup.py $(wildcard worker/native/src/*.c worker/native/src/*.h)
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip setuptools wheel
 	$(PY) -m pip install -q -e '.[test]'

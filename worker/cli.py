@@ -301,7 +301,7 @@ def cmd_bench_stream(a) -> int:
 
 
 class _UsageError(Exception):
-    pass
+    """Wrong command-line usage: the usage line is printed with the message."""
 
 
 def cmd_assets_fetch(a) -> int:
@@ -412,14 +412,22 @@ def build_parser() -> argparse.ArgumentParser:
     d = sub.add_parser("demo", help="render the demo scene (fetched assets, or the procedural fallback)")
     d.add_argument("--out", default="out/demo.png"); d.add_argument("--dir"); d.add_argument("--tau", type=float, default=DEFAULT_TAU)
     d.set_defaults(fn=cmd_demo)
+
+    # capabilities add their own subcommands: each module has add_commands(subparsers)
+    import importlib
+
+    for mod in COMMAND_MODULES:
+        importlib.import_module(mod).add_commands(sub)
     return p
+
+
+# one line per capability (its module's add_commands registers its subcommands)
+COMMAND_MODULES: list[str] = []
 
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    from .envmap import EnvMapError
-    from .fit.fitter import FitError
-    from .scene import SceneError
+    from .errors import GlintError
 
     try:
         return args.fn(args)
@@ -427,7 +435,7 @@ def main(argv=None) -> int:
         build_parser().print_usage(sys.stderr)
         print(f"glint: error: {e}", file=sys.stderr)
         return 2
-    except (SceneError, EnvMapError, FileNotFoundError, FitError) as e:
+    except (GlintError, FileNotFoundError) as e:
         print(f"glint: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

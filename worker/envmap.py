@@ -10,8 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .errors import GlintError
 
-class EnvMapError(ValueError):
+
+class EnvMapError(GlintError):
     """An environment map that cannot be used; the message names the file and the problem."""
 
 

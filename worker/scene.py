@@ -12,12 +12,13 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from .envmap import load_envmap
+from .errors import GlintError
 
 Vec3 = tuple[float, float, float]
 Color = Annotated[tuple[float, float, float], Field(description="linear RGB")]
 
 
-class SceneError(ValueError):
+class SceneError(GlintError):
     """A scene that cannot be loaded; the message names the field or file."""
 
 

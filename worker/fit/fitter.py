@@ -16,6 +16,7 @@ import numpy as np
 
 from ..core.render import camera_rays, shade_points
 from ..engine import Engine
+from ..errors import GlintError
 from ..scene import SRBF, Camera, Lobes, Material
 from .basis import DEFAULT_NL, SRBFBasis, default_basis
 from .brush import Stroke, StrokeHistory, apply_stroke, stroke_weights
@@ -30,7 +31,7 @@ def albedo_of(material) -> tuple[float, float, float]:
     return tuple(material.diffuse if isinstance(material, Lobes) else material.albedo)
 
 
-class FitError(ValueError):
+class FitError(GlintError):
     """A fit request that cannot be served (no object pixels, unknown view, bad target)."""
 
 

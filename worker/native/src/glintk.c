@@ -11,6 +11,7 @@
 #ifdef _OPENMP
 #include <omp.h>
 #endif
+#include "glint_common.h"
 
 #define K_LAMBERT 0
 #define K_GGX 1
@@ -19,8 +20,6 @@
 #define K_TABLE 4
 #define N_PARAMS 72
 #define TABLE_N 160
-#define INV_PI 0.31830988618379067
-#define PI 3.141592653589793
 
 int glk_max_threads(void) {
 #ifdef _OPENMP
@@ -142,13 +141,6 @@ void glk_coarsen(int64_t V, const int64_t *offsets, const uint8_t *heights, cons
 /* ---------------------------------------------------------------------------------------
  * BRDF evaluation in the shared packed form (worker/core/brdf.py eval_packed).
  */
-typedef struct { double x, y, z; } v3;
-static inline v3 mk(double x, double y, double z) { v3 r = {x, y, z}; return r; }
-static inline double dot(v3 a, v3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
-static inline v3 add(v3 a, v3 b) { return mk(a.x + b.x, a.y + b.y, a.z + b.z); }
-static inline v3 scl(v3 a, double s) { return mk(a.x * s, a.y * s, a.z * s); }
-static inline v3 nrm(v3 a) { double l = sqrt(dot(a, a)); return l > 1e-30 ? scl(a, 1.0 / l) : a; }
-
 static inline double ggx_G1(double c, double ch, double a) {
     if (c * ch <= 0) return 0.0;
     double c2 = c * c; if (c2 < 1e-20) c2 = 1e-20;
@@ -221,15 +213,6 @@ static inline void brdf_eval(int kind, const float *p, const float *tab, v3 wi, 
         table_lookup3(tab, hl, pt);
         out[0] += s * pt[0]; out[1] += s * pt[1]; out[2] += s * pt[2];
     }
-}
-
-/* Duff et al. 2017 orthonormal basis, as worker/core/brdf.py onb. */
-static inline void onb(v3 n, v3 *t, v3 *b) {
-    double s = n.z >= 0 ? 1.0 : -1.0;
-    double a = -1.0 / (s + n.z);
-    double bb = n.x * n.y * a;
-    *t = mk(1.0 + s * n.x * n.x * a, s * bb, -s * n.x);
-    *b = mk(bb, s + n.y * n.y * a, -n.y);
 }
 
 /* ---------------------------------------------------------------------------------------

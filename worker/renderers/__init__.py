@@ -1,0 +1,36 @@
+"""Renderers by kind (see base.py). ``get(kind)`` returns the registered (Renderer class,
+Precomputation instance); each renderer module registers itself when imported.
+
+Adding a renderer: a module (or package) under worker/renderers/ that subclasses Renderer and
+Precomputation and calls ``register``, plus one line in RENDERER_MODULES.
+"""
+from __future__ import annotations
+
+import importlib
+
+from ..errors import GlintError
+from .base import (ArtifactStore, FrameRequest, Lighting, Part, Precomputation, Rendered, Renderer,  # noqa: F401
+                   Unsupported, ensure, load)
+
+# one line per renderer: importing the module registers it
+RENDERER_MODULES: dict[str, str] = {}
+
+_registry: dict[str, tuple[type[Renderer], Precomputation]] = {}
+
+
+def register(renderer: type[Renderer], precomputation: Precomputation) -> None:
+    if renderer.kind != precomputation.kind:
+        raise ValueError(f"renderer {renderer.kind!r} registered with precomputation {precomputation.kind!r}")
+    _registry[renderer.kind] = (renderer, precomputation)
+
+
+def kinds() -> list[str]:
+    return sorted(set(RENDERER_MODULES) | set(_registry))
+
+
+def get(kind: str) -> tuple[type[Renderer], Precomputation]:
+    if kind not in _registry and kind in RENDERER_MODULES:
+        importlib.import_module(RENDERER_MODULES[kind])
+    if kind not in _registry:
+        raise GlintError(f"unknown renderer {kind!r} (known: {', '.join(kinds())})")
+    return _registry[kind]

@@ -1,0 +1,227 @@
+"""The seam between a scene and the ways of drawing it: ``Renderer`` and ``Precomputation``.
+
+Glint has several renderers, each with a precomputation of its own (DESIGN.md §1):
+
+==========  ==========================================  ====================================
+kind        what it draws                                what it precomputes
+==========  ==========================================  ====================================
+``cuts``    direct light with visibility cuts            per-vertex cuts (+ cut fields of
+            (cyber-worlds §V, inverse-brdf-modeling)     movable objects)
+``gi``      interreflections, fixed view and light       multibounce tensors per pixel
+            (polynomial-gi)
+``paint``   cosine lobes by prefiltered maps (cacad)     prefiltered environment maps per lobe
+==========  ==========================================  ====================================
+
+A renderer is built from a loaded scene and its precomputed data, and turns a ``FrameRequest``
+(camera, lighting, materials, level of detail) into ``Rendered`` radiance with per-object masks
+and timings. Sessions, jobs and the CLI never build a renderer class by name: they ask
+``worker.renderers.get(kind)`` for the pair registered under the scene's ``renderer`` field.
+
+A precomputation is a list of ``Part``\\ s, each addressed by a content key of exactly what it
+depends on (so a part is computed once and shared: moving an object never invalidates the cut
+field keyed by its mesh alone). ``ensure`` computes the missing parts into an ``ArtifactStore``
+(a folder for the CLI, the blob store for the service), optionally split into chunks that run
+in parallel (vertex ranges for cuts, so a Ray cluster can share the work, byte-identical after
+assembly). ``load`` turns the stored parts into the renderer's data.
+"""
+from __future__ import annotations
+
+import time
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import Any, Callable, ClassVar, Mapping, Protocol, Sequence
+
+import numpy as np
+
+from ..errors import GlintError
+
+
+class Unsupported(GlintError):
+    """A request this renderer cannot serve (e.g. moving the camera of a fixed-view GI scene)."""
+
+    status = 409
+
+
+# --- what to draw ------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Lighting:
+    """The environment's rotation about +Y (degrees, Mitsuba's convention) and its scale."""
+    rotation_deg: float = 0.0
+    intensity: float = 1.0
+
+
+@dataclass
+class FrameRequest:
+    """One frame.
+
+    camera : scene.Camera (its width and height are the frame's).
+    lighting : Lighting.
+    materials : one scene material per object, in scene order.
+    lod : "full", or "drag" while the user drags (the renderer picks what it coarsens).
+    shading : renderer-specific shading mode ("vertex" or "pixel" for cuts).
+    transforms : object name -> scene.Transform for movable objects (cut renderer).
+    samples : primary-visibility samples per pixel (anti-aliasing), ≥ 1.
+    vertex_radiance : object index -> (vertex ids (K,) int32, radiance (K, 3) float32), radiance
+        already known (e.g. from a per-vertex transfer matrix); renderers that shade vertices
+        use it instead of shading those vertices.
+    """
+    camera: Any
+    lighting: Lighting = Lighting()
+    materials: Sequence[Any] = ()
+    lod: str = "full"
+    shading: str = "vertex"
+    transforms: Mapping[str, Any] | None = None
+    samples: int = 1
+    vertex_radiance: Mapping[int, tuple[np.ndarray, np.ndarray]] | None = None
+
+
+@dataclass
+class Rendered:
+    """radiance : (H, W, 3) float32 linear radiance (W·sr⁻¹·m⁻² up to the map's units).
+    object_id : (H, W) int32 object index per pixel, −1 for the background.
+    timings : milliseconds per stage (e.g. {"light": 2.1, "shade": 30.5, "interpolate": 1.2}).
+    info : what the renderer wants a client to know (level of detail used, cuts τ, …)."""
+    radiance: np.ndarray
+    object_id: np.ndarray
+    timings: dict[str, float] = field(default_factory=dict)
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+class Renderer(ABC):
+    """Draws one loaded scene from its precomputed data.
+
+    Class attributes
+    ----------------
+    kind : the registry key (the scene file's ``renderer``).
+    controls : what an interactive session may change: a subset of {"camera", "light",
+        "materials", "move", "environment"}; the studio hides the others and says why.
+    """
+
+    kind: ClassVar[str]
+    controls: ClassVar[frozenset[str]] = frozenset({"camera", "light", "materials", "environment"})
+
+    def __init__(self, scene, data, use_native: bool = True):
+        self.scene = scene
+        self.data = data
+        self.use_native = use_native
+
+    @abstractmethod
+    def render(self, req: FrameRequest) -> Rendered:
+        """Radiance of one frame (see FrameRequest / Rendered)."""
+
+    def set_environment(self, envmap: np.ndarray) -> None:
+        """Light the scene with another (H, W, 3) float32 equirectangular map."""
+        raise Unsupported(f"the {self.kind} renderer cannot change its environment map")
+
+    def object_mask(self, camera) -> np.ndarray:
+        """(H, W) int32 object index per pixel, −1 background."""
+        raise Unsupported(f"the {self.kind} renderer has no object mask")
+
+
+# --- what to precompute ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Part:
+    """One stored piece of a precomputation.
+
+    key : content address of everything it depends on (hex); also its name in the store.
+    label : what it is, for progress and errors ("static cuts", "cut field of 'chair'", …).
+    work : its size in the unit ``progress`` counts (e.g. vertices), for a progress bar.
+    meta : whatever ``compute`` needs to know which part this is.
+    """
+    key: str
+    label: str
+    work: int = 1
+    meta: Mapping[str, Any] = field(default_factory=dict)
+
+
+class ArtifactStore(Protocol):
+    """Where parts live: ``get`` returns the bytes stored under a key, or None."""
+
+    def get(self, key: str) -> bytes | None: ...
+
+    def put(self, key: str, data: bytes) -> None: ...
+
+
+Progress = Callable[[int], None]      # called with units of work done since the last call
+
+
+class Precomputation(ABC):
+    """What a renderer needs computed before it can draw a scene.
+
+    Subclasses define ``parts`` and ``compute`` (and may split a part into chunks, computed
+    independently and assembled); ``load`` builds the renderer's data from stored parts.
+    ``options`` is a plain dict of the precomputation's settings (τ, bounces, spp, …), from the
+    scene file, the CLI or the REST request; its defaults are the subclass's.
+    """
+
+    kind: ClassVar[str]
+
+    @abstractmethod
+    def parts(self, scene, options: Mapping[str, Any]) -> list[Part]:
+        """The parts this scene needs, each with its content key."""
+
+    def chunks(self, scene, part: Part, options: Mapping[str, Any], n: int) -> list[Any]:
+        """Split a part into about n independent chunks (default: one)."""
+        return [None]
+
+    @abstractmethod
+    def compute(self, scene, part: Part, options: Mapping[str, Any], chunk: Any = None,
+                progress: Progress | None = None, threads: int = 2) -> Any:
+        """Compute one chunk of a part (the whole part when chunk is None); returns what
+        ``assemble`` takes (by default: the part's bytes)."""
+
+    def assemble(self, scene, part: Part, options: Mapping[str, Any], results: list[Any]) -> tuple[bytes, dict]:
+        """Join the chunks' results into the part's bytes and its stats."""
+        if len(results) != 1 or not isinstance(results[0], (bytes, bytearray)):
+            raise NotImplementedError(f"{type(self).__name__} splits parts but does not assemble them")
+        return bytes(results[0]), {}
+
+    @abstractmethod
+    def load(self, scene, blobs: Mapping[str, bytes], options: Mapping[str, Any]) -> Any:
+        """The renderer's data from the stored parts (key -> bytes)."""
+
+
+def ensure(pre: Precomputation, scene, store: ArtifactStore, options: Mapping[str, Any] | None = None,
+           progress: Progress | None = None, threads: int = 2) -> dict:
+    """Compute the parts missing from the store, in this process. Returns stats:
+    {"parts": {key: {"label", "cached": bool, "seconds", ...part stats}}, "seconds": total,
+    "computed": number of parts computed}."""
+    options = dict(options or {})
+    t0 = time.perf_counter()
+    out: dict[str, Any] = {"parts": {}, "computed": 0}
+    for part in pre.parts(scene, options):
+        if store.get(part.key) is not None:
+            out["parts"][part.key] = {"label": part.label, "cached": True}
+            if progress:
+                progress(part.work)
+            continue
+        t1 = time.perf_counter()
+        results = [pre.compute(scene, part, options, ch, progress, threads)
+                   for ch in pre.chunks(scene, part, options, 1)]
+        blob, stats = pre.assemble(scene, part, options, results)
+        store.put(part.key, blob)
+        out["parts"][part.key] = {"label": part.label, "cached": False, "seconds": time.perf_counter() - t1,
+                                  "bytes": len(blob), **stats}
+        out["computed"] += 1
+    out["seconds"] = time.perf_counter() - t0
+    return out
+
+
+def load(pre: Precomputation, scene, store: ArtifactStore, options: Mapping[str, Any] | None = None):
+    """The renderer's data from the store; GlintError (409) naming the missing parts."""
+    options = dict(options or {})
+    parts = pre.parts(scene, options)
+    blobs, missing = {}, []
+    for p in parts:
+        b = store.get(p.key)
+        if b is None:
+            missing.append(p.label)
+        else:
+            blobs[p.key] = b
+    if missing:
+        raise GlintError(f"not precomputed yet: {', '.join(missing)}", status=409)
+    return pre.load(scene, blobs, options)
