@@ -63,3 +63,15 @@ def test_transform_order_scale_rotate_translate():
     p = m @ np.array([1.0, 0, 0, 1])
     # x=1 → scaled to 2 → rotated +90° about Y (x → -z) → translated by +x
     np.testing.assert_allclose(p[:3], [1, 0, -2], atol=1e-12)
+
+
+def test_lobes_diffuse_is_albedo_and_old_files_load():
+    """Every model names its diffuse weight ``albedo``; version 1 files that said ``diffuse`` for
+    lobes still load, and dump the new name."""
+    from worker.scene import Lobes
+
+    old = Lobes.model_validate({"model": "lobes", "exponents": [10], "gloss": [0.1],
+                                "directional_diffuse": [[0.1, 0.1, 0.1]], "diffuse": [0.2, 0.3, 0.4]})
+    assert old.albedo == (0.2, 0.3, 0.4)
+    assert "albedo" in old.model_dump() and "diffuse" not in old.model_dump()
+    assert Lobes(exponents=[10], gloss=[0.1], directional_diffuse=[(0, 0, 0)], albedo=(0.5, 0.5, 0.5)).albedo == (0.5, 0.5, 0.5)

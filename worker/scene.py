@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Annotated, Literal, Union
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import AliasChoices, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from .envmap import load_envmap
 from .errors import GlintError
@@ -72,13 +72,15 @@ class SRBF(_Strict):
 
 class Lobes(_Strict):
     """Cosine lobes with fixed exponents (cacad-cosine-lobes eq. 1-3), in reciprocal form:
-    diffuse/π + Σ_i (gloss_i + dd_i) (E_i+2)/(2π) max(0, r·ωo)^E_i, r = reflect(ωi, n).
-    gloss weights are achromatic (first-surface), directional-diffuse weights are RGB."""
+    albedo/π + Σ_i (gloss_i + dd_i) (E_i+2)/(2π) max(0, r·ωo)^E_i, r = reflect(ωi, n).
+    gloss weights are achromatic (first-surface), directional-diffuse weights are RGB.
+    ``albedo`` is the diffuse weight (named like every model's; files may still say ``diffuse``)."""
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
     model: Literal["lobes"] = "lobes"
     exponents: list[float] = Field(min_length=1, max_length=16)
     gloss: list[float]
     directional_diffuse: list[Color]
-    diffuse: Color = (0.3, 0.3, 0.3)
+    albedo: Color = Field((0.3, 0.3, 0.3), validation_alias=AliasChoices("albedo", "diffuse"))
 
 
 class Curve(_Strict):

@@ -28,7 +28,7 @@ MODELS = {
     "ggx": GGX(alpha=0.25, specular=(0.9, 0.8, 0.6), albedo=(0.0, 0.0, 0.0)),
     "ggx-rough-diffuse": GGX(alpha=0.6, specular=(0.3, 0.3, 0.3), albedo=(0.5, 0.5, 0.5)),
     "blinn-phong": BlinnPhong(exponent=80, specular=(0.3, 0.3, 0.3), albedo=(0.5, 0.4, 0.3)),
-    "lobes": Lobes(exponents=[5, 50, 500], gloss=[0.02, 0.05, 0.1], directional_diffuse=[(0.1, 0.05, 0.02)] * 3, diffuse=(0.4, 0.1, 0.1)),
+    "lobes": Lobes(exponents=[5, 50, 500], gloss=[0.02, 0.05, 0.1], directional_diffuse=[(0.1, 0.05, 0.02)] * 3, albedo=(0.4, 0.1, 0.1)),
     "srbf": _srbf(),
     "curve": Curve(values=[(2.0, 1.5, 1.0), (0.8, 0.6, 0.4), (0.2, 0.2, 0.2), (0.05, 0.05, 0.05)] + [(0.0, 0.0, 0.0)] * 12,
                    fresnel_f0=0.8, albedo=(0.3, 0.3, 0.3)),

@@ -14,7 +14,7 @@ pytestmark = pytest.mark.skipif(not native.available(), reason="C kernels not bu
 
 MATS = [Lambert(albedo=(0.7, 0.5, 0.3)), GGX(alpha=0.08, specular=(0.9, 0.8, 0.6), albedo=(0.1, 0.1, 0.1)),
         BlinnPhong(exponent=200, specular=(0.5, 0.5, 0.5), albedo=(0.2, 0.2, 0.2)),
-        Lobes(exponents=[10, 300], gloss=[0.1, 0.2], directional_diffuse=[(0.1, 0.0, 0.0), (0.0, 0.1, 0.0)], diffuse=(0.3, 0.3, 0.3)),
+        Lobes(exponents=[10, 300], gloss=[0.1, 0.2], directional_diffuse=[(0.1, 0.0, 0.0), (0.0, 0.1, 0.0)], albedo=(0.3, 0.3, 0.3)),
         SRBF(centers=[(0, 0, 1), (0.3, 0, 0.95)], bandwidth=100.0, coefficients=[(1.0, 0.5, 0.2), (0.3, 0.3, 0.3)], albedo=(0.1, 0.1, 0.1)),
         Curve(values=[(3, 3, 3), (1, 1, 1), (0.1, 0.1, 0.1), (0, 0, 0)], albedo=(0.2, 0.2, 0.2))]
 

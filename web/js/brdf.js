@@ -36,7 +36,7 @@ function distribution(m, h) {
 }
 
 export function albedoOf(m) {
-  return m.model === "lobes" ? m.diffuse : (m.albedo || [0, 0, 0]);
+  return m.albedo || m.diffuse || [0, 0, 0];
 }
 
 export function evalBRDF(m, wi, wo) {

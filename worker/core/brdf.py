@@ -135,7 +135,7 @@ def pack(m) -> PackedBRDF:
     if isinstance(m, Lobes):
         if not (len(m.exponents) == len(m.gloss) == len(m.directional_diffuse)):
             raise ValueError("lobes: exponents, gloss and directional_diffuse must have equal length")
-        p = [*m.diffuse, float(len(m.exponents))]
+        p = [*m.albedo, float(len(m.exponents))]
         for e, g, dd in zip(m.exponents, m.gloss, m.directional_diffuse):
             p += [e, g + dd[0], g + dd[1], g + dd[2]]
         width = min(np.pi, 2.0 / np.sqrt(max(m.exponents) + 2.0))

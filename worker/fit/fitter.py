@@ -27,8 +27,8 @@ DEFAULT_UNPAINTED_WEIGHT = 1.0
 
 
 def albedo_of(material) -> tuple[float, float, float]:
-    """The diffuse albedo ρ_d of any scene material (lobes: its diffuse weight)."""
-    return tuple(material.diffuse if isinstance(material, Lobes) else material.albedo)
+    """The diffuse albedo ρ_d of any scene material."""
+    return tuple(material.albedo)
 
 
 class FitError(GlintError):
