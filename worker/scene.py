@@ -50,16 +50,28 @@ class BlinnPhong(_Strict):
 class SRBF(_Strict):
     """Distribution-based BRDF (inverse-brdf-modeling eq. 11-12).
 
-    albedo/π + p(h)·F(ωi·h)/(cosθi + cosθo − cosθi cosθo), with
-    p(h) = Σ_j c_j exp(λ (h·ξ_j − 1)) per RGB channel, h in the local frame (z = normal),
-    F Schlick's approximation with F0 = fresnel_f0.
+    albedo/π + p(h)·s(ωi, ωo), with p(h) = Σ_j c_j exp(λ_j (h·ξ_j − 1)) per RGB channel, h in
+    the local frame (z = normal), and the static function s chosen by ``static``:
+
+    * ``paper`` (the default, and what files without the field mean):
+      F(ωi·h)/(cosθi + cosθo − cosθi cosθo), eq. 11 (Ashikhmin's distribution-based BRDF);
+    * ``smith``: F(ωi·h)·G1(ωi)G1(ωo)/(4 cosθi cosθo), the microfacet form with separable Smith
+      shadowing of a GGX surface of roughness ``static_alpha``; p = D makes it a microfacet BRDF
+      (p = specular·D_GGX(α) with α = static_alpha is exactly the ``ggx`` model).
+
+    F is Schlick's approximation with F0 = fresnel_f0. λ_j is ``bandwidths[j]`` when given (a
+    multi-scale basis), else ``bandwidth`` for every centre.
     """
     model: Literal["srbf"] = "srbf"
     centers: list[Vec3] = Field(min_length=1, description="SRBF centres ξ_j, unit vectors, local frame")
-    bandwidth: float = Field(gt=0.0, description="λ")
+    bandwidth: float = Field(gt=0.0, description="λ (of every centre unless bandwidths is given)")
     coefficients: list[Color] = Field(min_length=1, description="c_j per RGB channel, ≥ 0 when physical")
     fresnel_f0: float = Field(1.0, ge=0.0, le=1.0)
     albedo: Color = (0.0, 0.0, 0.0)
+    bandwidths: list[Annotated[float, Field(gt=0.0)]] | None = Field(
+        None, description="λ_j per centre (multi-scale basis); overrides bandwidth")
+    static: Literal["paper", "smith"] = Field("paper", description="static function s(ωi, ωo), see the class doc")
+    static_alpha: float = Field(0.1, gt=0.0, le=1.0, description="GGX roughness of the smith static's shadowing")
 
     @field_validator("coefficients")
     @classmethod
@@ -68,6 +80,18 @@ class SRBF(_Strict):
         if c is not None and len(c) != len(v):
             raise ValueError(f"{len(v)} coefficient rows for {len(c)} centres")
         return v
+
+    @field_validator("bandwidths")
+    @classmethod
+    def _one_per_centre(cls, v, info):
+        c = info.data.get("centers")
+        if v is not None and c is not None and len(c) != len(v):
+            raise ValueError(f"{len(v)} bandwidths for {len(c)} centres")
+        return v
+
+    def lambdas(self) -> list[float]:
+        """λ_j of every centre."""
+        return list(self.bandwidths) if self.bandwidths is not None else [self.bandwidth] * len(self.centers)
 
 
 class Lobes(_Strict):

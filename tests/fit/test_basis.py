@@ -2,8 +2,10 @@
 import numpy as np
 import pytest
 
-from worker.fit.basis import (DEFAULT_NL, G_CUTOFF, bandwidth_from_sigma, cube_cell, default_basis,
-                              directional_albedo, hemisphere_centers, outgoing_directions)
+from worker.fit import kernels
+from worker.fit.basis import (G_CUTOFF, XCUT, bandwidth_from_sigma, cube_cell, default_basis, directional_albedo,
+                              energy_rows_at, energy_rows_numpy, hemisphere_centers, multiscale_centers,
+                              outgoing_directions, paper_basis)
 
 
 def test_centres_cover_the_upper_hemisphere():
@@ -37,34 +39,61 @@ def test_bad_sigma_is_refused():
 
 def test_energy_rows_are_directional_albedos():
     """Σ_j g_j^l c_j equals the specular directional albedo ∫ f_s cosθi dωi computed by an
-    independent θ-φ quadrature over ωi (the rows integrate over half vectors)."""
-    b = default_basis(fresnel_f0=0.3)
-    g = b.energy_rows()
-    assert g.shape == (DEFAULT_NL, 147) and (g >= 0).all()
+    independent quadrature over ωi (the rows integrate over half vectors around each centre),
+    for both static functions, at rows from the normal to the horizon."""
     rng = np.random.default_rng(3)
-    c = rng.random((147, 3)) * (rng.random((147, 1)) < 0.15)
-    pick = [0, 40, 100, 160, 191]
-    ref = directional_albedo(b, c, outgoing_directions()[pick])
-    np.testing.assert_allclose(g[pick] @ c, ref, rtol=2e-3)
+    for b in (paper_basis(fresnel_f0=0.3), default_basis(fresnel_f0=0.5, static_alpha=0.15)):
+        g = b.energy_rows()
+        wo = outgoing_directions()
+        assert g.shape == (len(wo), b.J) and (g >= 0).all()
+        c = rng.random((b.J, 3)) * (rng.random((b.J, 1)) < 0.15)
+        pick = [0, 40, 100, 160, 191, len(wo) - 60, len(wo) - 1]     # the last is on the horizon
+        ref = directional_albedo(b, c, wo[pick])
+        np.testing.assert_allclose(g[pick] @ c, ref, rtol=3e-3)
+
+
+@pytest.mark.skipif(not kernels.available(), reason="C kernels not built")
+def test_energy_rows_c_kernel_matches_numpy():
+    b = default_basis(static_alpha=0.2)
+    wo = outgoing_directions()[::7]
+    np.testing.assert_allclose(energy_rows_at(b, wo), energy_rows_numpy(b, wo), rtol=1e-10, atol=1e-14)
 
 
 def test_kernel_candidate_lists_are_conservative():
     """Every centre whose G reaches the cutoff at a half vector is listed for its cell."""
     b = default_basis()
-    cell_off, cell_idx, gtab = b.kernel_tables()
+    cell_off, cell_idx, cell_cand, gtab = b.kernel_tables()
+    np.testing.assert_allclose(cell_cand[:, :3], b.centers[cell_idx], atol=1e-7)
+    np.testing.assert_allclose(cell_cand[:, 3], b.bandwidths[cell_idx], rtol=1e-7)
     rng = np.random.default_rng(0)
     h = rng.normal(size=(20000, 3)); h[:, 2] = np.abs(h[:, 2])
+    h[:5000] = h[:5000] * [0.05, 0.05, 1.0]                  # many near the normal, where fine levels are
     h /= np.linalg.norm(h, axis=1, keepdims=True)
     cells = cube_cell(h)
     need = (h @ b.centers.T) >= b.cutoff_cos
     for i in range(len(h)):
         listed = set(cell_idx[cell_off[cells[i]]:cell_off[cells[i] + 1]].tolist())
         assert set(np.nonzero(need[i])[0].tolist()) <= listed
-    # and the table reproduces exp within 1e-5 relative
-    d = np.linspace(b.cutoff_cos, 1.0, 100_003)
-    x = (d - b.cutoff_cos) * (len(gtab) - 1) / (1 - b.cutoff_cos)
-    i0 = np.minimum(x.astype(int), len(gtab) - 2)
-    approx = gtab[i0] + (gtab[i0 + 1] - gtab[i0]) * (x - i0)
-    exact = np.exp(b.bandwidth * (d - 1))
-    assert np.max(np.abs(approx - exact) / exact) < 1e-5
-    assert gtab[0] == pytest.approx(G_CUTOFF, rel=1e-4)
+    # and the table reproduces exp(−x) within 1e-5 relative
+    x = np.linspace(0.0, XCUT, 100_003)
+    f = x * (len(gtab) - 1) / XCUT
+    i0 = np.minimum(f.astype(int), len(gtab) - 2)
+    approx = gtab[i0] + (gtab[i0 + 1] - gtab[i0]) * (f - i0)
+    assert np.max(np.abs(approx - np.exp(-x)) / np.exp(-x)) < 1e-5
+    assert gtab[-1] == pytest.approx(G_CUTOFF, rel=1e-4)
+
+
+def test_multiscale_levels():
+    """Finer levels sit in cones around the normal, keep the coarse spacing-to-σ ratio and
+    halve σ each (λ ≈ 1/(2σ²) quadruples)."""
+    c, lam = multiscale_centers(147, np.pi / 40, ((0.5, 16.0), (0.25, 7.0)))
+    levels = np.unique(lam)
+    assert len(levels) == 3 and (c[:, 2] > 0).all()
+    np.testing.assert_allclose(levels[1:] / levels[:-1], 4.0, rtol=0.02)
+    fine = lam == levels[-1]
+    assert np.degrees(np.arccos(c[fine, 2])).max() <= 7.0
+    # spacing: nearest-neighbour angle within a level scales with σ
+    def spacing(sel):
+        a = np.arccos(np.clip(c[sel] @ c[sel].T, -1, 1)) + np.eye(sel.sum()) * 9
+        return np.median(a.min(1))
+    assert spacing(lam == levels[0]) / spacing(fine) == pytest.approx(4.0, rel=0.25)

@@ -15,7 +15,7 @@ def test_c_kernel_matches_numpy(bunny_view, fitter):
     args = (g["normals"][sel], g["wo"][sel], g["verts"][sel], g["bary"][sel], eng.cuts, node_l, node_w, eng.tree, fitter.basis)
     Tc, Ec = transfer(*args, use_native=True)
     Tn, En = transfer_numpy(*args)
-    assert Tc.shape == Tn.shape == (3, len(sel), 147)
+    assert Tc.shape == Tn.shape == (3, len(sel), fitter.basis.J)
     # float32 centres and the tabulated G in C against float64 exp in NumPy
     np.testing.assert_allclose(Tc, Tn, rtol=0, atol=2e-5 * np.abs(Tn).max())
     np.testing.assert_allclose(Ec, En, rtol=1e-5, atol=1e-7)
@@ -28,7 +28,8 @@ def test_prediction_matches_the_renderer(fitter):
     from worker.scene import SRBF
 
     rng = np.random.default_rng(7)
-    c = rng.random((147, 3)) * (rng.random((147, 1)) < 0.2) * 2.0
+    J = fitter.basis.J
+    c = rng.random((J, 3)) * (rng.random((J, 1)) < 0.2) * 2.0
     mat = SRBF.model_validate(fitter.basis.to_material(c, (0.3, 0.2, 0.1)))
     fitter.set_base_material(mat)
     v = fitter.views[0]
@@ -36,5 +37,5 @@ def test_prediction_matches_the_renderer(fitter):
     rel = np.sqrt(((pred - v.base) ** 2).mean()) / np.sqrt((v.base ** 2).mean())
     assert rel < 0.01, rel
     # the Lambert part alone: E is exactly the radiance of a white Lambertian surface
-    fitter.set_base_material(mat.model_copy(update={"coefficients": [(0.0, 0.0, 0.0)] * 147}))
+    fitter.set_base_material(mat.model_copy(update={"coefficients": [(0.0, 0.0, 0.0)] * J}))
     np.testing.assert_allclose(np.array([0.3, 0.2, 0.1]) * v.E, fitter.views[0].base, rtol=1e-4, atol=1e-6)

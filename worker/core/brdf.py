@@ -9,8 +9,9 @@ cosines, so the NumPy reference and the C kernel share one parameterisation (``p
                    i.e. Fresnel = 1 scaled by ``specular_reflectance``).
 * ``blinn-phong``  albedo/π + specular·(e+8)/(8π)·cos^e θh
 * ``lobes``        cacad-cosine-lobes eq. 1-3 in reciprocal form (see scene.Lobes)
-* ``srbf``         inverse-brdf-modeling eq. 11-12: p(h)·F(ωi·h)/(cosθi + cosθo − cosθi cosθo)
-* ``curve``        the same quotient form with p a piecewise-constant function of θh
+* ``srbf``         inverse-brdf-modeling eq. 11-12: p(h)·s(ωi, ωo), s the paper's static
+                   F(ωi·h)/(cosθi + cosθo − cosθi cosθo) or the microfacet (Smith) one
+* ``curve``        the paper's quotient form with p a piecewise-constant function of θh
 
 Directions are unit (…, 3) arrays in a local frame with the normal along +z, or given as cosines.
 Returns radiance-per-irradiance in 1/sr, float64 (…, 3) RGB. Below the horizon f = 0.
@@ -52,16 +53,39 @@ def schlick(f0: float, cos_d: np.ndarray) -> np.ndarray:
     return f0 + (1.0 - f0) * m ** 5
 
 
-def distribution_static(cos_i, cos_o, cos_d, f0):
-    """The static function s of inverse-brdf-modeling eq. 11: F(ωi·h)/(ci + co − ci·co)."""
-    return schlick(f0, cos_d) / np.maximum(cos_i + cos_o - cos_i * cos_o, 1e-12)
+# static functions of the srbf model (scene.SRBF.static); ids match the K_TABLE branch in C
+STATICS = {"paper": 0, "smith": 1}
 
 
-def srbf_p(h_local: np.ndarray, centers: np.ndarray, bandwidth: float, coef: np.ndarray) -> np.ndarray:
-    """p(h) = Σ_j c_j exp(λ(h·ξ_j − 1)) (inverse-brdf-modeling eq. 12).
+def smith_lambda(cos_v, alpha):
+    """√(α² + (1 − α²) cos²θ): G1(ω) = 2 cosθ / (cosθ + this) for GGX's separable Smith G1
+    (Mitsuba's 2/(1 + √(1 + α² tan²θ)), multiplied through by cosθ so it has no 1/cosθ)."""
+    return np.sqrt(alpha * alpha + (1.0 - alpha * alpha) * cos_v * cos_v)
 
-    h_local (…, 3), centers (J, 3), coef (J, 3) -> (…, 3)."""
-    g = np.exp(bandwidth * (h_local @ centers.T - 1.0))
+
+def distribution_static(cos_i, cos_o, cos_d, f0, static: str = "paper", alpha: float = 0.1):
+    """The static function s(ωi, ωo) of the distribution BRDF f_s = p(h)·s (inverse-brdf-modeling
+    eq. 4, 11), in 1/sr per unit p, for cosines (…,) ≥ 0.
+
+    ``paper``: F(ωi·h)/(ci + co − ci·co), eq. 11 (Ashikhmin's distribution-based BRDF).
+    ``smith``: F(ωi·h)·G1(ωi)G1(ωo)/(4 ci co) = F/((ci + Λi)(co + Λo)) with Λ = smith_lambda(·, α):
+    the microfacet form (Walter et al. 2007 eq. 20) with GGX's separable Smith shadowing, so that
+    p = specular·D_GGX(α) reproduces the ``ggx`` model exactly. Unlike eq. 11's denominator,
+    which falls only to ci + co at grazing angles, it keeps the 1/(ci co) growth of a microfacet
+    surface's mirror-direction radiance until shadowing sets in at cosθ ≈ α."""
+    F = schlick(f0, cos_d)
+    if static == "paper":
+        return F / np.maximum(cos_i + cos_o - cos_i * cos_o, 1e-12)
+    if static == "smith":
+        return F / ((cos_i + smith_lambda(cos_i, alpha)) * (cos_o + smith_lambda(cos_o, alpha)))
+    raise ValueError(f"unknown static function {static!r} (paper or smith)")
+
+
+def srbf_p(h_local: np.ndarray, centers: np.ndarray, bandwidth, coef: np.ndarray) -> np.ndarray:
+    """p(h) = Σ_j c_j exp(λ_j(h·ξ_j − 1)) (inverse-brdf-modeling eq. 12).
+
+    h_local (…, 3), centers (J, 3), bandwidth λ (scalar, or (J,) per centre), coef (J, 3) -> (…, 3)."""
+    g = np.exp(np.asarray(bandwidth, np.float64) * (h_local @ centers.T - 1.0))
     return g @ coef
 
 
@@ -145,9 +169,10 @@ def pack(m) -> PackedBRDF:
         c = np.asarray(m.centers, np.float64)
         c /= np.linalg.norm(c, axis=1, keepdims=True)
         coef = np.asarray(m.coefficients, np.float64)
-        table = srbf_p(d, c, m.bandwidth, coef)
-        return PackedBRDF(K_TABLE, [*m.albedo, m.fresnel_f0], table,
-                          **srbf_refinement(c, m.bandwidth, coef))
+        lam = np.asarray(m.lambdas(), np.float64)
+        table = srbf_p(d, c, lam, coef)
+        return PackedBRDF(K_TABLE, [*m.albedo, m.fresnel_f0, STATICS[m.static], m.static_alpha], table,
+                          **srbf_refinement(c, lam, coef))
     if isinstance(m, Curve):
         d = hemisphere_table_dirs()
         v = np.asarray(m.values, np.float64)
@@ -158,21 +183,25 @@ def pack(m) -> PackedBRDF:
     raise TypeError(f"unknown material {type(m).__name__}")
 
 
-def srbf_refinement(centers: np.ndarray, bandwidth: float, coef: np.ndarray | None = None) -> dict:
-    """Refinement of an SRBF p(h) (centres (J, 3) local unit vectors, λ, coefficients (J, 3)).
+def srbf_refinement(centers: np.ndarray, bandwidth, coef: np.ndarray | None = None) -> dict:
+    """Refinement of an SRBF p(h) (centres (J, 3) local unit vectors, λ scalar or (J,),
+    coefficients (J, 3)) for the renderer's one (refine radius, extent) pair.
 
     A Gaussian SRBF exp(λ(h·ξ − 1)) has angular standard deviation ≈ 1/√λ in h, twice that in
     ωi, so clusters are split to radius 2/√λ. Off-normal centres put highlights away from the
     mirror direction: a half vector at angle θ from the normal moves ωi up to 2θ from the mirror
-    direction, so the extent is twice the largest centre angle (over centres that matter) plus
-    three deviations."""
-    sd = 1.0 / np.sqrt(bandwidth)
+    direction, so the extent is twice the largest centre angle plus three deviations. Over the
+    centres that matter (peak p contribution ≥ 1e-3 of the largest), the pair is the smallest
+    radius and the largest extent: never coarser than what any centre needs."""
+    lam = np.broadcast_to(np.asarray(bandwidth, np.float64), (len(centers),))
+    sd = 1.0 / np.sqrt(lam)
     use = np.ones(len(centers), bool)
     if coef is not None and np.max(coef) > 0:
         use = np.max(coef, axis=1) > 1e-3 * np.max(coef)
-    th = np.arccos(np.clip(centers[use, 2], -1.0, 1.0))
-    th_max = (th.max() if len(th) else 0.0) + 3.0 * sd
-    return {"refine_radius": min(np.pi, 2.0 * sd), "extent": min(2.0 * np.pi, 2.0 * th_max)}
+    if not use.any():
+        use[:] = True
+    th = np.arccos(np.clip(centers[use, 2], -1.0, 1.0)) + 3.0 * sd[use]
+    return {"refine_radius": min(np.pi, 2.0 * float(sd[use].min())), "extent": min(2.0 * np.pi, 2.0 * float(th.max()))}
 
 
 def eval_packed(b: PackedBRDF, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
@@ -198,7 +227,9 @@ def eval_packed(b: PackedBRDF, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
             e, w = p[4 + 4 * k], p[5 + 4 * k: 8 + 4 * k]
             out += ((e + 2.0) / (2.0 * np.pi) * rv ** e)[..., None] * w
     elif b.kind == K_TABLE:
-        out += table_lookup(b.table, h) * distribution_static(ci, co, cd, p[3])[..., None]
+        static = "smith" if int(round(p[4])) == STATICS["smith"] else "paper"
+        s = distribution_static(np.maximum(ci, 0.0), np.maximum(co, 0.0), cd, p[3], static, p[5])
+        out += table_lookup(b.table, h) * s[..., None]
     valid = (ci > 0) & (co > 0)
     return np.where(valid[..., None], out, 0.0)
 
@@ -215,8 +246,10 @@ def srbf_exact(m: SRBF, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
     hv = wi + wo
     h = hv / np.linalg.norm(hv, axis=-1, keepdims=True)
     c = np.asarray(m.centers); c = c / np.linalg.norm(c, axis=1, keepdims=True)
-    p = srbf_p(h, c, m.bandwidth, np.asarray(m.coefficients))
-    f = np.asarray(m.albedo) * INV_PI + p * distribution_static(ci, co, np.einsum("...i,...i->...", wi, h), m.fresnel_f0)[..., None]
+    p = srbf_p(h, c, np.asarray(m.lambdas()), np.asarray(m.coefficients))
+    s = distribution_static(np.maximum(ci, 0.0), np.maximum(co, 0.0), np.einsum("...i,...i->...", wi, h),
+                            m.fresnel_f0, m.static, m.static_alpha)
+    f = np.asarray(m.albedo) * INV_PI + p * s[..., None]
     return np.where(((ci > 0) & (co > 0))[..., None], f, 0.0)
 
 

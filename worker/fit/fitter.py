@@ -18,7 +18,7 @@ from ..core.render import camera_rays, shade_points
 from ..engine import Engine
 from ..errors import GlintError
 from ..scene import SRBF, Camera, Lobes, Material
-from .basis import DEFAULT_NL, SRBFBasis, default_basis
+from .basis import DEFAULT_NL, SRBFBasis, default_basis, equivalent_roughness, static_alpha_for
 from .brush import Stroke, StrokeHistory, apply_stroke, stroke_weights
 from .solve import FitRows, SolveResult, gram, solve
 from .transfer import transfer
@@ -100,11 +100,12 @@ class Fitter:
         self.engine = engine
         self.object_name = object_name
         self.obj = names.index(object_name)
-        self.basis = basis or default_basis(fresnel_f0=fresnel_f0)
-        self.basis.energy_rows()        # once per basis (≈0.3 s), not on the first fit
+        self.base_material: Material = engine.materials[self.obj]
+        # the smith static's roughness follows the material the design starts from
+        self.basis = basis or default_basis(fresnel_f0=fresnel_f0, static_alpha=static_alpha_for(self.base_material))
+        self.basis.energy_rows()        # once per basis, not on the first fit
         self.fit_scale = fit_scale
         self.use_native = use_native
-        self.base_material: Material = engine.materials[self.obj]
         self.albedo = np.asarray(albedo_of(self.base_material) if albedo is None else albedo, np.float64)
         if self.albedo.shape != (3,) or np.any(self.albedo < 0) or np.any(self.albedo > 1):
             raise FitError(f"diffuse albedo must be 3 values in [0, 1], got {self.albedo.tolist()}")
@@ -125,8 +126,14 @@ class Fitter:
         inten = env.intensity if intensity is None else float(intensity)
         t0 = time.perf_counter()
         fw, fh = self.fit_size(camera)
-        o, d = camera_rays(camera.eye, camera.target, camera.up, camera.fov_y_deg, fw, fh)
-        tri, uv, _ = self.engine.tracer.first_hit(o, d)
+        # fit pixels sit on view-pixel centres (every 1/fit_scale-th view pixel), so a target
+        # image at the view's resolution is read without interpolation: a highlight a few
+        # pixels wide is not blurred in the target while the transfer samples it at a point
+        cols = np.minimum(((np.arange(fw) + 0.5) * camera.width / fw).astype(np.int64), camera.width - 1)
+        rows = np.minimum(((np.arange(fh) + 0.5) * camera.height / fh).astype(np.int64), camera.height - 1)
+        o, d = camera_rays(camera.eye, camera.target, camera.up, camera.fov_y_deg, camera.width, camera.height)
+        sel = (rows[:, None] * camera.width + cols[None, :]).reshape(-1)
+        tri, uv, _ = self.engine.tracer.first_hit(o[sel], d[sel])
         mesh = self.engine.scene.mesh
         obj_of = np.where(tri >= 0, self.engine.scene.object_of_face[np.maximum(tri, 0)], -1)
         pix = np.nonzero(obj_of == self.obj)[0]
@@ -146,8 +153,7 @@ class Fitter:
                         self.engine.cuts, node_l, node_w, self.engine.tree, self.basis, self.use_native)
         gr = gram(T)
         secs = time.perf_counter() - t0
-        sx, sy = camera.width / fw, camera.height / fh
-        xy = np.stack([(pix % fw + 0.5) * sx, (pix // fw + 0.5) * sy], axis=1)
+        xy = np.stack([cols[pix % fw] + 0.5, rows[pix // fw] + 0.5], axis=1).astype(np.float64)
         geo = {"normals": nrm.astype(np.float32), "wo": wo.astype(np.float32), "verts": f.astype(np.int32),
                "bary": bary}
         view = FitView(camera, rot, inten, (fw, fh), pix, xy, T, E, np.zeros((len(pix), 3)), gr, secs, geo)
@@ -246,8 +252,7 @@ class Fitter:
         """c₀ of the proximal term: the base material's coefficients when it is an SRBF over
         this basis (unseen directions keep their look), else zero."""
         m = self.base_material
-        if isinstance(m, SRBF) and len(m.centers) == self.basis.J and abs(m.bandwidth - self.basis.bandwidth) < 1e-9 \
-                and np.allclose(np.asarray(m.centers), self.basis.centers, atol=1e-6):
+        if isinstance(m, SRBF) and self.basis.matches(m):
             return np.asarray(m.coefficients, np.float64)
         return None
 
@@ -285,9 +290,32 @@ class Fitter:
                 valid &= objmask[yi, xi] > 0
         return tgt.astype(np.float64), valid
 
+    def set_basis(self, basis: SRBFBasis) -> None:
+        """Fit over another basis from now on: every saved view's transfer is rebuilt."""
+        self.basis = basis
+        self.basis.energy_rows()
+        self._last = None
+        old, self.views = self.views, []
+        for v in old:
+            self.add_view(v.camera, v.rotation_deg, v.intensity)
+
     def fit_targets(self, images: list, masks: list | None = None, constrained: bool = True,
-                    n_l: int = DEFAULT_NL) -> FitOutcome:
-        """Fit to one target image per saved view (automation: ``glint fit --target``)."""
+                    n_l: int = DEFAULT_NL, auto_static: bool = False) -> FitOutcome:
+        """Fit to one target image per saved view (automation: ``glint fit --target``).
+
+        auto_static : when the basis uses the smith static, fit once, set its roughness to the
+            fitted distribution's (``equivalent_roughness``), rebuild the transfer and fit again
+            (costs a second transfer)."""
+        out = self._fit_targets(images, masks, constrained, n_l)
+        if auto_static and self.basis.static == "smith":
+            a = equivalent_roughness(self.basis, out.solve.coefficients)
+            if abs(np.log(a / self.basis.static_alpha)) > np.log(1.15):
+                b = self.basis
+                self.set_basis(SRBFBasis(b.centers, b.bandwidths, b.fresnel_f0, b.static, a))
+                out = self._fit_targets(images, masks, constrained, n_l)
+        return out
+
+    def _fit_targets(self, images, masks, constrained, n_l) -> FitOutcome:
         if len(images) != len(self.views):
             raise FitError(f"{len(images)} target image(s) for {len(self.views)} view(s)")
         masks = masks or [None] * len(images)

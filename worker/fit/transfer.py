@@ -1,15 +1,16 @@
 """Transfer functions of the SRBF basis at the pixels of one view (inverse-brdf-modeling eq. 6, 21).
 
-    T_j(x) = Σ_k l_k v_k(x) s(ω_k, ω_o(x)) G(h_k · ξ_j, λ)          (eq. 21)
+    T_j(x) = Σ_k l_k v_k(x) s(ω_k, ω_o(x)) G_j(h_k)                 (eq. 21)
     E(x)   = Σ_k l_k v_k(x) / π                                      (eq. 3: B_d = ρ_d E)
 
 over the clusters k of the point's cut, with l_k the light integral over the cluster (radiance ×
 sr), v_k the mean cosine-weighted visibility and ω_k the light-weighted centroid direction, the
-same quantities the renderer shades with (core/render.py), refined the same way, so a fitted
-material re-renders as the fit predicted. A pixel's visibility is the barycentric blend of its
-triangle's three vertex cuts (§4.1); its normal and view direction are its own.
+same quantities the renderer shades with (core/render.py), refined for every level of the basis
+(``SRBFBasis.refinement``), so a fitted material re-renders as the fit predicted. A pixel's
+visibility is the barycentric blend of its triangle's three vertex cuts (§4.1); its normal and
+view direction are its own.
 
-``transfer_numpy`` is the reference of the C kernel ``glk_transfer``.
+``transfer_numpy`` is the reference of the C kernel ``glk_fit_transfer`` (native/src/fit.c).
 """
 from __future__ import annotations
 
@@ -17,15 +18,57 @@ import numpy as np
 import scipy.sparse as sp
 
 from .. import native
-from ..core.brdf import onb
+from ..core.brdf import STATICS, onb
 from ..core.cuts import CutSet
 from ..core.directions import DirectionTree
-from ..core.render import cluster_directions, expand_cut_entries
-from .basis import CUBE_CELLS, SRBFBasis
+from ..core.render import cluster_directions
+from . import kernels
+from .basis import CUBE_CELLS, XCUT, SRBFBasis
 
 
 def _local(v, t, b, n):
     return np.stack([(v * t).sum(1), (v * b).sum(1), (v * n).sum(1)], 1)
+
+
+def expand_cut_entries_multi(cut_of, cuts: CutSet, tree: DirectionTree, mirror, pairs):
+    """The cluster list each point evaluates: its cut's nodes with non-zero visibility, split
+    while any (refine radius, extent) pair of ``pairs`` asks for it (children inherit the
+    parent's visibility); ``core.render.expand_cut_entries`` with several pairs.
+
+    cut_of : (P,) cut index per point (≥ 0). mirror : (P, 3) float64 mirror directions.
+    Returns (pt, idx, q): (M,) point index, flat tree-node index and visibility in [0, 1].
+    """
+    a = cuts.offsets[cut_of]
+    b = cuts.offsets[cut_of + 1]
+    cnt = (b - a).astype(np.int64)
+    pt = np.repeat(np.arange(len(cut_of)), cnt)
+    node = np.concatenate([np.arange(x, y) for x, y in zip(a, b)]) if len(a) else np.zeros(0, np.int64)
+    h = cuts.heights[node].astype(np.int64)
+    w = np.int64(1) << h
+    csum = np.cumsum(w)
+    first = np.repeat(np.cumsum(cnt) - cnt, cnt)
+    start = csum - w - (csum[first] - w[first])
+    q = cuts.quant[node].astype(np.float64) / 255.0
+    keep = q > 0
+    pt, h, start, q = pt[keep], h[keep], start[keep], q[keep]
+    while True:
+        idx = tree.level_offset[h] + (start >> h)
+        R = tree.node_radius[idx].astype(np.float64)
+        nd = tree.node_dir[idx].astype(np.float64)
+        ang = np.arccos(np.clip((nd * mirror[pt]).sum(1), -1.0, 1.0))
+        ref = np.zeros(len(pt), bool)
+        for r, e in pairs:
+            ref |= (R > r) & ((R + e >= np.pi) | (ang < R + e))
+        ref &= h > 0
+        if not ref.any():
+            return pt, idx, q
+        k = np.nonzero(ref)[0]
+        half = np.int64(1) << (h[k] - 1)
+        stay = ~ref
+        pt = np.concatenate([pt[stay], pt[k], pt[k]])
+        q = np.concatenate([q[stay], q[k], q[k]])
+        start = np.concatenate([start[stay], start[k], start[k] + half])
+        h = np.concatenate([h[stay], h[k] - 1, h[k] - 1])
 
 
 def transfer_numpy(normals, wo, verts, bary, cuts: CutSet, node_l, node_w, tree: DirectionTree,
@@ -41,16 +84,16 @@ def transfer_numpy(normals, wo, verts, bary, cuts: CutSet, node_l, node_w, tree:
     P, J = len(normals), basis.J
     T = np.zeros((3, P, J), np.float32)
     E = np.zeros((P, 3), np.float32)
-    ref = basis.refinement()
+    pairs = basis.refinement()
     for s in range(0, P, chunk):
         e = min(s + chunk, P)
         T[:, s:e], E[s:e] = _transfer_chunk(normals[s:e].astype(np.float64), wo[s:e].astype(np.float64),
-                                         verts[s:e], bary[s:e].astype(np.float64), cuts, node_l, node_w,
-                                         tree, basis, ref)
+                                            verts[s:e], bary[s:e].astype(np.float64), cuts, node_l, node_w,
+                                            tree, basis, pairs)
     return T, E
 
 
-def _transfer_chunk(n, wo, verts, bary, cuts, node_l, node_w, tree, basis, ref):
+def _transfer_chunk(n, wo, verts, bary, cuts, node_l, node_w, tree, basis, pairs):
     p_n, J = len(n), basis.J
     T = np.zeros((3, p_n, J))
     E = np.zeros((p_n, 3))
@@ -61,8 +104,7 @@ def _transfer_chunk(n, wo, verts, bary, cuts, node_l, node_w, tree, basis, ref):
     k = np.repeat(live, 3)                                   # (pixel, corner) pairs
     cut_of = verts[live].reshape(-1)
     r = 2.0 * co[k, None] * n[k] - wo[k]
-    pair, idx, q = expand_cut_entries(cut_of, cuts, tree, r, np.full(len(k), ref["refine_radius"]),
-                                      np.full(len(k), ref["extent"]))
+    pair, idx, q = expand_cut_entries_multi(cut_of, cuts, tree, r, pairs)
     px = k[pair]
     wgt = bary[live].reshape(-1)[pair] * q
     l = node_l[idx].astype(np.float64)
@@ -75,10 +117,7 @@ def _transfer_chunk(n, wo, verts, bary, cuts, node_l, node_w, tree, basis, ref):
     hv = wi_l + wo_l
     h = hv / np.linalg.norm(hv, axis=1, keepdims=True)
     ci, cw = wi_l[:, 2], wo_l[:, 2]
-    cd = (wi_l * h).sum(1)
-    m = np.clip(1.0 - cd, 0.0, 1.0)
-    F = basis.fresnel_f0 + (1.0 - basis.fresnel_f0) * m ** 5
-    s_static = F / np.maximum(ci + cw - ci * cw, 1e-12)      # eq. 11's static function
+    s_static = basis.static_fn(ci, cw, (wi_l * h).sum(1))   # eq. 4's static function
     a = l * wgt[:, None]                                     # (M, 3) light × visibility × bary
     for c in range(3):
         E[:, c] = np.bincount(px, weights=a[:, c], minlength=p_n) / np.pi
@@ -92,19 +131,31 @@ def _transfer_chunk(n, wo, verts, bary, cuts, node_l, node_w, tree, basis, ref):
 def transfer(normals, wo, verts, bary, cuts: CutSet, node_l, node_w, tree: DirectionTree,
              basis: SRBFBasis, use_native: bool = True):
     """Transfer matrix (T (3, P, J), E (P, 3)) float32; the C kernel when built (see transfer_numpy)."""
-    if not (use_native and native.available()):
+    if not (use_native and kernels.available()):
         return transfer_numpy(normals, wo, verts, bary, cuts, node_l, node_w, tree, basis)
     c = native.c
     P, J = len(normals), basis.J
     T = np.empty((3, P, J), np.float32)
     E = np.empty((P, 3), np.float32)
-    ref = basis.refinement()
-    cell_off, cell_idx, gtab = basis.kernel_tables()
-    native.lib.glk_transfer(
+    pairs = np.asarray(basis.refinement(), np.float64).reshape(-1, 2)
+    cell_off, cell_idx, cell_cand, gtab = basis.kernel_tables()
+    kernels.lib.glk_fit_transfer(
         P, c(normals, np.float32), c(wo, np.float32), c(verts, np.int32), c(bary, np.float32),
         c(cuts.offsets, np.int64), c(cuts.heights, np.uint8), c(cuts.quant, np.uint8),
-        c(node_l, np.float32), c(node_w, np.float32), tree.node_dir, tree.node_radius,
-        c(tree.level_offset, np.int64), tree.height, float(ref["refine_radius"]), float(ref["extent"]),
-        J, c(basis.centers, np.float32), float(basis.cutoff_cos), float(basis.fresnel_f0),
-        CUBE_CELLS, cell_off, cell_idx, gtab, len(gtab), T, E)
+        c(node_l, np.float32), c(node_w, np.float32), tree.node_dir, tree.node_radius, _node_cs(tree),
+        c(tree.level_offset, np.int64), tree.height,
+        len(pairs), c(pairs[:, 0], np.float64), c(pairs[:, 1], np.float64),
+        J, float(XCUT), STATICS[basis.static], float(basis.static_alpha), float(basis.fresnel_f0),
+        CUBE_CELLS, cell_off, cell_idx, cell_cand, gtab, len(gtab), T, E)
     return T, E
+
+
+_CS: dict = {}
+
+
+def _node_cs(tree: DirectionTree) -> np.ndarray:
+    """(2N−1, 2) float32 (cos R, sin R) of every tree node's radius (for the kernel's walk)."""
+    if id(tree) not in _CS:
+        r = tree.node_radius.astype(np.float64)
+        _CS[id(tree)] = (tree, np.ascontiguousarray(np.stack([np.cos(r), np.sin(r)], 1), np.float32))
+    return _CS[id(tree)][1]

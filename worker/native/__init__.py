@@ -42,9 +42,6 @@ if lib is not None:
                                      _f32, _f32, _i64, _int, _i32, _f32, _f32, _f32, _f32, _i64, _f32]
     lib.glk_interpolate.argtypes = [_i64s, _i32, _f32, _i32, _f32, _f32]
     lib.glk_env_lookup.argtypes = [_i64s, _f32, ctypes.c_void_p, _f32, _int, _int, _dbl, _dbl, _f32]
-    lib.glk_transfer.argtypes = [_i64s, _f32, _f32, _i32, _f32, _i64, _u8, _u8, _f32, _f32, _f32, _f32,
-                                 _i64, _int, _dbl, _dbl, _int, _f32, _dbl, _dbl, _int, _i32, _i32, _f32, _int,
-                                 _f32, _f32]
     lib.glk_coarsen.argtypes = [_i64s, _i64, _u8, _u8, _dbl, _u8, _u8, _i32]
     lib.glk_tonemap.argtypes = [_i64s, _f32, _dbl, _int, _u8]
     threads = int(os.environ.get("GLINT_THREADS", "0") or 0)

@@ -203,12 +203,20 @@ static inline void brdf_eval(int kind, const float *p, const float *tab, v3 wi, 
             out[0] += s * p[5 + 4 * k]; out[1] += s * p[6 + 4 * k]; out[2] += s * p[7 + 4 * k];
         }
     } else if (kind == K_TABLE) {
+        /* p(h)·s(ωi, ωo); p[3] = F0, p[4] = static (0 paper, 1 smith), p[5] = its α
+         * (worker/core/brdf.py distribution_static) */
         v3 hl = mk(dot(h, t), dot(h, bt), chh);
         double m = 1.0 - cd; m = m < 0 ? 0 : (m > 1 ? 1 : m);
         double m2 = m * m;
         double F = p[3] + (1.0 - p[3]) * m2 * m2 * m;
-        double den = ci + co - ci * co; if (den < 1e-12) den = 1e-12;
-        double s = F / den;
+        double s;
+        if (p[4] > 0.5) {
+            double a2 = (double)p[5] * p[5];
+            s = F / ((ci + sqrt(a2 + (1.0 - a2) * ci * ci)) * (co + sqrt(a2 + (1.0 - a2) * co * co)));
+        } else {
+            double den = ci + co - ci * co; if (den < 1e-12) den = 1e-12;
+            s = F / den;
+        }
         double pt[3];
         table_lookup3(tab, hl, pt);
         out[0] += s * pt[0]; out[1] += s * pt[1]; out[2] += s * pt[2];
@@ -397,120 +405,4 @@ void glk_tonemap(int64_t P, const float *rgb, double exposure, int curve, uint8_
     }
 }
 
-/* ---------------------------------------------------------------------------------------
- * Transfer functions of an SRBF basis at pixels (inverse-brdf-modeling eq. 21; NumPy reference
- * worker/fit/transfer.py transfer_numpy):
- *   T_j(x) = Σ_k l_k v_k s(ω_k, ω_o) G(h_k·ξ_j),   E(x) = Σ_k l_k v_k / π
- * with v_k the barycentric blend of the three vertex cuts of the pixel's triangle, clusters
- * refined as the renderer refines them for the basis, and G = exp(λ(h·ξ − 1)) taken as zero below
- * cut_cos. Speed: the three corners share the pixel's normal and view, so equal clusters are
- * merged before the basis loop (a per-thread node-weight array); only the centres listed for
- * the half vector's cube-map cell are tested (basis.py kernel_tables); G comes from a table.
- * T is (3, P, J) float32 (channel-major, so each channel's rows are one matrix), E (P, 3).
- */
-static inline int cube_cell(double x, double y, double z, int C) {
-    double ax = fabs(x), ay = fabs(y), az = fabs(z), u, v, major;
-    int face;
-    if (az >= ax && az >= ay) { face = z > 0 ? 4 : 5; major = az; u = x; v = y; }
-    else if (ax >= ay) { face = x > 0 ? 0 : 1; major = ax; u = y; v = z; }
-    else { face = y > 0 ? 2 : 3; major = ay; u = x; v = z; }
-    int iu = (int)((u / major + 1.0) * (C / 2)), iv = (int)((v / major + 1.0) * (C / 2));
-    iu = iu < 0 ? 0 : (iu > C - 1 ? C - 1 : iu);
-    iv = iv < 0 ? 0 : (iv > C - 1 ? C - 1 : iv);
-    return face * C * C + iu * C + iv;
-}
-
-void glk_transfer(
-    int64_t P, const float *normals, const float *wo_dirs, const int32_t *verts, const float *bary,
-    const int64_t *cut_off, const uint8_t *cut_h, const uint8_t *cut_q, const float *node_l,
-    const float *node_w, const float *node_dir, const float *node_radius, const int64_t *level_off,
-    int H, double refine_r, double extent, int J, const float *centers, double cut_cos, double f0,
-    int C, const int32_t *cell_off, const int32_t *cell_idx, const float *gtab, int NG,
-    float *T, float *E) {
-    const int64_t n_nodes = level_off[H] + 1;
-#pragma omp parallel
-    {
-        cut_walk walk;
-        double *acc = (double *)malloc(sizeof(double) * 3 * J);
-        double *wsum = (double *)calloc(n_nodes, sizeof(double));
-        int64_t cap = 4096, nt;
-        int64_t *touched = (int64_t *)malloc(sizeof(int64_t) * cap);
-        const double gscale = (NG - 1) / (1.0 - cut_cos);
-#pragma omp for schedule(dynamic, 8)
-        for (int64_t p = 0; p < P; p++) {
-            v3 n = mk(normals[3 * p], normals[3 * p + 1], normals[3 * p + 2]);
-            v3 wo = mk(wo_dirs[3 * p], wo_dirs[3 * p + 1], wo_dirs[3 * p + 2]);
-            double e[3] = {0, 0, 0};
-            memset(acc, 0, sizeof(double) * 3 * J);
-            double co = dot(n, wo);
-            nt = 0;
-            if (co > 0) {
-                v3 r = add(scl(n, 2.0 * co), scl(wo, -1.0));
-                /* gather: blended visibility per (refined) cluster over the three corners */
-                for (int corner = 0; corner < 3; corner++) {
-                    int32_t vtx = verts[3 * p + corner];
-                    double bw = bary[3 * p + corner];
-                    if (vtx < 0 || bw == 0.0) continue;
-                    int64_t c0 = cut_off[vtx], c1 = cut_off[vtx + 1];
-                    int64_t start = 0;
-                    for (int64_t m = c0; m < c1; m++) {
-                        int h0 = cut_h[m];
-                        int64_t s0 = start;
-                        start += (int64_t)1 << h0;
-                        if (cut_q[m] == 0) continue;
-                        double q = cut_q[m] * (1.0 / 255.0) * bw;
-                        walk_start(&walk, h0, s0);
-                        for (int64_t idx; (idx = walk_next(&walk, level_off, node_dir, node_radius, r, refine_r, extent)) >= 0;) {
-                            if (wsum[idx] == 0.0) {
-                                if (nt == cap) { cap *= 2; touched = (int64_t *)realloc(touched, sizeof(int64_t) * cap); }
-                                touched[nt++] = idx;
-                            }
-                            wsum[idx] += q;
-                        }
-                    }
-                }
-                v3 t, bt; onb(n, &t, &bt);
-                v3 wol = mk(dot(wo, t), dot(wo, bt), co);
-                for (int64_t k = 0; k < nt; k++) {
-                    int64_t idx = touched[k];
-                    double q = wsum[idx];
-                    wsum[idx] = 0.0;
-                    const float *L = node_l + 3 * idx;
-                    if (L[0] <= 0 && L[1] <= 0 && L[2] <= 0) continue;
-                    v3 wi = mk(node_w[3 * idx], node_w[3 * idx + 1], node_w[3 * idx + 2]);
-                    double ci = dot(wi, n);
-                    if (ci < 1e-3) { wi = nrm(add(wi, scl(n, 1e-3 - ci))); ci = dot(wi, n); }
-                    double a0 = L[0] * q, a1 = L[1] * q, a2 = L[2] * q;
-                    e[0] += a0; e[1] += a1; e[2] += a2;
-                    v3 wil = mk(dot(wi, t), dot(wi, bt), ci);
-                    v3 hl = nrm(add(wil, wol));
-                    double cd = dot(wil, hl);
-                    double mm = 1.0 - cd; mm = mm < 0 ? 0 : (mm > 1 ? 1 : mm);
-                    double mm2 = mm * mm;
-                    double F = f0 + (1.0 - f0) * mm2 * mm2 * mm;
-                    double den = ci + co - ci * co; if (den < 1e-12) den = 1e-12;
-                    double sf = F / den;
-                    a0 *= sf; a1 *= sf; a2 *= sf;
-                    int cell = cube_cell(hl.x, hl.y, hl.z, C);
-                    for (int32_t c = cell_off[cell]; c < cell_off[cell + 1]; c++) {
-                        int j = cell_idx[c];
-                        double d = centers[3 * j] * hl.x + centers[3 * j + 1] * hl.y + centers[3 * j + 2] * hl.z;
-                        if (d < cut_cos) continue;
-                        double x = (d - cut_cos) * gscale;
-                        int i0 = (int)x;
-                        if (i0 >= NG - 1) i0 = NG - 2;
-                        double fx = x - i0;
-                        double g = gtab[i0] + (gtab[i0 + 1] - gtab[i0]) * fx;
-                        acc[3 * j] += a0 * g; acc[3 * j + 1] += a1 * g; acc[3 * j + 2] += a2 * g;
-                    }
-                }
-            }
-            for (int c = 0; c < 3; c++) {
-                float *Tp = T + ((int64_t)c * P + p) * J;
-                for (int j = 0; j < J; j++) Tp[j] = (float)acc[3 * j + c];
-            }
-            E[3 * p] = (float)(e[0] * INV_PI); E[3 * p + 1] = (float)(e[1] * INV_PI); E[3 * p + 2] = (float)(e[2] * INV_PI);
-        }
-        free(acc); free(wsum); free(touched);
-    }
-}
+/* The transfer functions of the SRBF basis (paint to BRDF) are in fit.c (glk_fit_transfer). */

@@ -1,0 +1,188 @@
+"""Recovery benchmark: fit ``srbf`` to an independent render of a known GGX material, re-render
+with Glint, and measure how close it comes (issue 11).
+
+For each case (scene, environment map, GGX α, specular, diffuse albedo):
+
+1. Mitsuba 3 renders the scene with the GGX material (``mitsuba_ref.render_mitsuba``, two seeds;
+   their mean is the target, their difference estimates its noise). Renders are cached under a
+   content key of everything they depend on (``mitsuba_target``).
+2. A ``Fitter`` fits the srbf material to the target (constrained: c ≥ 0 and the energy rows),
+   with the diffuse albedo given, as a designer would give it.
+3. Glint re-renders the fitted material, in ``pixel`` mode (what the model can do) and ``vertex``
+   mode (what the default frames show), and the GGX material itself (the renderer's own floor).
+
+Figures are relative RMSE over the object's pixels away from its silhouette (the object mask
+eroded by one pixel: a pixel straddling the silhouette mixes object and background differently
+in the two renderers), ``residual_rel`` of the solve (at the fit pixels), the largest specular
+directional albedo by an independent quadrature (``basis.energy_maximum``), and times.
+"""
+from __future__ import annotations
+
+import copy
+import hashlib
+import json
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..atomic import atomic_write
+from ..errors import GlintError
+from ..scene import GGX, Lambert, LoadedScene
+from .basis import SRBFBasis, default_basis, energy_maximum
+
+ALPHAS = (0.05, 0.1, 0.15, 0.25, 0.4)
+# (specular, diffuse albedo) pairs: a bright conductor-like coat without diffuse, and a coloured
+# diffuse base under a dimmer coat (max specular + max albedo ≤ 1 for Mitsuba's blend)
+FINISHES = ((0.95, (0.0, 0.0, 0.0)), (0.5, (0.45, 0.3, 0.2)))
+
+
+class RecoveryError(GlintError):
+    """A recovery case that cannot run (unknown object, no Mitsuba)."""
+
+
+@dataclass(frozen=True)
+class Case:
+    scene: str                      # label of the scene (mesh and camera)
+    env: str                        # label of the environment map
+    alpha: float
+    specular: float
+    albedo: tuple[float, float, float]
+
+    @property
+    def material(self) -> GGX:
+        return GGX(alpha=self.alpha, specular=(self.specular,) * 3, albedo=self.albedo)
+
+
+def rel_rmse(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
+    """RMS of a − b over mask pixels, relative to the RMS of b there."""
+    d = (a[mask] - b[mask]).astype(np.float64)
+    return float(np.sqrt((d ** 2).mean()) / max(np.sqrt((b[mask].astype(np.float64) ** 2).mean()), 1e-30))
+
+
+def interior_mask(engine, object_index: int = 0) -> np.ndarray:
+    """(H, W) bool: the object's pixels whose 4-neighbours are the object's too."""
+    from scipy.ndimage import binary_erosion
+
+    return binary_erosion(engine.object_mask() == object_index, iterations=1)
+
+
+def _scene_key(scene: LoadedScene) -> str:
+    h = hashlib.sha256()
+    for a in (scene.mesh.vertices, scene.mesh.faces, scene.mesh.normals, scene.object_of_face, scene.envmap):
+        h.update(np.ascontiguousarray(a).tobytes())
+    h.update(scene.spec.camera.model_dump_json().encode())
+    h.update(scene.spec.environment.model_copy(update={"map": ""}).model_dump_json().encode())
+    for o in scene.spec.objects:
+        h.update(o.material.model_dump_json().encode())
+    return h.hexdigest()
+
+
+def mitsuba_target(scene: LoadedScene, spp: int, seeds=(1, 2), cache_dir: Path | None = None):
+    """Mitsuba's render of the scene: (mean (H, W, 3) float32 of the seeds' renders, their stack
+    (S, H, W, 3)). Cached as .npy under a content key of the geometry, normals, map, camera,
+    lighting, materials, spp, seeds and Mitsuba's version."""
+    try:
+        import mitsuba
+    except ImportError as e:
+        raise RecoveryError("the recovery benchmark needs Mitsuba 3 (pip install mitsuba)") from e
+    from ..mitsuba_ref import render_mitsuba
+
+    key = hashlib.sha256(f"{_scene_key(scene)};spp={spp};seeds={list(seeds)};mi={mitsuba.__version__};v1".encode())
+    path = Path(cache_dir) / f"{key.hexdigest()[:32]}.npy" if cache_dir else None
+    if path is not None and path.is_file():
+        try:
+            imgs = np.load(path, allow_pickle=False)
+            return imgs.mean(0), imgs
+        except (OSError, ValueError):
+            path.unlink(missing_ok=True)       # a damaged cache entry is rebuilt, not trusted
+    imgs = np.stack([render_mitsuba(scene, spp=spp, seed=s) for s in seeds]).astype(np.float32)
+    if path is not None:
+        import io
+
+        buf = io.BytesIO()
+        np.save(buf, imgs)
+        atomic_write(path, buf.getvalue())
+    return imgs.mean(0), imgs
+
+
+def noise_of_mean(imgs: np.ndarray, mask: np.ndarray) -> float:
+    """Relative RMS noise of the mean of S independent renders (S, H, W, 3), over mask: the
+    seeds' spread estimates one render's variance, divided by S for the mean."""
+    s = len(imgs)
+    if s < 2:
+        return float("nan")
+    m = imgs.mean(0)
+    var = ((imgs - m) ** 2).sum(0)[mask] / (s - 1)
+    return float(np.sqrt(var.mean() / s) / max(np.sqrt((m[mask].astype(np.float64) ** 2).mean()), 1e-30))
+
+
+def recover(scene: LoadedScene, cuts, case: Case, *, basis: SRBFBasis | None = None, fit_scale: float = 0.5,
+            spp: int = 128, seeds=(1, 2), cache_dir: Path | None = None, object_index: int = 0,
+            renders: bool = True, engine=None, auto_static: bool = True) -> dict:
+    """Run one case; returns its figures (see the module doc). ``scene`` is loaded with the
+    case's environment map; its object ``object_index`` gets the case's material."""
+    from ..engine import Engine
+    from .fitter import Fitter
+
+    spec = scene.spec.model_copy(deep=True)
+    spec.objects[object_index].material = case.material
+    target_scene = copy.copy(scene)
+    target_scene.spec = spec
+    t0 = time.perf_counter()
+    target, imgs = mitsuba_target(target_scene, spp, seeds, cache_dir)
+    t_target = time.perf_counter() - t0
+    eng = engine if engine is not None else Engine(scene, cuts)
+    mats = list(scene.materials)
+    mats[object_index] = Lambert(albedo=case.albedo)
+    eng.set_materials(mats)
+    mask = interior_mask(eng, object_index)
+    fx = Fitter(eng, spec.objects[object_index].name, basis=basis or default_basis(), fit_scale=fit_scale,
+                albedo=case.albedo)
+    fx.add_view()
+    out = fx.fit_targets([target], auto_static=auto_static)
+    s = out.solve
+    emax = energy_maximum(fx.basis, s.coefficients)
+    res = {**asdict(case), "pixels": out.pixels, "basis": fx.basis.J, "static": fx.basis.static,
+           "static_alpha": fx.basis.static_alpha,
+           "residual_rel": s.residual_rel, "energy_max_rows": s.energy_max,
+           "energy_max": float(emax.max()), "energy_bound": float((1.0 - np.asarray(case.albedo)).min()),
+           "energy_ok": bool(np.all(emax <= 1.0 - np.asarray(case.albedo) + 1e-9)),
+           "ms_solve": s.seconds * 1e3, "ms_transfer": out.seconds_transfer * 1e3,
+           "noise": noise_of_mean(imgs, mask), "seconds_target": t_target, "mask_pixels": int(mask.sum())}
+    if renders:
+        mats[object_index] = out.material
+        eng.set_materials(mats)
+        fit_px = eng.render(mode="pixel")
+        fit_vx = eng.render(mode="vertex")
+        mats[object_index] = case.material
+        eng.set_materials(mats)
+        ggx_px = eng.render(mode="pixel")
+        ggx_vx = eng.render(mode="vertex")
+        res.update({"rel_rmse": rel_rmse(fit_px, target, mask), "rel_rmse_vertex": rel_rmse(fit_vx, target, mask),
+                    "ggx_floor": rel_rmse(ggx_px, target, mask), "ggx_floor_vertex": rel_rmse(ggx_vx, target, mask),
+                    "fit_vs_glint_ggx": rel_rmse(fit_px, ggx_px, mask)})
+        res["_images"] = {"target": target, "fit": fit_px, "ggx": ggx_px}
+    mats[object_index] = scene.materials[object_index]
+    eng.set_materials(mats)
+    return res
+
+
+def matrix(alphas=ALPHAS, finishes=FINISHES):
+    """The (α, specular, albedo) combinations of the benchmark, in order."""
+    return [(a, s, tuple(alb)) for a in alphas for s, alb in finishes]
+
+
+def summary_row(r: dict) -> str:
+    """One markdown table row of a result."""
+    alb = "none" if max(r["albedo"]) == 0 else "(" + ", ".join(f"{x:g}" for x in r["albedo"]) + ")"
+    return (f"| {r['scene']} | {r['env']} | {r['alpha']:g} | {r['specular']:g} | {alb} | {r['pixels']} | "
+            f"{100 * r['rel_rmse']:.1f}% | {100 * r['rel_rmse_vertex']:.1f}% | {100 * r['ggx_floor']:.1f}% | "
+            f"{100 * r['noise']:.1f}% | {100 * r['residual_rel']:.1f}% | {r['energy_max']:.3f} / {r['energy_bound']:.2f} | "
+            f"{r['ms_solve']:.1f} |")
+
+
+def public(r: dict) -> dict:
+    """A result without its images (JSON-serialisable)."""
+    return json.loads(json.dumps({k: v for k, v in r.items() if not k.startswith("_")}))
