@@ -3,7 +3,7 @@ add and remove highlights, energy conservation, the unpainted-pixel weight, seve
 import numpy as np
 import pytest
 
-from worker.fit.basis import directional_albedo
+from worker.fit.basis import energy_maximum
 from worker.fit.brush import Stroke
 from worker.fit.fitter import FitError
 from worker.scene import GGX, Lambert
@@ -12,15 +12,14 @@ TARGET_GGX = GGX(alpha=0.25, specular=(0.6, 0.5, 0.4), albedo=(0.2, 0.2, 0.2))
 
 
 def _constraints_hold(fx, out, tol=1e-7):
+    """c ≥ 0; every energy row ≤ 1 − ρ_d in its own channel; and an independent quadrature at the
+    directions where a ten times denser set of directions finds the largest albedo agrees."""
     c = out.solve.coefficients
+    bound = 1 - fx.albedo
     assert (c >= 0).all()
-    assert out.solve.energy_max <= (1 - fx.albedo).min() + tol
-    # an independent quadrature at directions between the N_l rows: the bound holds to 2%
-    rng = np.random.default_rng(11)
-    wo = rng.normal(size=(12, 3)); wo[:, 2] = np.abs(wo[:, 2]) + 0.05
-    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
-    alb = directional_albedo(fx.basis, c, wo, n_samples=200) + fx.albedo
-    assert alb.max() <= 1.02, alb.max()
+    assert (out.solve.energy <= bound + tol).all(), (out.solve.energy, bound)
+    e = energy_maximum(fx.basis, c)
+    assert (e <= bound + 1e-4).all(), (e, bound)
 
 
 def _rel(a, b, mask):
@@ -50,22 +49,24 @@ def test_recovers_ggx_rendered_by_glint(fitter, artifacts):
 
 
 @pytest.mark.slow
-def test_recovers_ggx_rendered_by_mitsuba(fitter, artifacts):
+def test_recovers_ggx_rendered_by_mitsuba(fitter, artifacts, cache_dir):
     """The target comes from an independent renderer: the fit sees Mitsuba's noise and its
-    exact visibility, and still lands close (two 256-spp renders averaged)."""
+    exact visibility, and still lands close (two 256-spp renders averaged, cached by content)."""
     pytest.importorskip("mitsuba")
+    import copy
+
     from PIL import Image
     from scipy.ndimage import binary_erosion
 
     from worker.core.tonemap import tonemap
-    from worker.mitsuba_ref import render_mitsuba
-    from worker.scene import LoadedScene
+    from worker.fit.recovery import mitsuba_target
 
     eng = fitter.engine
     spec = eng.scene.spec.model_copy(deep=True)
     spec.objects[0].material = TARGET_GGX
-    sc = LoadedScene(spec, eng.scene.root, envmap=eng.scene.envmap)
-    target = 0.5 * (render_mitsuba(sc, spp=256, seed=3) + render_mitsuba(sc, spp=256, seed=4))
+    sc = copy.copy(eng.scene)
+    sc.spec = spec
+    target, _ = mitsuba_target(sc, 256, (3, 4), cache_dir / "mitsuba")
     fitter.set_base_material(Lambert(albedo=TARGET_GGX.albedo))
     out = fitter.fit_targets([target])
     _constraints_hold(fitter, out)
@@ -87,20 +88,23 @@ def test_white_stroke_paints_a_highlight(fitter, across):
     (target, painted), = fitter.targets()[0]
     out = fitter.fit()
     _constraints_hold(fitter, out)
+    # the outcome's figures are the projection of the change onto the request, and the
+    # relative change of the unpainted pixels
     pred = fitter.predicted(out.solve.coefficients)
-    asked = (target[painted] - base[painted]).mean()
-    got = (pred[painted] - base[painted]).mean()
-    unp = ~painted
-    change = _rel(pred, base, unp)
-    print(f"stroke: {painted.sum()} pixels, {got / asked:.2f} of the requested rise; unpainted change {change:.3f}")
-    assert got > 0.15 * asked          # measured 0.21 with the default (uniform) weight
-    assert change < 0.2                # measured 0.13
+    ask = target[painted] - base[painted]
+    assert out.achieved == pytest.approx(((pred[painted] - base[painted]) * ask).sum() / (ask * ask).sum(), rel=1e-9)
+    assert out.spill == pytest.approx(_rel(pred, base, ~painted), rel=1e-9)
+    assert out.energy == pytest.approx(out.solve.energy.tolist()) and len(out.energy_bound) == 3
+    print(f"stroke: {painted.sum()} pixels, achieved {out.achieved:.2f}, spill {out.spill:.3f}, notes {out.notes}")
+    assert out.achieved > 0.35         # measured 0.51 with the default weight 0.25 (0.22 at the paper's 1)
+    assert out.spill < 0.4             # measured 0.31
     # the renderer shows it: the painted pixels are brighter in the new frame
     eng = fitter.engine
     before = eng.render(mode="pixel").reshape(-1, 3)[v.pix]
     eng.set_materials([out.material])
     after = eng.render(mode="pixel").reshape(-1, 3)[v.pix]
-    assert after[painted].mean() > before[painted].mean() + 0.15 * asked
+    asked = ask.mean()
+    assert after[painted].mean() > before[painted].mean() + 0.3 * asked
 
 
 def test_unpainted_weight_keeps_untouched_regions(fitter, across):
@@ -109,17 +113,29 @@ def test_unpainted_weight_keeps_untouched_regions(fitter, across):
     base = fitter.views[0].base.copy()
     C = 2.0 * float(base.max())
     fitter.add_stroke(Stroke(points=across(fitter), color=(C, C, C), diameter=8, kappa=0.1))
-    (target, painted), = fitter.targets()[0]
-    rows = []
-    for uw in (0.1, 1.0, 4.0):
-        pred = fitter.predicted(fitter.fit(unpainted_weight=uw).solve.coefficients)
-        rows.append((uw, _rel(pred, base, ~painted),
-                     (pred[painted] - base[painted]).mean() / (target[painted] - base[painted]).mean()))
-    for uw, ch, ach in rows:
-        print(f"unpainted weight {uw}: unpainted change {ch:.3f}, stroke achieved {ach:.2f}")
-    ch = [r[1] for r in rows]
-    assert ch[0] > ch[1] > ch[2]
-    assert ch[2] < 0.5 * ch[1]         # measured 0.039 against 0.131 (uniform weights, the paper's)
+    rows = [(uw, fitter.fit(unpainted_weight=uw)) for uw in (0.1, 1.0, 4.0)]
+    for uw, o in rows:
+        print(f"unpainted weight {uw}: spill {o.spill:.3f}, achieved {o.achieved:.2f}")
+    sp = [o.spill for _, o in rows]
+    ach = [o.achieved for _, o in rows]
+    assert sp[0] > sp[1] > sp[2] and ach[0] > ach[1] > ach[2]
+    assert sp[2] < 0.5 * sp[1]         # measured 0.040 against 0.132
+
+
+def test_fitting_the_albedo_lets_a_matte_object_darken(fitter, across):
+    """The specular part only adds light: with ρ_d given, a darkening stroke on a Lambertian
+    object achieves nothing; fitting ρ_d too (energy rows Σ g c + ρ_d ≤ 1) achieves it."""
+    fitter.add_stroke(Stroke(points=across(fitter), mode="scale", scale=0.3, diameter=12, kappa=0.0))
+    fixed = fitter.fit()
+    free = fitter.fit(fit_albedo=True)
+    print(f"darkening: achieved {fixed.achieved:.2f} with ρ_d given, {free.achieved:.2f} with ρ_d fitted "
+          f"({np.round(free.material.albedo, 3).tolist()}); spill {free.spill:.3f}")
+    assert abs(fixed.achieved) < 0.02
+    assert free.achieved > 0.3                                  # measured 0.61
+    assert max(free.material.albedo) < max(fitter.albedo)
+    c = free.solve.coefficients
+    rows = fitter.basis.energy_rows() @ c + np.asarray(free.material.albedo)
+    assert (c >= 0).all() and rows.max() <= 1.0 + 1e-7
 
 
 def test_negative_stroke_removes_a_highlight(fitter):
@@ -157,7 +173,7 @@ def test_unconstrained_can_break_energy_conservation(fitter, across):
 
 def test_undo_redo_refit(fitter, across):
     empty = fitter.fit().solve.coefficients
-    assert np.abs(empty).max() < 1e-6                 # no strokes on a Lambertian: nothing to add
+    assert np.abs(empty).max() < 1e-5                 # no strokes on a Lambertian: nothing to add (peaks are ~1-30)
     C = 2.0 * float(fitter.views[0].base.max())
     fitter.add_stroke(Stroke(points=across(fitter), color=(C, C, C)))
     painted = fitter.fit().solve.coefficients

@@ -120,3 +120,43 @@ class StrokeHistory:
 
     def __len__(self) -> int:
         return len(self._done)
+
+
+def stroke_effect(base, target, painted, pred) -> tuple[float | None, float | None]:
+    """How far a fit follows its strokes, over all views (lists of per-view arrays):
+    base, target, pred (N, 3) radiance before the strokes, asked for, and predicted by the fit;
+    painted (N,) bool.
+
+    achieved : ⟨pred − base, target − base⟩ / ‖target − base‖² over the painted pixels and
+        channels: the share of the requested change delivered (1 all of it, 0 none; a change in
+        another colour or direction does not count, and overshoot counts above 1).
+    spill : RMS(pred − base) / RMS(base) over the unpainted pixels: how much the rest of the
+        object changed, relative to its radiance.
+    Either is None when there is no painted (unpainted) pixel or nothing was requested."""
+    b, t, p = (np.concatenate(x).astype(np.float64) for x in (base, target, pred))
+    m = np.concatenate(painted).astype(bool)
+    ask = t[m] - b[m]
+    den = float((ask * ask).sum())
+    achieved = float(((p[m] - b[m]) * ask).sum() / den) if m.any() and den > 0 else None
+    u = ~m
+    ref = float(np.sqrt((b[u] ** 2).mean())) if u.any() else 0.0
+    spill = float(np.sqrt(((p[u] - b[u]) ** 2).mean()) / ref) if ref > 0 else None
+    return achieved, spill
+
+
+def stroke_notes(achieved: float | None, solve, albedo) -> list[str]:
+    """What a designer should know about a stroke fit that falls short: which channels hit
+    energy conservation (ρ_d + specular albedo ≤ 1 per channel)."""
+    notes = []
+    if achieved is not None and achieved < 0.8 and solve.constrained:
+        hit = [ch for ch, a in zip("RGB", solve.at_bound) if a]
+        if hit:
+            bounds = ", ".join(f"{ch} {1 - r:.2f}" for ch, r in zip("RGB", albedo))
+            notes.append(f"{achieved * 100:.0f}% of the requested change: energy conservation caps the specular "
+                         f"albedo in {'/'.join(hit)} (1 − diffuse albedo: {bounds}); a lower diffuse albedo "
+                         "leaves room for a brighter highlight")
+        else:
+            notes.append(f"{achieved * 100:.0f}% of the requested change: one BRDF serves the whole object, so "
+                         "pixels that see the same light directions keep it from changing further "
+                         "(lower 'keep unpainted' to follow the stroke more)")
+    return notes

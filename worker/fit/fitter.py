@@ -19,11 +19,16 @@ from ..engine import Engine
 from ..errors import GlintError
 from ..scene import SRBF, Camera, Lobes, Material
 from .basis import DEFAULT_NL, SRBFBasis, default_basis, equivalent_roughness, static_alpha_for
-from .brush import Stroke, StrokeHistory, apply_stroke, stroke_weights
+from .brush import Stroke, StrokeHistory, apply_stroke, stroke_effect, stroke_notes, stroke_weights
 from .solve import FitRows, SolveResult, gram, solve
 from .transfer import transfer
 
-DEFAULT_UNPAINTED_WEIGHT = 1.0
+# painted pixels weigh 1, unpainted ones this much (BENCHMARKS.md "Strokes"): with a typical
+# stroke covering ~15% of the object, it balances the two sets roughly evenly, and the
+# standard strokes get at least half of what the physics allows them in 4 of 5 cases (1, the
+# paper's uniform weighting, got it in 1 of 5: strokes looked ineffective)
+DEFAULT_UNPAINTED_WEIGHT = 0.25
+DEFAULT_FIT_ALBEDO = False
 
 
 def albedo_of(material) -> tuple[float, float, float]:
@@ -70,12 +75,27 @@ class FitView:
 
 @dataclass
 class FitOutcome:
+    """A fit's result. For stroke fits, ``achieved`` and ``spill`` say how far the single BRDF
+    of the object could follow the strokes (brush.stroke_effect): the share of the requested
+    change delivered on the painted pixels, and the relative change of the unpainted ones.
+    ``energy`` (3,) is each channel's largest specular albedo, against ``energy_bound`` (3,) =
+    1 − ρ_d of the same channel."""
     material: SRBF
     solve: SolveResult
     pixels: int
     painted: int
     notes: list[str]
     seconds_transfer: float
+    achieved: float | None = None
+    spill: float | None = None
+
+    @property
+    def energy(self) -> list[float]:
+        return [float(x) for x in self.solve.energy]
+
+    @property
+    def energy_bound(self) -> list[float]:
+        return [float(x) for x in self.solve.energy_bound]
 
 
 class Fitter:
@@ -221,15 +241,17 @@ class Fitter:
 
     # -- fitting --------------------------------------------------------------------------------
     def fit(self, constrained: bool = True, unpainted_weight: float = DEFAULT_UNPAINTED_WEIGHT,
-            n_l: int = DEFAULT_NL, targets=None) -> FitOutcome:
+            n_l: int = DEFAULT_NL, targets=None, fit_albedo: bool = DEFAULT_FIT_ALBEDO) -> FitOutcome:
         """Solve for the SRBF coefficients matching the strokes (or given per-view targets:
-        a list of (target (N, 3), painted/valid (N,) bool) as from ``targets()``)."""
+        a list of (target (N, 3), painted/valid (N,) bool) as from ``targets()``); with
+        ``fit_albedo`` the diffuse albedo too (solve.solve)."""
         if not self.views:
             raise FitError("no view saved: add_view() first")
         if unpainted_weight < 0:
             raise FitError("unpainted_weight must be ≥ 0")
         notes = []
-        if targets is None:
+        strokes = targets is None
+        if strokes:
             targets, notes = self.targets()
         rows = []
         painted = 0
@@ -241,12 +263,18 @@ class Fitter:
             raise FitError("nothing to fit: no painted pixel and unpainted_weight is 0")
         prior = self._prior()
         res = solve(rows, self.basis, self.albedo, constrained=constrained, n_l=n_l, prior=prior,
-                    warm=self._last if constrained else None)
+                    warm=self._last if constrained else None, fit_albedo=fit_albedo)
         if constrained:
             self._last = res.coefficients
-        mat = SRBF.model_validate(self.basis.to_material(res.coefficients, self.albedo))
+        mat = SRBF.model_validate(self.basis.to_material(res.coefficients, res.albedo))
+        achieved = spill = None
+        if strokes and painted:
+            pred = [self.predicted(res.coefficients, i, res.albedo) for i in range(len(self.views))]
+            achieved, spill = stroke_effect([v.base for v in self.views], [t for t, _ in targets],
+                                            [p for _, p in targets], pred)
+            notes = notes + stroke_notes(achieved, res, res.albedo)
         return FitOutcome(mat, res, sum(v.n for v in self.views), painted, notes,
-                          sum(v.seconds_transfer for v in self.views))
+                          sum(v.seconds_transfer for v in self.views), achieved, spill)
 
     def _prior(self) -> np.ndarray | None:
         """c₀ of the proximal term: the base material's coefficients when it is an SRBF over
@@ -328,7 +356,9 @@ class Fitter:
         # only valid pixels count: weight 1 inside, 0 elsewhere
         return self.fit(constrained=constrained, unpainted_weight=0.0, n_l=n_l, targets=targets)
 
-    def predicted(self, coefficients: np.ndarray, view: int = 0) -> np.ndarray:
-        """Radiance (N, 3) the fit predicts at a view's fit pixels for coefficients (J, 3)."""
+    def predicted(self, coefficients: np.ndarray, view: int = 0, albedo=None) -> np.ndarray:
+        """Radiance (N, 3) the fit predicts at a view's fit pixels for coefficients (J, 3) and
+        diffuse albedo (3,) (default: the fitter's)."""
         v = self.views[view]
-        return self.albedo * v.E + np.stack([v.T[c] @ coefficients[:, c] for c in range(3)], axis=1)
+        rho = self.albedo if albedo is None else np.asarray(albedo)
+        return rho * v.E + np.stack([v.T[c] @ coefficients[:, c] for c in range(3)], axis=1)

@@ -6,8 +6,8 @@ Per RGB channel c:
     subject to c_j ≥ 0                                 (eq. 18, non-negativity)
                Σ_j g_j^l c_j ≤ 1 − ρ_d,   l < N_l      (eq. 19, energy conservation)
 
-solved as a QP on the J×J normal equations with DAQP (a dual active-set solver, warm-started
-from the previous solution's active set). The small proximal term ε (relative to the mean
+solved as a QP on the J×J normal equations with DAQP (a dual active-set solver) over working
+sets of variables and energy rows grown until the full problem's KKT conditions hold (``_qp``). The small proximal term ε (relative to the mean
 diagonal) keeps the Hessian positive definite when some basis functions are seen by no pixel and
 pulls their coefficients towards c₀ (the current material's, or zero) instead of leaving them
 arbitrary. ``constrained=False`` drops both constraint families (the paper allows physically
@@ -51,6 +51,14 @@ class SolveResult:
     seconds: float
     iterations: list = field(default_factory=list)
     constrained: bool = True
+    energy: np.ndarray | None = None    # (3,) largest Σ_j g_j^l c_j per channel (against energy_bound)
+    albedo: np.ndarray | None = None    # (3,) ρ_d of the solution (fitted when fit_albedo)
+
+    @property
+    def at_bound(self) -> np.ndarray:
+        """(3,) bool: channels whose specular albedo reached its bound (within the margin)."""
+        e = self.energy if self.energy is not None else np.full(3, self.energy_max)
+        return e >= self.energy_bound * (1.0 - 2.0 * ENERGY_MARGIN) - 1e-12
 
 
 def gram(T: np.ndarray) -> np.ndarray:
@@ -84,76 +92,127 @@ def normal_equations(rows: list[FitRows], rho: np.ndarray):
     return H, f
 
 
-def _qp(H, f, G, bound, warm, tol, seed_rows=None):
-    """min ½xᵀHx − fᵀx, x ≥ 0, G x ≤ bound, by constraint generation: solve with the bounds
-    and the energy rows believed active (``seed_rows``, and rows the warm start presses
-    against), add every row the solution violates or nearly meets, repeat. Each round is an
-    exact DAQP solve; it stops when no row is violated, so the result solves the full QP (rows
-    left out are inactive at its optimum). Designs rarely press against energy conservation
-    along many directions, so most fits take one or two small solves.
-    Returns (x (J,), DAQP iterations, rows used (bool (N_l,)))."""
+ROWS_PER_ROUND = 8
+ENERGY_MARGIN = 1e-3
+
+
+def _qp(H, f, G, bound, warm, tol, seed_rows=None, seed_vars=None, grow: int = 24, ub=None, always=None):
+    """min ½xᵀHx − fᵀx, 0 ≤ x ≤ ub (default ∞), G x ≤ bound, by generating both variables and rows.
+    ``always`` (bool (J,)) marks variables kept in the working set from the start.
+
+    Most coefficients are zero at the optimum (a design lights few half-vector directions) and
+    few energy rows are active, so DAQP solves the QP restricted to a working set of variables
+    S and rows R (its cost grows with every bound it has to activate, ~J of them on the full
+    problem), and the KKT conditions of the full problem decide what to add: a variable j ∉ S
+    enters when its reduced gradient (Hx − f + G_Rᵀλ_R)_j is negative (raising it would lower
+    the objective; the ``grow`` most negative enter), a row enters when x violates it. When
+    neither happens, x with multipliers λ_R (0 elsewhere) satisfies the full problem's KKT
+    conditions: it is the exact optimum (convex QP), not an approximation.
+    Returns (x (J,), DAQP iterations, rows used (bool (N_l,)), variables used (bool (J,)))."""
     J = len(f)
-    active = np.zeros(len(G), bool) if seed_rows is None else seed_rows.copy()
+    rows = np.zeros(len(G), bool) if seed_rows is None else seed_rows.copy()
+    S = np.zeros(J, bool) if seed_vars is None else seed_vars.copy()
+    ub = np.full(J, np.inf) if ub is None else np.asarray(ub, np.float64)
+    if always is not None:
+        S |= always
     if warm is not None:
-        active |= G @ warm >= 0.9 * bound        # rows the previous design pressed against
+        rows |= G @ warm >= 0.9 * bound        # rows the previous design pressed against
+        S |= warm > 0
+    g0 = -f                                      # gradient at x = 0
+    S[np.argsort(g0)[:grow]] = True
+    x = np.zeros(J)
     iters = 0
-    for _ in range(len(G) + 1):
-        A = G[active]
-        lower = np.concatenate([np.zeros(J), np.full(len(A), -np.inf)])
-        upper = np.concatenate([np.full(J, np.inf), np.full(len(A), bound)])
-        kw = {"primal_start": warm.copy()} if warm is not None else {}
-        x, _, flag, info = daqp.solve(H, -f, A, upper, lower, **kw)
-        if flag < 1 and kw:
-            x, _, flag, info = daqp.solve(H, -f, A, upper, lower)   # warm starts can stall
+    for _ in range(4 * J + len(G) + 2):
+        idx = np.nonzero(S)[0]
+        A = G[np.ix_(rows, idx)]
+        n = len(idx)
+        lower = np.concatenate([np.zeros(n), np.full(len(A), -np.inf)])
+        upper = np.concatenate([ub[idx], np.full(len(A), bound)])
+        Hs, As = np.ascontiguousarray(H[np.ix_(idx, idx)]), np.ascontiguousarray(A)
+        xs, _, flag, info = daqp.solve(Hs, -f[idx], As, upper, lower, primal_start=np.ascontiguousarray(x[idx]))
+        if flag < 1:                             # warm starts can stall
+            xs, _, flag, info = daqp.solve(Hs, -f[idx], As, upper, lower)
         if flag < 1:
             raise RuntimeError(f"QP solver failed (DAQP exit flag {flag})")
         iters += int(info.get("iterations", 0))
-        x = np.maximum(x, 0.0)               # bounds hold to solver tolerance; clip the −1e-15s
+        x = np.zeros(J)
+        x[idx] = np.clip(xs, 0.0, ub[idx])       # bounds hold to solver tolerance; clip the −1e-15s
+        lam = np.asarray(info["lam"])[n:]        # row multipliers (≥ 0 at their upper bound)
         lhs = G @ x
-        viol = ~active & (lhs > bound + tol)
-        if not viol.any():
-            return x, iters, active
-        active |= lhs > 0.95 * bound
-        warm = x
+        viol = ~rows & (lhs > bound + tol)
+        r = H @ x - f + G[rows].T @ lam
+        scale = max(np.abs(f).max(), 1e-300)
+        enter = ~S & (r < -1e-9 * scale)
+        if not viol.any() and not enter.any():
+            return x, iters, rows, S
+        if viol.any():
+            # the most violated rows only: neighbouring rows are nearly parallel (the albedo is
+            # smooth in ωo), so one active row usually stands for a whole region
+            cand = np.nonzero(viol)[0]
+            rows[cand[np.argsort(-lhs[cand])[:ROWS_PER_ROUND]]] = True
+        if enter.any():
+            cand = np.nonzero(enter)[0]
+            S[cand[np.argsort(r[cand])[:grow]]] = True
+    raise RuntimeError("QP working sets did not converge")
 
 
 def solve(rows: list[FitRows], basis: SRBFBasis, albedo, constrained: bool = True,
           n_l: int = DEFAULT_NL, prior: np.ndarray | None = None, prox: float = 1e-6,
-          warm: np.ndarray | None = None, tol: float = 1e-9) -> SolveResult:
+          warm: np.ndarray | None = None, tol: float = 1e-9, fit_albedo: bool = False) -> SolveResult:
     """Coefficients (J, 3) for the stacked rows of one or more views (footnote 1).
 
     albedo : (3,) ρ_d in [0, 1]. prior : (J, 3) c₀ (default 0). warm : (J, 3) previous solution.
     tol : allowed energy-row violation (albedo units) of the returned coefficients.
+    fit_albedo : also solve for ρ_d per channel (the paper has the designer give it, §3.1): E is
+        one more column of the transfer matrix, 0 ≤ ρ_d ≤ 1, the energy rows become
+        Σ_j g_j^l c_j + ρ_d ≤ 1 (eq. 14 itself), and the proximal term keeps ρ_d near ``albedo``
+        where the strokes do not decide it. This is what makes a darkening or a colour change of a
+        matte object possible: the specular part can only add light.
     """
     t0 = time.perf_counter()
     rho = np.asarray(albedo, np.float64)
     J = basis.J
     prior = np.zeros((J, 3)) if prior is None else np.asarray(prior, np.float64)
     G = basis.energy_rows(n_l)
-    bound = 1.0 - rho
-    if constrained and np.any(bound < 0):
+    if constrained and np.any(rho > 1):
         raise ValueError(f"diffuse albedo {rho.tolist()} exceeds 1: no energy-conserving specular part exists")
-    H_all, f_all = normal_equations(rows, rho)
-    coef = np.zeros((J, 3))
+    # the rows are a quadrature (relative error ≤ 3e-4 at the default resolution, basis.py): a
+    # 1e-3 margin keeps the albedo within its bound by an independent quadrature too
+    keep = 1.0 - ENERGY_MARGIN
+    if fit_albedo:
+        H_all, f_all = _augmented_normal_equations(rows)
+        G = np.concatenate([G, np.full((len(G), 1), 1.0)], axis=1)     # Σ g c + ρ_d ≤ 1
+        prior = np.concatenate([prior, rho[None, :]], axis=0)
+        n_var, ub = J + 1, np.concatenate([np.full(J, np.inf), [1.0]])
+        always = np.zeros(J + 1, bool)
+        always[J] = True
+    else:
+        H_all, f_all = normal_equations(rows, rho)
+        n_var, ub, always = J, None, None
+    coef = np.zeros((n_var, 3))
     iters = []
-    seed = None
+    seed, seed_vars = None, None
     # channels share work: the three problems differ only by the light's colour, so each
-    # channel starts from the previous channel's solution and active energy rows
+    # channel starts from the previous channel's solution, variables and active energy rows
     for c in range(3):
         H, f = H_all[c], f_all[c]
-        scale = max(np.trace(H) / J, 1e-30)                             # condition the QP
-        Hs = H / scale + prox * np.eye(J)
+        scale = max(np.trace(H) / n_var, 1e-30)                         # condition the QP
+        Hs = H / scale + prox * np.eye(n_var)
         fs = f / scale + prox * prior[:, c]
         if not constrained:
             coef[:, c] = sla.solve(Hs, fs, assume_a="pos")
             continue
-        if warm is not None:
+        w = None
+        if warm is not None and np.shape(warm)[0] == n_var:
             w = np.asarray(warm, np.float64)[:, c].copy()
-        else:
-            w = None if c == 0 else coef[:, c - 1].copy()
-        coef[:, c], it, rows_used = _qp(Hs, fs, G, bound[c], w, tol, seed)
-        seed = rows_used
+        elif c > 0:
+            w = coef[:, c - 1].copy()
+        bound = keep if fit_albedo else (1.0 - rho[c]) * keep
+        coef[:, c], it, seed, seed_vars = _qp(Hs, fs, G, bound, w, tol, seed, seed_vars, ub=ub, always=always)
         iters.append(it)
+    if fit_albedo:
+        rho = np.clip(coef[J], 0.0, 1.0)
+        coef, G = coef[:J], G[:, :J]
     seconds = time.perf_counter() - t0
     # report on the rows that count (w > 0), unweighted
     sse, n, tss = 0.0, 0, 0.0
@@ -164,6 +223,23 @@ def solve(rows: list[FitRows], basis: SRBFBasis, albedo, constrained: bool = Tru
         tss += float((r.target[k] ** 2).sum())
         n += pred.size
     rms = np.sqrt(sse / max(n, 1))
-    emax = float((G @ coef).max())
-    return SolveResult(coef, float(rms), float(rms / max(np.sqrt(tss / max(n, 1)), 1e-30)), emax, bound,
-                       seconds, iters, constrained)
+    energy = (G @ coef).max(axis=0)
+    return SolveResult(coef, float(rms), float(rms / max(np.sqrt(tss / max(n, 1)), 1e-30)), float(energy.max()),
+                       1.0 - rho, seconds, iters, constrained, energy, rho)
+
+
+def _augmented_normal_equations(rows: list[FitRows]):
+    """H (3, J+1, J+1), f (3, J+1) of Σ_i w_i (B_i − [T_i, E_i]·[c; ρ_d])²: E is the last column."""
+    J = rows[0].T.shape[2]
+    H0, f0 = normal_equations(rows, np.zeros(3))
+    H = np.zeros((3, J + 1, J + 1))
+    f = np.zeros((3, J + 1))
+    H[:, :J, :J], f[:, :J] = H0, f0
+    for r in rows:
+        for c in range(3):
+            e = r.E[:, c].astype(np.float64) * r.weight
+            H[c, :J, J] += e @ r.T[c]
+            H[c, J, J] += e @ r.E[:, c]
+            f[c, J] += e @ r.target[:, c]
+    H[:, J, :J] = H[:, :J, J]
+    return H, f

@@ -1,0 +1,188 @@
+"""Paint-to-BRDF benchmarks on the command line: ``glint bench recovery`` and ``glint bench strokes``.
+
+Registered with one line in worker/cli.py COMMAND_MODULES; both print one JSON object with
+``--json`` (progress on stderr).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+
+def _bench_subparsers(sub):
+    """The subparsers of ``glint bench`` (created by worker/cli.py)."""
+    bench = sub.choices["bench"]
+    for a in bench._actions:
+        if isinstance(a, argparse._SubParsersAction):
+            return a
+    raise RuntimeError("glint bench has no subcommands")
+
+
+def _floats(text: str) -> list[float]:
+    try:
+        return [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+
+
+def add_commands(sub) -> None:
+    bsub = _bench_subparsers(sub)
+    r = bsub.add_parser("recovery", help="fit srbf to Mitsuba renders of GGX materials and re-render (issue 11)")
+    r.add_argument("scenes", nargs="+", help="scene files: mesh, camera and object (material and map are replaced)")
+    r.add_argument("--env", action="append", required=True, help="environment map (repeatable)")
+    r.add_argument("--alpha", type=_floats, default=None, help="GGX α values (default 0.05,0.1,0.15,0.25,0.4)")
+    r.add_argument("--finish", choices=["bare", "coated", "both"], default="both",
+                   help="bare: specular 0.95, no diffuse; coated: specular 0.5 over diffuse (0.45, 0.3, 0.2)")
+    r.add_argument("--spp", type=int, default=128, help="Mitsuba samples per pixel per seed (two seeds)")
+    r.add_argument("--fit-scale", type=float, default=0.5, help="fit resolution / view resolution")
+    r.add_argument("--static", choices=["smith", "paper"], default="smith",
+                   help="smith: the default model; paper: inverse-brdf-modeling's basis and static function")
+    r.add_argument("--no-auto-static", action="store_true", help="keep the smith static's roughness fixed")
+    r.add_argument("--cache", help="folder for Mitsuba targets (default $GLINT_DATA_DIR/mitsuba)")
+    r.add_argument("--cuts", help="cut cache folder"); r.add_argument("--tau", type=float, default=1.0)
+    r.add_argument("--images", help="write target | fit | Glint GGX PNGs per case to this folder")
+    r.add_argument("--json", action="store_true")
+    r.set_defaults(fn=cmd_bench_recovery)
+
+    s = bsub.add_parser("strokes", help="share of the requested change achieved and spill, per stroke and weight")
+    s.add_argument("scenes", nargs="+", help="scene files (first object is painted; its material is the base)")
+    s.add_argument("--weights", type=_floats, default=[0.25, 1.0, 4.0], help="unpainted weights")
+    s.add_argument("--fit-scale", type=float, default=0.25)
+    s.add_argument("--fit-albedo", choices=["no", "yes", "both"], default="both",
+                   help="also fit the diffuse albedo (solve.solve fit_albedo)")
+    s.add_argument("--cuts"); s.add_argument("--tau", type=float, default=1.0)
+    s.add_argument("--json", action="store_true")
+    s.set_defaults(fn=cmd_bench_strokes)
+
+
+def _scene_and_cuts(path, env, cuts_dir, tau, quiet):
+    from ..cli import _cuts
+    from ..envmap import load_envmap
+    from ..scene import LoadedScene, load_scene
+
+    sc = load_scene(path)
+    if env is not None:
+        spec = sc.spec.model_copy(deep=True)
+        spec.environment.map = str(Path(env).resolve())
+        sc = LoadedScene(spec, sc.root, envmap=load_envmap(env))
+    cs, _, _ = _cuts(sc, Path(cuts_dir) if cuts_dir else None, quiet, tau)
+    return sc, cs
+
+
+def cmd_bench_recovery(a) -> int:
+    import os
+
+    import numpy as np
+    from PIL import Image
+    from tqdm import tqdm
+
+    from ..core.tonemap import tonemap
+    from ..engine import Engine
+    from .basis import default_basis, paper_basis
+    from .recovery import ALPHAS, FINISHES, Case, public, recover
+
+    cache = Path(a.cache) if a.cache else Path(os.environ.get("GLINT_DATA_DIR", Path.home() / ".cache" / "glint")) / "mitsuba"
+    finishes = {"bare": FINISHES[:1], "coated": FINISHES[1:], "both": FINISHES}[a.finish]
+    alphas = a.alpha or list(ALPHAS)
+    cases = [(s, e, al, sp, alb) for s in a.scenes for e in a.env for al in alphas for sp, alb in finishes]
+    results = []
+    bar = tqdm(total=len(cases), desc="recovery", file=sys.stderr, disable=False)
+    t0 = time.perf_counter()
+    loaded = {}
+    for s, e, al, sp, alb in cases:
+        if (s, e) not in loaded:
+            loaded.clear()
+            sc, cs = _scene_and_cuts(s, e, a.cuts, a.tau, True)
+            loaded[(s, e)] = (sc, cs, Engine(sc, cs))
+        sc, cs, eng = loaded[(s, e)]
+        basis = paper_basis() if a.static == "paper" else default_basis()
+        case = Case(Path(s).stem, Path(e).name, al, sp, tuple(alb))
+        r = recover(sc, cs, case, basis=basis, fit_scale=a.fit_scale, spp=a.spp, cache_dir=cache, engine=eng,
+                    auto_static=a.static == "smith" and not a.no_auto_static)
+        if a.images:
+            out = Path(a.images)
+            out.mkdir(parents=True, exist_ok=True)
+            im = r["_images"]
+            Image.fromarray(np.concatenate([tonemap(im["target"]), tonemap(im["fit"]), tonemap(im["ggx"])], 1)).save(
+                out / f"{case.scene}-{Path(e).stem}-a{al:g}-s{sp:g}.png")
+        results.append(public(r))
+        bar.update(1)
+        bar.set_postfix_str(f"{case.scene}/{Path(e).stem} α={al:g}: {100 * r['rel_rmse']:.1f}%")
+    bar.close()
+    ok = [r for r in results if r["alpha"] >= 0.1]
+    summary = {"cases": len(results), "seconds": time.perf_counter() - t0,
+               "worst_rel_rmse_alpha_ge_0.1": max((r["rel_rmse"] for r in ok), default=None),
+               "worst_excess_over_floor_alpha_ge_0.1": max((r["rel_rmse"] - r["ggx_floor"] for r in ok), default=None),
+               "energy_ok": all(r["energy_ok"] for r in results), "static": a.static, "spp": a.spp,
+               "fit_scale": a.fit_scale}
+    out = {"summary": summary, "results": results}
+    if a.json:
+        print(json.dumps(out))
+    else:
+        for r in results:
+            print(f"{r['scene']} {r['env']} α={r['alpha']:g} s={r['specular']:g}: {100 * r['rel_rmse']:.1f}% "
+                  f"(Glint's GGX {100 * r['ggx_floor']:.1f}%, noise {100 * r['noise']:.1f}%), energy {r['energy_max']:.3f}")
+    return 0
+
+
+def standard_strokes(fx, view: int = 0):
+    """The benchmark's strokes for the fitter's object, in its view's pixels: (name, Stroke).
+
+    All run across the object's middle row from a quarter to three quarters of its width,
+    with the studio's default brush (diameter 24 view pixels at 640 wide, κ 0.05):
+    a white highlight (colour twice the brightest base radiance), a darkening (scale 0.3) and
+    a colour change (colour mode, the base's mean radiance there tinted (1.6, 0.8, 0.5))."""
+    import numpy as np
+
+    from .brush import Stroke
+
+    v = fx.views[view]
+    ys = v.xy[:, 1]
+    y0 = float(np.median(ys))
+    row = v.xy[np.abs(ys - y0) <= v.footprint * 2, 0]
+    x0, x1 = float(np.quantile(row, 0.25)), float(np.quantile(row, 0.75))
+    pts = [(x0, y0), (0.5 * (x0 + x1), y0 + 2.0), (x1, y0)]
+    d = 24.0 * v.camera.width / 640.0
+    near = np.abs(ys - y0) <= d / 2
+    mean = v.base[near].mean(0)
+    white = 2.0 * float(v.base.max())
+    tint = (mean * np.array([1.6, 0.8, 0.5])).tolist()
+    return [("white highlight", Stroke(points=pts, color=(white, white, white), diameter=d, kappa=0.05, view=view)),
+            ("darkening", Stroke(points=pts, mode="scale", scale=0.3, diameter=d, kappa=0.05, view=view)),
+            ("colour change", Stroke(points=pts, color=tuple(tint), diameter=d, kappa=0.05, view=view))]
+
+
+def cmd_bench_strokes(a) -> int:
+    from ..engine import Engine
+    from .fitter import Fitter
+
+    res = []
+    for s in a.scenes:
+        sc, cs = _scene_and_cuts(s, None, a.cuts, a.tau, a.json)
+        eng = Engine(sc, cs)
+        name = sc.spec.objects[0].name
+        fx = Fitter(eng, name, fit_scale=a.fit_scale)
+        fx.add_view()
+        for label, st in standard_strokes(fx):
+            fx.history.clear()
+            fx.add_stroke(st)
+            for w in a.weights:
+              for fa in {"no": (False,), "yes": (True,), "both": (False, True)}[a.fit_albedo]:
+                fx._last = None
+                out = fx.fit(unpainted_weight=w, fit_albedo=fa)
+                res.append({"scene": Path(s).stem, "object": name, "base": sc.spec.objects[0].material.model,
+                            "stroke": label, "unpainted_weight": w, "fit_albedo": fa,
+                            "albedo": [float(x) for x in out.material.albedo],
+                            "achieved": out.achieved, "spill": out.spill,
+                            "painted": out.painted, "pixels": out.pixels, "energy": out.energy,
+                            "energy_bound": out.energy_bound, "ms_solve": out.solve.seconds * 1e3, "notes": out.notes})
+    if a.json:
+        print(json.dumps({"results": res}))
+    else:
+        for r in res:
+            print(f"{r['scene']} {r['stroke']} w={r['unpainted_weight']:g} fit albedo {r['fit_albedo']}: "
+                  f"achieved {100 * r['achieved']:.0f}%, spill {100 * r['spill']:.1f}%, albedo {r['albedo']}")
+    return 0
