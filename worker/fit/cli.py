@@ -124,7 +124,8 @@ def cmd_bench_recovery(a) -> int:
     else:
         for r in results:
             print(f"{r['scene']} {r['env']} α={r['alpha']:g} s={r['specular']:g}: {100 * r['rel_rmse']:.1f}% "
-                  f"(Glint's GGX {100 * r['ggx_floor']:.1f}%, noise {100 * r['noise']:.1f}%), energy {r['energy_max']:.3f}")
+                  f"(Glint's GGX {100 * r['ggx_floor']:.1f}%, noise {100 * r['noise']:.1f}%), "
+                  f"energy {r['energy_fraction']:.3f} of its bound")
     return 0
 
 

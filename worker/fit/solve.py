@@ -58,12 +58,26 @@ class SolveResult:
     def at_bound(self) -> np.ndarray:
         """(3,) bool: channels whose specular albedo reached its bound (within the margin)."""
         e = self.energy if self.energy is not None else np.full(3, self.energy_max)
-        return e >= self.energy_bound * (1.0 - 2.0 * ENERGY_MARGIN) - 1e-12
+        return e >= self.energy_bound * (1.0 - 0.02) - 1e-12
+
+
+_POOL = None
 
 
 def gram(T: np.ndarray) -> np.ndarray:
-    """(3, J, J) float64 Σ_i T_i T_iᵀ per channel for T (3, N, J)."""
-    return np.stack([T[c].T.astype(np.float64) @ T[c].astype(np.float64) for c in range(3)])
+    """(3, J, J) float64 Σ_i T_i T_iᵀ per channel for T (3, N, J) float32.
+
+    Single-precision products (T is float32 already; sums of N ≤ 10⁴ terms keep ~1e-6 relative
+    accuracy, below the solver's 1e-6 proximal term), one channel per thread: BLAS releases the
+    GIL and worker processes pin it to one thread each (DESIGN.md §7)."""
+    global _POOL
+    if _POOL is None:
+        from concurrent.futures import ThreadPoolExecutor
+        _POOL = ThreadPoolExecutor(max_workers=2, thread_name_prefix="gram")
+    Tf = np.ascontiguousarray(T, np.float32)
+    out = list(_POOL.map(lambda c: Tf[c].T @ Tf[c], range(3)))
+    g = np.stack(out).astype(np.float64)
+    return 0.5 * (g + g.transpose(0, 2, 1))
 
 
 def normal_equations(rows: list[FitRows], rho: np.ndarray):
@@ -93,7 +107,6 @@ def normal_equations(rows: list[FitRows], rho: np.ndarray):
 
 
 ROWS_PER_ROUND = 8
-ENERGY_MARGIN = 1e-3
 
 
 def _qp(H, f, G, bound, warm, tol, seed_rows=None, seed_vars=None, grow: int = 24, ub=None, always=None):
@@ -176,9 +189,9 @@ def solve(rows: list[FitRows], basis: SRBFBasis, albedo, constrained: bool = Tru
     G = basis.energy_rows(n_l)
     if constrained and np.any(rho > 1):
         raise ValueError(f"diffuse albedo {rho.tolist()} exceeds 1: no energy-conserving specular part exists")
-    # the rows are a quadrature (relative error ≤ 3e-4 at the default resolution, basis.py): a
-    # 1e-3 margin keeps the albedo within its bound by an independent quadrature too
-    keep = 1.0 - ENERGY_MARGIN
+    # the rows are a quadrature: a margin for its error keeps the albedo within its bound by an
+    # independent quadrature too (basis.SRBFBasis.row_margin)
+    keep = 1.0 - basis.row_margin
     if fit_albedo:
         H_all, f_all = _augmented_normal_equations(rows)
         G = np.concatenate([G, np.full((len(G), 1), 1.0)], axis=1)     # Σ g c + ρ_d ≤ 1

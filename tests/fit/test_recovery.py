@@ -1,0 +1,80 @@
+"""Recovery of glossy GGX materials rendered by Mitsuba 3 (issue 11): the hardest cases of the
+benchmark matrix (BENCHMARKS.md "Paint to BRDF: recovery") at test size.
+
+The bunny at 160×120, fitted at full resolution, against the mean of two 256-spp Mitsuba
+renders (cached in tests/.cache/mitsuba by content). ``rel_rmse`` is the srbf fit re-rendered in
+pixel mode, ``ggx_floor`` Glint's own render of the GGX material: the renderer's error, which no
+fit can remove (a sun's sharp reflections on a coarse mesh)."""
+from pathlib import Path
+
+import pytest
+
+from worker.fit.basis import paper_basis
+from worker.fit.recovery import Case, recover
+
+pytest.importorskip("mitsuba")
+
+SPP = 256
+
+
+@pytest.fixture(scope="module")
+def bunny_env(shared_assets, cache_dir):
+    """(LoadedScene, CutSet) of the test bunny under an environment map, by name."""
+    from worker.engine import load_or_precompute
+    from worker.envmap import load_envmap
+    from worker.scene import LoadedScene, load_scene
+
+    out = {}
+
+    def get(env):
+        if env not in out:
+            sc = load_scene(Path(__file__).resolve().parents[1] / "scenes" / "bunny.json")
+            spec = sc.spec.model_copy(deep=True)
+            spec.environment.map = str(shared_assets / "env" / env)
+            sc = LoadedScene(spec, sc.root, envmap=load_envmap(shared_assets / "env" / env))
+            out[env] = (sc, load_or_precompute(sc, cache_dir)[0])
+        return out[env]
+    return get
+
+
+def _run(bunny_env, cache_dir, env, alpha, specular, albedo, **kw):
+    sc, cuts = bunny_env(env)
+    r = recover(sc, cuts, Case("bunny", env, alpha, specular, albedo), fit_scale=1.0, spp=SPP,
+                cache_dir=cache_dir / "mitsuba", **kw)
+    print(f"{env} α={alpha} s={specular} ρd={albedo}: fit {r['rel_rmse']:.4f} (vertex {r['rel_rmse_vertex']:.4f}), "
+          f"Glint's GGX {r['ggx_floor']:.4f}, noise {r['noise']:.4f}, residual {r['residual_rel']:.4f}, "
+          f"energy {r['energy_fraction']:.4f} of its bound, static α {r['static_alpha']:.3f}")
+    return r
+
+
+@pytest.mark.slow
+def test_sharp_gloss_under_a_sun(bunny_env, cache_dir):
+    """α = 0.1 under a real sun (stinson-beach): the worst α ≥ 0.1 case of the matrix. Glint's
+    own GGX render is 27% off here (the sun's reflections on 2.8K vertices at 160×120); the fit is
+    closer to Mitsuba than that, but not within 8%. Energy conservation holds by an independent
+    quadrature."""
+    r = _run(bunny_env, cache_dir, "stinson-beach.hdr", 0.1, 0.95, (0.0, 0.0, 0.0))
+    assert r["energy_ok"], r["energy"]
+    assert r["rel_rmse"] < r["ggx_floor"] + 0.015, (r["rel_rmse"], r["ggx_floor"])   # measured 0.177 vs 0.275
+    assert r["rel_rmse"] < 0.2
+    assert 0.07 < r["static_alpha"] < 0.15            # the fitted shadowing roughness finds α
+
+
+@pytest.mark.slow
+def test_coated_sharp_gloss_under_a_sky(bunny_env, cache_dir):
+    """α = 0.1 specular 0.5 over a coloured diffuse base, sunset sky: within the issue's 8%."""
+    r = _run(bunny_env, cache_dir, "sunset.exr", 0.1, 0.5, (0.45, 0.3, 0.2))
+    assert r["energy_ok"], r["energy"]
+    assert r["rel_rmse"] < 0.08                        # measured 0.046 (Mitsuba noise 0.036)
+
+
+@pytest.mark.slow
+def test_the_papers_model_is_what_fails(bunny_env, cache_dir):
+    """The same bare α = 0.15 target through inverse-brdf-modeling's basis and static function,
+    against the default model: the default is within 1.5% of Glint's GGX floor, the paper's is not."""
+    new = _run(bunny_env, cache_dir, "sunset.exr", 0.15, 0.95, (0.0, 0.0, 0.0), renders=True)
+    old = _run(bunny_env, cache_dir, "sunset.exr", 0.15, 0.95, (0.0, 0.0, 0.0), basis=paper_basis(),
+               auto_static=False)
+    assert new["rel_rmse"] < new["ggx_floor"] + 0.015  # measured 0.044 vs 0.049
+    assert old["rel_rmse"] > new["rel_rmse"] + 0.02    # measured 0.093
+    assert new["energy_ok"] and old["energy_ok"]
