@@ -37,7 +37,8 @@ def add_commands(sub) -> None:
     r.add_argument("--finish", choices=["bare", "coated", "both"], default="both",
                    help="bare: specular 0.95, no diffuse; coated: specular 0.5 over diffuse (0.45, 0.3, 0.2)")
     r.add_argument("--spp", type=int, default=128, help="Mitsuba samples per pixel per seed (two seeds)")
-    r.add_argument("--fit-scale", type=float, default=0.5, help="fit resolution / view resolution")
+    r.add_argument("--fit-scale", type=float, default=1.0,
+                   help="fit resolution / view resolution (default 1: every pixel of the target)")
     r.add_argument("--static", choices=["smith", "paper"], default="smith",
                    help="smith: the default model; paper: inverse-brdf-modeling's basis and static function")
     r.add_argument("--no-auto-static", action="store_true", help="keep the smith static's roughness fixed")

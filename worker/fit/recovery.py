@@ -118,7 +118,7 @@ def noise_of_mean(imgs: np.ndarray, mask: np.ndarray) -> float:
     return float(np.sqrt(var.mean() / s) / max(np.sqrt((m[mask].astype(np.float64) ** 2).mean()), 1e-30))
 
 
-def recover(scene: LoadedScene, cuts, case: Case, *, basis: SRBFBasis | None = None, fit_scale: float = 0.5,
+def recover(scene: LoadedScene, cuts, case: Case, *, basis: SRBFBasis | None = None, fit_scale: float = 1.0,
             spp: int = 128, seeds=(1, 2), cache_dir: Path | None = None, object_index: int = 0,
             renders: bool = True, engine=None, auto_static: bool = True) -> dict:
     """Run one case; returns its figures (see the module doc). ``scene`` is loaded with the
