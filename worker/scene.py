@@ -209,11 +209,55 @@ def area_weighted_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray
     return n
 
 
+def normals_in_file(path: Path) -> bool:
+    """Whether a mesh file stores vertex normals: PLY ``property … nx``, OBJ ``vn`` lines, glTF
+    ``NORMAL`` attributes. Read from the file itself because trimesh computes normals on demand
+    and exposes no public flag for "came from the file"."""
+    import json
+    import mmap
+    import re
+    import struct
+
+    suf = path.suffix.lower()
+    with open(path, "rb") as f:
+        if suf == ".ply":
+            head = f.read(65536)
+            head = head[: head.find(b"end_header")] if b"end_header" in head else head
+            return re.search(rb"^property\s+\S+\s+nx\s*$", head, re.M) is not None
+        if suf == ".obj":
+            if path.stat().st_size == 0:
+                return False
+            with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+                return re.search(rb"(?:^|\n)[ \t]*vn[ \t]", mm) is not None
+        if suf in (".glb", ".gltf"):
+            data = f.read()
+            try:
+                if suf == ".glb":
+                    n = struct.unpack_from("<I", data, 12)[0]
+                    doc = json.loads(data[20:20 + n])
+                else:
+                    doc = json.loads(data)
+            except (struct.error, ValueError):
+                return False
+            return any("NORMAL" in (pr.get("attributes") or {})
+                       for m in doc.get("meshes", []) for pr in m.get("primitives", []))
+    return False
+
+
+def _unit_or(n: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    """Normalise rows of n (V, 3); rows of zero or non-finite length take the fallback's."""
+    n = np.array(n, dtype=np.float64)            # a writable copy: trimesh's arrays are read-only
+    ln = np.linalg.norm(n, axis=1, keepdims=True)
+    ok = np.isfinite(ln) & (ln > 1e-12)
+    return np.where(ok, n / np.where(ok, ln, 1.0), fallback)
+
+
 def load_mesh(path: str | Path, transform: Transform | None = None) -> Mesh:
     """Load OBJ (all groups), PLY, GLB/GLTF or STL through trimesh, apply the transform.
 
     Vertex normals come from the file when present (OBJ `vn`, PLY nx/ny/nz, glTF NORMAL),
-    otherwise they are area-weighted face normals (DESIGN.md §2).
+    otherwise they are area-weighted face normals (DESIGN.md §2). A glTF scene's node
+    transforms apply to positions and (inverse-transposed) to its normals.
     """
     import trimesh
 
@@ -222,34 +266,37 @@ def load_mesh(path: str | Path, transform: Transform | None = None) -> Mesh:
         raise SceneError(f"{path}: mesh file not found")
     try:
         loaded = trimesh.load(str(path), process=False, skip_materials=True)
+        has_n = normals_in_file(path)
     except Exception as e:
         raise SceneError(f"{path}: not a readable mesh ({type(e).__name__}: {e})") from None
-    geoms = list(loaded.dump()) if isinstance(loaded, trimesh.Scene) else [loaded]
-    geoms = [g for g in geoms if isinstance(g, trimesh.Trimesh) and len(g.faces)]
-    if not geoms:
+    if isinstance(loaded, trimesh.Scene):
+        # walk the graph rather than Scene.dump(): dump copies geometry without the file's normals
+        placed = [(loaded.geometry[name], np.asarray(T, np.float64))
+                  for T, name in (loaded.graph[node] for node in loaded.graph.nodes_geometry)]
+    else:
+        placed = [(loaded, np.eye(4))]
+    placed = [(g, T) for g, T in placed if isinstance(g, trimesh.Trimesh) and len(g.faces)]
+    if not placed:
         raise SceneError(f"{path}: contains no triangles")
     verts, faces, normals, base = [], [], [], 0
-    for g in geoms:
+    for g, T in placed:
         v = np.asarray(g.vertices, dtype=np.float64)
         f = np.asarray(g.faces, dtype=np.int64)
-        # trimesh keeps file normals in its cache; only then are they "present"
-        file_n = g._cache.cache.get("vertex_normals") if hasattr(g, "_cache") else None
-        if file_n is not None and np.shape(file_n) == v.shape:
-            n = np.asarray(file_n, dtype=np.float64)
-            n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
-        else:
-            n = area_weighted_normals(v, f)
+        if len(f) and (f.min() < 0 or f.max() >= len(v)):
+            raise SceneError(f"{path}: face indices out of range")
+        aw = area_weighted_normals(v, f)
+        n = _unit_or(g.vertex_normals, aw) if has_n and len(g.vertex_normals) == len(v) else aw
+        if not np.allclose(T, np.eye(4)):
+            v = v @ T[:3, :3].T + T[:3, 3]
+            n = _unit_or(n @ np.linalg.inv(T[:3, :3]), area_weighted_normals(v, f))
         verts.append(v); faces.append(f + base); normals.append(n); base += len(v)
     v = np.concatenate(verts); f = np.concatenate(faces); n = np.concatenate(normals)
     if not np.isfinite(v).all():
         raise SceneError(f"{path}: vertex coordinates contain NaN or infinity")
-    if f.min() < 0 or f.max() >= len(v):
-        raise SceneError(f"{path}: face indices out of range")
     if transform is not None:
         m = transform.matrix()
         v = v @ m[:3, :3].T + m[:3, 3]
-        n = n @ np.linalg.inv(m[:3, :3])  # inverse transpose for normals
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+        n = _unit_or(n @ np.linalg.inv(m[:3, :3]), area_weighted_normals(v, f))  # inverse transpose
     return Mesh(v, f, n)
 
 
