@@ -12,6 +12,7 @@ from pathlib import Path
 
 import httpx
 import pytest
+from helpers import open_renderer
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
@@ -41,14 +42,17 @@ def artifacts() -> Path:
 
 
 @pytest.fixture(scope="session")
-def bunny(shared_assets, cache_dir):
-    """(LoadedScene, CutSet) of tests/scenes/bunny.json, cuts cached."""
-    from worker.engine import load_or_precompute
+def bunny_renderer(shared_assets, cache_dir):
+    """The cut renderer of tests/scenes/bunny.json (cuts cached)."""
     from worker.scene import load_scene
 
-    scene = load_scene(ROOT / "tests" / "scenes" / "bunny.json")
-    cuts, _, _ = load_or_precompute(scene, cache_dir)
-    return scene, cuts
+    return open_renderer(load_scene(ROOT / "tests" / "scenes" / "bunny.json"))
+
+
+@pytest.fixture(scope="session")
+def bunny(bunny_renderer):
+    """(LoadedScene, CutSet) of tests/scenes/bunny.json, cuts cached."""
+    return bunny_renderer.scene, bunny_renderer.cuts
 
 
 

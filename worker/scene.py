@@ -6,16 +6,15 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated, Literal, Union
+from typing import Literal
 
 import numpy as np
-from pydantic import AliasChoices, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from .envmap import load_envmap
 from .errors import GlintError
-
-Vec3 = tuple[float, float, float]
-Color = Annotated[tuple[float, float, float], Field(description="linear RGB")]
+from .models import (GGX, SRBF, BlinnPhong, BRDFModel, Color, Curve, Lambert, Lobes, Material,  # noqa: F401
+                     Vec3, parse_material)
 
 
 class SceneError(GlintError):
@@ -24,75 +23,6 @@ class SceneError(GlintError):
 
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid")
-
-
-class Lambert(_Strict):
-    model: Literal["lambert"] = "lambert"
-    albedo: Color = (0.5, 0.5, 0.5)
-
-
-class GGX(_Strict):
-    """albedo/π + specular·D·G/(4 cosθi cosθo); Mitsuba roughconductor, material none."""
-    model: Literal["ggx"] = "ggx"
-    alpha: float = Field(0.25, gt=0.0, le=2.0)
-    specular: Color = (1.0, 1.0, 1.0)
-    albedo: Color = (0.0, 0.0, 0.0)
-
-
-class BlinnPhong(_Strict):
-    """albedo/π + specular·(e+8)/(8π)·cos^e θh (normalised Blinn-Phong)."""
-    model: Literal["blinn-phong"] = "blinn-phong"
-    exponent: float = Field(50.0, ge=0.0, le=1e5)
-    specular: Color = (0.04, 0.04, 0.04)
-    albedo: Color = (0.5, 0.5, 0.5)
-
-
-class SRBF(_Strict):
-    """Distribution-based BRDF (inverse-brdf-modeling eq. 11-12).
-
-    albedo/π + p(h)·F(ωi·h)/(cosθi + cosθo − cosθi cosθo), with
-    p(h) = Σ_j c_j exp(λ (h·ξ_j − 1)) per RGB channel, h in the local frame (z = normal),
-    F Schlick's approximation with F0 = fresnel_f0.
-    """
-    model: Literal["srbf"] = "srbf"
-    centers: list[Vec3] = Field(min_length=1, description="SRBF centres ξ_j, unit vectors, local frame")
-    bandwidth: float = Field(gt=0.0, description="λ")
-    coefficients: list[Color] = Field(min_length=1, description="c_j per RGB channel, ≥ 0 when physical")
-    fresnel_f0: float = Field(1.0, ge=0.0, le=1.0)
-    albedo: Color = (0.0, 0.0, 0.0)
-
-    @field_validator("coefficients")
-    @classmethod
-    def _same_length(cls, v, info):
-        c = info.data.get("centers")
-        if c is not None and len(c) != len(v):
-            raise ValueError(f"{len(v)} coefficient rows for {len(c)} centres")
-        return v
-
-
-class Lobes(_Strict):
-    """Cosine lobes with fixed exponents (cacad-cosine-lobes eq. 1-3), in reciprocal form:
-    albedo/π + Σ_i (gloss_i + dd_i) (E_i+2)/(2π) max(0, r·ωo)^E_i, r = reflect(ωi, n).
-    gloss weights are achromatic (first-surface), directional-diffuse weights are RGB.
-    ``albedo`` is the diffuse weight (named like every model's; files may still say ``diffuse``)."""
-    model_config = ConfigDict(extra="forbid", populate_by_name=True)
-    model: Literal["lobes"] = "lobes"
-    exponents: list[float] = Field(min_length=1, max_length=16)
-    gloss: list[float]
-    directional_diffuse: list[Color]
-    albedo: Color = Field((0.3, 0.3, 0.3), validation_alias=AliasChoices("albedo", "diffuse"))
-
-
-class Curve(_Strict):
-    """Quotient model over a 1D half-angle curve (box basis over θh ∈ [0, π/2]):
-    albedo/π + p(θh)·F(ωi·h)/(cosθi + cosθo − cosθi cosθo), p piecewise constant."""
-    model: Literal["curve"] = "curve"
-    values: list[Color] = Field(min_length=1, max_length=1024)
-    fresnel_f0: float = Field(1.0, ge=0.0, le=1.0)
-    albedo: Color = (0.0, 0.0, 0.0)
-
-
-Material = Annotated[Union[Lambert, GGX, BlinnPhong, SRBF, Lobes, Curve], Field(discriminator="model")]
 
 
 class Transform(_Strict):
@@ -154,9 +84,20 @@ class SceneObject(_Strict):
 
 class SceneFile(_Strict):
     version: Literal[1] = 1
+    renderer: str = Field("cuts", description="how the scene is drawn: cuts (direct light, default), "
+                                              "or another registered renderer (worker/renderers)")
     environment: Environment
     camera: Camera
     objects: list[SceneObject] = Field(min_length=1)
+
+    @field_validator("renderer")
+    @classmethod
+    def _known_renderer(cls, v):
+        from .renderers import kinds
+
+        if v not in kinds():
+            raise ValueError(f"unknown renderer {v!r} (known: {', '.join(kinds())})")
+        return v
 
     @field_validator("objects")
     @classmethod

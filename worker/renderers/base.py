@@ -102,10 +102,9 @@ class Renderer(ABC):
     kind: ClassVar[str]
     controls: ClassVar[frozenset[str]] = frozenset({"camera", "light", "materials", "environment"})
 
-    def __init__(self, scene, data, use_native: bool = True):
+    def __init__(self, scene, data, kernels=None):
         self.scene = scene
         self.data = data
-        self.use_native = use_native
 
     @abstractmethod
     def render(self, req: FrameRequest) -> Rendered:
