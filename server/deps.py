@@ -53,6 +53,8 @@ def check_client(st: AppState, host: str | None, creds: HTTPAuthorizationCredent
 
 def require_client(request: Request, st: State,
                    creds: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)] = None) -> str:
+    if creds is None and request.headers.get("authorization"):
+        raise HTTPException(401, "Authorization must be 'Bearer <token>'")
     return check_client(st, request.client.host if request.client else None, creds)
 
 

@@ -78,8 +78,8 @@ class Camera(_Strict):
 class SceneObject(_Strict):
     name: str = Field(min_length=1)
     mesh: str
-    transform: Transform = Transform()
-    material: Material = Lambert()
+    transform: Transform = Field(default_factory=Transform)
+    material: Material = Field(default_factory=Lambert)
 
 
 class SceneFile(_Strict):

@@ -34,7 +34,12 @@ def _out(a: Asset) -> AssetOut:
                     created=a.created)
 
 
-@router.post("/{kind}", response_model=AssetOut, status_code=201)
+BINARY_BODY = {"requestBody": {"required": True, "description": "the file itself, as bytes",
+                               "content": {"application/octet-stream": {"schema": {"type": "string", "format": "binary"}}}}}
+
+
+@router.post("/{kind}", response_model=AssetOut, status_code=201, openapi_extra=BINARY_BODY,
+             summary="Upload a mesh (.obj .ply .glb .stl), an environment map (.exr .hdr) or an image")
 async def upload(kind: Literal["meshes", "envmaps", "images"], request: Request, st: State, _: Client,
                  filename: str = Query(..., min_length=1, max_length=255, description="original file name (its extension gives the type)")):
     akind, exts = KINDS[kind]

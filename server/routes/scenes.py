@@ -9,6 +9,8 @@ from fastapi import APIRouter, Body, HTTPException, Query
 from fastapi.concurrency import run_in_threadpool
 from sqlalchemy import select
 
+from worker.scene import SceneFile
+
 from ..db import Asset, Precomputation, Scene
 from ..deps import DB, Client, State
 from ..schemas import PrecomputationOut, SceneOut
@@ -20,7 +22,7 @@ log = logging.getLogger("glint")
 def pre_out(p: Precomputation | None) -> PrecomputationOut | None:
     if p is None:
         return None
-    return PrecomputationOut(id=p.id, scene_id=p.scene_id, status=p.status, progress=p.progress, message=p.message,
+    return PrecomputationOut(id=p.id, scene_id=p.scene_id, kind=p.kind or "cuts", status=p.status, progress=p.progress, message=p.message,
                              stats=p.stats or {}, created=p.created, updated=p.updated)
 
 
@@ -29,14 +31,17 @@ def scene_out(st, s, sc: Scene) -> SceneOut:
                     precomputation=pre_out(st.latest_precomputation(s, sc.id)))
 
 
-def validate_scene(s, body: dict) -> dict:
+def validate_scene(s, body) -> dict:
     """Scene file v1 with asset ids: the schema, then every referenced asset and its kind."""
-    from worker.scene import SceneError, parse_scene
+    from worker.scene import SceneError, SceneFile, parse_scene
 
-    try:
-        spec = parse_scene(body, "scene")
-    except SceneError as e:
-        raise HTTPException(422, str(e)) from None
+    if isinstance(body, SceneFile):
+        spec = body
+    else:
+        try:
+            spec = parse_scene(body, "scene")
+        except SceneError as e:
+            raise HTTPException(422, str(e)) from None
     refs = [("environment.map", spec.environment.map, "envmap")]
     refs += [(f"objects[{i}].mesh", o.mesh, "mesh") for i, o in enumerate(spec.objects)]
     for where, ref, kind in refs:
@@ -52,7 +57,8 @@ def validate_scene(s, body: dict) -> dict:
 
 
 @router.post("/v1/scenes", response_model=SceneOut, status_code=201)
-def create_scene(st: State, db: DB, _: Client, body: dict = Body(..., description="scene file v1 (DESIGN.md §3) with asset ids"),
+def create_scene(st: State, db: DB, _: Client,
+                 body: SceneFile = Body(..., description="scene file v1 (DESIGN.md §3) whose mesh and map fields are asset ids"),
                  name: str = Query("", max_length=200)):
     spec = validate_scene(db, body)
     sc = Scene(name=name, spec=spec)
