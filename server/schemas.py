@@ -124,3 +124,4 @@ class SessionOut(BaseModel):
     state: dict[str, Any]
     strokes: list[dict] = Field(default_factory=list)
     worker_pid: int | None = None
+    closed: bool = False

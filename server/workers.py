@@ -16,7 +16,6 @@ import asyncio
 import itertools
 import logging
 import multiprocessing as mp
-import queue
 import shutil
 import threading
 from pathlib import Path
@@ -76,24 +75,31 @@ class SessionQueue(asyncio.Queue):
 
 
 class _Worker:
+    """One worker process and its two pipes. Plain pipes rather than multiprocessing queues:
+    queues hold named semaphores, which a killed worker leaves behind (the resource tracker's
+    'leaked semaphore' warnings at every shutdown); a pipe holds nothing but two descriptors."""
+
     def __init__(self, slot: int, ctx, settings):
-        from worker.jobs.runner import worker_main
+        from worker.jobs.runner import PipeOut, worker_main
 
         self.slot = slot
         self.settings = settings
-        self.inq = ctx.Queue()
-        self.outq = ctx.Queue()
-        self.proc = ctx.Process(target=worker_main, args=(slot, self.inq, self.outq, settings),
+        req_r, req_w = ctx.Pipe(duplex=False)
+        rep_r, rep_w = ctx.Pipe(duplex=False)
+        self.proc = ctx.Process(target=worker_main, args=(slot, req_r, rep_w, settings),
                                 name=f"glint-worker-{slot}", daemon=True)
         self.proc.start()
+        req_r.close()                   # the child's ends: closed here so EOF means it is gone
+        rep_w.close()
+        self.inq = PipeOut(req_w)
+        self.replies = rep_r
         self.sessions: set[str] = set()
         self.jobs: set[str] = set()
 
     def close_queues(self) -> None:
-        for q in (self.inq, self.outq):
+        for c in (self.inq, self.replies):
             try:
-                q.close()
-                q.join_thread()
+                c.close()
             except Exception:
                 pass
 
@@ -170,7 +176,10 @@ class LocalWorkerPool(WorkerPool):
 
     # -- routing --------------------------------------------------------------------------------
     def _least_loaded(self) -> _Worker:
-        return min(self.workers, key=lambda w: (len(w.sessions) + 2 * len(w.jobs), w.slot))
+        # a worker found dead is skipped (the monitor is replacing it); if all are, any will do:
+        # the monitor fails its jobs and restores its sessions within a moment
+        alive = [w for w in self.workers if w.proc.is_alive()] or self.workers
+        return min(alive, key=lambda w: (len(w.sessions) + 2 * len(w.jobs), w.slot))
 
     async def run_job(self, job: dict, on_progress=None) -> dict:
         jid = f"j{next(self._ids)}"
@@ -228,12 +237,12 @@ class LocalWorkerPool(WorkerPool):
     def _reader(self, w: _Worker) -> None:
         while True:
             try:
-                item = w.outq.get(timeout=0.5)
-            except queue.Empty:
-                if not w.proc.is_alive() or self._stopping:
-                    return
-                continue
-            except (EOFError, OSError, ValueError):
+                if not w.replies.poll(0.5):
+                    if not w.proc.is_alive() or self._stopping:
+                        return
+                    continue
+                item = w.replies.recv()
+            except (EOFError, OSError, ValueError, TypeError):
                 return
             try:
                 self.loop.call_soon_threadsafe(self._dispatch, item)

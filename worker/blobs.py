@@ -43,10 +43,21 @@ class BlobStore:
     def has(self, sha: str) -> bool:
         return self.path(sha).is_file()
 
+    def _intact(self, dest: Path, sha: str) -> bool:
+        """An existing blob under this name whose content still has this hash (a damaged one is
+        replaced by the next put of the same content)."""
+        if not dest.is_file():
+            return False
+        try:
+            self.verified_path(sha)
+            return True
+        except BlobError:
+            return False
+
     def put(self, data: bytes) -> str:
         sha = hashlib.sha256(data).hexdigest()
         dest = self.path(sha)
-        if dest.is_file():
+        if self._intact(dest, sha):
             return sha
         self._write(dest, data)
         return sha
@@ -55,7 +66,7 @@ class BlobStore:
         """Move an already-hashed temporary file into the store (upload streaming)."""
         dest = self.path(sha)
         dest.parent.mkdir(parents=True, exist_ok=True)
-        if dest.is_file():
+        if self._intact(dest, sha):
             Path(src).unlink(missing_ok=True)
             return sha
         with open(src, "rb+") as f:

@@ -64,16 +64,8 @@ def cmd_precompute(a) -> int:
     scene = _load(a.scene)
     _, ens = open_renderer(scene, a.out, a.json, {"tau": a.tau})
     key, part = next(iter(ens["parts"].items()))
-    stats = {"seconds": ens["seconds"], "cached": ens["computed"] == 0, "key": key}
-    if part.get("cached"):
-        from .artifacts import DirStore
-        from .core.cuts import decode
-        from .renderers.cuts import storage_stats
-
-        blob = DirStore(Path(a.out) if a.out else data_dir(), "cuts").get(key)
-        stats.update(storage_stats(decode(blob), len(blob)))
-    else:
-        stats.update({k: v for k, v in part.items() if k not in ("label", "cached")})
+    stats = {"seconds": ens["seconds"], "cached": ens["computed"] == 0, "key": key,
+             **{k: v for k, v in part.items() if k not in ("label", "cached")}}
     stats["seconds_total"] = time.perf_counter() - t0
     if a.json:
         print(json.dumps(stats))
@@ -366,6 +358,15 @@ def cmd_bench_stream(a) -> int:
     return 0
 
 
+def cmd_bench_load(a) -> int:
+    from .bench_stream import bench_load
+
+    res = bench_load(sessions=a.sessions, seconds=a.seconds, runs=a.runs, port=a.port, data_dir=a.data_dir,
+                     quiet=a.json, workers=a.workers)
+    print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items() if k != "runs"))
+    return 0
+
+
 class _UsageError(Exception):
     """Wrong command-line usage: the usage line is printed with the message."""
 
@@ -454,6 +455,12 @@ def build_parser() -> argparse.ArgumentParser:
     bs.add_argument("--strokes", type=int, default=20); bs.add_argument("--orbit-seconds", type=float, default=5.0)
     bs.add_argument("--json", action="store_true")
     bs.set_defaults(fn=cmd_bench_stream)
+    bl = bsub.add_parser("load", help="N concurrent editing sessions (orbit at 30 Hz, a stroke every 3 s)")
+    bl.add_argument("--sessions", type=int, default=8); bl.add_argument("--seconds", type=float, default=20.0)
+    bl.add_argument("--runs", type=int, default=2, help="identical runs in a row (memory must stay flat)")
+    bl.add_argument("--port", type=int); bl.add_argument("--data-dir"); bl.add_argument("--workers", type=int)
+    bl.add_argument("--json", action="store_true")
+    bl.set_defaults(fn=cmd_bench_load)
 
     sv = sub.add_parser("serve", help="run the service (FastAPI + worker processes)")
     sv.add_argument("--host", default=None, help="default 127.0.0.1"); sv.add_argument("--port", type=int, default=None, help="default 8000")

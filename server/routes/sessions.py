@@ -15,6 +15,7 @@ import datetime as dt
 import hmac
 import json
 import logging
+import threading
 
 from fastapi import APIRouter, Header, HTTPException, Query, Request, WebSocket, WebSocketDisconnect
 from fastapi.concurrency import run_in_threadpool
@@ -80,7 +81,8 @@ def get_session(sid: str, st: State, db: DB, x_session_token: str | None = Heade
     if not _authorised(row, x_session_token):
         raise HTTPException(403, "wrong or missing session token (X-Session-Token header)")
     return SessionOut(id=row.id, scene_id=row.scene_id, stream=_stream_url(sid), state=row.state,
-                      strokes=_strokes(db, row), worker_pid=st.pool.worker_of(sid) if hasattr(st.pool, "worker_of") else None)
+                      strokes=_strokes(db, row), closed=row.closed,
+                      worker_pid=st.pool.worker_of(sid) if hasattr(st.pool, "worker_of") else None)
 
 
 @router.delete("/{sid}", status_code=204)
@@ -94,6 +96,27 @@ def close_session(sid: str, st: State, db: DB, x_session_token: str | None = Hea
 
 
 # -- persistence of client messages ---------------------------------------------------------------
+_locks: dict[str, threading.Lock] = {}
+_locks_guard = threading.Lock()
+
+
+def _lock(sid: str) -> threading.Lock:
+    """Read-modify-write of a session's state is serialised per session (the client's messages
+    and the worker's events arrive on different threads); the row is also locked FOR UPDATE
+    where the database supports it (PostgreSQL)."""
+    with _locks_guard:
+        lk = _locks.get(sid)
+        if lk is None:
+            if len(_locks) > 10_000:
+                _locks.clear()
+            lk = _locks[sid] = threading.Lock()
+        return lk
+
+
+def _row(s, sid: str) -> Session | None:
+    return s.get(Session, sid, with_for_update=True)
+
+
 def _load_state(s, row: Session) -> SessionState:
     state, _ = restore_state(row.state, s.get(Scene, row.scene_id).spec)
     return state
@@ -103,8 +126,8 @@ def persist(st, sid: str, msg) -> tuple[dict | None, dict | None]:
     """Apply a validated message to the stored state and record it before the worker sees it.
     Returns (error event, None) when it cannot apply (nothing is stored or forwarded), else
     (None, the message to forward)."""
-    with st.db() as s, s.begin():
-        row = s.get(Session, sid)
+    with _lock(sid), st.db() as s, s.begin():
+        row = _row(s, sid)
         before = _load_state(s, row)
         try:
             state, eff = apply(before, msg)
@@ -136,8 +159,8 @@ def on_worker_event(st, sid: str, ev: dict) -> dict | None:
     a restarted worker runs it again). Returns the event for the client (None: nothing)."""
     t = ev.get("type")
     if t == "fit" and "material" in ev:
-        with st.db() as s, s.begin():
-            row = s.get(Session, sid)
+        with _lock(sid), st.db() as s, s.begin():
+            row = _row(s, sid)
             state = dict(row.state)
             names = state.get("objects") or [o["name"] for o in s.get(Scene, row.scene_id).spec["objects"]]
             mats = list(state["materials"])
@@ -157,8 +180,8 @@ def on_worker_event(st, sid: str, ev: dict) -> dict | None:
 
 def _store_save(st, sid: str, ev: dict) -> dict:
     seq = ev.get("seq")
-    with st.db() as s, s.begin():
-        row = s.get(Session, sid)
+    with _lock(sid), st.db() as s, s.begin():
+        row = _row(s, sid)
         state = dict(row.state)
         pending = [p for p in state.get("pending_saves", []) if p.get("seq") != seq]
         done = s.scalars(select(SessionSave).where(SessionSave.session_id == sid, SessionSave.seq == seq)).first()
@@ -307,8 +330,8 @@ def _controls(kind: str, readonly: bool) -> set[str]:
 def _ended(st, sid: str) -> None:
     """A stream ended: viewer sessions are over (a shopper gets a new one); editing sessions
     stay open to reconnect to, until closed or expired (``expire_idle``)."""
-    with st.db() as s, s.begin():
-        row = s.get(Session, sid)
+    with _lock(sid), st.db() as s, s.begin():
+        row = _row(s, sid)
         if row is not None:
             row.last_active = now()
             if (row.state or {}).get("readonly"):

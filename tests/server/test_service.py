@@ -15,42 +15,9 @@ import pytest
 import websockets
 from PIL import Image
 
-from worker.jobs.state import decode_frame, server_event
+from helpers import connect, next_frame
 
 ROOT = Path(__file__).resolve().parents[2]
-
-
-class connect:
-    """A session stream that authenticates with its first message (the token never appears in a
-    URL, so never in a log)."""
-
-    def __init__(self, server, path, token, **kw):
-        self.cm = websockets.connect(f"ws://127.0.0.1:{server['port']}{path}", max_size=None, **kw)
-        self.token = token
-
-    async def __aenter__(self):
-        ws = await self.cm.__aenter__()
-        await ws.send(json.dumps({"type": "auth", "token": self.token}))
-        return ws
-
-    async def __aexit__(self, *a):
-        return await self.cm.__aexit__(*a)
-
-
-async def next_frame(ws, min_ack=-1, events=None, timeout=60):
-    """Receive until a binary frame whose ack ≥ min_ack; JSON events are collected."""
-    deadline = time.monotonic() + timeout
-    while True:
-        x = await asyncio.wait_for(ws.recv(), timeout=max(0.1, deadline - time.monotonic()))
-        if isinstance(x, bytes):
-            hdr, img = decode_frame(x)
-            if hdr["ack"] >= min_ack:
-                return hdr, np.asarray(Image.open(io.BytesIO(img)).convert("RGB"), np.float64)
-        else:
-            ev = json.loads(x)
-            server_event.validate_python(ev)          # every event matches the published schema
-            if events is not None:
-                events.append(ev)
 
 
 def test_session_stroke_save_and_crash_recovery(server, client, bunny_scene, artifacts):

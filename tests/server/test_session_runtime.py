@@ -176,3 +176,38 @@ def test_frame_encoding_and_curves():
     c = brdf_curve(GGX(alpha=0.2, specular=(0.5, 0.5, 0.5)))
     v = np.asarray(c["values"])
     assert len(c["theta_deg"]) == len(v) and v[0, 0] > v[30, 0] > 0     # falls off from the peak
+
+
+def test_stream_schema_is_current():
+    """stream-schema.json (client messages, events, frame header) is generated from the models the
+    server validates with (glint schema --out stream-schema.json)."""
+    import json
+    from pathlib import Path
+
+    from worker.jobs.state import stream_schema
+
+    path = Path(__file__).resolve().parents[2] / "stream-schema.json"
+    assert json.loads(path.read_text()) == json.loads(json.dumps(stream_schema())), \
+        "stream-schema.json drifted: run `glint schema --out stream-schema.json`"
+
+
+def test_the_api_process_loads_no_numerical_libraries():
+    """Issue 10: the server imports only worker's public modules; Embree, OpenCV and the QP solver
+    stay out of the API process."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from server.main import create_app; create_app(); "
+            "import server.routes.sessions, server.routes.assets; "
+            "print(','.join(m for m in ('embreex', 'cv2', 'daqp', 'trimesh') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "", f"the API process imported {out.stdout.strip()}"
+
+
+def test_worker_never_imports_server():
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2] / "worker"
+    bad = [str(p) for p in root.rglob("*.py") if "from server" in p.read_text() or "import server" in p.read_text()]
+    assert not bad or bad == [str(root / "cli.py")], bad      # the CLI starts the server (glint serve)

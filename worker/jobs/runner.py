@@ -1,5 +1,5 @@
 """The worker process: jobs (precompute, render, fit) on a job thread, and every
-interactive session on a thread of its own, talking to the server through two queues.
+interactive session on a thread of its own, talking to the server through two pipes.
 
 Requests (server → worker):
     ("job", job_id, {"type": "precompute" | "render" | "fit", ...})
@@ -44,6 +44,22 @@ class WorkerSettings(BaseModel):
     threads: int = 0
     kernels: str | None = None
     scenes: int = 4
+
+
+class PipeOut:
+    """The writing end of a pipe, shared by threads (the server's event loop and monitor; the
+    worker's job and session threads): one send at a time."""
+
+    def __init__(self, conn):
+        self.conn = conn
+        self.lock = threading.Lock()
+
+    def put(self, item) -> None:
+        with self.lock:
+            self.conn.send(item)
+
+    def close(self) -> None:
+        self.conn.close()
 
 
 class JobError(Exception):
@@ -338,8 +354,10 @@ class SessionThread(threading.Thread):
             self.outq.put(("closed", self.sid, None))
 
 
-def worker_main(wid: int, inq, outq, settings: WorkerSettings) -> None:
-    """Entry point of a worker process (multiprocessing, spawn)."""
+def worker_main(wid: int, requests, replies, settings: WorkerSettings) -> None:
+    """Entry point of a worker process (multiprocessing, spawn): requests and replies are the
+    two pipe ends (multiprocessing.connection.Connection)."""
+    outq = PipeOut(replies)
     # before NumPy loads: BLAS must not spawn threads beside the OpenMP kernels (DESIGN.md §7)
     os.environ["OPENBLAS_NUM_THREADS"] = "1"
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
@@ -381,7 +399,10 @@ def worker_main(wid: int, inq, outq, settings: WorkerSettings) -> None:
     sessions: dict[str, SessionThread] = {}
     try:
         while True:
-            kind, key, p = inq.get()
+            try:
+                kind, key, p = requests.recv()
+            except (EOFError, OSError):         # the server is gone
+                break
             if kind == "stop":
                 break
             if kind == "job":
@@ -414,4 +435,3 @@ def worker_main(wid: int, inq, outq, settings: WorkerSettings) -> None:
         jt.join(timeout=2)
         cache.close()
         outq.close()
-        outq.join_thread()

@@ -47,4 +47,5 @@ class Curve(BRDFModel):
 
     @classmethod
     def examples(cls):
-        return [cls(values=[(3, 3, 3), (1, 1, 1), (0.1, 0.1, 0.1), (0, 0, 0)], albedo=(0.2, 0.2, 0.2))]
+        return [cls(values=[(2.0, 1.5, 1.0), (0.8, 0.6, 0.4), (0.2, 0.2, 0.2), (0.05, 0.05, 0.05)] + [(0.0, 0.0, 0.0)] * 12,
+                    fresnel_f0=0.8, albedo=(0.3, 0.3, 0.3))]

@@ -189,6 +189,9 @@ class CutPrecomputation(Precomputation):
                  **storage_stats(cs, len(blob))}
         return blob, stats
 
+    def describe(self, scene, part, blob):
+        return {"tau": part.meta["tau"], **storage_stats(cutmod.decode(blob), len(blob))}
+
     def load(self, scene, blobs, options):
         (part,) = self.parts(scene, options)
         cs = cutmod.decode(blobs[part.key])
