@@ -152,8 +152,11 @@ def test_server_stopped_during_a_precomputation(faulty, tmp_path):
     pre = c.post(f"/v1/scenes/{scene}/precompute").json()
     _wait_pre(c, pre["id"], until=("running",))
     keys_before = set(os.listdir(srv.data / "blobs" / "keys"))
-    assert srv.stop(signal.SIGTERM) == 0
-    assert "leaked semaphore" not in srv.log()
+    code = srv.stop(signal.SIGTERM)
+    log = srv.log()
+    # uvicorn shuts down gracefully, then re-raises the signal: the exit status says SIGTERM
+    assert code in (0, -signal.SIGTERM) and "Application shutdown complete" in log, (code, log[-2000:])
+    assert "leaked semaphore" not in log
     assert not list((srv.data / "tmp").glob("worker-*")), "a worker left its scratch folder"
     assert set(os.listdir(srv.data / "blobs" / "keys")) == keys_before
     srv2 = GlintServer(srv.data, workers=1)
