@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated, Literal, Union
+from typing import Annotated, Any, Literal, Union
 
 import numpy as np
 from pydantic import AliasChoices, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
@@ -150,6 +150,8 @@ class SceneObject(_Strict):
     mesh: str
     transform: Transform = Transform()
     material: Material = Lambert()
+    # GI renderer (polynomial-gi §5.3): false bakes this material into the precomputation
+    editable: bool = True
 
 
 class SceneFile(_Strict):
@@ -157,6 +159,10 @@ class SceneFile(_Strict):
     environment: Environment
     camera: Camera
     objects: list[SceneObject] = Field(min_length=1)
+    # the renderer kind drawing this scene (worker.renderers), and the GI renderer's settings
+    # (validated by worker/renderers/gi/options.py)
+    renderer: str = "cuts"
+    gi: dict[str, Any] | None = None
 
     @field_validator("objects")
     @classmethod
@@ -235,7 +241,7 @@ def load_mesh(path: str | Path, transform: Transform | None = None) -> Mesh:
         # trimesh keeps file normals in its cache; only then are they "present"
         file_n = g._cache.cache.get("vertex_normals") if hasattr(g, "_cache") else None
         if file_n is not None and np.shape(file_n) == v.shape:
-            n = np.asarray(file_n, dtype=np.float64)
+            n = np.array(file_n, dtype=np.float64)  # a copy: trimesh caches read-only arrays
             n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
         else:
             n = area_weighted_normals(v, f)
