@@ -14,6 +14,17 @@ def sofa_small(shared_assets):
 
 
 @pytest.fixture(scope="session")
+def sofa_all_editable(shared_assets):
+    """As sofa_small with the side wall editable too (every surface's albedo is a variable)."""
+    from worker.scene import LoadedScene
+    sc = scene_with("sofa", 48, 36)
+    spec = sc.spec.model_copy(deep=True)
+    for o in spec.objects:
+        o.editable = True
+    return gi_renderer(LoadedScene(spec, sc.root, envmap=sc.envmap), {"spp": 32, "series": [64, 1, 1, 1]})
+
+
+@pytest.fixture(scope="session")
 def sphere_scene(tmp_path_factory):
     """A unit icosphere seen from the front under a constant white environment (L = 1): a convex
     object, so its radiance is the directional albedo ∫f cos dωi at every pixel (closed form)."""
