@@ -26,19 +26,19 @@ def _tiles_agree(a, b, rtol):
 
 @pytest.mark.parametrize("name,opts", [
     ("cornell", {"series": [64, 1, 1, 1]}),
-    ("cornell", {"series": [16, 4, 1, 1], "fresnel": True}),
+    ("cornell", {"series": [16, 4, 1], "fresnel": True}),
     ("sofa", {"series": [32, 8, 1], "quotient": "microfacet"}),    # a fixed object, J2 series
 ])
 def test_path_tracer_kernels_agree(shared_assets, name, opts):
     """gi_sample + gi_emit + gi_compact (hash tables) against sample_numpy + emit_numpy + compact
     (dense) on one tile of real paths with the same random numbers: identical entries, values
     within 1e-6 relative (float accumulation order, half-float rounding at the same places)."""
-    sc = scene_with(name, 20, 20)
+    sc = scene_with(name, 14, 14)
     o = parse_options(sc, {"spp": 8, **opts})
     S = make_setup(sc, o, unit_layout(sc, o), region_images(sc, o))
     a, ra = trace_tile(S, 0, use_native=False)
     b, rb = trace_tile(S, 0, use_native=True)
-    assert ra == rb and ra > 1000
+    assert ra == rb and ra > 500
     _tiles_agree(a, b, 1e-6)
 
 

@@ -9,7 +9,7 @@ from worker.renderers import FrameRequest, Lighting, Unsupported, get
 from worker.scene import GGX, BlinnPhong, Lambert
 
 
-def _directional_albedo(f, n, wo, t, b, samples=200_000, seed=0):
+def _directional_albedo(f, n, wo, t, b, samples=100_000, seed=0):
     rng = np.random.default_rng(seed)
     u = rng.random((samples, 2))
     r, ph = np.sqrt(u[:, 0]), 2 * np.pi * u[:, 1]
@@ -25,7 +25,7 @@ def test_convex_object_in_a_white_furnace(sphere_scene, kind):
     (no interreflection), for any BRDF: the view-conditioned projection is exact for uniform
     light, so only noise remains. Over 60 pixels: mean relative error within 1.5 % (bias), and
     RMS error within 1.5× the noise of both sides (ours: two seeds at 512 spp; the reference:
-    200k cosine samples) plus 1 %."""
+    100k cosine samples) plus 1 %."""
     from worker.core.brdf import evaluate, onb
     from worker.renderers.gi.anisotropy import AshikhminShirley, evaluate_as
     if kind == "ggx":
