@@ -65,6 +65,7 @@ def cmd_precompute(a) -> int:
            "rays": meta["rays"], "key": key, "store": str(store.root)}
     if not info["cached"]:
         res["rays_per_second"] = meta["rays"] / max(info["seconds"], 1e-9)
+        res.update(embree_speed(scene))
     if a.json:
         print(json.dumps(res))
     else:
@@ -73,6 +74,30 @@ def cmd_precompute(a) -> int:
         print(f"GI tensors {','.join(map(str, res['series']))}: {res['pixels']} pixels × {res['spp']} spp, "
               f"{res['bytes'] / 1e6:.1f} MB ({mb} MB per bounce), {took}\n  {store.path(key)}")
     return 0
+
+
+def embree_speed(scene, n: int = 400_000, seed: int = 0) -> dict:
+    """Raw Embree throughput on this scene, for comparison with the precomputation's rays/s:
+    n occlusion and n first-hit rays from random surface points in uniform random directions,
+    in the precomputation's two threads (trace.Geometry.trace)."""
+    import numpy as np
+
+    from .trace import Geometry
+    geo = Geometry(scene)
+    rng = np.random.default_rng(seed)
+    area = np.linalg.norm(np.cross(geo.V[geo.F[:, 1]] - geo.V[geo.F[:, 0]], geo.V[geo.F[:, 2]] - geo.V[geo.F[:, 0]]), axis=1)
+    f = rng.choice(len(geo.F), n, p=area / area.sum())
+    u = rng.random((n, 2)); fl = u.sum(1) > 1; u[fl] = 1 - u[fl]
+    o = (1 - u.sum(1))[:, None] * geo.V[geo.F[f, 0]] + u[:, :1] * geo.V[geo.F[f, 1]] + u[:, 1:] * geo.V[geo.F[f, 2]]
+    d = rng.normal(size=(n, 3)); d /= np.linalg.norm(d, axis=1, keepdims=True)
+    o = o + geo.face_n[f] * np.sign((geo.face_n[f] * d).sum(1))[:, None] * geo.eps
+    out = {}
+    for name, occl in (("occluded", True), ("first_hit", False)):
+        geo.trace(o[:1000], d[:1000], occluded=occl)                 # warm-up
+        t0 = time.perf_counter()
+        geo.trace(o, d, occluded=occl)
+        out[f"embree_{name}_rays_per_second"] = n / (time.perf_counter() - t0)
+    return out
 
 
 def _renderer(a, quiet):
