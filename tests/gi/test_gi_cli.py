@@ -1,7 +1,6 @@
 """glint gi precompute / render / bench through the command line, on a small copy of the sofa
 scene (tensors cached in tests/.cache/gi)."""
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest

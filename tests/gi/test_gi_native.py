@@ -3,7 +3,7 @@ random numbers, and statistically for independent random streams."""
 import numpy as np
 import pytest
 
-from gi_harness import gi_renderer, inner_mask, scene_with
+from gi_harness import gi_renderer, scene_with
 from worker.renderers.gi import native as gn
 from worker.renderers.gi.options import parse_options, unit_layout
 from worker.renderers.gi.renderer import region_images

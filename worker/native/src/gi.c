@@ -1,11 +1,17 @@
 /* GI renderer kernels (polynomial-gi, worker/renderers/gi). Each has a NumPy reference:
- *   gi_sample  <- trace.sample_numpy   (light and mixture directions, both pdfs at both)
- *   gi_emit    <- trace.emit_numpy     (a vertex's MIS-weighted light into the dense tile tensor,
- *                                       and the prefix of the continuing paths)
- *   gi_freeze  <- freeze.freeze_numpy  (object freezing, eq. 27)
- *   gi_frame   <- freeze.frame_numpy   (the per-pixel dot product, eq. 28-29)
- * tests/gi/test_native.py checks that they agree. Arrays are C-contiguous; loaded via ctypes
- * (worker/renderers/gi/native.py sets the argtypes).
+ *   gi_sample        <- trace.sample_numpy   (light and mixture directions, both pdfs at both)
+ *   gi_emit          <- trace.emit_numpy     (a vertex's MIS-weighted light into the tile's
+ *                                             per-pixel hash tables, and the continuing prefix)
+ *   gi_occupancy,
+ *   gi_compact       <- trace.compact        (zeros dropped, half floats, sorted by key)
+ *   gi_freeze,
+ *   gi_maxpow        <- freeze.freeze_numpy  (object freezing, eq. 27)
+ *   gi_frame,
+ *   gi_frame_dense   <- freeze.frame_numpy   (the per-pixel dot product, eq. 28-29; AVX2/F16C
+ *                                             when the CPU has them)
+ *   gi_half          <- NumPy's float16 conversions (round to nearest even)
+ * tests/gi/test_gi_native.py and test_gi_basis.py check that they agree. Arrays are
+ * C-contiguous; loaded via ctypes (worker/renderers/gi/native.py sets the argtypes).
  */
 #include <math.h>
 #include <stdint.h>

@@ -34,7 +34,6 @@ from ...core.brdf import evaluate, onb
 from ...core.render import camera_rays, env_lookup
 from ...trace.embree import Tracer
 from . import zspace
-from .anisotropy import AshikhminShirley
 from .basis import J2_NODES, QUOTIENTS, half_band, node_interp, quotient_s
 from .options import GIOptions, UnitLayout
 from .sampling import EnvDistribution, pdf_mixture, sample_mixture
@@ -209,7 +208,7 @@ class Regions:
                 w[sel, 0] = 1.0
                 continue
             hs = []
-            for k, u in enumerate(us[1:], start=1):
+            for u in us[1:]:
                 r = self.layout.units[u].region
                 hs.append(self._sample(r, self.specs[r], o, pos[sel]))
             H = np.stack(hs, 1) if hs else np.zeros((len(sel), 0))
