@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
@@ -80,6 +80,8 @@ class SceneObject(_Strict):
     mesh: str
     transform: Transform = Field(default_factory=Transform)
     material: Material = Field(default_factory=Lambert)
+    # GI renderer (polynomial-gi §5.3): false bakes this material into the precomputation
+    editable: bool = True
 
 
 class SceneFile(_Strict):
@@ -89,6 +91,8 @@ class SceneFile(_Strict):
     environment: Environment
     camera: Camera
     objects: list[SceneObject] = Field(min_length=1)
+    # the GI renderer's settings (validated by worker/renderers/gi/options.py)
+    gi: dict[str, Any] | None = None
 
     @field_validator("renderer")
     @classmethod

@@ -15,6 +15,7 @@ from .base import (ArtifactStore, FrameRequest, Lighting, Part, Precomputation, 
 # one line per renderer: importing the module registers it
 RENDERER_MODULES: dict[str, str] = {
     "cuts": "worker.renderers.cuts",
+    "gi": "worker.renderers.gi",
 }
 
 _registry: dict[str, tuple[type[Renderer], Precomputation]] = {}
