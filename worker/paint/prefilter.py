@@ -1,0 +1,166 @@
+"""Environment maps prefiltered per cosine lobe (cacad-cosine-lobes §5.1, eq. 7-9).
+
+For a basis exponent E, the prefiltered map is the environment convolved with the normalised
+cosine lobe:
+    P_E(R) = (E+1)/(2π) ∫_{ω·R>0} (ω·R)^E L(ω) dω        (a constant map stays unchanged)
+stored as an equirectangular map (DESIGN.md §2 mapping) and read bilinearly at R. The diffuse
+map of eq. 9 is P_1: albedo·P_1(N) is exactly the Lambertian radiance albedo/π·E(N).
+
+How (hierarchical, direct convolution; why not spherical harmonics: below):
+  * the map is area-averaged into a pyramid (2×2 blocks, weighted by solid angle so a sun keeps
+    its energy). Lobe E is computed at the coarsest level whose pixels are at most a third of
+    half the lobe's angular width σ = 1/√E (at least 16 rows): wide lobes on a 32×16 map, the
+    sharpest ones at the map's own resolution. The work per lobe is then about the same.
+  * on an equirectangular grid, the kernel between an output row θo and an input row θj
+    depends only on the column offset, so each (output row, input row) pair is a 1D circular
+    convolution with a kernel tabulated once: no power function in the inner loop. Rows and
+    columns beyond the lobe's support (cos^E < 1e-3 of its peak, 3.7σ) are skipped.
+  * the result is normalised by the discrete kernel sum of its row, so a constant map is
+    reproduced exactly (white furnace) whatever the resolution.
+Spherical harmonics for the wide lobes would need (3√E)² coefficients and a projection of the
+full map; the pyramid level for E = 1 has 512 pixels, so the direct sum is cheaper and exact.
+Rotation about +Y commutes with a zonal convolution: maps are prefiltered once per environment
+and rotated at lookup (a column offset), so the light slider costs nothing.
+
+``prefilter_numpy`` is the reference (per output row, FFT over columns); the C kernel
+``glp_prefilter`` (worker/native/src/paint.c) computes the same sums directly.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import native
+from ..core.lighting import prepare_map
+
+SUPPORT = 1e-3           # kernel support: cos^E ≥ SUPPORT (must match GLP_SUPPORT in paint.c)
+MIN_ROWS = 16
+PIXELS_PER_SIGMA = 2.0
+
+if native.lib is not None and hasattr(native.lib, "glp_prefilter"):
+    import ctypes as _ct
+    native.lib.glp_prefilter.argtypes = [native._f32, _ct.c_int, _ct.c_int, _ct.c_double, native._f32]
+    native.lib.glp_shade.argtypes = [
+        native._i64s, native._f32, native._f32, native._i32,         # P, normals, views, material id per pixel
+        native._f32, _ct.c_int, _ct.c_int,                           # material table (n_mat × (3 + 4M)), n_mat, M
+        native._f32, native._i64, native._i32, native._i32,          # lobe maps (concatenated), offsets, H, W
+        native._f32, _ct.c_int, _ct.c_int,                           # cosine tables (M+1 × T), T, mode
+        native._f32, _ct.c_int, _ct.c_double,                        # lobe exponents (M+1), fresnel flag, f0
+        _ct.c_void_p, native._f32,                                   # per-pixel visibility SH (P×9) or NULL, zonal (M+1 × 3)
+        _ct.c_double, _ct.c_double, native._f32]                     # rotation (rad), intensity, out (P×3)
+
+
+def _has_kernel() -> bool:
+    return native.lib is not None and hasattr(native.lib, "glp_prefilter")
+
+
+def downsample(img: np.ndarray) -> np.ndarray:
+    """2×2 area average of an equirectangular (H, W, 3) map, weighted by row solid angle."""
+    h = img.shape[0]
+    th = np.linspace(0, np.pi, h + 1)
+    w = (np.cos(th[:-1]) - np.cos(th[1:]))[:, None, None]
+    num = (img * w).reshape(h // 2, 2, img.shape[1] // 2, 2, 3).sum(axis=(1, 3))
+    den = w.reshape(h // 2, 2, 1, 1).sum(axis=1) * 2
+    return (num / den).astype(np.float32)
+
+
+def pyramid(envmap: np.ndarray) -> list[np.ndarray]:
+    """Level 0 = the prepared map (width ≤ 2048), each next level half the size, down to 8 rows."""
+    lv = [prepare_map(envmap)]
+    while lv[-1].shape[0] % 2 == 0 and lv[-1].shape[0] > 8 and lv[-1].shape[1] % 2 == 0:
+        lv.append(downsample(lv[-1]))
+    return lv
+
+
+def level_for(exponent: float, levels: list[np.ndarray]) -> int:
+    """Coarsest level whose pixel height π/H is ≤ σ/PIXELS_PER_SIGMA (σ = 1/√E), ≥ MIN_ROWS rows."""
+    sigma = 1.0 / np.sqrt(max(exponent, 1e-6))
+    best = 0
+    for i, m in enumerate(levels):
+        hgt = m.shape[0]
+        if np.pi / hgt <= sigma / PIXELS_PER_SIGMA and hgt >= MIN_ROWS:
+            best = i
+    return best
+
+
+def support_cos(exponent: float) -> float:
+    """cos of the kernel's support radius (cos^E = SUPPORT); 0 for wide lobes (hemisphere)."""
+    return float(max(SUPPORT ** (1.0 / max(exponent, 1e-6)), 0.0))
+
+
+def prefilter_numpy(img: np.ndarray, exponent: float) -> np.ndarray:
+    """Reference: (H, W, 3) float32 map convolved with the normalised cosine lobe of exponent E
+    (see module doc), per output row: kernels of every input row in the support, FFT-convolved
+    over columns."""
+    h, w, _ = img.shape
+    th_e = np.linspace(0, np.pi, h + 1)
+    th = 0.5 * (th_e[:-1] + th_e[1:])
+    sa = (2 * np.pi / w) * (np.cos(th_e[:-1]) - np.cos(th_e[1:]))          # (H,) sr per pixel
+    dphi = 2 * np.pi / w * np.arange(w)
+    cmin = support_cos(exponent)
+    rmax = np.arccos(cmin)
+    F = np.fft.rfft(img.astype(np.float64), axis=1)                        # (H, W/2+1, 3)
+    out = np.zeros((h, w, 3))
+    for i in range(h):
+        rows = np.nonzero(np.abs(th - th[i]) <= rmax + np.pi / h)[0]
+        c = np.sin(th[i]) * np.sin(th[rows])[:, None] * np.cos(dphi)[None, :] + \
+            np.cos(th[i]) * np.cos(th[rows])[:, None]
+        k = np.where(c >= cmin, np.maximum(c, 0.0) ** exponent, 0.0) * sa[rows, None]   # (J, W)
+        norm = k.sum()
+        if norm <= 0:
+            out[i] = img[i]
+            continue
+        # out[i, l] = Σ_j Σ_d k[j, d] img[j, l + d]  (correlation; k is even in d)
+        kf = np.fft.rfft(k, axis=1)                                          # (J, W/2+1)
+        acc = (np.conj(kf)[:, :, None] * F[rows]).sum(axis=0)
+        out[i] = np.fft.irfft(acc, n=w, axis=0) / norm
+    return out.astype(np.float32)
+
+
+def prefilter(img: np.ndarray, exponent: float, use_native: bool = True) -> np.ndarray:
+    """One prefiltered map (C kernel when built, else the NumPy reference)."""
+    if use_native and _has_kernel():
+        img = np.ascontiguousarray(img, np.float32)
+        out = np.zeros_like(img)
+        native.lib.glp_prefilter(img, img.shape[0], img.shape[1], float(exponent), out)
+        return out
+    return prefilter_numpy(img, exponent)
+
+
+@dataclass
+class LobeMaps:
+    """Prefiltered maps of one environment: ``maps[0]`` is the diffuse map P_1, ``maps[1:]`` the
+    basis exponents' maps, each (H_i, W_i, 3) float32 at its own pyramid level."""
+    exponents: tuple[float, ...]          # (1, E_1, …, E_M)
+    maps: list[np.ndarray]
+
+    def to_bytes(self) -> bytes:
+        import io
+        buf = io.BytesIO()
+        np.savez(buf, exponents=np.asarray(self.exponents), **{f"m{i}": m for i, m in enumerate(self.maps)})
+        return buf.getvalue()
+
+    @staticmethod
+    def from_bytes(b: bytes) -> "LobeMaps":
+        import io
+        z = np.load(io.BytesIO(b))
+        ex = tuple(float(x) for x in z["exponents"])
+        return LobeMaps(ex, [z[f"m{i}"] for i in range(len(ex))])
+
+    def lookup(self, i: int, dirs: np.ndarray, rotation_deg: float = 0.0, intensity: float = 1.0) -> np.ndarray:
+        """Bilinear lookup of map i at world directions (P, 3) (the environment rotated)."""
+        from ..core.render import env_lookup
+        return env_lookup(np.ascontiguousarray(dirs, np.float32), self.maps[i], rotation_deg, intensity)
+
+
+def prefilter_all(envmap: np.ndarray, exponents, use_native: bool = True, progress=None) -> LobeMaps:
+    """The diffuse map and every basis exponent's map of one environment."""
+    levels = pyramid(envmap)
+    ex = (1.0,) + tuple(float(e) for e in exponents)
+    maps = []
+    for e in ex:
+        maps.append(prefilter(levels[level_for(e, levels)], e, use_native))
+        if progress:
+            progress(1)
+    return LobeMaps(ex, maps)
