@@ -8,9 +8,16 @@ incidence (``fit.sample_geometry``: incidence 10°, 45°, 70°, aspecular −30�
 samples within 8° of the mirror direction). Levenberg-Marquardt (MINPACK through SciPy) minimises
 a sum of squares, so the residuals are r_i = sqrt(Error_i / n) and r_0 = sqrt(max_i Error_i):
 Σ r² is exactly f(E). Exponents are searched as log E. Lobes are added one at a time; each
-search starts from the previous optimum plus one new exponent, the best of a few candidates
-(every gap's geometric midpoint, and a quarter/four times the extremes), as the paper does to
-keep the non-linear search out of poor local minima.
+search starts from the previous optimum plus one new exponent. The objective is multimodal
+(each sharp paint pulls an exponent towards its own), so, as the paper warns ("much supervision
+is required"), every candidate position of the new exponent is searched — the points at 1/3 and
+2/3 of every gap in log E, and a quarter/four times the extremes — and the best optimum kept.
+
+One lobe is fixed and not searched: E = 1 (FIXED). The renderer prefilters the E = 1 map anyway
+(the diffuse map of eq. 9), so as a directional-diffuse lobe it costs one more lookup and no
+prefiltering, and it gives the designer's wide-angle readings (45°, 75°) a lobe to move: the
+database's flake lobes are all narrower (n ≥ 10), so the search alone never places one there.
+The searched exponents are added to it; M counts the searched lobes.
 
 The result for M = 1 … 11 is stored in ``data/exponents.json`` (``glint paint exponents``), and
 the fit uses the stored optimum for DEFAULT_LOBES lobes unless told otherwise.
@@ -34,6 +41,7 @@ EXPONENTS_PATH = Path(__file__).parent / "data" / "exponents.json"
 DEFAULT_LOBES = 7           # cacad Fig. 4 fits seven basis lobes
 MAX_LOBES = 11
 E_MIN, E_MAX = 0.5, 1e6
+FIXED = (1.0,)
 
 
 @lru_cache(maxsize=1)
@@ -65,15 +73,16 @@ def optimise(m: int, start: list[float] | None = None, samples=None, max_nfev: i
     n = len(samples)
 
     def resid(u):
-        e = errors(_to_e(u), samples)
+        e = errors(_basis(_to_e(u)), samples)
         return np.concatenate([[np.sqrt(e.max())], np.sqrt(e / n)])
 
     u0 = np.log(np.asarray(start, np.float64))
     t0 = time.perf_counter()
     res = least_squares(resid, u0, method="lm", diff_step=2e-3, max_nfev=max_nfev * (m + 1))
     ex = _to_e(res.x)
-    e = errors(ex, samples)
-    row = {"lobes": m, "exponents": [float(f"{x:.6g}") for x in ex], "error_mean": float(e.mean()),
+    e = errors(_basis(ex), samples)
+    row = {"lobes": m, "fixed": list(FIXED), "exponents": [float(f"{x:.6g}") for x in ex],
+           "basis": [float(f"{x:.6g}") for x in _basis(ex)], "error_mean": float(e.mean()),
            "error_max": float(e.max()), "objective": float(e.max() + e.mean()),
            "worst_paint": load_paints()[int(np.argmax(e))]["name"], "evaluations": int(res.nfev),
            "seconds": time.perf_counter() - t0}
@@ -83,11 +92,16 @@ def optimise(m: int, start: list[float] | None = None, samples=None, max_nfev: i
     return row
 
 
+def _basis(searched) -> tuple[float, ...]:
+    return tuple(sorted(FIXED + tuple(float(x) for x in searched)))
+
+
 def _candidates(prev: list[float]) -> list[list[float]]:
     if not prev:
         return [[x] for x in (4.0, 30.0, 300.0, 3000.0)]
     lg = np.log(prev)
-    new = [np.exp(0.5 * (a + b)) for a, b in zip(lg[:-1], lg[1:])] + [prev[0] / 4.0, prev[-1] * 4.0]
+    new = [np.exp(a + f * (b - a)) for a, b in zip(lg[:-1], lg[1:]) for f in (1 / 3, 2 / 3)]
+    new += [prev[0] / 4.0, prev[-1] * 4.0]
     return [sorted(prev + [float(np.clip(x, E_MIN, E_MAX))]) for x in new]
 
 
@@ -96,12 +110,12 @@ def search(max_lobes: int = MAX_LOBES, log=None) -> list[dict]:
     samples = database_samples()
     rows, prev = [], []
     for m in range(1, max_lobes + 1):
-        cands = _candidates(prev)
-        start = min(cands, key=lambda c: objective(c, samples))
-        row = optimise(m, start, samples, log=log)
-        if rows and row["objective"] > rows[-1]["objective"]:
-            # LM may stall on the non-smooth max; never report more lobes doing worse than fewer
-            row = optimise(m, start, samples, max_nfev=150, log=log)
+        tried = [optimise(m, c, samples, max_nfev=30) for c in _candidates(prev)]
+        row = min(tried, key=lambda r: r["objective"])
+        row["candidates"] = len(tried)
+        if log:
+            log(f"M={m}: f={row['objective']:.4f} (mean {row['error_mean']:.4f}, max {row['error_max']:.4f}) "
+                f"E={row['exponents']} from {len(tried)} starts")
         rows.append(row)
         prev = list(row["exponents"])
     return rows
@@ -124,14 +138,15 @@ def exponents_for(m: int, path: Path | None = None) -> dict:
 
 @lru_cache(maxsize=1)
 def default_exponents() -> tuple[float, ...]:
-    """The basis the fit and the renderer use: the stored optimum for DEFAULT_LOBES lobes."""
-    return tuple(exponents_for(DEFAULT_LOBES)["exponents"])
+    """The basis the fit and the renderer use: FIXED plus the stored optimum for DEFAULT_LOBES."""
+    return tuple(exponents_for(DEFAULT_LOBES)["basis"])
 
 
 def main_recompute(out: Path | None = None, max_lobes: int = MAX_LOBES) -> dict:
     rows = search(max_lobes, log=lambda s: print(s, file=sys.stderr, flush=True))
     doc = {"about": "cacad §3.2 basis exponents by Levenberg-Marquardt over worker/paint/data/paints.json "
-                    "(worker.paint.exponents.search)", "default_lobes": DEFAULT_LOBES, "table": rows}
+                    "(worker.paint.exponents.search); 'exponents' are the searched lobes, 'basis' adds the "
+                    "fixed E = 1 lobe", "default_lobes": DEFAULT_LOBES, "table": rows}
     if out is not None:
         from ..atomic import atomic_write
         atomic_write(Path(out), (json.dumps(doc, indent=1) + "\n").encode())

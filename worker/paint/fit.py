@@ -94,6 +94,63 @@ def solve_l1(a: np.ndarray, b: np.ndarray, scale: np.ndarray, cost: np.ndarray |
     return np.maximum(res.x[:n], 0.0)
 
 
+class WarmL1:
+    """The same LP as ``solve_l1`` for a fixed matrix A, kept in one HiGHS instance (SciPy's
+    bundled highspy core) so that a new fit only changes the right-hand side and the row costs
+    and re-solves from the previous optimal basis (dual simplex, warm). ``linprog`` rebuilds and
+    re-validates the model on every call, which costs more than the solve itself (BENCHMARKS)."""
+
+    def __init__(self, a: np.ndarray, cost: np.ndarray):
+        from scipy.optimize._highspy import _core
+        m, n = a.shape
+        self.m, self.n = m, n
+        h = _core._Highs()
+        h.setOptionValue("output_flag", False)
+        h.setOptionValue("presolve", "off")
+        h.setOptionValue("solver", "simplex")
+        full = np.hstack([a, -np.eye(m), np.eye(m)])
+        lp = _core.HighsLp()
+        lp.num_col_, lp.num_row_ = n + 2 * m, m
+        lp.col_cost_ = np.concatenate([cost, np.ones(2 * m)])
+        lp.col_lower_ = np.zeros(n + 2 * m)
+        lp.col_upper_ = np.full(n + 2 * m, np.inf)
+        lp.row_lower_ = np.zeros(m)
+        lp.row_upper_ = np.zeros(m)
+        col = np.nonzero(full.T)            # column-wise sparse storage
+        mat = _core.HighsSparseMatrix()
+        mat.num_col_, mat.num_row_ = n + 2 * m, m
+        mat.start_ = np.concatenate([[0], np.cumsum(np.count_nonzero(full, axis=0))]).astype(np.int32)
+        mat.index_ = col[1].astype(np.int32)
+        mat.value_ = full.T[col]
+        lp.a_matrix_ = mat
+        h.passModel(lp)
+        self.h = h
+        self.idx = np.arange(n, n + 2 * m, dtype=np.int32)
+        self.lock = __import__("threading").Lock()
+
+    def solve(self, b: np.ndarray, scale: np.ndarray, time_limit: float | None = None) -> np.ndarray:
+        with self.lock:
+            h = self.h
+            if time_limit is not None:
+                h.setOptionValue("time_limit", float(time_limit))
+            h.changeColsCost(2 * self.m, self.idx, np.concatenate([scale, scale]))
+            for r in range(self.m):
+                h.changeRowBounds(r, float(b[r]), float(b[r]))
+            h.run()
+            x = np.asarray(h.getSolution().col_value[: self.n])
+        if not np.isfinite(x).all():
+            raise MeasurementError("the lobe fit failed")
+        return np.maximum(x, 0.0)
+
+
+@lru_cache(maxsize=32)
+def _warm(exponents: tuple[float, ...], angles: tuple[float, ...]) -> WarmL1:
+    m = len(exponents)
+    a = measurement_matrix(exponents, angles)
+    prior = np.zeros(a.shape[1]); prior[3 + 3 * m:] = 1.0
+    return WarmL1(np.vstack([a, prior]), np.full(a.shape[1], ENERGY_WEIGHT))
+
+
 @dataclass
 class FitResult:
     material: Lobes
@@ -110,11 +167,14 @@ class FitResult:
                 "predicted": self.predicted, "material": m.model_dump()}
 
 
-def fit_measurements(measurements: dict, exponents=None, time_limit: float | None = 0.05) -> FitResult:
+def fit_measurements(measurements: dict, exponents=None, time_limit: float | None = 0.05,
+                     solver: str = "warm") -> FitResult:
     """Lobe weights from ``{"gloss": G, "aspecular": {"15": [r, g, b], …}}`` (any aspecular set).
 
     exponents : the basis (default: the stored LM optimum, ``exponents.default_exponents()``).
-    time_limit : seconds granted to the LP (the paper's guard against a slow solve)."""
+    time_limit : seconds granted to the LP (the paper's guard against a slow solve).
+    solver : "warm" (a kept HiGHS instance re-solved from its last basis, WarmL1) or "linprog"
+        (scipy.optimize.linprog with HiGHS, the reference: same LP, built anew each call)."""
     if exponents is None:
         from .exponents import default_exponents
         exponents = default_exponents()
@@ -130,8 +190,12 @@ def fit_measurements(measurements: dict, exponents=None, time_limit: float | Non
     a_all = np.vstack([a, prior])
     b_all = np.concatenate([b, [CLEARCOAT_ALBEDO]])
     s_all = np.concatenate([scale, [PRIOR_WEIGHT / CLEARCOAT_ALBEDO]])
-    cost = np.full(a.shape[1], ENERGY_WEIGHT)
-    x = solve_l1(a_all, b_all, s_all, cost, time_limit)
+    if solver == "warm":
+        x = _warm(exps, tuple(float(v) for v in angles)).solve(b_all, s_all, time_limit)
+    elif solver == "linprog":
+        x = solve_l1(a_all, b_all, s_all, np.full(a.shape[1], ENERGY_WEIGHT), time_limit)
+    else:
+        raise ValueError(f"unknown solver {solver!r}")
     seconds = time.perf_counter() - t0
     rel = np.abs(a @ x - b) * scale
     mat = Lobes(exponents=list(exps), gloss=[float(v) for v in x[3 + 3 * m:]],

@@ -49,6 +49,8 @@ if native.lib is not None and hasattr(native.lib, "glp_prefilter"):
         native._f32, _ct.c_int, _ct.c_double,                        # lobe exponents (M+1), fresnel flag, f0
         _ct.c_void_p, native._f32,                                   # per-pixel visibility SH (P×9) or NULL, zonal (M+1 × 3)
         _ct.c_double, _ct.c_double, native._f32]                     # rotation (rad), intensity, out (P×3)
+    native.lib.glp_background.argtypes = [native._i64s, native._f32, native._f32, _ct.c_int, _ct.c_int,
+                                          _ct.c_double, _ct.c_double, native._f32]
 
 
 def _has_kernel() -> bool:

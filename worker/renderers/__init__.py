@@ -13,7 +13,9 @@ from .base import (ArtifactStore, FrameRequest, Lighting, Part, Precomputation, 
                    Unsupported, ensure, load)
 
 # one line per renderer: importing the module registers it
-RENDERER_MODULES: dict[str, str] = {}
+RENDERER_MODULES: dict[str, str] = {
+    "paint": "worker.paint.renderer",
+}
 
 _registry: dict[str, tuple[type[Renderer], Precomputation]] = {}
 

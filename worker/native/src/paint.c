@@ -73,21 +73,40 @@ void glp_prefilter(const float *img, int H, int W, double E, float *out) {
     free(th); free(sa);
 }
 
-/* Bilinear lookup of an equirectangular map at a world direction (DESIGN.md §2), rotated. */
-static inline void glp_lookup(const float *map, int Hm, int Wm, v3 d, double rot, double *rgb) {
-    double u = atan2(d.x, -d.z) / (2 * PI) + rot / (2 * PI);
-    u -= floor(u);
-    double v = acos(fmax(-1.0, fmin(1.0, d.y))) / PI;
+/* Equirectangular coordinates of a world direction (DESIGN.md §2), the environment rotated by
+ * rot about +Y: u in [0, 1), v in [0, 1]. Computed once per direction, shared by every map. */
+static inline void glp_uv(v3 d, double rot, double *u, double *v) {
+    double uu = atan2(d.x, -d.z) / (2 * PI) + rot / (2 * PI);
+    *u = uu - floor(uu);
+    *v = acos(fmax(-1.0, fmin(1.0, d.y))) / PI;
+}
+
+/* Bilinear lookup of an (Hm, Wm, 3) map at (u, v), as glk_env_lookup. */
+static inline void glp_bilerp(const float *map, int Hm, int Wm, double u, double v, double *rgb) {
     double fx = u * Wm - 0.5, fy = v * Hm - 0.5;
     int x0 = (int)floor(fx), y0 = (int)floor(fy);
     double ax = fx - x0, ay = fy - y0;
     int x1 = x0 + 1, y1 = y0 + 1;
-    x0 = ((x0 % Wm) + Wm) % Wm; x1 = ((x1 % Wm) + Wm) % Wm;
+    x0 = x0 < 0 ? x0 + Wm : x0; x1 = x1 >= Wm ? x1 - Wm : x1;
     y0 = y0 < 0 ? 0 : (y0 >= Hm ? Hm - 1 : y0); y1 = y1 < 0 ? 0 : (y1 >= Hm ? Hm - 1 : y1);
+    const float *p00 = map + ((int64_t)y0 * Wm + x0) * 3, *p01 = map + ((int64_t)y0 * Wm + x1) * 3;
+    const float *p10 = map + ((int64_t)y1 * Wm + x0) * 3, *p11 = map + ((int64_t)y1 * Wm + x1) * 3;
     for (int k = 0; k < 3; k++) {
-        double a = map[((int64_t)y0 * Wm + x0) * 3 + k] * (1 - ax) + map[((int64_t)y0 * Wm + x1) * 3 + k] * ax;
-        double b = map[((int64_t)y1 * Wm + x0) * 3 + k] * (1 - ax) + map[((int64_t)y1 * Wm + x1) * 3 + k] * ax;
+        double a = p00[k] * (1 - ax) + p01[k] * ax;
+        double b = p10[k] * (1 - ax) + p11[k] * ax;
         rgb[k] = a * (1 - ay) + b * ay;
+    }
+}
+
+/* Background: the (rotated, scaled) map at precomputed unrotated (u, v) per pixel (P, 2). */
+void glp_background(int64_t P, const float *uv, const float *map, int Hm, int Wm, double rot,
+                    double intensity, float *out) {
+#pragma omp parallel for schedule(static)
+    for (int64_t p = 0; p < P; p++) {
+        double u = uv[2 * p] + rot / (2 * PI), rgb[3];
+        u -= floor(u);
+        glp_bilerp(map, Hm, Wm, u, uv[2 * p + 1], rgb);
+        for (int k = 0; k < 3; k++) out[3 * p + k] = (float)(intensity * rgb[k]);
     }
 }
 
@@ -144,8 +163,10 @@ void glp_shade(int64_t P, const float *normals, const float *views, const int32_
         double yn[9], yr[9];
         const float *vp = vsh ? vsh + p * 18 : NULL;
         if (vp) { glp_sh9(n, yn); glp_sh9(r, yr); }
-        double rgb[3], acc[3];
-        glp_lookup(maps + offs[0], hs[0], ws[0], n, rot, rgb);
+        double rgb[3], acc[3], un, vn, ur, vr;
+        glp_uv(n, rot, &un, &vn);
+        glp_uv(r, rot, &ur, &vr);
+        glp_bilerp(maps + offs[0], hs[0], ws[0], un, vn, rgb);
         double v0 = vp ? glp_vis(vp, yn, zonal) : 1.0;
         for (int k = 0; k < 3; k++) acc[k] = w[k] * rgb[k] * v0;
         double x = mu * (T - 1);
@@ -158,7 +179,7 @@ void glp_shade(int64_t P, const float *normals, const float *views, const int32_
             double c;
             if (mode == 1) c = (expo[i + 1] + 2) / (expo[i + 1] + 1) * mu;
             else c = tables[(i + 1) * T + t0] * (1 - ft) + tables[(i + 1) * T + t0 + 1] * ft;
-            glp_lookup(maps + offs[i + 1], hs[i + 1], ws[i + 1], r, rot, rgb);
+            glp_bilerp(maps + offs[i + 1], hs[i + 1], ws[i + 1], ur, vr, rgb);
             double vi = vp ? glp_vis(vp, yr, zonal + 3 * (i + 1)) : 1.0;
             for (int k = 0; k < 3; k++) acc[k] += (g + li[1 + k] * fd) * c * rgb[k] * vi;
         }
