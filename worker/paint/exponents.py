@@ -10,8 +10,9 @@ a sum of squares, so the residuals are r_i = sqrt(Error_i / n) and r_0 = sqrt(ma
 Σ r² is exactly f(E). Exponents are searched as log E. Lobes are added one at a time; each
 search starts from the previous optimum plus one new exponent. The objective is multimodal
 (each sharp paint pulls an exponent towards its own), so, as the paper warns ("much supervision
-is required"), every candidate position of the new exponent is searched — the points at 1/3 and
-2/3 of every gap in log E, and a quarter/four times the extremes — and the best optimum kept.
+is required"), the new exponent is tried at every candidate position — the points at 1/3 and
+2/3 of every gap in log E, and a quarter/four times the extremes — LM runs from the STARTS
+best of them, and the best optimum is kept.
 
 One lobe is fixed and not searched: E = 1 (FIXED). The renderer prefilters the E = 1 map anyway
 (the diffuse map of eq. 9), so as a directional-diffuse lobe it costs one more lookup and no
@@ -42,6 +43,7 @@ DEFAULT_LOBES = 7           # cacad Fig. 4 fits seven basis lobes
 MAX_LOBES = 11
 E_MIN, E_MAX = 0.5, 1e6
 FIXED = (1.0,)
+STARTS = 3
 
 
 @lru_cache(maxsize=1)
@@ -110,7 +112,8 @@ def search(max_lobes: int = MAX_LOBES, log=None) -> list[dict]:
     samples = database_samples()
     rows, prev = [], []
     for m in range(1, max_lobes + 1):
-        tried = [optimise(m, c, samples, max_nfev=30) for c in _candidates(prev)]
+        cands = sorted(_candidates(prev), key=lambda c: objective(_basis(c), samples))[:STARTS]
+        tried = [optimise(m, c, samples, max_nfev=30) for c in cands]
         row = min(tried, key=lambda r: r["objective"])
         row["candidates"] = len(tried)
         if log:

@@ -8,9 +8,9 @@ map of eq. 9 is P_1: albedo·P_1(N) is exactly the Lambertian radiance albedo/π
 
 How (hierarchical, direct convolution; why not spherical harmonics: below):
   * the map is area-averaged into a pyramid (2×2 blocks, weighted by solid angle so a sun keeps
-    its energy). Lobe E is computed at the coarsest level whose pixels are at most a third of
-    half the lobe's angular width σ = 1/√E (at least 16 rows): wide lobes on a 32×16 map, the
-    sharpest ones at the map's own resolution. The work per lobe is then about the same.
+    its energy). Lobe E is computed at the coarsest level fine enough for it (``level_for``: at
+    least 3 pixels per lobe width σ = 1/√E, 6 below the first downsampled level, 64 rows at
+    least): wide lobes on a 128×64 map, the sharpest ones at the map's own resolution.
   * on an equirectangular grid, the kernel between an output row θo and an input row θj
     depends only on the column offset, so each (output row, input row) pair is a 1D circular
     convolution with a kernel tabulated once: no power function in the inner loop. Rows and
@@ -35,8 +35,8 @@ from .. import native
 from ..core.lighting import prepare_map
 
 SUPPORT = 1e-3           # kernel support: cos^E ≥ SUPPORT (must match GLP_SUPPORT in paint.c)
-MIN_ROWS = 16
-PIXELS_PER_SIGMA = 2.0
+MIN_ROWS = 64
+PIXELS_PER_SIGMA = 3.0
 
 if native.lib is not None and hasattr(native.lib, "glp_prefilter"):
     import ctypes as _ct
@@ -45,6 +45,7 @@ if native.lib is not None and hasattr(native.lib, "glp_prefilter"):
         native._i64s, native._f32, native._f32, native._i32,         # P, normals, views, material id per pixel
         native._f32, _ct.c_int, _ct.c_int,                           # material table (n_mat × (3 + 4M)), n_mat, M
         native._f32, native._i64, native._i32, native._i32,          # lobe maps (concatenated), offsets, H, W
+        native._f32, native._i64,                                    # vector maps (concatenated), offsets (−1: none)
         native._f32, _ct.c_int, _ct.c_int,                           # cosine tables (M+1 × T), T, mode
         native._f32, _ct.c_int, _ct.c_double,                        # lobe exponents (M+1), fresnel flag, f0
         _ct.c_void_p, native._f32,                                   # per-pixel visibility SH (P×9) or NULL, zonal (M+1 × 3)
@@ -76,12 +77,16 @@ def pyramid(envmap: np.ndarray) -> list[np.ndarray]:
 
 
 def level_for(exponent: float, levels: list[np.ndarray]) -> int:
-    """Coarsest level whose pixel height π/H is ≤ σ/PIXELS_PER_SIGMA (σ = 1/√E), ≥ MIN_ROWS rows."""
+    """The coarsest level with at least MIN_ROWS rows whose pixels are small enough for the lobe:
+    σ/h ≥ PIXELS_PER_SIGMA at the map's own resolution and the first downsampled level, twice
+    that on coarser levels (σ = 1/√E, h = π/rows). Deep box-averaging moves a bright source up to
+    half a coarse pixel from where it is (the prefilter treats a coarse pixel as a point at its
+    centre), which costs ~3% at σ/h = 4 three levels down, 0.4% one level down (tests/paint)."""
     sigma = 1.0 / np.sqrt(max(exponent, 1e-6))
     best = 0
     for i, m in enumerate(levels):
-        hgt = m.shape[0]
-        if np.pi / hgt <= sigma / PIXELS_PER_SIGMA and hgt >= MIN_ROWS:
+        need = PIXELS_PER_SIGMA * (1.0 if i <= 1 else 2.0)
+        if sigma / (np.pi / m.shape[0]) >= need and m.shape[0] >= min(MIN_ROWS, levels[0].shape[0]):
             best = i
     return best
 
@@ -130,17 +135,30 @@ def prefilter(img: np.ndarray, exponent: float, use_native: bool = True) -> np.n
     return prefilter_numpy(img, exponent)
 
 
+VECTOR_MAX_E = 100.0     # lobes this wide also get vector maps (render.py, cosine="vector")
+
+
 @dataclass
 class LobeMaps:
     """Prefiltered maps of one environment: ``maps[0]`` is the diffuse map P_1, ``maps[1:]`` the
-    basis exponents' maps, each (H_i, W_i, 3) float32 at its own pyramid level."""
+    basis exponents' maps, each (H_i, W_i, 3) float32 at its own pyramid level.
+
+    ``vec[i]`` (for the wide lobes, E ≤ VECTOR_MAX_E) is the (H_i, W_i, 9) float32 vector map
+    P_E[L·ω] = (E+1)/(2π) ∫ max(0, ω·R)^E ω L(ω) dω, channels (x, y, z) × RGB: dotted with the
+    normal it gives the lobe's cosine-weighted integral without approximating the cosine."""
     exponents: tuple[float, ...]          # (1, E_1, …, E_M)
     maps: list[np.ndarray]
+    vec: dict = None
+
+    def __post_init__(self):
+        if self.vec is None:
+            self.vec = {}
 
     def to_bytes(self) -> bytes:
         import io
         buf = io.BytesIO()
-        np.savez(buf, exponents=np.asarray(self.exponents), **{f"m{i}": m for i, m in enumerate(self.maps)})
+        np.savez(buf, exponents=np.asarray(self.exponents), **{f"m{i}": m for i, m in enumerate(self.maps)},
+                 **{f"v{i}": v for i, v in self.vec.items()})
         return buf.getvalue()
 
     @staticmethod
@@ -148,21 +166,23 @@ class LobeMaps:
         import io
         z = np.load(io.BytesIO(b))
         ex = tuple(float(x) for x in z["exponents"])
-        return LobeMaps(ex, [z[f"m{i}"] for i in range(len(ex))])
-
-    def lookup(self, i: int, dirs: np.ndarray, rotation_deg: float = 0.0, intensity: float = 1.0) -> np.ndarray:
-        """Bilinear lookup of map i at world directions (P, 3) (the environment rotated)."""
-        from ..core.render import env_lookup
-        return env_lookup(np.ascontiguousarray(dirs, np.float32), self.maps[i], rotation_deg, intensity)
+        vec = {int(k[1:]): z[k] for k in z.files if k.startswith("v")}
+        return LobeMaps(ex, [z[f"m{i}"] for i in range(len(ex))], vec)
 
 
 def prefilter_all(envmap: np.ndarray, exponents, use_native: bool = True, progress=None) -> LobeMaps:
-    """The diffuse map and every basis exponent's map of one environment."""
+    """The diffuse map, every basis exponent's map, and the wide lobes' vector maps."""
+    from ..core.lighting import pixel_directions
     levels = pyramid(envmap)
     ex = (1.0,) + tuple(float(e) for e in exponents)
-    maps = []
-    for e in ex:
-        maps.append(prefilter(levels[level_for(e, levels)], e, use_native))
+    maps, vec = [], {}
+    for i, e in enumerate(ex):
+        img = levels[level_for(e, levels)]
+        maps.append(prefilter(img, e, use_native))
+        if i > 0 and e <= VECTOR_MAX_E:
+            d, _ = pixel_directions(img.shape[0], img.shape[1], 1)
+            vec[i] = np.concatenate([prefilter(np.ascontiguousarray(img * d[..., c:c + 1], np.float32), e, use_native)
+                                     for c in range(3)], axis=-1)
         if progress:
             progress(1)
-    return LobeMaps(ex, maps)
+    return LobeMaps(ex, maps, vec)

@@ -13,11 +13,17 @@ and a 2D map cannot hold a function of both R and N, so the cosine (ω·N) is ap
     ω·N ≈ R·N, and the horizon is ignored: c(μ) = (E+2)/(E+1)·μ. For narrow lobes this is exact
     in the limit; for wide ones it overestimates by up to (E+2)/(E+1) (1.5× for E = 1: the
     cosine averaged over a wide lobe is smaller than at its centre) and misses the horizon.
-  * ``cosine="albedo"`` (default) — the cosine and the horizon are averaged over the lobe:
+  * ``cosine="albedo"`` — the cosine and the horizon are averaged over the lobe:
     c(μ) = A_E(μ) = (E+2)/(2π) ∫_{ω·N>0} max(0, ω·R)^E (ω·N) dω, the lobe's directional albedo,
     tabulated per exponent (64 values of μ, closed-form inner integral). It is exact for any
     lobe under uniform light (white furnace) and equal to the paper's factor for sharp lobes; it
-    approximates only the correlation between the light and the cosine inside the lobe.
+    misses the correlation between the light and the cosine inside a wide lobe (a low sun).
+  * ``cosine="vector"`` (default) — as "albedo" for the sharp lobes; the wide ones
+    (E ≤ prefilter.VECTOR_MAX_E) use vector maps P_E[L·ω] (prefilter.py), so the cosine is exact
+    on the part of the lobe above the horizon:
+        ∫ lobe·max(0, ω·N)·L = N·∫ lobe·ω·L + ∫ lobe·max(0, −ω·N)·L
+                             ≈ (E+2)/(E+1)·N·P_E[L·ω](R) + (A_E(μ) − μ)·P_E(R)
+    (the lobe's part below the horizon, A_E(μ) − μ of its albedo, keeps the averaged form).
 The paper's gloss (eq. 8) has no cosine because its gloss lobe is not reciprocal; Glint's lobes
 are, so the gloss takes the same factor as the directional diffuse.
 Fresnel (§5.3, "increase the weights of the high-exponent maps at grazing angles"): the gloss
@@ -39,7 +45,7 @@ from .prefilter import LobeMaps, _has_kernel
 
 F0 = 0.04
 TABLE_N = 64
-COSINE_MODES = {"albedo": 0, "paper": 1}
+COSINE_MODES = {"albedo": 0, "paper": 1, "vector": 2}
 
 
 @lru_cache(maxsize=64)
@@ -95,7 +101,7 @@ def _lookup(img: np.ndarray, d: np.ndarray, rot_rad: float) -> np.ndarray:
 
 
 def _bilerp(img: np.ndarray, u: np.ndarray, v: np.ndarray, rot_rad: float) -> np.ndarray:
-    hm, wm, _ = img.shape
+    hm, wm = img.shape[:2]
     u = u + rot_rad / (2 * np.pi)
     u = u - np.floor(u)
     fx, fy = u * wm - 0.5, v * hm - 0.5
@@ -125,7 +131,13 @@ def _vis(vsh: np.ndarray, y: np.ndarray, zon: np.ndarray) -> np.ndarray:
     return np.where(den > 1e-6, r, 1.0)
 
 
-def shade_numpy(normals, views, mat_of, rows, maps: LobeMaps, cosine: str = "albedo", fresnel: bool = False,
+def _map_normal(n: np.ndarray, rot_rad: float) -> np.ndarray:
+    """World normals in the rotated map's frame (φ + rotation), for dotting with vector maps."""
+    c, s = np.cos(rot_rad), np.sin(rot_rad)
+    return np.stack([n[:, 0] * c - n[:, 2] * s, n[:, 1], n[:, 2] * c + n[:, 0] * s], axis=1)
+
+
+def shade_numpy(normals, views, mat_of, rows, maps: LobeMaps, cosine: str = "vector", fresnel: bool = False,
                 vsh=None, rotation_deg: float = 0.0, intensity: float = 1.0) -> np.ndarray:
     """Reference of glp_shade: (P, 3) float32 radiance for unit normals and view directions
     (P, 3), material index per pixel (P,) (−1: not shaded), material rows (material_rows),
@@ -151,13 +163,18 @@ def shade_numpy(normals, views, mat_of, rows, maps: LobeMaps, cosine: str = "alb
     tabs = cosine_tables(ex)
     for i in range(len(ex) - 1):
         e = ex[i + 1]
-        if cosine == "paper":
-            c = (e + 2) / (e + 1) * mu
-        else:
-            c = np.interp(mu, np.linspace(0, 1, TABLE_N), tabs[i + 1])
         wgt = w[:, 3 + 4 * i: 4 + 4 * i] * fg[:, None] + w[:, 4 + 4 * i: 7 + 4 * i] * fd[:, None]
         vi = 1.0 if vs is None else _vis(vs, sh9(r), zon[i + 1])[:, None]
-        acc += wgt * c[:, None] * _lookup(maps.maps[i + 1], r, rot) * vi
+        a = np.interp(mu, np.linspace(0, 1, TABLE_N), tabs[i + 1])
+        if cosine == "paper":
+            val = ((e + 2) / (e + 1) * mu)[:, None] * _lookup(maps.maps[i + 1], r, rot)
+        elif cosine == "vector" and (i + 1) in maps.vec:
+            iv = _lookup(maps.vec[i + 1], r, rot).reshape(-1, 3, 3)          # (P, xyz, rgb)
+            nd = (_map_normal(n, rot)[:, :, None] * iv).sum(1)
+            val = (e + 2) / (e + 1) * nd + (a - mu)[:, None] * _lookup(maps.maps[i + 1], r, rot)
+        else:
+            val = a[:, None] * _lookup(maps.maps[i + 1], r, rot)
+        acc += wgt * val * vi
     out[sel] = intensity * acc
     return out.astype(np.float32)
 
@@ -188,13 +205,19 @@ def _packed(maps: LobeMaps):
         hs = np.array([m.shape[0] for m in maps.maps], np.int32)
         ws = np.array([m.shape[1] for m in maps.maps], np.int32)
         ex = maps.exponents
+        vparts, voffs, pos = [], np.full(len(maps.maps), -1, np.int64), 0
+        for i, v in sorted(maps.vec.items()):
+            voffs[i] = pos
+            vparts.append(np.ascontiguousarray(v, np.float32).reshape(-1))
+            pos += v.size
+        vflat = np.concatenate(vparts) if vparts else np.zeros(1, np.float32)
         cached = (flat, offs, hs, ws, np.ascontiguousarray(cosine_tables(ex), np.float32),
-                  np.ascontiguousarray(zonal(ex), np.float32), np.asarray(ex, np.float32))
+                  np.ascontiguousarray(zonal(ex), np.float32), np.asarray(ex, np.float32), vflat, voffs)
         maps._packed = cached
     return cached
 
 
-def shade(normals, views, mat_of, rows, maps: LobeMaps, cosine: str = "albedo", fresnel: bool = False,
+def shade(normals, views, mat_of, rows, maps: LobeMaps, cosine: str = "vector", fresnel: bool = False,
           vsh=None, rotation_deg: float = 0.0, intensity: float = 1.0, use_native: bool = True) -> np.ndarray:
     """(P, 3) float32 radiance (C kernel glp_shade when built, else shade_numpy)."""
     if cosine not in COSINE_MODES:
@@ -203,7 +226,7 @@ def shade(normals, views, mat_of, rows, maps: LobeMaps, cosine: str = "albedo", 
         return shade_numpy(normals, views, mat_of, rows, maps, cosine, fresnel, vsh, rotation_deg, intensity)
     c = native.c
     ex = maps.exponents
-    flat, offs, hs, ws, tabs, zon, ex32 = _packed(maps)
+    flat, offs, hs, ws, tabs, zon, ex32, vflat, voffs = _packed(maps)
     out = np.zeros((len(normals), 3), np.float32)
     rows = c(rows, np.float32)
     vptr = None
@@ -211,7 +234,7 @@ def shade(normals, views, mat_of, rows, maps: LobeMaps, cosine: str = "albedo", 
         vsh = c(vsh, np.float32)
         vptr = vsh.ctypes.data
     native.lib.glp_shade(len(normals), c(normals, np.float32), c(views, np.float32), c(mat_of, np.int32),
-                         rows, rows.shape[0], len(ex) - 1, flat, offs, hs, ws,
+                         rows, rows.shape[0], len(ex) - 1, flat, offs, hs, ws, vflat, voffs,
                          tabs, TABLE_N, COSINE_MODES[cosine], ex32, int(bool(fresnel)), F0, vptr, zon,
                          float(np.radians(rotation_deg)), float(intensity), out)
     return out

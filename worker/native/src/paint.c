@@ -31,6 +31,7 @@ void glp_prefilter(const float *img, int H, int W, double E, float *out) {
         double *k = (double *)malloc(sizeof(double) * W);
         double *acc = (double *)malloc(sizeof(double) * 3 * W);
         float *ext = (float *)malloc(sizeof(float) * 3 * 2 * W);
+        float *racc = (float *)malloc(sizeof(float) * 3 * W);
 #pragma omp for schedule(dynamic, 1)
         for (int i = 0; i < H; i++) {
             memset(acc, 0, sizeof(double) * 3 * W);
@@ -58,17 +59,31 @@ void glp_prefilter(const float *img, int H, int W, double E, float *out) {
                     ext[3 * (c + pad)] = row[3 * cc]; ext[3 * (c + pad) + 1] = row[3 * cc + 1];
                     ext[3 * (c + pad) + 2] = row[3 * cc + 2];
                 }
-                for (int d = dlo; d <= dhi; d++) {
-                    double kk = k[d < 0 ? -d : d];
-                    norm += kk;
-                    const float *src = ext + 3 * (d + pad);
-                    for (int l = 0; l < 3 * W; l++) acc[l] += kk * src[l];
+                /* symmetric taps: k[0]·row[l] + Σ_{d>0} k[d]·(row[l+d] + row[l−d]); float
+                 * accumulation per row pair (≤ W taps), double across row pairs */
+                const float *mid = ext + 3 * pad;
+                float k0 = (float)k[0];
+                for (int l = 0; l < 3 * W; l++) racc[l] = k0 * mid[l];
+                norm += k[0];
+                for (int d = 1; d <= dhi; d++) {
+                    int dd = d;
+                    int both = (-d >= dlo);
+                    float kk = (float)k[dd];
+                    const float *sp = mid + 3 * d, *sm = mid - 3 * d;
+                    if (both) {
+                        norm += 2 * k[dd];
+                        for (int l = 0; l < 3 * W; l++) racc[l] += kk * (sp[l] + sm[l]);
+                    } else {
+                        norm += k[dd];
+                        for (int l = 0; l < 3 * W; l++) racc[l] += kk * sp[l];
+                    }
                 }
+                for (int l = 0; l < 3 * W; l++) acc[l] += racc[l];
             }
             float *o = out + (int64_t)i * W * 3;
             for (int l = 0; l < 3 * W; l++) o[l] = norm > 0 ? (float)(acc[l] / norm) : img[(int64_t)i * W * 3 + l];
         }
-        free(k); free(acc); free(ext);
+        free(k); free(acc); free(ext); free(racc);
     }
     free(th); free(sa);
 }
@@ -96,6 +111,20 @@ static inline void glp_bilerp(const float *map, int Hm, int Wm, double u, double
         double b = p10[k] * (1 - ax) + p11[k] * ax;
         rgb[k] = a * (1 - ay) + b * ay;
     }
+}
+
+/* The same for a 9-channel vector map ((x, y, z) × RGB). */
+static inline void glp_bilerp9(const float *map, int Hm, int Wm, double u, double v, double *out) {
+    double fx = u * Wm - 0.5, fy = v * Hm - 0.5;
+    int x0 = (int)floor(fx), y0 = (int)floor(fy);
+    double ax = fx - x0, ay = fy - y0;
+    int x1 = x0 + 1, y1 = y0 + 1;
+    x0 = x0 < 0 ? x0 + Wm : x0; x1 = x1 >= Wm ? x1 - Wm : x1;
+    y0 = y0 < 0 ? 0 : (y0 >= Hm ? Hm - 1 : y0); y1 = y1 < 0 ? 0 : (y1 >= Hm ? Hm - 1 : y1);
+    const float *p00 = map + ((int64_t)y0 * Wm + x0) * 9, *p01 = map + ((int64_t)y0 * Wm + x1) * 9;
+    const float *p10 = map + ((int64_t)y1 * Wm + x0) * 9, *p11 = map + ((int64_t)y1 * Wm + x1) * 9;
+    for (int k = 0; k < 9; k++)
+        out[k] = (p00[k] * (1 - ax) + p01[k] * ax) * (1 - ay) + (p10[k] * (1 - ax) + p11[k] * ax) * ay;
 }
 
 /* Background: the (rotated, scaled) map at precomputed unrotated (u, v) per pixel (P, 2). */
@@ -135,11 +164,14 @@ static inline double glp_vis(const float *vsh, const double *y, const float *zon
 /* Per pixel (cacad eq. 7-9 in Glint's reciprocal lobes form):
  *   L = albedo · P_1(N) · V_0 + Σ_i (g_i Fg + dd_i Fd) · c_i(μ) · P_Ei(R) · V_i,   R = 2(N·V)N − V
  * mat table row: albedo (3), then per lobe g, dd_r, dd_g, dd_b. mode 0: c_i = A_Ei(μ) from the
- * tables (directional albedo of the clipped lobe); mode 1 (the paper): c_i = (E+2)/(E+1)·μ.
+ * tables (directional albedo of the clipped lobe); mode 1 (the paper): c_i = (E+2)/(E+1)·μ;
+ * mode 2: as 0, but lobes with a vector map use (E+2)/(E+1)·N'·I(R) + (A(μ) − μ)·P(R), N' the
+ * normal in the rotated map's frame.
  * Fresnel (flag): Fg = F(μ)/F0, Fd = (1 − F(μ))/(1 − F0), Schlick's F. */
 void glp_shade(int64_t P, const float *normals, const float *views, const int32_t *mat_of,
                const float *mats, int n_mat, int M, const float *maps, const int64_t *offs,
-               const int32_t *hs, const int32_t *ws, const float *tables, int T, int mode,
+               const int32_t *hs, const int32_t *ws, const float *vmaps, const int64_t *voffs,
+               const float *tables, int T, int mode,
                const float *expo, int fresnel, double f0, const float *vsh, const float *zonal,
                double rot, double intensity, float *out) {
     (void)n_mat;
@@ -169,6 +201,8 @@ void glp_shade(int64_t P, const float *normals, const float *views, const int32_
         glp_bilerp(maps + offs[0], hs[0], ws[0], un, vn, rgb);
         double v0 = vp ? glp_vis(vp, yn, zonal) : 1.0;
         for (int k = 0; k < 3; k++) acc[k] = w[k] * rgb[k] * v0;
+        double cr = cos(rot), sr = sin(rot);
+        double nx = n.x * cr - n.z * sr, nz = n.z * cr + n.x * sr;   /* normal in the map's frame */
         double x = mu * (T - 1);
         int t0 = (int)x; if (t0 > T - 2) t0 = T - 2;
         double ft = x - t0;
@@ -176,12 +210,24 @@ void glp_shade(int64_t P, const float *normals, const float *views, const int32_
             const float *li = w + 3 + 4 * i;
             double g = li[0] * fg;
             if (g == 0 && li[1] == 0 && li[2] == 0 && li[3] == 0) continue;
-            double c;
-            if (mode == 1) c = (expo[i + 1] + 2) / (expo[i + 1] + 1) * mu;
-            else c = tables[(i + 1) * T + t0] * (1 - ft) + tables[(i + 1) * T + t0 + 1] * ft;
+            double e = expo[i + 1];
+            double a = tables[(i + 1) * T + t0] * (1 - ft) + tables[(i + 1) * T + t0 + 1] * ft;
+            double val[3];
             glp_bilerp(maps + offs[i + 1], hs[i + 1], ws[i + 1], ur, vr, rgb);
+            if (mode == 1) {
+                double c = (e + 2) / (e + 1) * mu;
+                for (int k = 0; k < 3; k++) val[k] = c * rgb[k];
+            } else if (mode == 2 && voffs[i + 1] >= 0) {
+                double iv[9];
+                glp_bilerp9(vmaps + voffs[i + 1], hs[i + 1], ws[i + 1], ur, vr, iv);
+                double s = (e + 2) / (e + 1);
+                for (int k = 0; k < 3; k++)
+                    val[k] = s * (nx * iv[k] + n.y * iv[3 + k] + nz * iv[6 + k]) + (a - mu) * rgb[k];
+            } else {
+                for (int k = 0; k < 3; k++) val[k] = a * rgb[k];
+            }
             double vi = vp ? glp_vis(vp, yr, zonal + 3 * (i + 1)) : 1.0;
-            for (int k = 0; k < 3; k++) acc[k] += (g + li[1 + k] * fd) * c * rgb[k] * vi;
+            for (int k = 0; k < 3; k++) acc[k] += (g + li[1 + k] * fd) * val[k] * vi;
         }
         for (int k = 0; k < 3; k++) out[3 * p + k] = (float)(intensity * acc[k]);
     }
