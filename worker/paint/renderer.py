@@ -5,7 +5,8 @@ Precomputation (content-keyed parts):
     (prefilter.py), keyed by the map's pixels and the exponents. ~1.4 s for a 1K HDRI (BENCHMARKS),
     so switching environments is interactive (``set_environment`` recomputes them in place).
   * ``visibility`` (option ``visibility: true``): per-vertex visibility harmonics from the cut
-    renderer's cuts (visibility.py), keyed by the geometry.
+    renderer's cuts (visibility.py), keyed by the geometry (option ``cuts_dir``: where the cut
+    renderer caches its cuts).
 Rendering: one Embree first-hit pass per camera (cached while the camera stays), then per frame
 one C pass over the pixels (render.shade): interpolated normal, reflected view direction, the
 maps summed with the material's weights. A paint or light change costs only that pass.
@@ -89,7 +90,7 @@ class PaintPrecomputation(Precomputation):
         if part.meta["what"] == "maps":
             return prefilter_all(scene.envmap, basis_of(options), progress=progress).to_bytes()
         from .visibility import vertex_visibility
-        vis = vertex_visibility(scene, threads=threads)
+        vis = vertex_visibility(scene, options.get("cuts_dir"), threads=threads)
         if progress:
             progress(1)
         return vis.astype(np.float32).tobytes()

@@ -7,8 +7,8 @@ A vertex's cut holds its cosine-weighted visibility Ṽ(ω) = V(ω)·max(0, n·�
 tree directions, clustered. We keep it as 9 spherical-harmonic coefficients (l ≤ 2):
     Ṽ_lm = Σ_nodes value · Ω_node · Y_lm(ω_node)
 (Ω_node = 2^h leaf solid angles, ω_node the node's mean direction), and beside it the same
-projection of the unoccluded max(0, n·ω), analytically A_l·Y_lm(n) with A_l = √π/2, √(π/3),
-√(5π)/8 (the clamped cosine's zonal coefficients). A lobe of exponent E about direction D then
+projection of the unoccluded max(0, n·ω), analytically A_l·Y_lm(n) with A_l = π, 2π/3, π/4
+(Funk-Hecke for the clamped cosine). A lobe of exponent E about direction D then
 sees the lobe-and-cosine-weighted visibility
     V_E(D) = Σ k̂_l(E) Ṽ_lm Y_lm(D) / Σ k̂_l(E) U_lm Y_lm(D)   clamped to [0, 1]
 (render.zonal gives k̂_l; for E = 1 about N this is ambient occlusion). Order-2 harmonics keep
@@ -21,13 +21,13 @@ import numpy as np
 from ..core.directions import get_tree
 from .render import sh9
 
-A_L = np.array([np.sqrt(np.pi) / 2, np.sqrt(np.pi / 3), np.sqrt(5 * np.pi) / 8])
+A_L = np.array([np.pi, 2 * np.pi / 3, np.pi / 4])     # Funk-Hecke: 2π∫max(0,t)P_l(t)dt
 
 
-def _cuts_of(scene, progress=None, threads: int = 2):
+def _cuts_of(scene, cache_dir=None, progress=None, threads: int = 2):
     """The scene's visibility cuts (traced once and cached by the cut renderer's cache)."""
     from ..engine import load_or_precompute      # the cut renderer: imported here only
-    cs, _, _ = load_or_precompute(scene, progress=progress, threads=threads)
+    cs, _, _ = load_or_precompute(scene, cache_dir, progress=progress, threads=threads)
     return cs
 
 
@@ -48,6 +48,7 @@ def cuts_to_sh(cs, normals: np.ndarray) -> np.ndarray:
     return out.astype(np.float32)
 
 
-def vertex_visibility(scene, progress=None, threads: int = 2) -> np.ndarray:
-    """(V, 18) float32 per-vertex visibility harmonics of a loaded scene (see module doc)."""
-    return cuts_to_sh(_cuts_of(scene, progress, threads), scene.mesh.normals)
+def vertex_visibility(scene, cache_dir=None, progress=None, threads: int = 2) -> np.ndarray:
+    """(V, 18) float32 per-vertex visibility harmonics of a loaded scene (see module doc);
+    cache_dir: where the cut renderer caches its cuts (None: its default)."""
+    return cuts_to_sh(_cuts_of(scene, cache_dir, progress, threads), scene.mesh.normals)
