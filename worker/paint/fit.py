@@ -94,6 +94,14 @@ def solve_l1(a: np.ndarray, b: np.ndarray, scale: np.ndarray, cost: np.ndarray |
     return np.maximum(res.x[:n], 0.0)
 
 
+def solve_l1_core(a: np.ndarray, b: np.ndarray, scale: np.ndarray, cost: np.ndarray | None = None) -> np.ndarray:
+    """The LP of ``solve_l1`` handed straight to SciPy's bundled HiGHS core: the same solver
+    without linprog's per-call validation (which costs more than these tiny solves). Used by
+    the exponent search, which runs thousands of fits."""
+    w = WarmL1(a, np.zeros(a.shape[1]) if cost is None else cost)
+    return w.solve(b, scale)
+
+
 class WarmL1:
     """The same LP as ``solve_l1`` for a fixed matrix A, kept in one HiGHS instance (SciPy's
     bundled highspy core) so that a new fit only changes the right-hand side and the row costs
@@ -246,6 +254,6 @@ def fit_samples(exponents, target: np.ndarray) -> tuple[np.ndarray, float]:
     for ch in range(3):
         b = target[:, ch]
         s = 1.0 / (np.abs(b) + SAMPLE_FLOOR)
-        w[ch] = solve_l1(basis, b, s)
+        w[ch] = solve_l1_core(basis, b, s)
         err.append((basis @ w[ch] - b) * s)
     return w, float(np.sqrt(np.mean(np.square(err))))

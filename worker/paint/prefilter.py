@@ -38,20 +38,33 @@ SUPPORT = 1e-3           # kernel support: cos^E ≥ SUPPORT (must match GLP_SUP
 MIN_ROWS = 64
 PIXELS_PER_SIGMA = 3.0
 
+# ctypes signatures of the paint kernels, declared here with their own pointer types (the
+# library is shared; these functions are this module's)
+_F32 = np.ctypeslib.ndpointer(np.float32, flags="C_CONTIGUOUS")
+_I32 = np.ctypeslib.ndpointer(np.int32, flags="C_CONTIGUOUS")
+_I64 = np.ctypeslib.ndpointer(np.int64, flags="C_CONTIGUOUS")
+
 if native.lib is not None and hasattr(native.lib, "glp_prefilter"):
     import ctypes as _ct
-    native.lib.glp_prefilter.argtypes = [native._f32, _ct.c_int, _ct.c_int, _ct.c_double, native._f32]
+    _int, _dbl, _n = _ct.c_int, _ct.c_double, _ct.c_int64
+    native.lib.glp_prefilter.argtypes = [_F32, _int, _int, _dbl, _F32]       # img, H, W, E, out
+    native.lib.glp_prefilter.restype = None
     native.lib.glp_shade.argtypes = [
-        native._i64s, native._f32, native._f32, native._i32,         # P, normals, views, material id per pixel
-        native._f32, _ct.c_int, _ct.c_int,                           # material table (n_mat × (3 + 4M)), n_mat, M
-        native._f32, native._i64, native._i32, native._i32,          # lobe maps (concatenated), offsets, H, W
-        native._f32, native._i64,                                    # vector maps (concatenated), offsets (−1: none)
-        native._f32, _ct.c_int, _ct.c_int,                           # cosine tables (M+1 × T), T, mode
-        native._f32, _ct.c_int, _ct.c_double,                        # lobe exponents (M+1), fresnel flag, f0
-        _ct.c_void_p, native._f32,                                   # per-pixel visibility SH (P×9) or NULL, zonal (M+1 × 3)
-        _ct.c_double, _ct.c_double, native._f32]                     # rotation (rad), intensity, out (P×3)
-    native.lib.glp_background.argtypes = [native._i64s, native._f32, native._f32, _ct.c_int, _ct.c_int,
-                                          _ct.c_double, _ct.c_double, native._f32]
+        _n, _F32, _F32, _I32,            # P, normals (P×3), views (P×3), material index per pixel
+        _F32, _int, _int,                # material rows (n_mat × (3 + 4M)), n_mat, M
+        _F32, _I64, _I32, _I32,          # lobe maps (concatenated), offsets, H, W per map
+        _F32, _I64,                      # vector maps (concatenated), offsets (−1: none)
+        _F32, _int, _int,                # cosine tables ((M+1) × T), T, mode
+        _F32, _int, _dbl,                # exponents (M+1), fresnel flag, F0
+        _ct.c_void_p, _F32,              # per-pixel visibility SH (P×18) or NULL, zonal ((M+1) × 3)
+        _dbl, _dbl, _F32]                # rotation (rad), intensity, out (P×3)
+    native.lib.glp_shade.restype = None
+    native.lib.glp_background.argtypes = [_n, _F32, _F32, _int, _int, _dbl, _dbl, _F32]
+    native.lib.glp_background.restype = None
+
+
+def _c(a, dtype) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=dtype)
 
 
 def _has_kernel() -> bool:

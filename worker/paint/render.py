@@ -41,7 +41,7 @@ from functools import lru_cache
 import numpy as np
 
 from .. import native
-from .prefilter import LobeMaps, _has_kernel
+from .prefilter import LobeMaps, _c, _has_kernel
 
 F0 = 0.04
 TABLE_N = 64
@@ -185,8 +185,8 @@ def background(uv: np.ndarray, envmap: np.ndarray, rotation_deg: float = 0.0, in
     (a camera's background pixels: only the rotation changes between frames)."""
     out = np.zeros((len(uv), 3), np.float32)
     if use_native and _has_kernel():
-        envmap = native.c(envmap, np.float32)
-        native.lib.glp_background(len(uv), native.c(uv, np.float32), envmap, envmap.shape[0], envmap.shape[1],
+        envmap = _c(envmap, np.float32)
+        native.lib.glp_background(len(uv), _c(uv, np.float32), envmap, envmap.shape[0], envmap.shape[1],
                                   float(np.radians(rotation_deg)), float(intensity), out)
         return out
     uv = np.asarray(uv, np.float64)
@@ -224,7 +224,7 @@ def shade(normals, views, mat_of, rows, maps: LobeMaps, cosine: str = "vector", 
         raise ValueError(f"cosine must be one of {sorted(COSINE_MODES)}")
     if not (use_native and _has_kernel()):
         return shade_numpy(normals, views, mat_of, rows, maps, cosine, fresnel, vsh, rotation_deg, intensity)
-    c = native.c
+    c = _c
     ex = maps.exponents
     flat, offs, hs, ws, tabs, zon, ex32, vflat, voffs = _packed(maps)
     out = np.zeros((len(normals), 3), np.float32)

@@ -83,16 +83,15 @@ class PaintPrecomputation(Precomputation):
         if options.get("visibility"):
             m = scene.mesh
             out.append(Part(_hash(m.vertices, m.faces, m.normals, text=VERSION + "vis"),
-                            "per-vertex visibility harmonics (from cuts)", work=1, meta={"what": "vis"}))
+                            "per-vertex visibility harmonics (from cuts)", work=len(m.vertices), meta={"what": "vis"}))
         return out
 
     def compute(self, scene, part, options, chunk=None, progress=None, threads=2):
         if part.meta["what"] == "maps":
             return prefilter_all(scene.envmap, basis_of(options), progress=progress).to_bytes()
         from .visibility import vertex_visibility
-        vis = vertex_visibility(scene, options.get("cuts_dir"), threads=threads)
-        if progress:
-            progress(1)
+        # progress counts vertices as the cut tracing does (nothing when the cuts are cached)
+        vis = vertex_visibility(scene, options.get("cuts_dir"), progress=progress, threads=threads)
         return vis.astype(np.float32).tobytes()
 
     def load(self, scene, blobs, options):
