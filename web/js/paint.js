@@ -46,7 +46,7 @@ export function createPaintPanel(container, { send, object = "", initial = null,
   const gl = el("input", { type: "range", min: "0", max: "100", step: "0.5", value: String(state.gloss), "aria-label": "gloss" });
   const glv = el("span", {}, [`${state.gloss} GU`]);
   gl.addEventListener("input", () => { state.gloss = +gl.value; glv.textContent = `${state.gloss} GU`; emit(); });
-  root.append(el("label", {}, ["Gloss (20°) ", gl, glv]));
+  root.append(el("label", { style: "display:block" }, ["Gloss (20°) ", gl, glv]));
   const rows = {};
   for (const a of angles) {
     const rgb = state.aspecular[a] || [0.1, 0.1, 0.1];
@@ -65,7 +65,7 @@ export function createPaintPanel(container, { send, object = "", initial = null,
     level.addEventListener("input", update);
     out.textContent = rgb.map((x) => x.toFixed(3)).join(" ");
     rows[a] = { hue, level, out };
-    root.append(el("label", { class: "paint-angle" }, [`${a}° `, hue, level, out]));
+    root.append(el("label", { class: "paint-angle", style: "display:block" }, [`${a}° `, hue, level, out]));
   }
   root.append(status);
   container.append(root);

@@ -6,6 +6,7 @@
   glint paint export MATERIAL.json --format json|csv
   glint paint render SCENE.json --out PNG [--raw NPY] [--material OBJ=M.json] [--fresnel] [--cosine albedo|paper] [--visibility]
   glint paint bench SCENE.json [--frames N] [--json]
+  glint paint bench-fit [--repeats N] [--json]
 """
 from __future__ import annotations
 
@@ -203,6 +204,34 @@ def cmd_bench(a) -> int:
     return 0
 
 
+def cmd_bench_fit(a) -> int:
+    """Fit time over the database's measurements: the warm HiGHS instance against linprog."""
+    from .database import load_paints
+    from .exponents import default_exponents
+    from .fit import fit_measurements
+    exps = default_exponents()
+    paints = load_paints()
+    res = {"paints": len(paints), "lobes": len(exps), "repeats": a.repeats}
+    for solver in ("warm", "linprog"):
+        fit_measurements(paints[0]["measurements"], exps, solver=solver)      # build once
+        ts, errs = [], []
+        for _ in range(a.repeats):
+            for p in paints:
+                t0 = time.perf_counter()
+                r = fit_measurements(p["measurements"], exps, solver=solver)
+                ts.append(time.perf_counter() - t0)
+                errs.append(r.error_l1)
+        res[f"ms_{solver}_median"] = 1e3 * float(np.median(ts))
+        res[f"ms_{solver}_p95"] = 1e3 * float(np.percentile(ts, 95))
+        res[f"error_l1_{solver}_mean"] = float(np.mean(errs))
+    if a.json:
+        print(json.dumps(res))
+    else:
+        print(f"fit: warm {res['ms_warm_median']:.3f} ms median (p95 {res['ms_warm_p95']:.3f}), "
+              f"linprog {res['ms_linprog_median']:.3f} ms")
+    return 0
+
+
 def _render_args(p):
     p.add_argument("scene")
     p.add_argument("--material", action="append", metavar="OBJECT=FILE", help="replace an object's material; repeatable")
@@ -244,6 +273,10 @@ def add_commands(sub) -> None:
     r.add_argument("--out", required=True); r.add_argument("--raw")
     r.add_argument("--exposure", type=float, default=0.0); r.add_argument("--tone", default="neutral")
     r.set_defaults(fn=cmd_render)
+
+    bf = ps.add_parser("bench-fit", help="fit time over the database (warm HiGHS vs linprog)")
+    bf.add_argument("--repeats", type=int, default=5); bf.add_argument("--json", action="store_true")
+    bf.set_defaults(fn=cmd_bench_fit)
 
     b = ps.add_parser("bench", help="prefilter and frame times (--json)")
     _render_args(b)

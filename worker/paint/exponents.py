@@ -43,7 +43,7 @@ DEFAULT_LOBES = 7           # cacad Fig. 4 fits seven basis lobes
 MAX_LOBES = 11
 E_MIN, E_MAX = 0.5, 1e6
 FIXED = (1.0,)
-STARTS = 3
+STARTS = 2
 
 
 @lru_cache(maxsize=1)
@@ -113,7 +113,7 @@ def search(max_lobes: int = MAX_LOBES, log=None) -> list[dict]:
     rows, prev = [], []
     for m in range(1, max_lobes + 1):
         cands = sorted(_candidates(prev), key=lambda c: objective(_basis(c), samples))[:STARTS]
-        tried = [optimise(m, c, samples, max_nfev=30) for c in cands]
+        tried = [optimise(m, c, samples, max_nfev=20) for c in cands]
         row = min(tried, key=lambda r: r["objective"])
         row["candidates"] = len(tried)
         if log:

@@ -39,6 +39,7 @@ PRIOR_WEIGHT = 0.05
 ENERGY_WEIGHT = 1e-3
 ASPECULAR_FLOOR = 0.01        # reflectance-factor floor of the relative rows (a black paint's 110°)
 GLOSS_FLOOR = 1.0             # GU
+ITERATION_LIMIT = 5000        # warm solves take tens of iterations; beyond this, solve afresh
 
 
 def lobe_response(exponents, cos_angle) -> np.ndarray:
@@ -98,8 +99,8 @@ def solve_l1_core(a: np.ndarray, b: np.ndarray, scale: np.ndarray, cost: np.ndar
     """The LP of ``solve_l1`` handed straight to SciPy's bundled HiGHS core: the same solver
     without linprog's per-call validation (which costs more than these tiny solves). Used by
     the exponent search, which runs thousands of fits."""
-    w = WarmL1(a, np.zeros(a.shape[1]) if cost is None else cost)
-    return w.solve(b, scale)
+    x = WarmL1(a, np.zeros(a.shape[1]) if cost is None else cost).solve(b, scale)
+    return x if x is not None else solve_l1(a, b, scale, cost)
 
 
 class WarmL1:
@@ -116,6 +117,7 @@ class WarmL1:
         h.setOptionValue("output_flag", False)
         h.setOptionValue("presolve", "off")
         h.setOptionValue("solver", "simplex")
+        h.setOptionValue("simplex_iteration_limit", ITERATION_LIMIT)
         full = np.hstack([a, -np.eye(m), np.eye(m)])
         lp = _core.HighsLp()
         lp.num_col_, lp.num_row_ = n + 2 * m, m
@@ -136,18 +138,21 @@ class WarmL1:
         self.idx = np.arange(n, n + 2 * m, dtype=np.int32)
         self.lock = __import__("threading").Lock()
 
-    def solve(self, b: np.ndarray, scale: np.ndarray, time_limit: float | None = None) -> np.ndarray:
+    def solve(self, b: np.ndarray, scale: np.ndarray) -> np.ndarray | None:
+        """x (n,), or None when the solve did not reach the optimum (the caller falls back).
+
+        The guard against a slow solve is an iteration limit, not HiGHS's time_limit: that clock
+        accumulates over the runs of one instance, so a kept instance would soon stop at once."""
         with self.lock:
             h = self.h
-            if time_limit is not None:
-                h.setOptionValue("time_limit", float(time_limit))
             h.changeColsCost(2 * self.m, self.idx, np.concatenate([scale, scale]))
             for r in range(self.m):
                 h.changeRowBounds(r, float(b[r]), float(b[r]))
             h.run()
+            ok = h.modelStatusToString(h.getModelStatus()) == "Optimal"
             x = np.asarray(h.getSolution().col_value[: self.n])
-        if not np.isfinite(x).all():
-            raise MeasurementError("the lobe fit failed")
+        if not ok or not np.isfinite(x).all():
+            return None
         return np.maximum(x, 0.0)
 
 
@@ -180,7 +185,8 @@ def fit_measurements(measurements: dict, exponents=None, time_limit: float | Non
     """Lobe weights from ``{"gloss": G, "aspecular": {"15": [r, g, b], …}}`` (any aspecular set).
 
     exponents : the basis (default: the stored LM optimum, ``exponents.default_exponents()``).
-    time_limit : seconds granted to the LP (the paper's guard against a slow solve).
+    time_limit : seconds granted to a fresh linprog solve (the paper's guard against a slow
+        solve); the warm solver is guarded by an iteration limit and falls back to linprog.
     solver : "warm" (a kept HiGHS instance re-solved from its last basis, WarmL1) or "linprog"
         (scipy.optimize.linprog with HiGHS, the reference: same LP, built anew each call)."""
     if exponents is None:
@@ -198,10 +204,13 @@ def fit_measurements(measurements: dict, exponents=None, time_limit: float | Non
     a_all = np.vstack([a, prior])
     b_all = np.concatenate([b, [CLEARCOAT_ALBEDO]])
     s_all = np.concatenate([scale, [PRIOR_WEIGHT / CLEARCOAT_ALBEDO]])
+    cost = np.full(a.shape[1], ENERGY_WEIGHT)
     if solver == "warm":
-        x = _warm(exps, tuple(float(v) for v in angles)).solve(b_all, s_all, time_limit)
+        x = _warm(exps, tuple(float(v) for v in angles)).solve(b_all, s_all)
+        if x is None:                          # not optimal within the iteration limit: solve afresh
+            x = solve_l1(a_all, b_all, s_all, cost, time_limit)
     elif solver == "linprog":
-        x = solve_l1(a_all, b_all, s_all, np.full(a.shape[1], ENERGY_WEIGHT), time_limit)
+        x = solve_l1(a_all, b_all, s_all, cost, time_limit)
     else:
         raise ValueError(f"unknown solver {solver!r}")
     seconds = time.perf_counter() - t0
