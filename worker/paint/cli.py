@@ -4,7 +4,7 @@
   glint paint fit --gloss G --aspecular 15=r,g,b:… --out MATERIAL.json [--json]
   glint paint exponents --lobes M [--json] [--recompute [--out FILE]]
   glint paint export MATERIAL.json --format json|csv
-  glint paint render SCENE.json --out PNG [--raw NPY] [--material OBJ=M.json] [--fresnel] [--cosine albedo|paper] [--visibility]
+  glint paint render SCENE.json --out PNG [--raw NPY] [--material OBJ=M.json] [--fresnel] [--cosine vector|albedo|paper] [--visibility]
   glint paint bench SCENE.json [--frames N] [--json]
   glint paint bench-fit [--repeats N] [--json]
 """
@@ -236,8 +236,9 @@ def _render_args(p):
     p.add_argument("scene")
     p.add_argument("--material", action="append", metavar="OBJECT=FILE", help="replace an object's material; repeatable")
     p.add_argument("--fresnel", action="store_true", help="Fresnel on the gloss weights (cacad §5.3)")
-    p.add_argument("--cosine", choices=["albedo", "paper"], default="albedo",
-                   help="lobe cosine factor: the lobe's directional albedo (default) or the paper's R·N (eq. 7)")
+    p.add_argument("--cosine", choices=["vector", "albedo", "paper"], default="vector",
+                   help="the cosine inside a lobe: vector maps for wide lobes (default), the lobe's directional "
+                        "albedo, or the paper's R·N (eq. 7); see README")
     p.add_argument("--visibility", action="store_true", help="self-shadowing from the cut renderer's visibility")
     p.add_argument("--store", help="folder for precomputed parts (default $GLINT_DATA_DIR/parts)")
 

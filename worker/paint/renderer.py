@@ -119,7 +119,7 @@ class _View:
 class PaintRenderer(Renderer):
     """Renders a scene's objects as lobes materials from prefiltered maps.
 
-    Attributes set by callers: ``cosine`` ("albedo" or "paper", render.py), ``fresnel`` (bool),
+    Attributes set by callers: ``cosine`` ("vector", "albedo" or "paper", render.py), ``fresnel`` (bool),
     ``visibility`` (bool, used when the data has it)."""
 
     kind = "paint"
@@ -128,7 +128,7 @@ class PaintRenderer(Renderer):
         super().__init__(scene, data, use_native)
         from ..trace.embree import Tracer
         self.tracer = Tracer(scene.mesh.vertices, scene.mesh.faces)
-        self.cosine = "albedo"
+        self.cosine = "vector"
         self.fresnel = False
         self.visibility = data.vertex_vis is not None
         self.envmap = scene.envmap
