@@ -13,11 +13,16 @@ least squares followed by clamping accumulates error):
 solved as an LP in equality form (A x − u + v = b, u, v ≥ 0) with HiGHS's dual simplex. The
 rows are relative: s_r = 1/(|b_r| + floor). Two light priors make an under-determined fit
 (a handful of readings, 4M + 3 weights) pick what a paint designer means:
-  * the clearcoat's reflectance: Σ g_i ≈ CLEARCOAT_ALBEDO (a dielectric of index 1.5 reflects
-    4% at normal incidence), weighted PRIOR_WEIGHT ≪ 1, so the gloss reading sets the
-    clearcoat's *sharpness* (how much of it falls in the 1.8° receptor) rather than dimming it;
-  * the least total lobe albedo (λ = ENERGY_WEIGHT per unit albedo), which among exact fits
-    takes for each reading the lobe that explains it with the least energy.
+  * the clearcoat's reflectance: Σ g_i ≥ CLEARCOAT_ALBEDO (a dielectric of index 1.5 reflects
+    4% at normal incidence), a one-sided row weighted PRIOR_WEIGHT ≪ 1, so a low gloss reading
+    spreads the clearcoat (less of it falls in the 1.8° receptor) rather than dimming it, and a
+    high one is met by the achromatic gloss lobes, not by a sharp coloured lobe;
+  * the least lobe energy, λ = ENERGY_WEIGHT per unit of luminance albedo, which among exact fits
+    takes for each reading the lobe that explains it with the least energy. A gloss weight costs
+    a little less than its luminance on the sharp lobes (E ≥ SHARP_E, the clearcoat's) and a
+    little more on the wide ones, so the gloss reading is met by the achromatic clearcoat and
+    not by a sharp lobe of the cheapest colour, while grey flake readings stay in the
+    directional diffuse.
 Both are far lighter than a measurement row, so readings that a lobes material can produce are
 reproduced exactly (the round trip of tests/paint).
 """
@@ -37,6 +42,8 @@ from .geometry import (ASPECULAR_DEG, LUMA, MeasurementError, angle_key, aspecul
 CLEARCOAT_ALBEDO = 0.04
 PRIOR_WEIGHT = 0.05
 ENERGY_WEIGHT = 1e-3
+SHARP_E = 500.0               # lobes narrower than ~2.5°: the clearcoat's
+GLOSS_DISCOUNT = (0.97, 1.1)  # gloss weight cost / its luminance, on sharp and on wide lobes
 ASPECULAR_FLOOR = 0.01        # reflectance-factor floor of the relative rows (a black paint's 110°)
 GLOSS_FLOOR = 1.0             # GU
 ITERATION_LIMIT = 5000        # warm solves take tens of iterations; beyond this, solve afresh
@@ -81,10 +88,12 @@ def measurement_matrix(exponents: tuple[float, ...], angles: tuple[float, ...]) 
 
 
 def solve_l1(a: np.ndarray, b: np.ndarray, scale: np.ndarray, cost: np.ndarray | None = None,
-             time_limit: float | None = None) -> np.ndarray:
-    """min Σ scale_r |A_r x − b_r| + cost·x over x ≥ 0, by HiGHS (dual simplex). Returns x (n,)."""
+             time_limit: float | None = None, scale_under: np.ndarray | None = None) -> np.ndarray:
+    """min Σ_r (scale_r·max(0, A_r x − b_r) + scale_under_r·max(0, b_r − A_r x)) + cost·x over
+    x ≥ 0 (scale_under defaults to scale: the weighted absolute error), by HiGHS (dual simplex)
+    through scipy.optimize.linprog. Returns x (n,)."""
     m, n = a.shape
-    c = np.concatenate([np.zeros(n) if cost is None else cost, scale, scale])
+    c = np.concatenate([np.zeros(n) if cost is None else cost, scale, scale if scale_under is None else scale_under])
     a_eq = np.hstack([a, -np.eye(m), np.eye(m)])
     opts = {"presolve": False}
     if time_limit is not None:
@@ -138,14 +147,15 @@ class WarmL1:
         self.idx = np.arange(n, n + 2 * m, dtype=np.int32)
         self.lock = __import__("threading").Lock()
 
-    def solve(self, b: np.ndarray, scale: np.ndarray) -> np.ndarray | None:
+    def solve(self, b: np.ndarray, scale: np.ndarray, scale_under: np.ndarray | None = None) -> np.ndarray | None:
         """x (n,), or None when the solve did not reach the optimum (the caller falls back).
 
         The guard against a slow solve is an iteration limit, not HiGHS's time_limit: that clock
         accumulates over the runs of one instance, so a kept instance would soon stop at once."""
         with self.lock:
             h = self.h
-            h.changeColsCost(2 * self.m, self.idx, np.concatenate([scale, scale]))
+            h.changeColsCost(2 * self.m, self.idx,
+                             np.concatenate([scale, scale if scale_under is None else scale_under]))
             for r in range(self.m):
                 h.changeRowBounds(r, float(b[r]), float(b[r]))
             h.run()
@@ -161,7 +171,17 @@ def _warm(exponents: tuple[float, ...], angles: tuple[float, ...]) -> WarmL1:
     m = len(exponents)
     a = measurement_matrix(exponents, angles)
     prior = np.zeros(a.shape[1]); prior[3 + 3 * m:] = 1.0
-    return WarmL1(np.vstack([a, prior]), np.full(a.shape[1], ENERGY_WEIGHT))
+    return WarmL1(np.vstack([a, prior]), _energy_cost(exponents))
+
+
+def _energy_cost(exponents) -> np.ndarray:
+    """Per-variable cost: albedo and dd by their luminance (3·Y weights, so a grey unit on all
+    three channels costs 3), gloss weights 3·GLOSS_DISCOUNT (sharp, wide lobes)."""
+    m = len(exponents)
+    lum = 3.0 * LUMA
+    gloss = [3.0 * (GLOSS_DISCOUNT[0] if e >= SHARP_E else GLOSS_DISCOUNT[1]) for e in exponents]
+    cost = np.concatenate([lum, np.tile(lum, m), gloss])
+    return ENERGY_WEIGHT * cost
 
 
 @dataclass
@@ -199,18 +219,20 @@ def fit_measurements(measurements: dict, exponents=None, time_limit: float | Non
     m = len(exps)
     b = np.concatenate([[g], vals.reshape(-1)])
     scale = 1.0 / (np.abs(b) + np.concatenate([[GLOSS_FLOOR], np.full(len(b) - 1, ASPECULAR_FLOOR)]))
-    # prior row: Σ g_i = clearcoat albedo
+    # prior row: Σ g_i ≥ clearcoat albedo
     prior = np.zeros(a.shape[1]); prior[3 + 3 * m:] = 1.0
     a_all = np.vstack([a, prior])
     b_all = np.concatenate([b, [CLEARCOAT_ALBEDO]])
     s_all = np.concatenate([scale, [PRIOR_WEIGHT / CLEARCOAT_ALBEDO]])
-    cost = np.full(a.shape[1], ENERGY_WEIGHT)
+    cost = _energy_cost(exps)
+    s_over = s_all.copy()
+    s_over[-1] = 0.0                           # the clearcoat prior is one-sided: more is free
     if solver == "warm":
-        x = _warm(exps, tuple(float(v) for v in angles)).solve(b_all, s_all)
+        x = _warm(exps, tuple(float(v) for v in angles)).solve(b_all, s_over, s_all)
         if x is None:                          # not optimal within the iteration limit: solve afresh
-            x = solve_l1(a_all, b_all, s_all, cost, time_limit)
+            x = solve_l1(a_all, b_all, s_over, cost, time_limit, s_all)
     elif solver == "linprog":
-        x = solve_l1(a_all, b_all, s_all, cost, time_limit)
+        x = solve_l1(a_all, b_all, s_over, cost, time_limit, s_all)
     else:
         raise ValueError(f"unknown solver {solver!r}")
     seconds = time.perf_counter() - t0
