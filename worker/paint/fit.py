@@ -36,7 +36,7 @@ import numpy as np
 from scipy.optimize import linprog
 
 from ..scene import Lobes
-from .geometry import (ASPECULAR_DEG, LUMA, MeasurementError, angle_key, aspecular_directions, gloss_units,
+from .geometry import (LUMA, MeasurementError, angle_key, aspecular_directions, gloss_units,
                        parse_measurements)
 
 CLEARCOAT_ALBEDO = 0.04

@@ -32,7 +32,13 @@ from .exponents import default_exponents
 from .prefilter import LobeMaps, prefilter_all
 from .render import background, material_rows, shade
 
-VERSION = "paint-v1"
+VERSION = "paint-v2"
+
+
+def _maps_recipe() -> str:
+    """Everything besides the map and the exponents that the prefiltered maps depend on."""
+    from . import prefilter as pf
+    return f"{VERSION};pps={pf.PIXELS_PER_SIGMA};rows={pf.MIN_ROWS};support={pf.SUPPORT};vec={pf.VECTOR_MAX_E}"
 
 
 def _hash(*arrays, text: str = "") -> str:
@@ -78,7 +84,7 @@ class PaintPrecomputation(Precomputation):
 
     def parts(self, scene, options):
         ex = basis_of(options)
-        out = [Part(_hash(scene.envmap, np.asarray(ex), text=VERSION + "maps"), "prefiltered lobe maps",
+        out = [Part(_hash(scene.envmap, np.asarray(ex), text=_maps_recipe() + ";maps"), "prefiltered lobe maps",
                     work=len(ex) + 1, meta={"what": "maps"})]
         if options.get("visibility"):
             m = scene.mesh
