@@ -18,7 +18,9 @@ How (hierarchical, direct convolution; why not spherical harmonics: below):
   * the result is normalised by the discrete kernel sum of its row, so a constant map is
     reproduced exactly (white furnace) whatever the resolution.
 Spherical harmonics for the wide lobes would need (3√E)² coefficients and a projection of the
-full map; the pyramid level for E = 1 has 512 pixels, so the direct sum is cheaper and exact.
+full map, and the clamped lobe converges slowly in them; the widest lobe runs on the 64-row level
+(8K pixels), where the direct sum costs ~0.05 s and has no truncation error.
+Wide lobes (E ≤ VECTOR_MAX_E) also get vector maps P_E[L·ω] (``LobeMaps.vec``, render.py).
 Rotation about +Y commutes with a zonal convolution: maps are prefiltered once per environment
 and rotated at lookup (a column offset), so the light slider costs nothing.
 
