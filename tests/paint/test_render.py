@@ -160,3 +160,21 @@ def test_rotation_of_the_environment_is_a_lookup_offset(setup):
     a = shade(nrm, v, mid, rows, maps, rotation_deg=alpha)
     b = shade(nrm, v, mid, rows, prefilter_all(rotate_map(env, alpha), exps))
     assert rel_rmse(a, b) < 2e-3, rel_rmse(a, b)
+
+
+@pytest.mark.parametrize("native_kernel", [True, False])
+def test_writing_into_an_image_equals_the_plain_output(setup, native_kernel):
+    from worker.paint.render import background
+    env, exps, maps = setup
+    nrm, v = sphere_view(16)
+    rows = material_rows([designed_paint(exps)], exps)
+    mid = np.zeros(len(nrm), np.int32)
+    img = np.full((3 * len(nrm), 3), -1.0, np.float32)
+    dst = np.arange(len(nrm), dtype=np.int64) * 3 + 1
+    shade(nrm, v, mid, rows, maps, out=img, dst=dst, use_native=native_kernel, rotation_deg=12.0)
+    assert np.allclose(img[dst], shade(nrm, v, mid, rows, maps, use_native=native_kernel, rotation_deg=12.0))
+    uv = np.random.default_rng(0).random((len(nrm), 2)).astype(np.float32)
+    dst0 = dst - 1
+    background(uv, env, 30.0, 2.0, native_kernel, out=img, dst=dst0)
+    assert np.allclose(img[dst0], background(uv, env, 30.0, 2.0, native_kernel), rtol=1e-5)
+    assert (img[dst + 1] == -1.0).all()                 # nothing else touched

@@ -59,9 +59,10 @@ if native.lib is not None and hasattr(native.lib, "glp_prefilter"):
         _F32, _int, _int,                # cosine tables ((M+1) × T), T, mode
         _F32, _int, _dbl,                # exponents (M+1), fresnel flag, F0
         _ct.c_void_p, _F32,              # per-pixel visibility SH (P×18) or NULL, zonal ((M+1) × 3)
-        _dbl, _dbl, _F32]                # rotation (rad), intensity, out (P×3)
+        _dbl, _dbl,                      # rotation (rad), intensity
+        _ct.c_void_p, _ct.c_void_p]      # destination pixel per point (int64) or NULL, out (×3 float32)
     native.lib.glp_shade.restype = None
-    native.lib.glp_background.argtypes = [_n, _F32, _F32, _int, _int, _dbl, _dbl, _F32]
+    native.lib.glp_background.argtypes = [_n, _F32, _F32, _int, _int, _dbl, _dbl, _ct.c_void_p, _ct.c_void_p]
     native.lib.glp_background.restype = None
 
 

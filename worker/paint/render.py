@@ -179,19 +179,36 @@ def shade_numpy(normals, views, mat_of, rows, maps: LobeMaps, cosine: str = "vec
     return out.astype(np.float32)
 
 
+def _into(out: np.ndarray | None, dst: np.ndarray | None, n: int):
+    """The (…, 3) float32 buffer a kernel writes (out, whole) and its destination rows (dst)."""
+    if out is None:
+        return np.zeros((n, 3), np.float32), None
+    if out.dtype != np.float32 or not out.flags.c_contiguous or out.shape[-1] != 3:
+        raise ValueError("out must be a C-contiguous float32 (…, 3) array")
+    if dst is None or len(dst) != n:
+        raise ValueError("out needs dst: one destination row per point")
+    return out, np.ascontiguousarray(dst, np.int64)
+
+
 def background(uv: np.ndarray, envmap: np.ndarray, rotation_deg: float = 0.0, intensity: float = 1.0,
-               use_native: bool = True) -> np.ndarray:
+               use_native: bool = True, out: np.ndarray | None = None, dst: np.ndarray | None = None) -> np.ndarray:
     """(P, 3) float32 environment radiance at precomputed unrotated map coordinates uv (P, 2)
-    (a camera's background pixels: only the rotation changes between frames)."""
-    out = np.zeros((len(uv), 3), np.float32)
+    (a camera's background pixels: only the rotation changes between frames). With ``out``
+    (an image as (N, 3) float32) and ``dst`` (P,) pixel indices, written straight into it."""
+    buf, d = _into(out, dst, len(uv))
     if use_native and _has_kernel():
         envmap = _c(envmap, np.float32)
         native.lib.glp_background(len(uv), _c(uv, np.float32), envmap, envmap.shape[0], envmap.shape[1],
-                                  float(np.radians(rotation_deg)), float(intensity), out)
-        return out
+                                  float(np.radians(rotation_deg)), float(intensity),
+                                  None if d is None else d.ctypes.data, buf.ctypes.data)
+        return buf
     uv = np.asarray(uv, np.float64)
-    out[:] = intensity * _bilerp(envmap, uv[:, 0], uv[:, 1], np.radians(rotation_deg))
-    return out
+    val = intensity * _bilerp(envmap, uv[:, 0], uv[:, 1], np.radians(rotation_deg))
+    if d is None:
+        buf[:] = val
+    else:
+        buf.reshape(-1, 3)[d] = val
+    return buf
 
 
 def _packed(maps: LobeMaps):
@@ -218,16 +235,22 @@ def _packed(maps: LobeMaps):
 
 
 def shade(normals, views, mat_of, rows, maps: LobeMaps, cosine: str = "vector", fresnel: bool = False,
-          vsh=None, rotation_deg: float = 0.0, intensity: float = 1.0, use_native: bool = True) -> np.ndarray:
-    """(P, 3) float32 radiance (C kernel glp_shade when built, else shade_numpy)."""
+          vsh=None, rotation_deg: float = 0.0, intensity: float = 1.0, use_native: bool = True,
+          out: np.ndarray | None = None, dst: np.ndarray | None = None) -> np.ndarray:
+    """(P, 3) float32 radiance (C kernel glp_shade when built, else shade_numpy). With ``out``
+    (an image as (N, 3) float32) and ``dst`` (P,) pixel indices, written straight into it."""
     if cosine not in COSINE_MODES:
         raise ValueError(f"cosine must be one of {sorted(COSINE_MODES)}")
+    buf, d = _into(out, dst, len(normals))
     if not (use_native and _has_kernel()):
-        return shade_numpy(normals, views, mat_of, rows, maps, cosine, fresnel, vsh, rotation_deg, intensity)
+        val = shade_numpy(normals, views, mat_of, rows, maps, cosine, fresnel, vsh, rotation_deg, intensity)
+        if d is None:
+            return val
+        buf.reshape(-1, 3)[d] = val
+        return buf
     c = _c
     ex = maps.exponents
     flat, offs, hs, ws, tabs, zon, ex32, vflat, voffs = _packed(maps)
-    out = np.zeros((len(normals), 3), np.float32)
     rows = c(rows, np.float32)
     vptr = None
     if vsh is not None:
@@ -236,5 +259,6 @@ def shade(normals, views, mat_of, rows, maps: LobeMaps, cosine: str = "vector", 
     native.lib.glp_shade(len(normals), c(normals, np.float32), c(views, np.float32), c(mat_of, np.int32),
                          rows, rows.shape[0], len(ex) - 1, flat, offs, hs, ws, vflat, voffs,
                          tabs, TABLE_N, COSINE_MODES[cosine], ex32, int(bool(fresnel)), F0, vptr, zon,
-                         float(np.radians(rotation_deg)), float(intensity), out)
-    return out
+                         float(np.radians(rotation_deg)), float(intensity),
+                         None if d is None else d.ctypes.data, buf.ctypes.data)
+    return buf

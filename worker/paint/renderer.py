@@ -157,7 +157,7 @@ class PaintRenderer(Renderer):
         m = self.scene.mesh
         o, d = camera_rays(camera.eye, camera.target, camera.up, camera.fov_y_deg, camera.width, camera.height)
         tri, uv, _ = self.tracer.first_hit(o, d)
-        hit = np.nonzero(tri >= 0)[0]
+        hit = np.nonzero(tri >= 0)[0].astype(np.int64)
         f = m.faces[tri[hit]]
         u, v = uv[hit, 0:1], uv[hit, 1:2]
         bary = np.concatenate([1 - u - v, u, v], axis=1).astype(np.float32)
@@ -175,7 +175,7 @@ class PaintRenderer(Renderer):
             vsh = np.einsum("kj,kjc->kc", bary, self.data.vertex_vis[f]).astype(np.float32)
         obj = self.scene.object_of_face[tri[hit]].astype(np.int32)
         oid = np.full(len(tri), -1, np.int32); oid[hit] = obj
-        bg = np.nonzero(tri < 0)[0]
+        bg = np.nonzero(tri < 0)[0].astype(np.int64)
         u, w = direction_to_uv(d[bg].astype(np.float64))
         self._view = _View(camera, hit, nrm.astype(np.float32), views.astype(np.float32), obj, vsh, bg,
                            np.stack([u, w], 1).astype(np.float32), oid.reshape(camera.height, camera.width))
@@ -189,12 +189,13 @@ class PaintRenderer(Renderer):
         mats = [as_basis(mt, self.exponents) for mt in (req.materials or self.scene.materials)]
         rows = material_rows(mats, self.exponents)
         t2 = time.perf_counter()
-        img = np.zeros((cam.width * cam.height, 3), np.float32)
-        img[v.bg] = background(v.bg_uv, self.envmap, req.lighting.rotation_deg, req.lighting.intensity,
-                               self.use_native)
-        img[v.hit] = shade(v.normals, v.views, v.obj, rows, self.data.maps, self.cosine, self.fresnel,
-                           v.vsh if self.visibility else None, req.lighting.rotation_deg, req.lighting.intensity,
-                           self.use_native)
+        # every pixel is either background or shaded: the kernels write the image in place
+        img = np.empty((cam.width * cam.height, 3), np.float32)
+        background(v.bg_uv, self.envmap, req.lighting.rotation_deg, req.lighting.intensity,
+                   self.use_native, out=img, dst=v.bg)
+        shade(v.normals, v.views, v.obj, rows, self.data.maps, self.cosine, self.fresnel,
+              v.vsh if self.visibility else None, req.lighting.rotation_deg, req.lighting.intensity,
+              self.use_native, out=img, dst=v.hit)
         t3 = time.perf_counter()
         return Rendered(img.reshape(cam.height, cam.width, 3), v.object_id,
                         {"view": 1e3 * (t1 - t0), "materials": 1e3 * (t2 - t1), "shade": 1e3 * (t3 - t2)},

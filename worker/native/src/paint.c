@@ -142,15 +142,17 @@ static inline void glp_bilerp9(const float *map, int Hm, int Wm, double u, doubl
         out[k] = (p00[k] * (1 - ax) + p01[k] * ax) * (1 - ay) + (p10[k] * (1 - ax) + p11[k] * ax) * ay;
 }
 
-/* Background: the (rotated, scaled) map at precomputed unrotated (u, v) per pixel (P, 2). */
+/* Background: the (rotated, scaled) map at precomputed unrotated (u, v) per pixel (P, 2),
+ * written to out[dst[p]] (dst NULL: out[p]), so a frame needs no scatter afterwards. */
 void glp_background(int64_t P, const float *uv, const float *map, int Hm, int Wm, double rot,
-                    double intensity, float *out) {
+                    double intensity, const int64_t *dst, float *out) {
 #pragma omp parallel for schedule(static)
     for (int64_t p = 0; p < P; p++) {
         double u = uv[2 * p] + rot / (2 * PI), rgb[3];
         u -= floor(u);
         glp_bilerp(map, Hm, Wm, u, uv[2 * p + 1], rgb);
-        for (int k = 0; k < 3; k++) out[3 * p + k] = (float)(intensity * rgb[k]);
+        int64_t o = dst ? dst[p] : p;
+        for (int k = 0; k < 3; k++) out[3 * o + k] = (float)(intensity * rgb[k]);
     }
 }
 
@@ -188,13 +190,14 @@ void glp_shade(int64_t P, const float *normals, const float *views, const int32_
                const int32_t *hs, const int32_t *ws, const float *vmaps, const int64_t *voffs,
                const float *tables, int T, int mode,
                const float *expo, int fresnel, double f0, const float *vsh, const float *zonal,
-               double rot, double intensity, float *out) {
+               double rot, double intensity, const int64_t *dst, float *out) {
     (void)n_mat;
     const int stride = 3 + 4 * M;
 #pragma omp parallel for schedule(static)
     for (int64_t p = 0; p < P; p++) {
         int m = mat_of[p];
-        if (m < 0) continue;
+        int64_t o = dst ? dst[p] : p;
+        if (m < 0) { out[3 * o] = out[3 * o + 1] = out[3 * o + 2] = 0; continue; }
         const float *w = mats + (int64_t)m * stride;
         v3 n = mk(normals[3 * p], normals[3 * p + 1], normals[3 * p + 2]);
         v3 v = mk(views[3 * p], views[3 * p + 1], views[3 * p + 2]);
@@ -244,6 +247,6 @@ void glp_shade(int64_t P, const float *normals, const float *views, const int32_
             double vi = vp ? glp_vis(vp, yr, zonal + 3 * (i + 1)) : 1.0;
             for (int k = 0; k < 3; k++) acc[k] += (g + li[1 + k] * fd) * val[k] * vi;
         }
-        for (int k = 0; k < 3; k++) out[3 * p + k] = (float)(intensity * acc[k]);
+        for (int k = 0; k < 3; k++) out[3 * o + k] = (float)(intensity * acc[k]);
     }
 }
