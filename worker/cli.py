@@ -504,6 +504,7 @@ def build_parser() -> argparse.ArgumentParser:
 # one line per capability (its module's add_commands registers its subcommands)
 COMMAND_MODULES: list[str] = [
     "worker.renderers.gi.cli",
+    "worker.paint.cli",
 ]
 
 

@@ -16,6 +16,7 @@ from .base import (ArtifactStore, FrameRequest, Lighting, Part, Precomputation, 
 RENDERER_MODULES: dict[str, str] = {
     "cuts": "worker.renderers.cuts",
     "gi": "worker.renderers.gi",
+    "paint": "worker.paint.renderer",
 }
 
 _registry: dict[str, tuple[type[Renderer], Precomputation]] = {}
