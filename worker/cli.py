@@ -422,7 +422,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 # one line per capability (its module's add_commands registers its subcommands)
-COMMAND_MODULES: list[str] = []
+COMMAND_MODULES: list[str] = [
+    "worker.capture.cli",
+]
 
 
 def main(argv=None) -> int:
