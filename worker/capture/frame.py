@@ -38,8 +38,8 @@ import numpy as np
 from .fisheye import Lens
 
 DARK_STOPS = 1.5       # below the shot's median log₂ luminance
-DARK_OF_MEAN = 0.15    # × the shot's mean luminance (solid-angle weighted)
-FLAT_STOPS = 0.25      # local std of log₂ luminance
+DARK_ALBEDO = 0.25     # × E/π facing forward: black housings reflect < 10%; margin for clipped lights
+FLAT_STOPS_PER_PX = 0.1   # 5×5 median of |∇ log₂ luminance| at the working resolution
 WORK_DIAMETER = 512    # working resolution across the image circle
 LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
 
@@ -53,14 +53,20 @@ class FrameMask:
     regions: int
 
 
-def _local_std(x: np.ndarray, valid: np.ndarray, k: int) -> np.ndarray:
+def flatness(ell: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """(H, W) float32 local texture of log₂ luminance: the 5×5 median of the gradient magnitude
+    (stops per pixel). The median ignores an edge crossing the window, so a thin frame still
+    has flat pixels right up to near its border; invalid pixels count as flat (they are masked
+    elsewhere)."""
     import cv2
 
-    v = valid.astype(np.float32)
-    n = cv2.blur(v, (k, k))
-    m = cv2.blur(x * v, (k, k)) / np.maximum(n, 1e-6)
-    m2 = cv2.blur(x * x * v, (k, k)) / np.maximum(n, 1e-6)
-    return np.sqrt(np.maximum(m2 - m * m, 0.0))
+    x = np.where(valid, ell, 0.0).astype(np.float32)
+    # the edge of the valid area is not texture: replicate inwards values outwards first
+    if not valid.all():
+        x = cv2.inpaint(x, (~valid).astype(np.uint8), 2, cv2.INPAINT_NS) if valid.any() else x
+    gx = cv2.Sobel(x, cv2.CV_32F, 1, 0, ksize=3) / 8.0
+    gy = cv2.Sobel(x, cv2.CV_32F, 0, 1, ksize=3) / 8.0
+    return cv2.medianBlur(np.sqrt(gx * gx + gy * gy), 5)
 
 
 def detect_frame(radiance: list[np.ndarray], lens: Lens, max_shift: int = 0) -> FrameMask:
@@ -79,8 +85,7 @@ def detect_frame(radiance: list[np.ndarray], lens: Lens, max_shift: int = 0) -> 
     r = small.pixel_radius() / small.radius
     circle = r <= 1.0
     sa = small.pixel_solid_angle()
-    k = int(round(0.02 * 2 * small.radius)) | 1
-    k = max(k, 3)
+    cos_axis = np.clip(np.cos(small.theta_of_radius(small.pixel_radius())), 0.0, None)
     cand = (r >= 0.5) & circle
     dark_all = cand.copy()
     for rad in radiance:
@@ -91,14 +96,16 @@ def detect_frame(radiance: list[np.ndarray], lens: Lens, max_shift: int = 0) -> 
         floor = 1e-6 * float(np.median(lum[ok]))
         ell = np.log2(np.maximum(lum, floor)).astype(np.float32)
         med = float(np.median(ell[ok & (r < 0.9)]))
-        mean = float((lum * sa)[ok].sum() / sa[ok].sum())
-        dark = ell < min(med - DARK_STOPS, np.log2(DARK_OF_MEAN * mean))
-        flat = _local_std(ell, ok, k) < FLAT_STOPS
+        e_pi = float((lum * sa * cos_axis)[ok].sum() / np.pi)      # E/π on a surface facing forward
+        dark = ell < min(med - DARK_STOPS, np.log2(DARK_ALBEDO * e_pi))
+        flat = flatness(ell, ok) < FLAT_STOPS_PER_PX
         cand &= dark & flat & ok
         dark_all &= dark & ok
     cand = cv2.morphologyEx(cand.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     n, lab, stats, _ = cv2.connectedComponentsWithStats(cand, connectivity=8)
-    rim = circle & (r >= 1.0 - 2.5 / small.radius)
+    # "touches the rim": within 7 working pixels of it (the circle's edge is itself textured:
+    # JPEG rings against the black surround, so the last pixels are rarely candidates)
+    rim = circle & (r >= 1.0 - 7.0 / small.radius)
     min_area = max(16, int(1e-4 * circle.sum()))
     keep = np.zeros(n, bool)
     touching = np.unique(lab[rim & (lab > 0)])
@@ -113,7 +120,7 @@ def detect_frame(radiance: list[np.ndarray], lens: Lens, max_shift: int = 0) -> 
     grown[np.unique(lab2[seeds])] = True
     grown[0] = False
     m = grown[lab2].astype(np.uint8)
-    grow = max(2, k // 4) + int(np.ceil(max_shift * scale))
+    grow = 2 + int(np.ceil(max_shift * scale))
     m = cv2.dilate(m, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1)))
     full = cv2.resize(m * 255, (w, h), interpolation=cv2.INTER_LINEAR) > 0
     # one more full-resolution pixel for the upsampling's edge
