@@ -10,8 +10,10 @@ the two photographs ... auto exposure bracketing").
    (measured on synthetic captures). Brackets are chained outwards from the middle exposure
    (neighbouring exposures look most alike); a pair with no common range keeps its neighbour's
    shift.
-2. **Response** (Debevec & Malik 1997): OpenCV's ``CalibrateDebevec`` solves the response, but
-   fed with samples we choose instead of its grid over the whole frame: pixels inside the
+2. **Response** (Debevec & Malik 1997): the system of OpenCV's ``CalibrateDebevec`` (same
+   weights, smoothness and anchor), solved by sparse normal equations (``debevec_solve``; 100×
+   faster than OpenCV's dense SVD, checked against it), and fed with samples we choose instead
+   of OpenCV's grid over the whole frame: pixels inside the
    image circle, valid in every aligned bracket, in smooth areas (so residual misalignment
    does not corrupt them), stratified over the brightness range of the whole bracket (so every
    pixel value of every exposure is constrained). OpenCV's grid would put many samples on the
@@ -25,15 +27,16 @@ the two photographs ... auto exposure bracketing").
    The curve is made monotone and normalised per channel to
    the sRGB decoding at mid-grey (f⁻¹(128) = 0.2158), so a merged map at exposure 0 looks like
    the middle bracket, and grey stays grey.
-3. **Merge** (``merge``; C kernel glk_hdr_merge, NumPy reference ``merge_numpy``). Instead of
-   OpenCV's ``MergeDebevec`` (log-domain mean with hat weights of at least 1/128, so a pixel
-   clipped in every bracket averages all of them and a sun is underestimated by the ladder's
-   span; no notion of invalid pixels) it takes, in the linear domain, the inverse-variance
-   weighted mean of the estimates v_k = f⁻¹(z_k)/e_k. With z quantised (±½ level) the estimate's
-   standard deviation is (df⁻¹/dz)/e_k, so w_k(z) = hat(z) · (e_k / f⁻¹'(z))², the hat zeroing
-   z ≤ 3 (JPEG black) and z ≥ 250 (clipping and JPEG ringing at saturation). Pixels clipped in
-   every bracket take the shortest exposure's value (a lower bound, counted as clipped);
-   tests/capture compares both merges on the same photos.
+3. **Merge** (``merge``; C kernel glk_hdr_merge, NumPy reference ``merge_numpy``). Not
+   OpenCV's ``MergeDebevec``: it has no notion of invalid pixels (alignment borders, the
+   outside of the circle), and its weights never reach zero (at least 1/128), so a pixel
+   clipped in every bracket becomes the average of all of them. Ours takes, in the linear
+   domain, the inverse-variance weighted mean of the estimates v_k = f⁻¹(z_k)/e_k: with z
+   quantised (±½ level) an estimate's standard deviation is (df⁻¹/dz)/e_k, so
+   w_k(z) = hat(z) · (e_k / f⁻¹'(z))², the hat zeroing z ≤ 3 (JPEG black) and z ≥ 250 (clipping
+   and JPEG ringing at saturation). Pixels clipped in every bracket take the shortest
+   exposure's value (a lower bound, counted as clipped). On the same photos its log error
+   matches MergeDebevec's and its energy is closer (tests/capture/test_hdr.py).
 """
 from __future__ import annotations
 
@@ -284,15 +287,49 @@ def select_samples(stack: np.ndarray, valid: np.ndarray, inner: np.ndarray, n: i
     return np.ascontiguousarray(sub[:, ys[pick], xs[pick]].transpose(1, 0, 2))
 
 
-def calibrate(samples: list[tuple[np.ndarray, np.ndarray]], lam: float = 100.0) -> Response:
+def _triangle() -> np.ndarray:
+    """OpenCV's Debevec weights (photo/src/hdr_common.cpp triangleWeights): z+1 below 128, 256−z
+    from 128 — never zero."""
+    z = np.arange(256, dtype=np.float64)
+    return np.where(z < 128, z + 1.0, 256.0 - z)
+
+
+def debevec_solve(z: np.ndarray, log_t: np.ndarray, lam: float) -> np.ndarray:
+    """Debevec & Malik 1997 (eq. 3 with their weighting), the system OpenCV's CalibrateDebevec
+    builds, solved through its sparse normal equations instead of OpenCV's dense SVD (~100×
+    faster at 250 samples × 5 brackets; tests/capture/test_hdr.py compares the two).
+
+    z : (N, P) int pixel values of N samples in P brackets; log_t : (P,) log exposures.
+    Returns g (256,) float64, log inverse response with g(128) = 0."""
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spl
+
+    n, p = z.shape
+    w = _triangle()
+    wz = w[z].ravel()
+    rows_d = np.arange(n * p)
+    r = np.concatenate([rows_d, rows_d])
+    c = np.concatenate([z.ravel(), 256 + np.repeat(np.arange(n), p)])
+    v = np.concatenate([wz, -wz])
+    b = np.concatenate([wz * np.tile(log_t, n), [0.0], np.zeros(254)])
+    k = np.arange(1, 255)
+    base = n * p + 1
+    r = np.concatenate([r, [n * p], np.repeat(base + k - 1, 3)])
+    c = np.concatenate([c, [128], np.stack([k - 1, k, k + 1], axis=1).ravel()])
+    v = np.concatenate([v, [1.0], (lam * w[k])[:, None].repeat(3, 1).ravel() * np.tile([1.0, -2.0, 1.0], 254)])
+    a = sp.csr_matrix((v, (r, c)), shape=(base + 254, 256 + n))
+    x = spl.spsolve((a.T @ a).tocsc(), a.T @ b)
+    return x[:256] - x[128]
+
+
+def calibrate(samples: list[tuple[np.ndarray, np.ndarray]], lam: float = 100.0, use_opencv: bool = False) -> Response:
     """Recover the inverse response from sample pixels of one or more shots.
 
     samples : list of (values (N_i, K_i, 3) uint8, exposures (K_i,) float) per shot. Shots with the
-    same exposure ladder are solved together; curves of different ladders are averaged in the
-    log domain, weighted by their sample counts.
+        same exposure ladder are solved together; curves of different ladders are averaged in the
+        log domain, weighted by their sample counts.
+    use_opencv : solve with OpenCV's CalibrateDebevec (the reference) instead of debevec_solve.
     """
-    import cv2
-
     groups: dict[tuple, list[np.ndarray]] = {}
     for vals, ex in samples:
         if len(vals):
@@ -303,14 +340,12 @@ def calibrate(samples: list[tuple[np.ndarray, np.ndarray]], lam: float = 100.0) 
     for key, vs in groups.items():
         v = np.concatenate(vs, axis=0)
         ex = np.exp2(np.array(key, np.float64))
-        side = int(np.ceil(np.sqrt(len(v))))
-        pad = side * side - len(v)
-        v = np.concatenate([v, v[:pad]], axis=0) if pad else v          # repeat to fill the square
-        # OpenCV samples a grid; a side×side image with side² samples makes it take every pixel
-        imgs = [np.ascontiguousarray(v[:, k].reshape(side, side, 3)) for k in range(v.shape[1])]
-        cal = cv2.createCalibrateDebevec(side * side, lam, False)
-        crf = cal.process(imgs, (ex / ex[len(ex) // 2]).astype(np.float32)).reshape(256, 3).astype(np.float64)
-        logs.append(np.log(np.maximum(crf, 1e-30)) - np.log(np.maximum(crf[128], 1e-30)))
+        log_t = np.log(ex / ex[len(ex) // 2])
+        if use_opencv:
+            g = _calibrate_opencv(v, log_t, lam)
+        else:
+            g = np.stack([debevec_solve(v[:, :, ch].astype(np.int64), log_t, lam) for ch in range(3)], axis=1)
+        logs.append(g)
         weights.append(len(v))
         total += len(v)
     g = np.average(np.stack(logs), axis=0, weights=weights)
@@ -319,6 +354,20 @@ def calibrate(samples: list[tuple[np.ndarray, np.ndarray]], lam: float = 100.0) 
     fixes = int((mono > lin * (1 + 1e-9)).sum())
     lin = mono * MID_GREY                                                  # lin[128] = MID_GREY
     return Response(lin, total, lam, fixes)
+
+
+def _calibrate_opencv(v: np.ndarray, log_t: np.ndarray, lam: float) -> np.ndarray:
+    """OpenCV's CalibrateDebevec on exactly these samples: (256, 3) log response, g(128) = 0."""
+    import cv2
+
+    side = int(np.ceil(np.sqrt(len(v))))
+    pad = side * side - len(v)
+    v = np.concatenate([v, v[:pad]], axis=0) if pad else v          # repeat to fill the square
+    # OpenCV samples a grid; a side×side image with side² samples makes it take every pixel
+    imgs = [np.ascontiguousarray(v[:, k].reshape(side, side, 3)) for k in range(v.shape[1])]
+    crf = cv2.createCalibrateDebevec(side * side, lam, False).process(imgs, np.exp(log_t).astype(np.float32))
+    crf = crf.reshape(256, 3).astype(np.float64)
+    return np.log(np.maximum(crf, 1e-30)) - np.log(np.maximum(crf[128], 1e-30))
 
 
 # --- merge ------------------------------------------------------------------------------------
@@ -430,7 +479,9 @@ def merge_capture(cap: Capture, lens: Lens, progress=None, use_native: bool = Tr
         ex = np.array([p.exposure for p in photos])
         valid, sh = align_bracket(st, lens, ex)
         valid &= circle[None]
-        n_samples = min(400, int(2 * 256 / (len(photos) - 1)) + 50)
+        # Debevec & Malik need N(P−1) ≫ 256 samples; ~3× that over the whole capture (the SVD
+        # solve grows as N³)
+        n_samples = int(np.ceil(min(400, 3 * 256 / (len(photos) - 1) + 50) / n_shots))
         samples.append((select_samples(st, valid, inner, n_samples, rng), ex))
         stacks.append(st); valids.append(valid); shifts.append(sh)
     tick(0.4, "recovering the camera response")

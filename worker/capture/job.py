@@ -50,7 +50,7 @@ def _check_name(info: zipfile.ZipInfo) -> PurePosixPath:
     mode = info.external_attr >> 16
     if stat.S_ISLNK(mode):
         raise CaptureError(f"zip entry {name!r}: symbolic links are not allowed", status=400)
-    if mode and not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+    if stat.S_IFMT(mode) not in (0, stat.S_IFREG, stat.S_IFDIR):     # 0: no type recorded (Windows, Python)
         raise CaptureError(f"zip entry {name!r}: only regular files are allowed", status=400)
     if info.flag_bits & 0x1:
         raise CaptureError(f"zip entry {name!r}: encrypted entries are not supported", status=400)

@@ -70,7 +70,7 @@ def capture(manifest_path: str | Path, width: int | None = None, remove_frame: b
     max_shift = max((abs(dx) + abs(dy) for s in shots for dx, dy in s.shifts), default=0)
     if remove_frame:
         tick(0.62, "finding the lens frame")
-        fm = detect_frame([s.radiance for s in shots], lens, max_shift)
+        fm = detect_frame([s.radiance for s in shots], lens, max_shift, [s.yaw_deg for s in shots])
         frame = fm.mask
     else:
         fm, frame = None, np.zeros((cap.height, cap.width), bool)

@@ -149,7 +149,8 @@ class SynthCapture:
     frame: np.ndarray        # (H, W) bool truth mask (alpha > 0.5), all False without a frame
     shutter_s: np.ndarray    # (K,) shutter times, the same ladder for every shot
     scale: float             # the map the pipeline should recover is scale × the HDRI
-    radiance: list           # per shot (H, W, 3) float32 the sensor saw at the middle bracket's pose
+    radiance: list           # per shot (H, W, 3) float32 scene radiance at the middle bracket's pose
+    with_frame: list         # the same with the lens frame composited (what the sensor saw)
 
 
 def _write_jpeg(path: Path, img: np.ndarray, t: float, quality: int) -> None:
@@ -222,4 +223,5 @@ def synthesize(envmap: np.ndarray, out_dir: str | Path, width: int = 600, height
                                                 "frame_pixels": int(fmask.sum()), "jitter_px": jitter_px,
                                                 "scene_shifts_px": shifts}, indent=1))
     tick(1.0, "done")
-    return SynthCapture(out / "manifest.json", fmask, times, scale, centre)
+    framed = [c * (1.0 - alpha[..., None]) + (alpha * shade * fl)[..., None] for c, fl in zip(centre, frame_l)]
+    return SynthCapture(out / "manifest.json", fmask, times, scale, centre, framed)
