@@ -50,6 +50,7 @@ from .fisheye import Lens
 from .manifest import Capture, CaptureError, Photo
 
 Z_LO, Z_HI = 3, 250          # hat support: below is JPEG black, above clipping
+CLIP_Z = 245                 # the shortest exposure at or above this (any channel): clipped light
 MID_GREY = 0.21586050011389926   # sRGB decode of 128/255: the response's anchor
 
 if native.lib is not None:
@@ -493,6 +494,10 @@ def merge_capture(cap: Capture, lens: Lens, progress=None, use_native: bool = Tr
         ex = np.array([p.exposure for p in photos]) / e_ref
         val, wt = merge_tables(resp, ex)
         rad, status = merge(stacks[i], valids[i], val, wt, use_native)
+        # clipped even in the shortest exposure (JPEG ringing keeps a clipped sun a few levels
+        # under 255, so the merge may still call it measured): flag it, it is a lower bound
+        short = (stacks[i][0].max(axis=-1) >= CLIP_Z) & valids[i][0]
+        status |= short.reshape(-1).astype(np.uint8)
         out.append(ShotHDR(rad.reshape(cap.height, cap.width, 3), status.reshape(cap.height, cap.width),
                            shifts[i], cap.manifest.shots[i].yaw_deg, ex))
         stacks[i] = None   # free the brackets as we go
