@@ -87,17 +87,26 @@ def test_recovered_map_lights_like_the_original(captures, small_hdri, engine, hd
     for key in ("seconds", "dynamic_range_stops", "frame_pixels_removed", "response"):
         assert key in st
     assert st["frame_pixels_removed"] >= c["frame"].sum()
+    assert st["exposure_notes"] == [], st["exposure_notes"]          # the EXIF is right: no alarm
     assert st["dynamic_range_stops"] > 8
 
 
-def test_no_frame_nothing_removed(captures, small_hdri):
-    """A clean capture (no lens frame) loses nothing to the detector and stitches seamlessly."""
-    c = captures.get("apartment.exr", frame=False, jitter_px=2, seed=5)
+@pytest.mark.parametrize("projection,fov", [("equidistant", 190.0), ("equisolid", 200.0)])
+def test_no_frame_nothing_removed(captures, small_hdri, engine, projection, fov):
+    """A clean capture (no lens frame) loses nothing to the detector and stitches seamlessly,
+    with either projection."""
+    c = captures.get("apartment.exr", frame=False, jitter_px=2, seed=5, projection=projection, fov_deg=fov)
     r = capture(c["manifest"], width=512)
     assert r.stats["frame_pixels_removed"] == 0
     assert r.stats["inpainted_fraction_of_sphere"] == 0.0
     assert abs(r.stats["exposure_gains_stops"][0]) < 0.05, r.stats["exposure_gains_stops"]
-    assert _log_lum_rms(r.envmap / c["truth"]["scale"], small_hdri("apartment.exr")) < 0.15
+    assert r.stats["overlap_deg"] == pytest.approx(fov - 180.0)
+    original = small_hdri("apartment.exr")
+    rec = r.envmap / c["truth"]["scale"]
+    err = _log_lum_rms(rec, original)
+    got, ref = _renders(engine, rec), _renders(engine, original)
+    rr = {k: _rel_rmse(got[k], ref[k]) for k in got}
+    assert err < 0.15 and max(rr.values()) < 0.02, f"{projection}: log-luminance RMS {err:.3f} stops, renders {rr}"
 
 
 def test_exposure_matching_between_shots(captures, tmp_path):
@@ -123,3 +132,23 @@ def test_exposure_matching_between_shots(captures, tmp_path):
     r = capture(d / "manifest.json", width=512)
     g = r.stats["exposure_gains_stops"]
     assert g[1] - g[0] == pytest.approx(-1.0, abs=0.1), g
+
+
+def test_mistyped_exposure_is_flagged(captures, tmp_path):
+    """A designer types one bracket's exposure_s 4× too long: the capture still runs and its
+    notes name the photo whose pixels disagree with the numbers."""
+    import json
+    import shutil
+
+    c = captures.get("city.exr", frame=False, seed=8)
+    d = tmp_path / "cap"
+    shutil.copytree(c["dir"], d)
+    m = json.loads((d / "manifest.json").read_text())
+    for s in m["shots"]:
+        for t, im in zip(c["truth"]["shutter_s"], s["images"]):
+            im["exposure_s"] = t
+    m["shots"][1]["images"][3]["exposure_s"] *= 4
+    (d / "manifest.json").write_text(json.dumps(m))
+    notes = capture(d / "manifest.json", width=256).stats["exposure_notes"]
+    assert notes and all("shot1_3.jpg" in n for n in notes), notes
+    assert "check exposure_s" in notes[0]

@@ -140,3 +140,13 @@ def test_confined_to_root(small, tmp_path):
     load_capture(path)                                     # the CLI may read beside the manifest
     with pytest.raises(CaptureError, match="outside the capture folder"):
         load_capture(path, root=path.parent)
+
+
+def test_shots_must_cover_the_sphere(small, tmp_path):
+    """One 190° shot sees half the sphere: refused before any photo is decoded."""
+    from worker.capture.pipeline import capture
+
+    def edit(m, d):
+        m["shots"] = m["shots"][:1]
+    with pytest.raises(CaptureError, match=r"cover only 5\d\.\d% of the sphere.*fov_deg 190"):
+        capture(_copy(small, tmp_path, edit))

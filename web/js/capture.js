@@ -262,6 +262,7 @@ export function mountCapturePanel(container, { api, onApply, fetchImpl } = {}) {
     const parts = [`${st.width}×${st.height}`, `${st.dynamic_range_stops} stops`];
     if (st.frame_pixels_removed) parts.push(`lens frame removed: ${(100 * st.frame_fraction_of_circle).toFixed(1)}% of each photo`);
     if (st.clipped_fraction_of_sphere > 0) parts.push("some lights clipped in every bracket: add a shorter exposure");
+    for (const n of st.exposure_notes || []) parts.push(n);
     say(`done: ${parts.join(" · ")}`);
   }
 

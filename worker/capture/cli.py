@@ -32,16 +32,16 @@ def cmd_capture(args) -> int:
     from ..atomic import atomic_write
     from .pipeline import capture, exr_bytes, preview_png
 
-    bar = _Bar("capture")
-    try:
-        res = capture(args.manifest, width=args.width, remove_frame=not args.keep_frame, progress=bar)
-    finally:
-        bar.close()
     out = Path(args.out)
     if out.suffix.lower() != ".exr":
         from .manifest import CaptureError
 
         raise CaptureError(f"--out {out}: the environment map is written as OpenEXR (.exr)")
+    bar = _Bar("capture")
+    try:
+        res = capture(args.manifest, width=args.width, remove_frame=not args.keep_frame, progress=bar)
+    finally:
+        bar.close()
     atomic_write(out, exr_bytes(res.envmap))
     if args.preview:
         atomic_write(Path(args.preview), preview_png(res.envmap))

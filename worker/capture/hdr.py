@@ -23,7 +23,7 @@ the two photographs ... auto exposure bracketing").
    radiometric response from images?"); with steps of 2-3 EV that ripple spans a hundred pixel
    levels, costs the smoothness term little, and only a stronger prior removes it. On synthetic
    captures of five HDRIs (tests/capture) the curve's error fell from 0.03-0.24 stops (λ = 10)
-   to 0.01-0.08 (λ = 100), with ~350 samples × 5 brackets.
+   to 0.01-0.08 (λ = 100), with ~250-350 samples × 5 brackets.
    The curve is made monotone and normalised per channel to
    the sRGB decoding at mid-grey (f⁻¹(128) = 0.2158), so a merged map at exposure 0 looks like
    the middle bracket, and grey stays grey.
@@ -241,7 +241,7 @@ class Response:
         x = np.log(z / 255.0)
         gam = [float(np.polyfit(x, np.log(np.maximum(self.lin[z, c], 1e-12)), 1)[0]) for c in range(3)]
         at = [8, 32, 64, 128, 192, 224, 248]
-        return {"method": "debevec (OpenCV CalibrateDebevec on selected samples)", "samples": self.samples,
+        return {"method": "Debevec-Malik (OpenCV's system, sparse solve) on selected samples", "samples": self.samples,
                 "lambda": self.lam, "gamma_rgb": [round(g, 3) for g in gam],
                 "curve": {"z": at, "linear_rgb": [[round(float(self.lin[v, c]), 5) for c in range(3)] for v in at]},
                 "monotone_fixes": self.monotone_fixes}
@@ -456,6 +456,30 @@ class ShotHDR:
     exposures: np.ndarray    # (K,) relative exposures, increasing
 
 
+def exposure_disagreements(cap: Capture, stacks, valids, resp: Response, stops: float = 0.5) -> list[str]:
+    """Notes for neighbouring brackets whose pixels disagree with their stated exposures: the
+    median log₂ ratio of f⁻¹(z)/e between the two, over pixels well exposed in both (green,
+    20 ≤ z ≤ 235, on a grid of ≤ 512² pixels), beyond ``stops``. A mistyped exposure_s or a
+    wrong EXIF shows up in the pairs on both sides of the photo."""
+    notes = []
+    for i, (st, valid) in enumerate(zip(stacks, valids)):
+        step = max(1, int(np.ceil(max(st.shape[1:3]) / 512)))
+        z = st[:, ::step, ::step, 1].astype(np.int64)
+        v = valid[:, ::step, ::step]
+        photos = cap.shots[i]
+        for k in range(len(photos) - 1):
+            ok = v[k] & v[k + 1] & (z[k] >= 20) & (z[k] <= 235) & (z[k + 1] >= 20) & (z[k + 1] <= 235)
+            if ok.sum() < 100:
+                continue
+            d = float(np.median(np.log2(resp.lin[z[k + 1][ok], 1] / photos[k + 1].exposure)
+                                - np.log2(resp.lin[z[k][ok], 1] / photos[k].exposure)))
+            if abs(d) > stops:
+                notes.append(f"{photos[k].field} and {photos[k + 1].field} ({photos[k].path.name}, "
+                             f"{photos[k + 1].path.name}) disagree with their exposures by {d:+.1f} stops: "
+                             "check exposure_s or the photos' EXIF")
+    return notes
+
+
 def reference_exposure(cap: Capture) -> float:
     """The median relative exposure of all photos: the merged radiance is in units where this
     exposure maps mid-grey (pixel 128) to MID_GREY, so the map at exposure 0 looks like the
@@ -487,6 +511,7 @@ def merge_capture(cap: Capture, lens: Lens, progress=None, use_native: bool = Tr
         stacks.append(st); valids.append(valid); shifts.append(sh)
     tick(0.4, "recovering the camera response")
     resp = calibrate(samples, lam)
+    resp.notes.extend(exposure_disagreements(cap, stacks, valids, resp))
     out = []
     e_ref = reference_exposure(cap)
     for i, photos in enumerate(cap.shots):

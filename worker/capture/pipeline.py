@@ -17,8 +17,8 @@ import numpy as np
 from .fisheye import Lens
 from .frame import detect_frame
 from .hdr import merge_capture, reference_exposure
-from .manifest import load_capture
-from .stitch import default_width, row_solid_angle, stitch
+from .manifest import CaptureError, load_capture
+from .stitch import check_coverage, default_width, row_solid_angle, stitch
 
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 
@@ -66,6 +66,10 @@ def capture(manifest_path: str | Path, width: int | None = None, remove_frame: b
     cap = load_capture(manifest_path, root)
     m = cap.manifest
     lens = Lens(cap.width, cap.height, m.projection, m.fov_deg)
+    width = int(width) if width else default_width(lens)
+    if width < 16 or width % 2:
+        raise CaptureError(f"output width {width}: use an even number of at least 16")
+    check_coverage(lens, [s.yaw_deg for s in m.shots])
     shots, resp = merge_capture(cap, lens, tick, use_native)
     max_shift = max((abs(dx) + abs(dy) for s in shots for dx, dy in s.shifts), default=0)
     if remove_frame:
@@ -74,11 +78,6 @@ def capture(manifest_path: str | Path, width: int | None = None, remove_frame: b
         frame = fm.mask
     else:
         fm, frame = None, np.zeros((cap.height, cap.width), bool)
-    width = int(width) if width else default_width(lens)
-    if width < 16 or width % 2:
-        from .manifest import CaptureError
-
-        raise CaptureError(f"output width {width}: use an even number of at least 16")
     st = stitch(shots, lens, frame if remove_frame else None, width, tick)
     tick(0.97, "statistics")
     env = st.envmap
@@ -103,7 +102,7 @@ def capture(manifest_path: str | Path, width: int | None = None, remove_frame: b
         "alignment_shifts_px": [[list(s) for s in shot.shifts] for shot in shots],
         "reference_exposure": reference_exposure(cap),
         "exposure_sources": sorted({p.shutter_source for s in cap.shots for p in s}),
-        "exposure_notes": cap.exposure_notes,
+        "exposure_notes": cap.exposure_notes + resp.notes,
         "response": resp.summary(),
     }
     tick(1.0, "done")

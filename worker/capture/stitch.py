@@ -148,6 +148,22 @@ def fisheye_map(h: int, w: int, lens: Lens, yaw_deg: float, use_native: bool = T
     return mx, my
 
 
+def check_coverage(lens: Lens, yaws: list[float]) -> float:
+    """Fraction of the sphere no shot sees (from the geometry alone, on a 64×128 grid); raises
+    CaptureError above MAX_UNCOVERED, before any photo is read."""
+    h, w = 64, 128
+    covered = np.zeros((h, w), bool)
+    for yaw in yaws:
+        covered |= fisheye_map_numpy(h, w, lens, yaw)[0] > -5.0
+    sa = np.broadcast_to(row_solid_angle(h, w)[:, None], (h, w))
+    uncovered = float(sa[~covered].sum() / (4 * np.pi))
+    if uncovered > MAX_UNCOVERED:
+        raise CaptureError(f"the shots cover only {100 * (1 - uncovered):.1f}% of the sphere: with fov_deg "
+                           f"{lens.fov_deg:g} the yaw angles {list(yaws)} leave gaps; add shots or check "
+                           "fov_deg and yaw_deg")
+    return uncovered
+
+
 def stitch(shots, lens: Lens, frame: np.ndarray | None, width: int, progress=None,
            use_native: bool = True) -> StitchResult:
     """Blend the merged shots into one equirectangular map.
