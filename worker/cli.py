@@ -505,6 +505,7 @@ def build_parser() -> argparse.ArgumentParser:
 COMMAND_MODULES: list[str] = [
     "worker.renderers.gi.cli",
     "worker.paint.cli",
+    "worker.capture.cli",
 ]
 
 
