@@ -32,6 +32,8 @@ class Settings(BaseModel):
     max_envmap_bytes: int = 256 * 1024 * 1024
     max_image_bytes: int = 64 * 1024 * 1024
     max_envmap_pixels: int = 8192 * 4096
+    max_capture_bytes: int = Field(512 * 1024 * 1024, description="a capture zip (photos and manifest)")
+    max_capture_files: int = Field(64, ge=2, description="files in a capture zip")
     max_mesh_faces: int = 8_000_000
     inspect_seconds: float = Field(300.0, gt=0, description="time limit for reading one upload")
     max_sessions: int = Field(64, ge=1, description="open streams in total")

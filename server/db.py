@@ -129,6 +129,21 @@ class SessionSave(Base):
     created: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now)
 
 
+class Capture(Base):
+    """A lighting capture: the uploaded zip (a blob) processed by a job into an envmap asset."""
+    __tablename__ = "captures"
+    id: Mapped[str] = mapped_column(String(32), primary_key=True, default=new_id)
+    status: Mapped[str] = mapped_column(String(16), default="queued")    # queued running done failed
+    progress: Mapped[float] = mapped_column(Float, default=0.0)
+    message: Mapped[str] = mapped_column(String(1000), default="")
+    zip_sha256: Mapped[str] = mapped_column(String(64))
+    asset_id: Mapped[str | None] = mapped_column(ForeignKey("assets.id"), nullable=True)
+    preview_sha256: Mapped[str | None] = mapped_column(String(64), nullable=True)
+    stats: Mapped[dict] = mapped_column(JSON, default=dict)
+    created: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now)
+    updated: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now, onupdate=now)
+
+
 class Publication(Base):
     """A set of material designs published for the shopper viewer (read-only, public)."""
     __tablename__ = "publications"

@@ -25,7 +25,7 @@ from fastapi.staticfiles import StaticFiles
 
 from .config import Settings
 from .deps import check_host, check_origin
-from .routes import assets, materials, publications, renders, scenes, sessions
+from .routes import assets, captures, materials, publications, renders, scenes, sessions
 from .state import AppState
 
 log = logging.getLogger("glint")
@@ -131,7 +131,7 @@ def create_app(settings: Settings | None = None, pool=None) -> FastAPI:
 
         return describe()
 
-    for r in (assets, scenes, renders, materials, publications, sessions):
+    for r in (assets, scenes, renders, materials, publications, sessions, captures):
         app.include_router(r.router)
 
     web = Path(settings.web_dir)

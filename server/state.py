@@ -10,7 +10,7 @@ from sqlalchemy import select
 from worker.blobs import BlobStore
 
 from .config import Settings
-from .db import Asset, Precomputation, Scene, Session, StrokeRow, make_sessionmaker
+from .db import Asset, Capture, Precomputation, Scene, Session, StrokeRow, make_sessionmaker
 from .workers import LocalWorkerPool, WorkerPool
 
 log = logging.getLogger("glint")
@@ -43,6 +43,9 @@ class AppState:
             for p in s.scalars(select(Precomputation).where(Precomputation.status.in_(("queued", "running")))):
                 p.status = "failed"
                 p.message = "interrupted by a server restart; start the precomputation again (finished parts are kept)"
+            for c in s.scalars(select(Capture).where(Capture.status.in_(("queued", "running")))):
+                c.status = "failed"
+                c.message = "interrupted by a server restart; upload the capture again"
 
     # -- payloads -------------------------------------------------------------------------------
     def scene_payload(self, s, scene_id: str, need_parts: bool = True) -> dict:
@@ -63,8 +66,9 @@ class AppState:
         parts = None
         if pre is not None:
             parts = pre.parts or ({"legacy-cuts": pre.cuts_sha256} if pre.cuts_sha256 else None)
+        # a renderer's options are the scene file's field of its name (e.g. "gi", "paint")
         return {"scene_id": sc.id, "spec": sc.spec, "files": files, "renderer": kind,
-                "options": (sc.spec.get("precompute") or {}), "parts": parts}
+                "options": dict(sc.spec.get(kind) or {}), "parts": parts}
 
     @staticmethod
     def latest_precomputation(s, scene_id: str, done: bool = False, kind: str | None = None) -> Precomputation | None:

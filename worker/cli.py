@@ -53,16 +53,23 @@ def open_renderer(scene, store_dir: str | None, quiet: bool, options: dict | Non
         bar.close()
 
 
+def scene_options(scene, tau: float) -> dict:
+    """The precomputation options of a scene's renderer: τ for cuts, else the scene file's field
+    of the renderer's name (e.g. "gi")."""
+    kind = scene.spec.renderer
+    return {"tau": tau} if kind == "cuts" else dict(getattr(scene.spec, kind, None) or {})
+
+
 def _renderer(a, quiet=False):
     scene = _load(a.scene)
-    r, stats = open_renderer(scene, getattr(a, "cuts", None), quiet, {"tau": a.tau})
+    r, stats = open_renderer(scene, getattr(a, "cuts", None), quiet, scene_options(scene, a.tau))
     return r, stats
 
 
 def cmd_precompute(a) -> int:
     t0 = time.perf_counter()
     scene = _load(a.scene)
-    _, ens = open_renderer(scene, a.out, a.json, {"tau": a.tau})
+    _, ens = open_renderer(scene, a.out, a.json, scene_options(scene, a.tau))
     key, part = next(iter(ens["parts"].items()))
     stats = {"seconds": ens["seconds"], "cached": ens["computed"] == 0, "key": key,
              **{k: v for k, v in part.items() if k not in ("label", "cached")}}

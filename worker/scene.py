@@ -91,8 +91,10 @@ class SceneFile(_Strict):
     environment: Environment
     camera: Camera
     objects: list[SceneObject] = Field(min_length=1)
-    # the GI renderer's settings (validated by worker/renderers/gi/options.py)
+    # a renderer's settings, under its name: the GI renderer's (validated by
+    # worker/renderers/gi/options.py), the paint renderer's (e.g. {"visibility": true})
     gi: dict[str, Any] | None = None
+    paint: dict[str, Any] | None = None
 
     @field_validator("renderer")
     @classmethod

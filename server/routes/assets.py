@@ -34,6 +34,37 @@ def _out(a: Asset) -> AssetOut:
                     created=a.created)
 
 
+async def receive_upload(request: Request, st, limit: int, what: str):
+    """Stream a request body to a temporary file in the blob store, hashing it, under a size cap
+    (the declared length is checked first, the bytes as they come). Returns (temporary file, its
+    SHA-256, size); 413 over the cap, 400 for a body cut off, 422 for an empty one."""
+    declared = request.headers.get("content-length")
+    if declared and declared.isdigit() and int(declared) > limit:
+        raise HTTPException(413, f"upload of {int(declared)} bytes is over the {limit}-byte limit for {what}")
+    h = hashlib.sha256()
+    size = 0
+    tmp = st.blobs.temp_file()
+    try:
+        with tmp:
+            try:
+                async for chunk in request.stream():
+                    size += len(chunk)
+                    if size > limit:
+                        raise HTTPException(413, f"upload is over the {limit}-byte limit for {what}")
+                    h.update(chunk)
+                    tmp.write(chunk)
+            except ClientDisconnect:
+                raise HTTPException(400, "the upload was cut off before its end") from None
+        if declared and declared.isdigit() and int(declared) != size:
+            raise HTTPException(400, f"the upload is truncated: {size} of {declared} bytes arrived")
+        if size == 0:
+            raise HTTPException(422, "the upload is empty")
+    except BaseException:
+        Path(tmp.name).unlink(missing_ok=True)
+        raise
+    return tmp, h.hexdigest(), size
+
+
 BINARY_BODY = {"requestBody": {"required": True, "description": "the file itself, as bytes",
                                "content": {"application/octet-stream": {"schema": {"type": "string", "format": "binary"}}}}}
 
@@ -48,34 +79,15 @@ async def upload(kind: Literal["meshes", "envmaps", "images"], request: Request,
         raise HTTPException(415, f"{filename!r}: {kind} must be one of {', '.join(sorted(exts))}")
     limit = {"mesh": st.settings.max_mesh_bytes, "envmap": st.settings.max_envmap_bytes,
              "image": st.settings.max_image_bytes}[akind]
-    declared = request.headers.get("content-length")
-    if declared and declared.isdigit() and int(declared) > limit:
-        raise HTTPException(413, f"upload of {int(declared)} bytes is over the {limit}-byte limit for {kind}")
-    h = hashlib.sha256()
-    size = 0
-    tmp = st.blobs.temp_file()
+    tmp, sha, size = await receive_upload(request, st, limit, kind)
     try:
-        with tmp:
-            try:
-                async for chunk in request.stream():
-                    size += len(chunk)
-                    if size > limit:
-                        raise HTTPException(413, f"upload is over the {limit}-byte limit for {kind}")
-                    h.update(chunk)
-                    tmp.write(chunk)
-            except ClientDisconnect:
-                raise HTTPException(400, "the upload was cut off before its end") from None
-        if declared and declared.isdigit() and int(declared) != size:
-            raise HTTPException(400, f"the upload is truncated: {size} of {declared} bytes arrived")
-        if size == 0:
-            raise HTTPException(422, "the upload is empty")
         named = Path(tmp.name + ext)
         os.replace(tmp.name, named)
         cfg = st.settings
         limits = {"max_mesh_faces": cfg.max_mesh_faces, "max_envmap_pixels": cfg.max_envmap_pixels,
                   "max_image_pixels": 64_000_000}
         meta = await run_in_threadpool(inspect_in_child, named, akind, limits, cfg.inspect_seconds)
-        sha = st.blobs.put_file(named, h.hexdigest())
+        sha = st.blobs.put_file(named, sha)
     finally:
         for p in (Path(tmp.name), Path(tmp.name + ext)):
             p.unlink(missing_ok=True)

@@ -22,10 +22,10 @@ from fastapi.concurrency import run_in_threadpool
 from pydantic import ValidationError
 from sqlalchemy import select
 
-from worker.jobs.state import (ErrorEvent, HelloEvent, SavedEvent, SessionState, StateError, apply, client_msg,
-                               encode_frame, new_state, restore_state)
+from worker.jobs.state import (EnvPreset, ErrorEvent, HelloEvent, SavedEvent, SessionState, StateError, apply,
+                               client_msg, encode_frame, new_state, restore_state)
 
-from ..db import MaterialDesign, Scene, Session, SessionSave, StrokeRow, new_secret, now, token_hash
+from ..db import Asset, MaterialDesign, Scene, Session, SessionSave, StrokeRow, new_secret, now, token_hash
 from ..deps import DB, Client, State, check_host, check_origin, client_key
 from ..schemas import SessionCreate, SessionOut
 from ..state import Conflict, NotFound
@@ -129,6 +129,14 @@ def persist(st, sid: str, msg) -> tuple[dict | None, dict | None]:
     with _lock(sid), st.db() as s, s.begin():
         row = _row(s, sid)
         before = _load_state(s, row)
+        if msg.type == "environment" and msg.asset_id is not None:
+            # an uploaded map (e.g. a capture): the stored file goes into the state as a preset
+            a = s.get(Asset, msg.asset_id)
+            if a is None or a.kind != "envmap":
+                return ErrorEvent(seq=msg.seq, message=f"environment: {msg.asset_id!r} is not an uploaded "
+                                                       "environment map").model_dump(), None
+            msg = msg.model_copy(update={"asset_id": None, "preset": EnvPreset(
+                label=a.filename, sha256=a.sha256, filename=a.filename, rotation_deg=0.0)})
         try:
             state, eff = apply(before, msg)
         except StateError as e:
@@ -158,7 +166,7 @@ def on_worker_event(st, sid: str, ev: dict) -> dict | None:
     rejected stroke is never replayed, a save stores a material version (once per seq, even when
     a restarted worker runs it again). Returns the event for the client (None: nothing)."""
     t = ev.get("type")
-    if t == "fit" and "material" in ev:
+    if t in ("fit", "paint") and "material" in ev:
         with _lock(sid), st.db() as s, s.begin():
             row = _row(s, sid)
             state = dict(row.state)
@@ -166,6 +174,8 @@ def on_worker_event(st, sid: str, ev: dict) -> dict | None:
             mats = list(state["materials"])
             mats[names.index(ev["object"])] = ev["material"]
             state["materials"] = mats
+            if t == "paint" and ev["object"] == state.get("object"):
+                state["base_material"] = ev["material"]      # strokes now paint over the paint
             row.state = state
         return ev
     if t == "stroke" and ev.get("rejected") and ev.get("seq") is not None:
@@ -260,9 +270,9 @@ async def stream(ws: WebSocket, sid: str, token: str | None = Query(None)):
     q = st.pool.open_session(sid, payload)
     state, notes = restore_state(payload["state"], payload["scene"]["spec"])
     await ws.send_text(json.dumps(HelloEvent(
-        session=sid, state=state.model_dump(mode="json"), renderer=payload["scene"].get("renderer", "cuts"),
+        session=sid, state=state.model_dump(mode="json"), renderer=state.renderer,
         strokes=len([s for s in payload["strokes"] if not s["undone"]]),
-        controls=sorted(_controls(payload["scene"].get("renderer", "cuts"), state.readonly))).model_dump()))
+        renderers=state.renderers, controls=sorted(_controls(state.renderer, state.readonly))).model_dump()))
 
     async def pump():
         while True:
@@ -294,6 +304,11 @@ async def stream(ws: WebSocket, sid: str, token: str | None = Query(None)):
                 continue
             try:
                 msg = client_msg.validate_python(raw)
+                if getattr(msg, "preset", None) is not None:
+                    raise StateError("environment: send asset_id (an uploaded map) or index, not preset")
+            except StateError as e:
+                await ws.send_text(json.dumps(ErrorEvent(seq=msg.seq, message=str(e)).model_dump()))
+                continue
             except ValidationError as e:
                 err = e.errors()[0]
                 seq = raw.get("seq") if isinstance(raw, dict) else None
@@ -318,13 +333,10 @@ async def stream(ws: WebSocket, sid: str, token: str | None = Query(None)):
 
 
 def _controls(kind: str, readonly: bool) -> set[str]:
-    from worker.renderers import RENDERER_MODULES, get
+    from worker.renderers import controls
 
-    try:
-        controls = set(get(kind)[0].controls) if kind in RENDERER_MODULES else set()
-    except Exception:
-        controls = set()
-    return controls - {"materials"} if readonly else controls
+    c = set(controls(kind))
+    return c - {"materials"} if readonly else c
 
 
 def _ended(st, sid: str) -> None:

@@ -126,12 +126,14 @@ class DataCache:
 
         if not p.get("parts"):
             raise JobError("the scene has no finished precomputation; start one first", 409)
-        kind = kind or p.get("renderer") or "cuts"
+        own = p.get("renderer") or "cuts"
+        kind = kind or own
+        options = (p.get("options") or {}) if kind == own else {}
         cls, pre = get(kind)
         sc = self.scene(p)
-        if "legacy-cuts" in p["parts"]:
+        if "legacy-cuts" in p["parts"] and kind == "cuts":
             # release 0.3 stored the cut blob without a key: adopt it under its content key
-            (part,) = pre.parts(sc, p.get("options") or {})
+            (part,) = pre.parts(sc, options)
             if self.parts.sha(part.key) is None:
                 self.parts.adopt(part.key, p["parts"]["legacy-cuts"])
             p = {**p, "parts": {part.key: p["parts"]["legacy-cuts"]}}
@@ -139,7 +141,7 @@ class DataCache:
             key = (p["scene_id"], kind, tuple(sorted(p["parts"].items())))
             data = self._data.get(key)
             if data is None:
-                data = load(pre, sc, self.parts, p.get("options") or {})
+                data = load(pre, sc, self.parts, options)
                 self._data[key] = data
                 while len(self._data) > self.settings.scenes:
                     self._data.popitem(last=False)
@@ -248,11 +250,13 @@ def _precompute(cache: DataCache, p: dict, progress) -> dict:
     from worker.renderers import get
 
     kind = p["scene"].get("renderer") or "cuts"
-    _, pre = get(kind)
     sc = cache.scene(p["scene"])
     options = p["scene"].get("options") or {}
-    parts = pre.parts(sc, options)
-    total = max(1, sum(x.work for x in parts))
+    # the scene's renderer, and the cut renderer for every scene (a GI scene's way back to direct
+    # light and a free camera; the paint renderer's self-shadowing)
+    kinds = [kind] + (["cuts"] if kind != "cuts" else [])
+    pres = [get(k)[1] for k in kinds]
+    total = max(1, sum(x.work for pre in pres for x in pre.parts(sc, options if pre.kind == kind else {})))
     done = [0, -1.0]
 
     def tick(k):
@@ -264,15 +268,41 @@ def _precompute(cache: DataCache, p: dict, progress) -> dict:
 
     from worker.renderers import ensure
 
-    stats = ensure(pre, sc, cache.parts, options, tick, threads=cache.settings.threads or os.cpu_count() or 2)
-    manifest = {k: cache.parts.sha(k) for k in stats["parts"]}
-    flat = {}
-    for info in stats["parts"].values():
-        flat.update({k: v for k, v in info.items() if k not in ("label",)})
-    return {"kind": kind, "parts": manifest, "stats": {**flat, "seconds": stats["seconds"], "computed": stats["computed"]}}
+    manifest, flat, seconds, computed = {}, {}, 0.0, 0
+    for pre in pres:
+        stats = ensure(pre, sc, cache.parts, options if pre.kind == kind else {}, tick,
+                       threads=cache.settings.threads or os.cpu_count() or 2)
+        manifest.update({k: cache.parts.sha(k) for k in stats["parts"]})
+        for info in stats["parts"].values():
+            if pre.kind == kind:          # the scene renderer's figures are the job's headline
+                flat.update({k: v for k, v in info.items() if k not in ("label",)})
+        seconds += stats["seconds"]
+        computed += stats["computed"]
+    return {"kind": kind, "parts": manifest, "stats": {**flat, "seconds": seconds, "computed": computed,
+                                                       "renderers": kinds}}
+
+
+def _capture(cache: DataCache, p: dict, progress) -> dict:
+    """A lighting capture (worker/capture): the uploaded zip extracted in this worker's scratch
+    folder (paths checked, sizes capped), processed, and the map and its preview stored as blobs."""
+    import shutil
+    import tempfile
+
+    from worker.capture.job import extract_capture_zip, run_capture
+
+    work = Path(tempfile.mkdtemp(prefix="capture-", dir=cache.tmp))
+    try:
+        manifest = extract_capture_zip(cache.blobs.verified_path(p["zip_sha256"]), work, p.get("max_files", 64),
+                                       p.get("max_total_bytes", 2 * 1024 ** 3))
+        exr, png, stats = run_capture(manifest, progress, root=work)
+        return {"exr_sha256": cache.blobs.put(exr), "exr_bytes": len(exr), "preview_sha256": cache.blobs.put(png),
+                "stats": stats}
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
 
 
 JOBS = {"render": _render, "fit": _fit}
+PROGRESS_JOBS = {"precompute": _precompute, "capture": _capture}
 
 
 # -- sessions -----------------------------------------------------------------------------------------
@@ -310,8 +340,9 @@ class SessionThread(threading.Thread):
         rt = None
         try:
             p = self.payload
-            renderer = self.cache.renderer(p["scene"])
-            rt = SessionRuntime(renderer.scene, renderer, p, env_loader=self.cache.envmap)
+            renderer = self.cache.renderer(p["scene"], (p.get("state") or {}).get("renderer"))
+            rt = SessionRuntime(renderer.scene, renderer, p, env_loader=self.cache.envmap,
+                                renderer_for=lambda kind: self.cache.renderer(p["scene"], kind))
             ack = int(p.get("ack", -1))
             for e in rt.take_events():
                 self._event(e)
@@ -377,8 +408,9 @@ def worker_main(wid: int, requests, replies, settings: WorkerSettings) -> None:
             jid, p = item
             try:
                 kind = p["type"]
-                if kind == "precompute":
-                    res = _precompute(cache, p, lambda f, msg: outq.put(("progress", jid, {"progress": f, "message": msg})))
+                if kind in PROGRESS_JOBS:
+                    res = PROGRESS_JOBS[kind](cache, p, lambda f, msg: outq.put(
+                        ("progress", jid, {"progress": f, "message": msg})))
                 elif kind in JOBS:
                     res = JOBS[kind](cache, p)
                 else:

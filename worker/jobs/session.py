@@ -33,8 +33,8 @@ from ..fit.fitter import FitError, Fitter
 from ..models import SRBF
 from ..renderers.base import FrameRequest, Lighting
 from ..scene import Camera
-from .state import (ErrorEvent, FitEvent, NoteEvent, SaveRequest, StateError, StrokeEvent, apply, client_msg,
-                    restore_state)
+from .state import (ErrorEvent, FitEvent, NoteEvent, RendererEvent, SaveRequest, StateError, StrokeEvent, apply,
+                    client_msg, restore_state)
 
 CURVE_SAMPLES = 91
 # one background builder per worker process: views are prepared one at a time, at low priority
@@ -75,11 +75,13 @@ class SessionRuntime:
     "stroke", "camera", "rotation_deg", "intensity", "undone"}, …]} in painting order, rejected
     strokes left out (server/state.py session_payload); env_loader : EnvPreset -> (H, W, 3) map."""
 
-    def __init__(self, scene, renderer, stored: dict, env_loader=None):
+    def __init__(self, scene, renderer, stored: dict, env_loader=None, renderer_for=None):
         self.scene = scene
-        self.renderer = renderer
         self.env_loader = env_loader
+        self.renderer_for = renderer_for          # kind -> a renderer of this scene (another kind)
         self.state, notes = restore_state(stored.get("state") or {}, scene.spec)
+        self.renderers = {renderer.kind: renderer}
+        self.renderer = renderer
         self.events: list[dict] = [NoteEvent(message=n).model_dump() for n in notes]
         self.frame_no = 0
         self.fitter: Fitter | None = None
@@ -90,6 +92,8 @@ class SessionRuntime:
         self._vt = None           # per-vertex transfer of the edited object: (key, ids, T, E)
         self._pending: dict = {}  # prefetch futures by what they build
         self._env_key = None
+        if self.state.renderer != renderer.kind:
+            self._switch_renderer(self.state.renderer)
         self._apply_environment()
         # pay the basis's one-time costs (energy rows, solver import) at open, not on the first stroke
         if not self.state.readonly:
@@ -170,10 +174,36 @@ class SessionRuntime:
             n = len(self.fitter.history) if self.fitter is not None else 0
             return StrokeEvent(seq=seq, strokes=n, rejected=True, notes=[f"stroke rejected: {_msg(e)}"])
 
+    def _switch_renderer(self, kind: str) -> None:
+        if kind not in self.renderers:
+            if self.renderer_for is None:
+                raise FitError(f"this worker cannot switch to the {kind} renderer")
+            self.renderers[kind] = self.renderer_for(kind)
+        self.renderer = self.renderers[kind]
+        self.fitter = None                         # fit rows belong to a renderer
+        self._vt = None
+        self._pending.clear()
+        self._env_key = ("switched",)            # the new renderer gets the session's map
+
+    def _paint(self, name: str, seq) -> list[dict]:
+        """The lobes material for the stored readings of an object (worker/paint/session.py)."""
+        from ..paint.session import apply_paint
+
+        mat, ev = apply_paint({**self.state.paint[name], "object": name, "seq": seq})
+        i = self.state.objects.index(name)
+        self._set_material(i, mat)
+        if name == self.state.object:
+            self.state.base_material = mat
+            self.fitter = None
+        return [ev]
+
     def _apply_environment(self) -> None:
         i = self.state.environment_index
         key = None if i is None else (i, self.state.environments[i].sha256)
         if key == self._env_key:
+            return
+        if not self.state.allows("environment"):
+            self._env_key = key                   # a fixed-light renderer keeps its precomputed map
             return
         if i is not None:
             if self.env_loader is None:
@@ -218,6 +248,15 @@ class SessionRuntime:
         elif eff.kind == "save":
             ev += self.fit_if_needed()
             ev.append(self._save_request(eff.save))
+        elif eff.kind == "renderer":
+            from ..renderers import controls
+
+            self._switch_renderer(self.state.renderer)
+            self._apply_environment()
+            ev.append(RendererEvent(seq=msg.seq, kind=self.state.renderer,
+                                    controls=sorted(controls(self.state.renderer))).model_dump())
+        elif eff.kind == "paint":
+            ev += self._paint(eff.data["object"], msg.seq)
         if self.state.environment_index != before.environment_index:
             self._apply_environment()
         return ev
@@ -332,8 +371,12 @@ class SessionRuntime:
         """The current frame: (header (FrameHeader fields), JPEG bytes)."""
         t0 = time.perf_counter()
         st = self.state
-        req = FrameRequest(camera=st.camera, lighting=Lighting(st.rotation_deg, st.intensity),
-                           materials=st.materials, lod="drag" if self._drag else "full",
+        camera, lighting = st.camera, Lighting(st.rotation_deg, st.intensity)
+        if not st.allows("camera"):          # a fixed-view renderer draws its own camera and light
+            camera = self.scene.spec.camera
+            lighting = Lighting(self.scene.spec.environment.rotation_deg, st.intensity)
+        req = FrameRequest(camera=camera, lighting=lighting, materials=st.materials,
+                           lod="drag" if self._drag else "full",
                            vertex_radiance=None if self._drag else self._override())
         out = self.renderer.render(req)
         rgb = tonemap(out.radiance, st.exposure, st.tone)

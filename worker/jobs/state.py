@@ -85,6 +85,17 @@ class SessionState(BaseModel):
     environments: list[EnvPreset] = Field(default_factory=list)
     environment_index: int | None = None
     pending_saves: list[PendingSave] = Field(default_factory=list)
+    # the renderer drawing the session, and the ones it may switch between (a GI scene's path
+    # back to direct light): the scene's own, and the cut renderer
+    renderer: str = "cuts"
+    renderers: list[str] = Field(default_factory=lambda: ["cuts"])
+    # the paint designer's last readings per object (what the paint panel shows)
+    paint: dict[str, dict] = Field(default_factory=dict)
+
+    def allows(self, control: str) -> bool:
+        from ..renderers import controls
+
+        return control in controls(self.renderer)
 
     @property
     def object_index(self) -> int:
@@ -103,10 +114,12 @@ def new_state(spec, object_name: str | None = None, camera=None, **fields) -> Se
         raise StateError(f"object: no object {obj!r} (objects: {', '.join(names)})")
     mats = [o.get("material") or {"model": "lambert"} for o in spec["objects"]]
     env = spec["environment"]
+    kind = spec.get("renderer") or "cuts"
     return SessionState.model_validate({
         "objects": names, "object": obj, "camera": camera or spec["camera"],
         "rotation_deg": env.get("rotation_deg", 0.0), "intensity": env.get("intensity", 1.0),
-        "materials": mats, "base_material": mats[names.index(obj)], **fields})
+        "materials": mats, "base_material": mats[names.index(obj)], "renderer": kind,
+        "renderers": [kind] + (["cuts"] if kind != "cuts" else []), **fields})
 
 
 def restore_state(raw: dict, spec) -> tuple[SessionState, list[str]]:
@@ -211,6 +224,9 @@ class ViewMsg(ClientMsg):
     drag: bool = False
 
     def apply(self, st):
+        if not st.allows("camera"):
+            raise StateError(f"view: the {st.renderer} renderer draws from a fixed camera "
+                             "(switch to the cuts renderer to orbit)")
         upd = {k: getattr(self, k) for k in ("eye", "target", "up", "fov_y_deg") if getattr(self, k) is not None}
         try:
             st.camera = Camera.model_validate({**st.camera.model_dump(), **upd})
@@ -228,6 +244,9 @@ class LightMsg(ClientMsg):
     drag: bool = False
 
     def apply(self, st):
+        if self.rotation_deg is not None and not st.allows("light"):
+            raise StateError(f"light: the {st.renderer} renderer's lighting is fixed by its precomputation "
+                             "(switch to the cuts renderer to turn it)")
         if self.rotation_deg is not None:
             st.rotation_deg = float(self.rotation_deg)
         if self.intensity is not None:
@@ -355,17 +374,73 @@ class VariantMsg(ClientMsg):
 @message
 class EnvironmentMsg(ClientMsg):
     """Light the scene with environment preset ``index`` (viewer sessions: the published
-    presets)."""
+    presets), or, in an editing session, with an uploaded environment map ``asset_id`` (e.g. a
+    captured one). The server turns ``asset_id`` into ``preset`` (the stored file) before it
+    applies and forwards the message; a client cannot send ``preset`` itself."""
     readonly_ok: ClassVar[bool] = True
     type: Literal["environment"] = "environment"
-    index: int = Field(ge=0, le=1000)
+    index: int | None = Field(None, ge=0, le=1000)
+    asset_id: str | None = Field(None, max_length=32)
+    preset: EnvPreset | None = None
 
     def apply(self, st):
-        if self.index >= len(st.environments):
-            raise StateError(f"environment: no preset {self.index} (there are {len(st.environments)})")
-        st.environment_index = self.index
-        st.rotation_deg = st.environments[self.index].rotation_deg
+        if not st.allows("environment"):
+            raise StateError(f"environment: the {st.renderer} renderer's lighting is fixed by its precomputation")
+        if self.preset is not None:
+            if st.readonly:
+                raise StateError("environment: a viewer session shows the published presets only")
+            found = [i for i, e in enumerate(st.environments) if e.sha256 == self.preset.sha256]
+            if found:
+                i = found[0]
+            else:
+                st.environments = [*st.environments, self.preset]
+                i = len(st.environments) - 1
+        elif self.asset_id is not None:
+            raise StateError("environment: asset_id must be resolved by the server")
+        elif self.index is not None:
+            i = self.index
+        else:
+            raise StateError("environment: give index or asset_id")
+        if i >= len(st.environments):
+            raise StateError(f"environment: no preset {i} (there are {len(st.environments)})")
+        st.environment_index = i
+        st.rotation_deg = st.environments[i].rotation_deg
         return None
+
+
+@message
+class RendererMsg(ClientMsg):
+    """Draw the session with another of its renderers (a GI scene's path back to direct light
+    and the free camera, and forth)."""
+    readonly_ok: ClassVar[bool] = True
+    type: Literal["renderer"] = "renderer"
+    kind: str = Field(max_length=32)
+
+    def apply(self, st):
+        if self.kind not in st.renderers:
+            raise StateError(f"renderer: {self.kind!r} is not available here (available: {', '.join(st.renderers)})")
+        st.renderer = self.kind
+        return Effect("renderer")
+
+
+@message
+class PaintMsg(ClientMsg):
+    """The paint designer's readings (cacad §4): a 20° gloss value and reflectance factors at
+    aspecular angles (worker/paint/geometry.py). The worker fits a lobes material to them; the
+    fit comes back as a ``paint`` event, and the object's material follows it."""
+    type: Literal["paint"] = "paint"
+    object: str | None = None
+    gloss: float = Field(0.0, ge=0.0, le=1000.0)
+    aspecular: dict[str, tuple[float, float, float]] = Field(min_length=1, max_length=16)
+
+    def apply(self, st):
+        name = self.object or st.object
+        if name not in st.objects:
+            raise StateError(f"paint: no object {name!r} (objects: {', '.join(st.objects)})")
+        st.paint = {**st.paint, name: {"gloss": self.gloss, "aspecular": {k: list(v) for k, v in self.aspecular.items()}}}
+        if name == st.object:
+            st.epoch += 1          # like a new material: strokes painted before do not carry over
+        return Effect("paint", data={"object": name})
 
 
 def _validate_msg(v: Any) -> ClientMsg:
@@ -421,6 +496,7 @@ class HelloEvent(_Event):
     state: dict
     strokes: int = Field(description="active strokes")
     renderer: str = "cuts"
+    renderers: list[str] = Field(default_factory=list, description="renderers the session may switch between")
     controls: list[str] = Field(default_factory=list, description="what this session's renderer lets a client change")
 
 
@@ -483,6 +559,26 @@ class ErrorEvent(_Event):
     code: int | None = None
 
 
+class PaintEvent(_Event):
+    """The lobes material fitted to a ``paint`` message's readings (worker/paint/session.py)."""
+    type: Literal["paint"] = "paint"
+    object: str
+    material: dict
+    measured: dict = Field(description="the fitted material's readings: what the frame shows")
+    requested: dict
+    error_l1: float
+    error_max: float
+    flop_index: float | None = None
+    ms_fit: float
+
+
+class RendererEvent(_Event):
+    """The session now draws with this renderer; ``controls`` is what a client may change."""
+    type: Literal["renderer"] = "renderer"
+    kind: str
+    controls: list[str]
+
+
 class SaveRequest(_Event):
     """Worker → server only: the material to store for a pending save."""
     type: Literal["save"] = "save"
@@ -492,7 +588,8 @@ class SaveRequest(_Event):
     material: dict
 
 
-ServerEvent = Annotated[Union[HelloEvent, StrokeEvent, FitEvent, CurveEvent, SavedEvent, NoteEvent, ErrorEvent],
+ServerEvent = Annotated[Union[HelloEvent, StrokeEvent, FitEvent, CurveEvent, SavedEvent, NoteEvent, ErrorEvent,
+                              PaintEvent, RendererEvent],
                         Field(discriminator="type")]
 server_event = TypeAdapter(ServerEvent)
 

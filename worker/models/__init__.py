@@ -8,3 +8,4 @@ from .blinn_phong import BlinnPhong  # noqa: F401
 from .curve import Curve  # noqa: F401
 from .lobes import Lobes  # noqa: F401
 from .srbf import SRBF  # noqa: F401
+from .ashikhmin_shirley import AshikhminShirley  # noqa: F401

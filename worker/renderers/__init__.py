@@ -18,6 +18,14 @@ RENDERER_MODULES: dict[str, str] = {
     "gi": "worker.renderers.gi",
     "paint": "worker.paint.renderer",
 }
+# what a session on each renderer may change, known without importing it (the API process
+# checks messages against it and stays free of the renderers' numerical imports); a renderer's
+# class attribute ``controls`` must say the same (checked when it registers)
+RENDERER_CONTROLS: dict[str, frozenset[str]] = {
+    "cuts": frozenset({"camera", "light", "materials", "environment"}),
+    "gi": frozenset({"materials"}),
+    "paint": frozenset({"camera", "light", "materials", "environment"}),
+}
 
 _registry: dict[str, tuple[type[Renderer], Precomputation]] = {}
 
@@ -25,7 +33,16 @@ _registry: dict[str, tuple[type[Renderer], Precomputation]] = {}
 def register(renderer: type[Renderer], precomputation: Precomputation) -> None:
     if renderer.kind != precomputation.kind:
         raise ValueError(f"renderer {renderer.kind!r} registered with precomputation {precomputation.kind!r}")
+    declared = RENDERER_CONTROLS.setdefault(renderer.kind, frozenset(renderer.controls))
+    if frozenset(renderer.controls) != declared:
+        raise ValueError(f"renderer {renderer.kind!r}: controls {sorted(renderer.controls)} differ from "
+                         f"RENDERER_CONTROLS {sorted(declared)}")
     _registry[renderer.kind] = (renderer, precomputation)
+
+
+def controls(kind: str) -> frozenset[str]:
+    """What a session on this renderer may change (camera, light, materials, environment, move)."""
+    return RENDERER_CONTROLS.get(kind, frozenset())
 
 
 def kinds() -> list[str]:

@@ -13,23 +13,10 @@ model (Ashikhmin and Shirley's coupled diffuse term is not used).
 """
 from __future__ import annotations
 
-from typing import Literal
-
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
 
-Color = tuple[float, float, float]
-
-
-class AshikhminShirley(BaseModel):
-    """albedo/π + √((n_u+1)(n_v+1))/(8π) · cos θh^(n_u cos²φh + n_v sin²φh)
-    / ((h·ωi) max(cos θi, cos θo)) · F(ωi·h), F Schlick with F0 = specular (per channel)."""
-    model_config = ConfigDict(extra="forbid")
-    model: Literal["ashikhmin-shirley"] = "ashikhmin-shirley"
-    exponent_u: float = Field(225.0, gt=0.0, le=1e5)
-    exponent_v: float = Field(225.0, gt=0.0, le=1e5)
-    specular: Color = (0.9, 0.9, 0.9)
-    albedo: Color = (0.0, 0.0, 0.0)
+# the model itself is one of Glint's BRDF models (worker/models/ashikhmin_shirley.py)
+from ...models.ashikhmin_shirley import AshikhminShirley  # noqa: F401
 
 
 def _half(wi, wo):
