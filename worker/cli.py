@@ -422,7 +422,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 # one line per capability (its module's add_commands registers its subcommands)
-COMMAND_MODULES: list[str] = []
+COMMAND_MODULES: list[str] = [
+    "worker.renderers.cuts.fields_cli",      # glint field trace | bench (cut fields of movable objects)
+]
 
 
 def main(argv=None) -> int:
