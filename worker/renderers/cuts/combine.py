@@ -197,7 +197,7 @@ class RotatedSamples:
         if len(need) == 0:
             return 0
         f, H = self.field, self.field.height
-        if use_native and _native.available():
+        if use_native and _native.available() and H >= 6:      # the kernel's bitset has 64-leaf words
             def run(cap, b, pos, counts, used):
                 _native.lib.glf_rotate(len(need), need, f.offsets, f.hpacked, f.bits, H, self.hmin,
                                        int(self.lmap.identity), self.lmap.inv_off, self.lmap.inv_idx,

@@ -4,58 +4,71 @@ V(x, ω) = V_s(x, ω) Π_i V_i(x, ω): a vertex's visibility is its self-visibil
 or a movable object's own geometry) times the occlusion by every other object i, read from i's
 visibility cut field (VCF) at the vertex's position in i's local frame.
 
-What is precomputed (``parts``; all content-keyed by meshes alone, so moving never invalidates):
-  * per object, its field (field.py): binary occlusion cuts at sample points on K concentric
-    spheres × (6n² + 2) cube-map points (grid.py), over the 2^15 tree directions, clustered only
-    where children are equal (lossless), height-encoded (4-bit heights + 1-bit values, deflated).
-    Every object gets one as soon as the scene has a movable object: a moved object's own
-    vertices are shaded against every other object, so the floor, walls and static furniture
-    need fields too (a moved chair must stay dark on the side facing the floor).
+What is precomputed (``field_parts``; content-keyed by meshes alone, so moving never
+invalidates anything):
+  * per object, its field (field.py): binary occlusion cuts at the sample points of K
+    concentric spheres × (6n² + 2) cube-map points (grid.py), over the 2^15 tree directions,
+    clustered only where children are equal (lossless), height-encoded (4-bit heights + 1-bit
+    values, deflated), plus each sample's clearance (nearest hit).
+    Static objects need fields too, as soon as the scene has a movable object: a moved
+    object's own vertices are shaded against every other object (the floor, walls, furniture),
+    in its own frame, and nothing but a field says what the floor hides from a chair leg
+    wherever it goes. (Measured: without the floor's and the table's fields, oakTable's own
+    vertices are 11% too bright on average, 14% near the floor; with them 0.4%.)
   * per movable object, the self-visibility cuts of its vertices with the object alone, in its
     local frame (``precompute_cuts`` on the local mesh).
-  * (the renderer's) static cuts: static vertices against static geometry only.
+  * the renderer's static cuts: static vertices against static geometry only (``static_cuts``).
 
-Grid (GridSpec defaults K = 24 shells, n = 24, radii 0.25 r … 8 r, geometric). Measured against
-ray tracing at random points around oakChair and oakTable (BENCHMARKS.md, "Cut fields"):
-the uniform-sky irradiance error of the interpolated occlusion is ≤ 0.3% (p95) of the unoccluded
-irradiance at every density we tried (8² … 32² per face), because the interpolation blurs
-shadows without moving their mass; the shadow-shape error (L1 over the hemisphere) falls slowly
-with density, about 35% lower at 32 × 32² than at 16 × 16². 24 × 24² keeps 80% of that gain for
-42% of the paper's samples (32 × 32²) and of its tracing time (≈ 1-2 min per object).
-Geometric radii keep each cell's size proportional to its distance, as the occluded set changes
-on that scale. The innermost shell (0.25 r) is under tables and behind chair backs; points
-inside it read it. Beyond 8 r, the object is culled: a sphere of radius r seen from 8 r covers
-at most (1/8)² = 1.6% of the cosine-weighted hemisphere, and the object inside it far less (0.2%
-measured at 10 r); only a sun shadow longer than 8 r (sun below ~8° for a floor-standing object)
-is cut off.
+Grid (GridSpec defaults K = 24 shells, n = 24, radii 0.25 r … 8 r, geometric): measured against
+ray tracing at random points 0.5-6 r around oakChair and oakTable (BENCHMARKS.md "Cut fields"),
+the uniform-sky irradiance error of the interpolated occlusion stays below 0.3% (p95) of the
+unoccluded irradiance from 16 × 16² to 32 × 32² samples, because interpolation blurs shadows
+without moving their mass; the shadow-shape error (L1 over the cosine-weighted hemisphere)
+falls slowly with density: around oakChair 0.057, 0.044, 0.037 at 16 × 16², 24 × 24², 32 × 32²
+(the occluded part is 0.11). 24 × 24² keeps most of the paper's (32 × 32²) accuracy for 42% of
+its samples and tracing time. Geometric radii keep each cell's size proportional to its distance, as the
+occluded set changes on that scale. The innermost shell (0.25 r) reaches under tables and chair
+seats; points inside it read it. Beyond 8 r the object is culled: a sphere of radius r seen
+from 8 r covers at most 1/64 of the cosine-weighted hemisphere, and the object in it less: 0.3%
+(oakChair) and 0.7% (oakTable) on average for a receiver facing it, 1.3% at most. What is lost
+is a faint darkening, and a sun shadow longer than 8 r (a sun below ~7° over an object standing
+on the floor); it ends at 8 r rather than fading.
 
-Rendering (combine.py, rotate.py, C kernels in worker/native/src/fields.c):
-  1. ``glf_lookup``: each receiver vertex in each occluder's local frame → the 8 samples and
-     trilinear weights (log-radius between shells, bilinear within a cube face), culled when
-     the bounding sphere is under the vertex's horizon (§V.B) or the vertex is beyond 8 r.
-  2. rotation (``glf_rotate``): the leaf tree is fixed in the receiver's frame (world for static
-     vertices, the object's local frame for a moved object's own vertices). A sample cut is
-     re-expressed over the receiver's leaves by the nearest-leaf map π_Q (receiver leaf j reads
-     the source leaf nearest to Q^T d_j), touching only its blocked leaves, and rebuilt with
-     nodes of at least 2^h_min = 8 leaves (h_min = 3): uniform nodes stay whole, mixed ones keep
-     their free fraction. Rotated samples are cached per (field, rotation), so translating an
-     object re-uses them; a rotation re-rotates the samples the frame touches.
-  3. ``glf_combine``: the counter-based walk of §V.A.3 over the vertex's cut and the 8 × (number
-     of occluders) sample cuts: v = v_s · Π_i Σ_k w_ik v_ik on the common refinement, with dark
-     base nodes (below the horizon, self-occluded) kept whole.
-  The output is an ordinary CutSet over the receiver frame's leaves: static receivers are shaded
-  with the world's node lighting, a moved object's vertices with the lighting rotated into its
-  frame (``frame_lighting``; a yaw is a column shift of the map, exact).
+Rendering (combine.py, rotate.py; C kernels in worker/native/src/fields.c):
+  1. ``glf_lookup``: each receiver vertex in each occluder's local frame → its cell and the 8
+     corner weights (linear in log ρ between shells, bilinear within a cube face), or culled
+     when the bounding sphere lies below the vertex's horizon (§V.B) or the vertex is beyond
+     8 r. A corner farther from the vertex than its clearance may lie inside the object or
+     across a thin part of it (a table top, the floor); those segments are traced and blocked
+     corners dropped (``validate``; near the table, this halves the mean error and cuts its
+     p95 five-fold).
+  2. rotation (``glf_rotate``): the leaf tree is fixed in the receiver's frame — the world for
+     static vertices, the object's local frame for a moved object's own vertices, lit by the
+     environment turned into that frame (``frame_lighting``; a yaw is a column shift of the map,
+     exact). A sample's binary cut is re-expressed over the receiver's leaves through the
+     nearest-leaf map π_Q (receiver leaf j reads the source leaf nearest to Q^T d_j), touching
+     only its blocked leaves, and rebuilt with nodes of at least 2^h_min = 8 leaves: uniform
+     nodes stay whole, mixed ones keep their free fraction, only non-free nodes are kept.
+     ``glf_cells`` then merges a cell's 8 corners once for all the vertices in it. Samples and
+     cells are cached per (field, rotation): translating an object re-uses them.
+  3. ``glf_combine``: the counter walk of §V.A.3 over the vertex's cut and its cells, with the
+     all-free stretches skipped: v = v_s · Π_i Σ_c w_ic v_ic / Σ_c w_ic, base nodes split only
+     where a stretch starts or ends inside them, dark base nodes (below the horizon,
+     self-occluded) kept whole. The output is an ordinary CutSet over the receiver frame's
+     leaves, shaded by glk_shade_points.
+  h_min = 3: the interpolation, not the coarser field nodes, dominates the error (shadow-shape
+  error +0.002-0.003 of the hemisphere at h_min = 3), and the field cuts get 2-3× shorter.
 
-Why this rotation scheme (measured, BENCHMARKS.md "Cut fields"):
-  * rotating each vertex's combined cut (or its self cut) at leaf level costs 2^15 gathers and a
-    re-clustering per vertex per frame (~60 µs): 0.6 s at 10K vertices;
-  * lighting in the occluder's frame does not help a static receiver, whose self cut lives in
-    the world frame and would need the same leaf-level rotation;
-  * rotating the (binary, lossless) field samples costs only their blocked leaves, once per
-    sample and rotation, and a frame touches about one new sample per receiver vertex; the
-    per-vertex work is then the §V.A.3 walk, which h_min = 3 shortens 2-3× (interpolation, not
-    h_min, dominates the error: +0.3 points of shadow-shape error at h_min = 3).
+Rotation, the options measured (BENCHMARKS.md "Cut fields", per frame at 10K receivers):
+  * re-expressing each vertex's (or its combined) cut over rotated leaves: a 2^15-leaf gather
+    and a re-clustering per vertex, ≥ 0.4 ms of CPU each: seconds per frame. Rejected.
+  * expressing the lighting and the other cuts in the occluder's frame: exact and free for a
+    moved object's own vertices (chosen there), but a static receiver's cut lives in the world
+    frame and would need the leaf-level rotation above. Rejected for static receivers.
+  * rotating the binary field samples (chosen): a sample's blocked leaves once per rotation and
+    sample, then cells once per rotation and cell; a frame touches about one new sample per two
+    receivers while rotating and almost none while translating. The per-vertex work is then the
+    walk above, a few µs.
 """
 from __future__ import annotations
 
