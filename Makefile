@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install build serve test bench clean
+.PHONY: install build browser serve test bench clean
 
 $(STAMP): pyproject.toml setup.py $(wildcard worker/native/src/*.c worker/native/src/*.h)
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -23,7 +23,11 @@ build: install
 serve: install
 	$(VENV)/bin/glint serve $(SERVE_ARGS)
 
-test: install
+# Debian's chromium for the browser tests (installed when missing, as on a fresh machine)
+browser:
+	./scripts/ensure-chromium
+
+test: install browser
 	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -ra
 
 bench: install

@@ -1,14 +1,20 @@
 """The FastAPI application: ``create_app(settings)`` builds it (nothing happens at import).
 
-On start it opens the database and blob store, starts the worker pool and, with ``demo`` on,
-makes sure the demo scene exists and is precomputed (progress in the log). Errors are JSON
-``{"detail": …}`` with a 4xx status for bad input; an unexpected error is a 500 with a short
-message (the trace goes to the log, never to the client).
+On start it upgrades the database (migrations), opens the blob store, starts the worker pool
+and, with ``demo`` on, makes sure the demo scene exists and is precomputed (progress at
+``/v1/status`` for the studio, and in the log). Errors are JSON ``{"detail": …}`` with a 4xx
+status for bad input; an unexpected error is a 500 with a short message (the trace goes to the
+log, never to the client).
+
+Every request must name this server in ``Host`` (DNS rebinding), and requests that change state
+from a browser must come from one of its origins; secrets in URLs never reach the access log.
 """
 from __future__ import annotations
 
 import asyncio
+import datetime as dt
 import logging
+import re
 from contextlib import asynccontextmanager
 from pathlib import Path
 
@@ -18,11 +24,32 @@ from fastapi.responses import HTMLResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 
 from .config import Settings
+from .deps import check_host, check_origin
 from .routes import assets, materials, publications, renders, scenes, sessions
 from .state import AppState
 
 log = logging.getLogger("glint")
-VERSION = "0.3.0"
+VERSION = "0.4.0"
+SAFE_METHODS = {"GET", "HEAD", "OPTIONS"}
+
+
+class RedactSecrets(logging.Filter):
+    """Access-log lines never carry a token (``?token=…`` on a stream URL, for old clients)."""
+    _pat = re.compile(r"(token=)[^&\s\"']+", re.I)
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.args:
+            record.args = tuple(self._pat.sub(r"\1[redacted]", a) if isinstance(a, str) else a for a in record.args)
+        if isinstance(record.msg, str):
+            record.msg = self._pat.sub(r"\1[redacted]", record.msg)
+        return True
+
+
+def install_log_redaction() -> None:
+    for name in ("uvicorn.access", "uvicorn.error", "glint"):
+        lg = logging.getLogger(name)
+        if not any(isinstance(f, RedactSecrets) for f in lg.filters):
+            lg.addFilter(RedactSecrets())
 
 
 def _validation_message(exc: RequestValidationError) -> str:
@@ -35,6 +62,7 @@ def _validation_message(exc: RequestValidationError) -> str:
 
 def create_app(settings: Settings | None = None, pool=None) -> FastAPI:
     settings = settings or Settings.from_env()
+    install_log_redaction()
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -45,17 +73,15 @@ def create_app(settings: Settings | None = None, pool=None) -> FastAPI:
             if settings.allow_anonymous_loopback else "every client needs an API token (glint token create)"
         log.info("Glint %s: data in %s, database %s, %d worker(s); %s", VERSION, settings.data_dir,
                  settings.db_url.split("://")[0], settings.workers, who)
-        demo_task = None
+        tasks = [asyncio.create_task(_janitor(st))]
         if settings.demo:
             from .demo import ensure_demo
 
-            demo_task = asyncio.create_task(ensure_demo(st))
+            tasks.append(asyncio.create_task(ensure_demo(st)))
         try:
             yield
         finally:
-            if demo_task is not None:
-                demo_task.cancel()
-            for t in list(st.precompute_tasks.values()):
+            for t in tasks + list(st.precompute_tasks.values()):
                 t.cancel()
             st.pool.stop()
 
@@ -63,6 +89,16 @@ def create_app(settings: Settings | None = None, pool=None) -> FastAPI:
                   description="Design materials (BRDFs) under real-world lighting: assets, scenes, "
                               "precomputed visibility cuts, renders, paint-to-BRDF fits, versioned "
                               "materials and interactive sessions streamed over WebSockets.")
+
+    @app.middleware("http")
+    async def _guard(request: Request, call_next):
+        if not check_host(settings, request.headers):
+            return JSONResponse({"detail": "unknown Host: this server answers to "
+                                           f"{', '.join(sorted(settings.allowed_hosts))} (GLINT_ALLOWED_HOSTS)"},
+                                status_code=421)
+        if request.method not in SAFE_METHODS and not check_origin(settings, request.headers):
+            return JSONResponse({"detail": "cross-origin request refused (GLINT_ALLOWED_ORIGINS)"}, status_code=403)
+        return await call_next(request)
 
     @app.exception_handler(RequestValidationError)
     async def _bad_request(request: Request, exc: RequestValidationError):
@@ -76,9 +112,24 @@ def create_app(settings: Settings | None = None, pool=None) -> FastAPI:
     @app.get("/healthz", tags=["health"])
     async def healthz(request: Request):
         st = request.app.state.glint
-        alive = [w.proc.is_alive() for w in getattr(st.pool, "workers", [])]
-        return {"status": "ok" if all(alive) else "degraded", "version": VERSION, "workers": len(alive),
-                "workers_alive": sum(alive), "worker_restarts": getattr(st.pool, "restarts", 0)}
+        h = st.pool.health()
+        ok = h.get("workers_alive", 0) == h.get("workers", 0)
+        return {"status": "ok" if ok else "degraded", "version": VERSION, **h, "streams": len(st.streams)}
+
+    @app.get("/v1/status", tags=["health"])
+    async def status(request: Request):
+        """What the studio shows before a scene is ready: the demo scene's preparation
+        ({"state": "off" | "fetching" | "precomputing" | "ready" | "failed", "scene_id",
+        "progress", "message"})."""
+        st = request.app.state.glint
+        return {"version": VERSION, "demo": st.demo}
+
+    @app.get("/v1/models", tags=["materials"])
+    async def list_models():
+        """Every BRDF model the server knows: its controls, defaults and JSON schema."""
+        from worker.models import describe
+
+        return describe()
 
     for r in (assets, scenes, renders, materials, publications, sessions):
         app.include_router(r.router)
@@ -101,3 +152,17 @@ def create_app(settings: Settings | None = None, pool=None) -> FastAPI:
     async def viewer(pub_id: str):
         return page("viewer.html")
     return app
+
+
+async def _janitor(st, every: float = 60.0) -> None:
+    """Close editing sessions left without a stream for a day (their rows say so)."""
+    from fastapi.concurrency import run_in_threadpool
+
+    while True:
+        try:
+            n = await run_in_threadpool(sessions.expire_idle, st, dt.timedelta(days=1))
+            if n:
+                log.info("closed %d idle session(s)", n)
+        except Exception as e:
+            log.warning("session janitor: %s", e)
+        await asyncio.sleep(every)

@@ -8,7 +8,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from worker.fit.brush import Stroke
 from worker.fit.files import ViewSpec
-from worker.scene import Camera, Color, Material
+from worker.scene import Camera, Color, Material, SceneFile
 
 
 class Strict(BaseModel):
@@ -28,6 +28,7 @@ class AssetOut(BaseModel):
 class PrecomputationOut(BaseModel):
     id: str
     scene_id: str
+    kind: str = "cuts"
     status: Literal["queued", "running", "done", "failed"]
     progress: float
     message: str
@@ -39,7 +40,7 @@ class PrecomputationOut(BaseModel):
 class SceneOut(BaseModel):
     id: str
     name: str
-    spec: dict
+    spec: SceneFile
     created: dt.datetime
     precomputation: PrecomputationOut | None = None
 
@@ -123,3 +124,4 @@ class SessionOut(BaseModel):
     state: dict[str, Any]
     strokes: list[dict] = Field(default_factory=list)
     worker_pid: int | None = None
+    closed: bool = False

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import httpx
 import pytest
+from helpers import GlintServer, free_port, open_renderer  # noqa: F401
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
@@ -41,51 +42,25 @@ def artifacts() -> Path:
 
 
 @pytest.fixture(scope="session")
-def bunny(shared_assets, cache_dir):
-    """(LoadedScene, CutSet) of tests/scenes/bunny.json, cuts cached."""
-    from worker.engine import load_or_precompute
+def bunny_renderer(shared_assets, cache_dir):
+    """The cut renderer of tests/scenes/bunny.json (cuts cached)."""
     from worker.scene import load_scene
 
-    scene = load_scene(ROOT / "tests" / "scenes" / "bunny.json")
-    cuts, _, _ = load_or_precompute(scene, cache_dir)
-    return scene, cuts
+    return open_renderer(load_scene(ROOT / "tests" / "scenes" / "bunny.json"))
 
 
+@pytest.fixture(scope="session")
+def bunny(bunny_renderer):
+    """(LoadedScene, CutSet) of tests/scenes/bunny.json, cuts cached."""
+    return bunny_renderer.scene, bunny_renderer.cuts
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture(scope="session")
 def server(tmp_path_factory):
-    data = tmp_path_factory.mktemp("glint-data")
-    port = free_port()
-    env = {**os.environ, "GLINT_MAX_MESH_BYTES": str(8 * 1024 * 1024), "PYTHONUNBUFFERED": "1"}
-    log = open(data / "server.log", "w")
-    proc = subprocess.Popen([sys.executable, "-m", "worker.cli", "serve", "--port", str(port), "--data-dir", str(data),
-                             "--workers", "2", "--no-demo"], cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
-    base = f"http://127.0.0.1:{port}"
-    for _ in range(300):
-        try:
-            if httpx.get(base + "/healthz", timeout=1).status_code == 200:
-                break
-        except httpx.HTTPError:
-            pass
-        if proc.poll() is not None:
-            raise RuntimeError("server exited: " + (data / "server.log").read_text()[-3000:])
-        time.sleep(0.2)
-    else:
-        proc.kill()
-        raise RuntimeError("server did not start: " + (data / "server.log").read_text()[-3000:])
-    yield {"base": base, "port": port, "data": data, "proc": proc}
-    proc.terminate()
-    try:
-        proc.wait(timeout=15)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-    log.close()
+    srv = GlintServer(tmp_path_factory.mktemp("glint-data"))
+    yield srv.as_dict()
+    srv.stop()
 
 
 @pytest.fixture(scope="session")

@@ -194,7 +194,8 @@ def test_viewer_on_a_phone_and_read_only(server, bunny_scene, client, browser, a
     from websockets.sync.client import connect      # (Playwright's sync API owns this thread's event loop)
 
     ses = client.post(f"/v1/publications/{pid}/sessions").json()
-    with connect(f"ws://127.0.0.1:{server['port']}{ses['stream']}?token={ses['token']}", max_size=None) as ws:
+    with connect(f"ws://127.0.0.1:{server['port']}{ses['stream']}", max_size=None) as ws:
+        ws.send(json.dumps({"type": "auth", "token": ses["token"]}))
         ws.recv(timeout=30)
         for msg in ({"seq": 1, "type": "stroke", "stroke": {"points": [[80, 60]]}},
                     {"seq": 2, "type": "material", "material": {"model": "lambert"}},
@@ -208,3 +209,33 @@ def test_viewer_on_a_phone_and_read_only(server, bunny_scene, client, browser, a
                     break
     # the published design is unchanged
     assert client.get(f"/v1/materials/{m['id']}").json()["version"] == 1
+
+
+def test_studio_follows_the_demo_precomputation(browser, tmp_path, artifacts):
+    """Issue 9: someone who opens the studio while the demo scene still precomputes sees its
+    progress, and the demo opens by itself when it is ready (no reload). The demo here is the
+    bunny (GLINT_DEMO_SCENE), precomputed by a fresh server."""
+    from helpers import ROOT, GlintServer
+
+    srv = GlintServer(tmp_path / "data", workers=1, demo=True,
+                      env={"GLINT_DEMO_SCENE": str(ROOT / "tests" / "scenes" / "bunny.json")})
+    try:
+        page = browser.new_page(viewport={"width": 1280, "height": 860})
+        errors = []
+        page.on("pageerror", lambda e: errors.append(str(e)))
+        page.goto(srv.base + "/")
+        # the studio shows the preparation while it runs (it takes seconds: the bunny's 2.8K vertices)
+        page.wait_for_function("() => /demo/.test(document.getElementById('status').textContent)"
+                               " && !document.getElementById('progress').classList.contains('hidden')", timeout=60_000)
+        seen = page.locator("#status").inner_text()
+        page.screenshot(path=str(artifacts / "web-0-demo-progress.png"))
+        assert "demo" in seen and "opens by itself" in seen, seen
+        # then the scene opens without a reload and frames arrive
+        wait_new_frame(page, 0, timeout=240_000)
+        settle(page)
+        assert grid(page).std() > 5, "the demo frame is blank"
+        assert page.locator("#progress").evaluate("e => e.classList.contains('hidden')")
+        assert not errors, errors
+        page.close()
+    finally:
+        srv.stop()

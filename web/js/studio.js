@@ -90,12 +90,26 @@ async function openScene(id) {
   view.stream = stream;
 }
 
+// the fit's figures, so a designer sees why a stroke is only partly achieved: the share of the
+// requested change the fit reached, the change that spilled onto unpainted pixels, and each
+// channel's specular albedo against that channel's bound
+export function fitSummary(s) {
+  if (!s.strokes) return "no strokes";
+  const parts = [`fit: ${s.strokes} stroke(s), ${s.painted} painted px, solve ${s.ms_solve?.toFixed(1)} ms`];
+  if (s.achieved != null) parts.push(`achieved ${Math.round(100 * s.achieved)}% of the change`);
+  if (s.spill != null) parts.push(`spill ${Math.round(100 * s.spill)}% onto unpainted pixels`);
+  if (!s.constrained) parts.push("unconstrained");
+  else if (s.energy_per_channel && s.energy_bound_per_channel) {
+    parts.push("specular albedo R/G/B " + s.energy_per_channel.map((e, c) =>
+      `${e.toFixed(2)}≤${s.energy_bound_per_channel[c].toFixed(2)}`).join(" "));
+  }
+  return parts.join(", ");
+}
+
 function onEvent(ev) {
   if (ev.type === "fit") {
     setMaterial(ev.material);
-    const s = ev.stats || {};
-    status(s.strokes ? `fit: ${s.strokes} stroke(s), ${s.painted} painted px, solve ${s.ms_solve?.toFixed(1)} ms` +
-      (s.constrained ? `, specular albedo ${s.energy_max.toFixed(2)} (bound ${s.energy_bound.toFixed(2)})` : ", unconstrained") : "no strokes");
+    status(fitSummary(ev.stats || {}));
     if (ev.notes?.length) status(ev.notes.join("; "));
   } else if (ev.type === "stroke" && ev.notes?.length) {
     status(ev.notes.join("; "));
@@ -188,16 +202,22 @@ $("constrained").onchange = sendFit;
 $("unpainted-weight").onchange = sendFit;
 
 // -- material panel ----------------------------------------------------------------------------------
-const PARAMS = {
-  lambert: [["albedo", "color"]],
-  ggx: [["alpha", "range", 0.02, 1, 0.01], ["specular", "color"], ["albedo", "color"]],
-  "blinn-phong": [["exponent", "range", 1, 2000, 1], ["specular", "color"], ["albedo", "color"]],
-  curve: [["albedo", "color"], ["fresnel_f0", "range", 0, 1, 0.01]],
-  srbf: [["albedo", "color"], ["fresnel_f0", "range", 0, 1, 0.01]],
-};
+// the models, their controls and defaults come from the server (GET /v1/models): a model added
+// on the server appears here without a change to the studio
+let MODELS = {};
+async function loadModels() {
+  const list = await api("/v1/models");
+  MODELS = Object.fromEntries(list.map((m) => [m.model, m]));
+  const sel = $("model");
+  sel.innerHTML = "";
+  for (const m of list) {
+    // a curve starts from the current BRDF; other models without defaults come from elsewhere (strokes, paint)
+    const o = new Option(m.creatable || m.model === "curve" ? m.label : `${m.label} (not editable here)`, m.model);
+    o.disabled = !(m.creatable || m.model === "curve");
+    sel.append(o);
+  }
+}
 const toHex = (rgb) => "#" + rgb.map((c) => Math.round(255 * Math.min(1, Math.max(0, c <= 0.0031308 ? 12.92 * c : 1.055 * c ** (1 / 2.4) - 0.055))).toString(16).padStart(2, "0")).join("");
-const DEFAULTS = { lambert: { albedo: [0.5, 0.5, 0.5] }, ggx: { alpha: 0.25, specular: [0.5, 0.5, 0.5], albedo: [0.2, 0.2, 0.2] },
-  "blinn-phong": { exponent: 100, specular: [0.3, 0.3, 0.3], albedo: [0.3, 0.3, 0.3] } };
 
 const curveEditor = new CurveEditor($("curve"), (m) => { setMaterial(m, false); queueMaterial(); });
 let pendingMaterial = false;
@@ -218,7 +238,7 @@ function setMaterial(m, rebuild = true) {
 function buildParams() {
   const box = $("params");
   box.innerHTML = "";
-  for (const [key, kind, lo, hi, step] of PARAMS[material.model] || []) {
+  for (const { name: key, kind, min: lo, max: hi, step } of (MODELS[material.model] || {}).controls || []) {
     const label = document.createElement("label");
     label.textContent = key;
     const input = document.createElement("input");
@@ -239,7 +259,7 @@ $("model").addEventListener("change", () => {
   const model = $("model").value;
   // a curve starts from the current BRDF's half-angle distribution, so the look carries over
   if (model === "curve") setMaterial(toCurve(material));
-  else setMaterial({ model, ...(DEFAULTS[model] || {}) });
+  else setMaterial(structuredClone(MODELS[model].default));
   queueMaterial();
 });
 $("lobe-angle").addEventListener("input", () => drawLobe($("lobe"), material, +$("lobe-angle").value));
@@ -277,14 +297,31 @@ $("open-scene").onclick = () => $("scene-select").value && openScene($("scene-se
 $("upload").onclick = upload;
 
 // -- start -----------------------------------------------------------------------------------------------
+// On a first start the demo scene is still being fetched and precomputed: show its progress and
+// open it by itself when it is ready (no reload).
+async function waitDemo() {
+  const bar = $("progress");
+  for (;;) {
+    const { demo } = await api("/v1/status");
+    if (!["fetching", "precomputing"].includes(demo.state)) { bar.classList.add("hidden"); return demo; }
+    bar.classList.remove("hidden");
+    bar.value = demo.progress || 0;
+    status(`${demo.message} (${Math.round(100 * (demo.progress || 0))}%) — the demo opens by itself when it is ready`);
+    await new Promise((r) => setTimeout(r, 700));
+  }
+}
+
 (async () => {
   try {
+    await loadModels();
     for (;;) {
       const { scenes, ready } = await listScenes();
       if (ready) { await openScene(ready.id); break; }
+      const demo = await waitDemo();
+      if (demo.state === "ready") continue;
       const pending = scenes.find((s) => s.precomputation && ["queued", "running"].includes(s.precomputation.status));
       if (pending) { await waitPrecompute(pending.id); continue; }
-      status("no scene yet: upload a mesh and an HDRI");
+      status(demo.state === "failed" ? `${demo.message}; upload a mesh and an HDRI instead` : "no scene yet: upload a mesh and an HDRI");
       break;
     }
   } catch (err) { status(`error: ${err.message}`); }

@@ -9,7 +9,9 @@ point's cut. Two shading modes:
   view direction and blends them by barycentric weight (equal to interpolating the cuts, the
   integral being linear in visibility). Sharper glossy highlights on coarse meshes.
 
-``shade_points_numpy`` is the reference of the C kernel ``glk_shade_points``.
+``shade_points_numpy`` is the reference of the C kernel ``glk_shade_points`` (and likewise
+``interpolate_numpy``, ``env_lookup_numpy``); the public functions take the kernel backend
+(worker/native/kernels.py), defaulting to the process's.
 """
 from __future__ import annotations
 
@@ -17,7 +19,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from .. import native
+from ..native import model_id
+from ..native.kernels import kernels as _kernels
 from .brdf import PackedBRDF, eval_packed, onb
 from .cuts import CutSet
 from .directions import DirectionTree
@@ -60,13 +63,14 @@ def _camera_space_dirs(fov_y_deg: float, width: int, height: int) -> np.ndarray:
 
 
 class MaterialTable:
-    """Packed materials in the kernel's arrays: kind (M,) int32, params (M, 72) float32,
+    """Packed materials in the kernel's arrays: kind (M,) int32 (the library's branch id,
+    −1 for a model without a C branch: shaded by its NumPy reference), params (M, 72) float32,
     refine, extent (M,) float32 radians (PackedBRDF), tables (concatenated float32),
     table_off (M,) int64 (-1: none)."""
 
     def __init__(self, packed: list[PackedBRDF]):
         self.packed = packed
-        self.kind = np.array([p.kind for p in packed], np.int32)
+        self.kind = np.array([model_id(p.kernel) for p in packed], np.int32)
         self.params = np.stack([p.params for p in packed]).astype(np.float32)
         self.refine = np.array([min(p.refine_radius, 1e9) for p in packed], np.float32)
         self.extent = np.array([min(p.extent, 1e9) for p in packed], np.float32)
@@ -179,28 +183,14 @@ def _shade_chunk(n, wo, cut_of, mat_of, cuts, node_l, node_w, tree, mats):
 
 
 def shade_points(normals, wo, cut_of, mat_of, cuts: CutSet, node_l, node_w, tree: DirectionTree,
-                 mats: MaterialTable, use_native: bool = True) -> np.ndarray:
-    """(P, 3) float32 radiance at points; the C kernel when built (see shade_points_numpy)."""
-    if not (use_native and native.available()):
-        return shade_points_numpy(normals, wo, cut_of, mat_of, cuts, node_l, node_w, tree, mats)
-    c = native.c
-    p = len(normals)
-    out = np.empty((p, 3), np.float32)
-    native.lib.glk_shade_points(
-        p, c(normals, np.float32), c(wo, np.float32), c(cut_of, np.int32), c(mat_of, np.int32),
-        c(cuts.offsets, np.int64), c(cuts.heights, np.uint8), c(cuts.quant, np.uint8),
-        c(node_l, np.float32), c(node_w, np.float32), tree.node_dir, tree.node_radius,
-        c(tree.level_offset, np.int64), tree.height, mats.kind, mats.params, mats.refine, mats.extent,
-        mats.tables, mats.table_off, out)
-    return out
+                 mats: MaterialTable, kernels=None) -> np.ndarray:
+    """(P, 3) float32 radiance at points (see shade_points_numpy); kernels: the backend."""
+    return (kernels or _kernels()).shade_points(normals, wo, cut_of, mat_of, cuts, node_l, node_w, tree, mats)
 
 
-def interpolate(tri, uv, faces, vert_rgb, out, use_native: bool = True):
-    """Barycentric interpolation of per-vertex (V, 3) radiance into out (P, 3) where tri ≥ 0."""
-    if use_native and native.available():
-        native.lib.glk_interpolate(len(tri), native.c(tri, np.int32), native.c(uv, np.float32),
-                                   native.c(faces, np.int32), native.c(vert_rgb, np.float32), out)
-        return out
+def interpolate_numpy(tri, uv, faces, vert_rgb, out):
+    """Barycentric interpolation of per-vertex (V, 3) radiance into out (P, 3) where tri ≥ 0
+    (NumPy reference of glk_interpolate)."""
     hit = tri >= 0
     f = faces[tri[hit]]
     u, v = uv[hit, 0:1], uv[hit, 1:2]
@@ -208,18 +198,16 @@ def interpolate(tri, uv, faces, vert_rgb, out, use_native: bool = True):
     return out
 
 
-def env_lookup(dirs, envmap, rotation_deg: float, intensity: float, mask=None, out=None,
-               use_native: bool = True) -> np.ndarray:
-    """Bilinear lookup of the (rotated, scaled) environment along world directions (P, 3)."""
+def interpolate(tri, uv, faces, vert_rgb, out, kernels=None):
+    """Barycentric interpolation of per-vertex (V, 3) radiance into out (P, 3) where tri ≥ 0."""
+    return (kernels or _kernels()).interpolate(tri, uv, faces, vert_rgb, out)
+
+
+def env_lookup_numpy(dirs, envmap, rotation_deg: float, intensity: float, mask=None, out=None) -> np.ndarray:
+    """Bilinear lookup of the (rotated, scaled) environment along world directions (P, 3)
+    (NumPy reference of glk_env_lookup); only where mask (P,) is set, into out (P, 3)."""
     if out is None:
         out = np.zeros((len(dirs), 3), np.float32)
-    if use_native and native.available():
-        m = native.c(mask, np.uint8) if mask is not None else None
-        native.lib.glk_env_lookup(len(dirs), native.c(dirs, np.float32),
-                                  m.ctypes.data if m is not None else None,
-                                  native.c(envmap, np.float32), envmap.shape[0], envmap.shape[1],
-                                  float(np.radians(rotation_deg)), float(intensity), out)
-        return out
     sel = np.ones(len(dirs), bool) if mask is None else mask.astype(bool)
     d = dirs[sel].astype(np.float64)
     hm, wm, _ = envmap.shape
@@ -234,3 +222,9 @@ def env_lookup(dirs, envmap, rotation_deg: float, intensity: float, mask=None, o
     b = envmap[y1, x0] * (1 - ax) + envmap[y1, x1] * ax
     out[sel] = (intensity * (a * (1 - ay) + b * ay)).astype(np.float32)
     return out
+
+
+def env_lookup(dirs, envmap, rotation_deg: float, intensity: float, mask=None, out=None,
+               kernels=None) -> np.ndarray:
+    """Bilinear lookup of the (rotated, scaled) environment along world directions (P, 3)."""
+    return (kernels or _kernels()).env_lookup(dirs, envmap, rotation_deg, intensity, mask, out)

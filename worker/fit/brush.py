@@ -17,6 +17,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 Point = tuple[float, float]
+# weight of unpainted fit pixels against painted ones (1: the paper's uniform weighting)
+DEFAULT_UNPAINTED_WEIGHT = 1.0
 
 
 class Stroke(BaseModel):

@@ -16,12 +16,11 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from .. import native
 from ..core.brdf import onb
 from ..core.cuts import CutSet
 from ..core.directions import DirectionTree
 from ..core.render import cluster_directions, expand_cut_entries
-from .basis import CUBE_CELLS, SRBFBasis
+from .basis import SRBFBasis
 
 
 def _local(v, t, b, n):
@@ -90,21 +89,8 @@ def _transfer_chunk(n, wo, verts, bary, cuts, node_l, node_w, tree, basis, ref):
 
 
 def transfer(normals, wo, verts, bary, cuts: CutSet, node_l, node_w, tree: DirectionTree,
-             basis: SRBFBasis, use_native: bool = True):
-    """Transfer matrix (T (3, P, J), E (P, 3)) float32; the C kernel when built (see transfer_numpy)."""
-    if not (use_native and native.available()):
-        return transfer_numpy(normals, wo, verts, bary, cuts, node_l, node_w, tree, basis)
-    c = native.c
-    P, J = len(normals), basis.J
-    T = np.empty((3, P, J), np.float32)
-    E = np.empty((P, 3), np.float32)
-    ref = basis.refinement()
-    cell_off, cell_idx, gtab = basis.kernel_tables()
-    native.lib.glk_transfer(
-        P, c(normals, np.float32), c(wo, np.float32), c(verts, np.int32), c(bary, np.float32),
-        c(cuts.offsets, np.int64), c(cuts.heights, np.uint8), c(cuts.quant, np.uint8),
-        c(node_l, np.float32), c(node_w, np.float32), tree.node_dir, tree.node_radius,
-        c(tree.level_offset, np.int64), tree.height, float(ref["refine_radius"]), float(ref["extent"]),
-        J, c(basis.centers, np.float32), float(basis.cutoff_cos), float(basis.fresnel_f0),
-        CUBE_CELLS, cell_off, cell_idx, gtab, len(gtab), T, E)
-    return T, E
+             basis: SRBFBasis, kernels=None):
+    """Transfer matrix (T (3, P, J), E (P, 3)) float32 (see transfer_numpy); kernels: the backend."""
+    from ..native.kernels import kernels as _kernels
+
+    return (kernels or _kernels()).transfer(normals, wo, verts, bary, cuts, node_l, node_w, tree, basis)

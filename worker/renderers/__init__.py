@@ -13,7 +13,9 @@ from .base import (ArtifactStore, FrameRequest, Lighting, Part, Precomputation, 
                    Unsupported, ensure, load)
 
 # one line per renderer: importing the module registers it
-RENDERER_MODULES: dict[str, str] = {}
+RENDERER_MODULES: dict[str, str] = {
+    "cuts": "worker.renderers.cuts",
+}
 
 _registry: dict[str, tuple[type[Renderer], Precomputation]] = {}
 
@@ -26,6 +28,18 @@ def register(renderer: type[Renderer], precomputation: Precomputation) -> None:
 
 def kinds() -> list[str]:
     return sorted(set(RENDERER_MODULES) | set(_registry))
+
+
+def prepare(scene, store: ArtifactStore, kind: str | None = None, options: dict | None = None,
+            progress=None, threads: int = 2, kernels=None, compute: bool = True):
+    """A renderer for a loaded scene: its precomputation ensured in the store (computed here
+    when missing and ``compute``), loaded, and the renderer built. ``kind`` defaults to the
+    scene file's ``renderer``. Returns (renderer, ensure stats or None)."""
+    kind = kind or getattr(scene.spec, "renderer", "cuts")
+    cls, pre = get(kind)
+    stats = ensure(pre, scene, store, options, progress, threads) if compute else None
+    data = load(pre, scene, store, options)
+    return cls(scene, data, kernels=kernels), stats
 
 
 def get(kind: str) -> tuple[type[Renderer], Precomputation]:

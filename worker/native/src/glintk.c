@@ -13,13 +13,22 @@
 #endif
 #include "glint_common.h"
 
-#define K_LAMBERT 0
-#define K_GGX 1
-#define K_BLINN 2
-#define K_LOBES 3
-#define K_TABLE 4
-#define N_PARAMS 72
-#define TABLE_N 160
+/* BRDF kernel branches. Python never copies these ids: each model names its branch
+ * (worker/models, ``kernel``) and the binding asks glk_model_id at load time. */
+enum { K_LAMBERT, K_GGX, K_BLINN, K_LOBES, K_TABLE, K_COUNT };
+static const char *const K_NAMES[K_COUNT] = {"lambert", "ggx", "blinn-phong", "lobes", "table"};
+#define N_PARAMS 72     /* floats per packed material (worker/models/base.py N_PARAMS) */
+#define TABLE_N 160     /* p(h) table edge (worker/models/base.py TABLE_N) */
+
+/* id of a BRDF kernel branch by name, −1 when this library has none */
+int glk_model_id(const char *name) {
+    for (int k = 0; k < K_COUNT; k++)
+        if (strcmp(name, K_NAMES[k]) == 0) return k;
+    return -1;
+}
+
+/* the packed layout this library was built with: 0 → N_PARAMS, 1 → TABLE_N */
+int glk_layout(int what) { return what == 0 ? N_PARAMS : (what == 1 ? TABLE_N : -1); }
 
 int glk_max_threads(void) {
 #ifdef _OPENMP

@@ -1,0 +1,190 @@
+"""The kernel backend, chosen once (as trimesh picks its Embree or its NumPy ray backend): the
+multithreaded C kernels when the library is built, else the NumPy references. Both backends
+have the same methods with the same arrays in and out; tests/core/test_native.py checks that
+they agree.
+
+    k = kernels()            # the process default: "native" when built, else "numpy"
+    k = kernels("numpy")     # the references, e.g. to test or to debug
+
+A renderer keeps the backend it was built with; nothing below it asks again.
+
+Each C kernel has one typed wrapper here: it checks and converts the arrays (dtype,
+contiguity) and names the parameters as the C prototype does (``worker.native.bind``).
+"""
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+
+from . import available, bind, c, f32p, f64, i32, i32p, i64, i64p, lib, model_id, u8p, voidp
+
+
+class NumpyKernels:
+    """The NumPy references (worker/core, worker/fit), one method per kernel."""
+    name = "numpy"
+
+    def shade_points(self, normals, wo, cut_of, mat_of, cuts, node_l, node_w, tree, mats):
+        from ..core.render import shade_points_numpy
+        return shade_points_numpy(normals, wo, cut_of, mat_of, cuts, node_l, node_w, tree, mats)
+
+    def interpolate(self, tri, uv, faces, vert_rgb, out):
+        from ..core.render import interpolate_numpy
+        return interpolate_numpy(tri, uv, faces, vert_rgb, out)
+
+    def env_lookup(self, dirs, envmap, rotation_deg, intensity, mask=None, out=None):
+        from ..core.render import env_lookup_numpy
+        return env_lookup_numpy(dirs, envmap, rotation_deg, intensity, mask, out)
+
+    def build_cuts(self, values, tau):
+        from ..core.cuts import build_cuts_numpy
+        return build_cuts_numpy(values, tau)
+
+    def coarsen(self, cs, tau):
+        from ..core.cuts import coarsen_numpy
+        return coarsen_numpy(cs, tau)
+
+    def transfer(self, normals, wo, verts, bary, cuts, node_l, node_w, tree, basis):
+        from ..fit.transfer import transfer_numpy
+        return transfer_numpy(normals, wo, verts, bary, cuts, node_l, node_w, tree, basis)
+
+    def tonemap(self, rgb, exposure, curve):
+        from ..core.tonemap import tonemap_numpy
+        return tonemap_numpy(rgb, exposure, curve)
+
+
+class NativeKernels:
+    """Typed wrappers of the C kernels in src/glintk.c."""
+    name = "native"
+
+    def __init__(self):
+        if lib is None:
+            raise RuntimeError("the C kernels are not built (make build)")
+        self._shade = bind(
+            "glk_shade_points", None, P=i64, normals=f32p, wo_dirs=f32p, cut_of=i32p, mat_of=i32p,
+            cut_off=i64p, cut_h=u8p, cut_q=u8p, node_l=f32p, node_w=f32p, node_dir=f32p, node_radius=f32p,
+            level_off=i64p, H=i32, mat_kind=i32p, mat_params=f32p, mat_refine=f32p, mat_extent=f32p,
+            tables=f32p, table_off=i64p, out=f32p)
+        self._interp = bind("glk_interpolate", None, P=i64, tri=i32p, uv=f32p, faces=i32p, vert_rgb=f32p, out=f32p)
+        self._env = bind("glk_env_lookup", None, P=i64, dirs=f32p, mask=voidp, map=f32p, Hm=i32, Wm=i32,
+                         rotation=f64, intensity=f64, out=f32p)
+        self._build = bind("glk_build_cuts", None, vals=f32p, B=i64, H=i32, tau=f64, heights=u8p, quant=u8p,
+                           counts=i32p)
+        self._coarsen = bind("glk_coarsen", None, V=i64, offsets=i64p, heights=u8p, quant=u8p, tau=f64,
+                             out_h=u8p, out_q=u8p, counts=i32p)
+        self._transfer = bind(
+            "glk_transfer", None, P=i64, normals=f32p, wo_dirs=f32p, verts=i32p, bary=f32p, cut_off=i64p,
+            cut_h=u8p, cut_q=u8p, node_l=f32p, node_w=f32p, node_dir=f32p, node_radius=f32p, level_off=i64p,
+            H=i32, refine_r=f64, extent=f64, J=i32, centers=f32p, cut_cos=f64, f0=f64, C=i32, cell_off=i32p,
+            cell_idx=i32p, gtab=f32p, NG=i32, T=f32p, E=f32p)
+        self._tonemap = bind("glk_tonemap", None, P=i64, rgb=f32p, exposure=f64, curve=i32, out=u8p)
+
+    def shade_points(self, normals, wo, cut_of, mat_of, cuts, node_l, node_w, tree, mats):
+        """(P, 3) float32 radiance (see core.render.shade_points_numpy). Points whose material
+        has no C kernel branch (kind −1) are shaded by the NumPy reference."""
+        p = len(normals)
+        out = np.empty((p, 3), np.float32)
+        mat_of = c(mat_of, np.int32)
+        no_kernel = mats.kind[mat_of] < 0 if p else np.zeros(0, bool)
+        kind = np.where(mats.kind < 0, 0, mats.kind).astype(np.int32)   # never read for those points
+        cut_c = c(cut_of, np.int32)
+        if no_kernel.any():
+            cut_c = cut_c.copy()
+            cut_c[no_kernel] = -1                                      # the kernel writes zeros there
+        self._shade(p, c(normals, np.float32), c(wo, np.float32), cut_c, mat_of, c(cuts.offsets, np.int64),
+                    c(cuts.heights, np.uint8), c(cuts.quant, np.uint8), c(node_l, np.float32),
+                    c(node_w, np.float32), tree.node_dir, tree.node_radius, c(tree.level_offset, np.int64),
+                    tree.height, kind, mats.params, mats.refine, mats.extent, mats.tables, mats.table_off, out)
+        if no_kernel.any():
+            from ..core.render import shade_points_numpy
+
+            k = np.nonzero(no_kernel)[0]
+            out[k] = shade_points_numpy(normals[k], wo[k], np.asarray(cut_of)[k], mat_of[k], cuts, node_l,
+                                        node_w, tree, mats)
+        return out
+
+    def interpolate(self, tri, uv, faces, vert_rgb, out):
+        self._interp(len(tri), c(tri, np.int32), c(uv, np.float32), c(faces, np.int32), c(vert_rgb, np.float32), out)
+        return out
+
+    def env_lookup(self, dirs, envmap, rotation_deg, intensity, mask=None, out=None):
+        if out is None:
+            out = np.zeros((len(dirs), 3), np.float32)
+        m = c(mask, np.uint8) if mask is not None else None
+        self._env(len(dirs), c(dirs, np.float32), m.ctypes.data if m is not None else None, c(envmap, np.float32),
+                  envmap.shape[0], envmap.shape[1], float(np.radians(rotation_deg)), float(intensity), out)
+        return out
+
+    def build_cuts(self, values, tau):
+        from ..core.cuts import CutSet
+
+        values = c(values, np.float32)
+        b, n = values.shape
+        hmax = int(np.log2(n))
+        heights = np.empty((b, n), np.uint8)
+        quant = np.empty((b, n), np.uint8)
+        counts = np.empty(b, np.int32)
+        self._build(values, b, hmax, float(tau), heights, quant, counts)
+        mask = np.arange(n)[None, :] < counts[:, None]
+        offsets = np.zeros(b + 1, np.int64)
+        np.cumsum(counts, out=offsets[1:])
+        return CutSet(offsets, heights[mask], quant[mask], hmax)
+
+    def coarsen(self, cs, tau):
+        from ..core.cuts import CutSet
+
+        V = cs.n_vertices
+        oh = np.empty_like(cs.heights)
+        oq = np.empty_like(cs.quant)
+        counts = np.empty(V, np.int32)
+        self._coarsen(V, c(cs.offsets, np.int64), c(cs.heights, np.uint8), c(cs.quant, np.uint8), float(tau),
+                      oh, oq, counts)
+        off = np.zeros(V + 1, np.int64)
+        off[1:] = np.cumsum(counts)
+        # each vertex's coarse cut was written at the start of its input range
+        keep = np.repeat(cs.offsets[:-1], counts) + (np.arange(off[-1]) - np.repeat(off[:-1], counts))
+        return CutSet(off, oh[keep], oq[keep], cs.height)
+
+    def transfer(self, normals, wo, verts, bary, cuts, node_l, node_w, tree, basis):
+        from ..fit.basis import CUBE_CELLS
+
+        P, J = len(normals), basis.J
+        T = np.empty((3, P, J), np.float32)
+        E = np.empty((P, 3), np.float32)
+        ref = basis.refinement()
+        cell_off, cell_idx, gtab = basis.kernel_tables()
+        self._transfer(P, c(normals, np.float32), c(wo, np.float32), c(verts, np.int32), c(bary, np.float32),
+                       c(cuts.offsets, np.int64), c(cuts.heights, np.uint8), c(cuts.quant, np.uint8),
+                       c(node_l, np.float32), c(node_w, np.float32), tree.node_dir, tree.node_radius,
+                       c(tree.level_offset, np.int64), tree.height, float(ref["refine_radius"]), float(ref["extent"]),
+                       J, c(basis.centers, np.float32), float(basis.cutoff_cos), float(basis.fresnel_f0),
+                       CUBE_CELLS, cell_off, cell_idx, gtab, len(gtab), T, E)
+        return T, E
+
+    def tonemap(self, rgb, exposure, curve):
+        from ..core.tonemap import CURVES
+
+        src = c(rgb, np.float32)
+        out = np.empty(src.shape, np.uint8)
+        self._tonemap(src.size // 3, src, float(exposure), CURVES[curve], out)
+        return out
+
+
+@lru_cache(maxsize=None)
+def kernels(name: str | None = None):
+    """The backend: "native", "numpy", or None for the default (native when built)."""
+    if name is None:
+        name = "native" if available() else "numpy"
+    if name == "native":
+        return NativeKernels()
+    if name == "numpy":
+        return NumpyKernels()
+    raise ValueError(f"unknown kernel backend {name!r} (native or numpy)")
+
+
+def backend(use_native: bool = True):
+    """kernels() for code that still speaks in booleans (``use_native=False`` → references)."""
+    return kernels(None if use_native else "numpy")
+
+
+__all__ = ["NativeKernels", "NumpyKernels", "kernels", "backend", "model_id"]
