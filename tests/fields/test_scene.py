@@ -17,7 +17,7 @@ from worker.core.cuts import CutSet, decode, encode
 from worker.core.directions import get_tree
 from worker.core.lighting import LeafLighting, node_lighting
 from worker.core.render import MaterialTable, shade_points
-from worker.engine import load_or_precompute
+from helpers import open_renderer
 from worker.renderers.cuts.combine import Combiner
 from worker.renderers.cuts.fields import frame_lighting, object_shape, receiver_from_local, static_cuts
 from worker.renderers.cuts.grid import GridSpec
@@ -66,7 +66,7 @@ def cached_cuts(cache_dir, key_arrays, label, compute):
 @pytest.fixture(scope="module")
 def whole(scene, cache_dir):
     """Cuts of every vertex against the whole scene (the static precomputation)."""
-    return load_or_precompute(scene, cache_dir)[0]
+    return open_renderer(scene).cuts
 
 
 @pytest.fixture(scope="module")
@@ -88,7 +88,7 @@ def static(scene, cache_dir):
 @pytest.fixture(scope="module")
 def own(scene, cache_dir):
     """oakTable's vertices against itself alone, in its own frame."""
-    from worker.precompute import precompute_cuts
+    from worker.renderers.cuts.precompute import precompute_cuts
 
     oak = object_shape(scene, 2)
     return cached_cuts(cache_dir, [oak.vertices, oak.faces, oak.normals], "self cuts tau=1",
@@ -209,7 +209,7 @@ def test_after_a_move_cuts_agree_with_precomputing_the_moved_scene(scene, lighti
     from worker.scene import LoadedScene
 
     moved_scene = LoadedScene(spec, scene.root, envmap=scene.envmap)
-    ref = load_or_precompute(moved_scene, cache_dir)[0]
+    ref = open_renderer(moved_scene).cuts
     ms = MovingScene(scene, ["oakTable"], static, {2: own}, fields)
     groups = ms.cuts(np.arange(len(scene.mesh.vertices)), {"oakTable": moved})
     assert {g.object for g in groups} == {None, 2}
@@ -235,8 +235,8 @@ def test_frame_lighting_turns_the_light_with_the_object(lighting, bunny):
     """The bunny's cuts at identity, lit in a frame turned by 50° about +Y, against cuts traced
     for the bunny turned by 50° in the world and lit there: the same radiance, up to the leaf
     resampling of a rotation. The general (resampled map) path agrees with the exact yaw path."""
-    from worker.precompute import precompute_cuts
     from worker.renderers.cuts.fields import _frame_lighting_resampled
+    from worker.renderers.cuts.precompute import precompute_cuts
 
     scene, local = bunny
     tree = get_tree()

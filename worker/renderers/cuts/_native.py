@@ -1,7 +1,8 @@
-"""ctypes signatures of the cut-field kernels in worker/native/src/fields.c.
+"""The cut-field kernels of worker/native/src/fields.c, declared by name (worker.native.bind).
 
-Each kernel has a typed wrapper in the module that owns its NumPy reference (grid.lookup,
-rotate, combine); ``lib`` is None when the C library is not built.
+Each kernel has a typed wrapper in the module that owns its NumPy reference (grid/combine:
+lookup; rotate: nearest_leaves; combine: RotatedSamples.ensure / ensure_cells, combine_native);
+``available()`` is False when the C library is not built, and those fall back to the references.
 """
 from __future__ import annotations
 
@@ -9,41 +10,34 @@ import ctypes
 
 import numpy as np
 
-from ... import native
+from ...native import available as _lib_built, bind, c, f32p, f64p, i32, i32p, i64, i64p, u8p, voidp  # noqa: F401
 
-lib = native.lib
-c = native.c
+vpp = ctypes.POINTER(ctypes.c_void_p)     # an array of n_occ array pointers
 
-_f32 = np.ctypeslib.ndpointer(np.float32, flags="C_CONTIGUOUS")
-_f64 = np.ctypeslib.ndpointer(np.float64, flags="C_CONTIGUOUS")
-_i32 = np.ctypeslib.ndpointer(np.int32, flags="C_CONTIGUOUS")
-_i64 = np.ctypeslib.ndpointer(np.int64, flags="C_CONTIGUOUS")
-_u8 = np.ctypeslib.ndpointer(np.uint8, flags="C_CONTIGUOUS")
-_vpp = ctypes.POINTER(ctypes.c_void_p)
-_n, _int = ctypes.c_int64, ctypes.c_int
-
-if lib is not None and hasattr(lib, "glf_lookup"):
-    lib.glf_lookup.argtypes = [_n, _f32, _f32, _f64, _f64, _f64, _f64, _i32, ctypes.c_void_p, _i32, _f32, _u8]
-    lib.glf_rotate.argtypes = [_n, _i32, _i64, _u8, _u8, _int, _int, _int, _i32, _i32, _n, _i32, _u8, _u8, _i64,
-                               _i32, _i64]
-    lib.glf_cells.argtypes = [_n, _i32, _i64, _i32, _i32, _u8, _u8, _int, _n, _i32, _i32, _u8, _i64, _i32, _i64]
-    lib.glf_combine.argtypes = [_n, _i32, _i64, _u8, _u8, _int, _int, _i32, _f32, _vpp, _vpp, _vpp, _vpp, _vpp,
-                                _n, _u8, _u8, _i64, _i32, _i64]
-    lib.glf_nearest_leaves.argtypes = [_n, _f64, _i32, _int, _i32, _int, _f32, _i32]
-    lib.glf_gather.argtypes = [_n, _i64, _i32, ctypes.c_void_p, _n, _i64, ctypes.c_void_p]
-else:
-    lib = None
+lookup = bind("glf_lookup", None, P=i64, pos=f32p, nrm=f32p, m=f64p, grid=f64p, dirs=f64p, radii=f64p,
+              face_table=i32p, clearance=voidp, cells=i32p, w=f32p, test=u8p)
+nearest_leaves = bind("glf_nearest_leaves", None, P=i64, dirs=f64p, table=i32p, R=i32, neigh=i32p, k=i32,
+                      leaves=f32p, out=i32p)
+rotate = bind("glf_rotate", None, n=i64, ids=i32p, f_off=i64p, f_hp=u8p, f_bits=u8p, H=i32, hmin=i32,
+              identity=i32, inv_off=i32p, inv_idx=i32p, cap=i64, out_s=i32p, out_h=u8p, out_q=u8p, pos=i64p,
+              counts=i32p, used=i64p)
+cells = bind("glf_cells", None, n=i64, corners=i32p, p_off=i64p, p_cnt=i32p, p_s=i32p, p_h=u8p, p_q=u8p, H=i32,
+             cap=i64, out_a=i32p, out_b=i32p, out_v=u8p, pos=i64p, counts=i32p, used=i64p)
+combine = bind("glf_combine", None, V=i64, cut_of=i32p, b_off=i64p, b_h=u8p, b_q=u8p, H=i32, n_occ=i32,
+               cslot=i32p, wts=f32p, c_off=vpp, c_cnt=vpp, c_a=vpp, c_b=vpp, c_v=vpp, cap=i64, out_h=u8p,
+               out_q=u8p, pos=i64p, counts=i32p, used=i64p)
+_gather = bind("glf_gather", None, n=i64, pos=i64p, counts=i32p, src=voidp, esize=i64, dst_off=i64p, dst=voidp)
 
 
 def available() -> bool:
-    return lib is not None
+    return _lib_built() and lookup is not None
 
 
 def gather(pos: np.ndarray, counts: np.ndarray, src: np.ndarray, dst_off: np.ndarray, dst: np.ndarray) -> None:
     """glf_gather: items placed at pos (counts elements each) into dst at dst_off (same dtype;
     trailing dimensions are part of an element)."""
     esize = src.itemsize * int(np.prod(src.shape[1:], dtype=np.int64))
-    lib.glf_gather(len(pos), pos, counts, src.ctypes.data, esize, dst_off, dst.ctypes.data)
+    _gather(len(pos), pos, counts, src.ctypes.data, esize, dst_off, dst.ctypes.data)
 
 
 def pointers(arrays) -> ctypes.Array:

@@ -55,7 +55,7 @@ def lookup(field: Field, local_from_receiver: np.ndarray, positions: np.ndarray,
         cells = np.empty(len(pos), np.int32)
         w = np.empty((len(pos), 8), np.float32)
         test = np.empty(len(pos), np.uint8)
-        _native.lib.glf_lookup(len(pos), pos, nrm, m.reshape(-1).copy(), grid.params(), grid.directions,
+        _native.lookup(len(pos), pos, nrm, m.reshape(-1).copy(), grid.params(), grid.directions,
                                grid.radii, grid.face_table, None if clr is None else clr.ctypes.data, cells, w, test)
         return cells, w, test
     xl = pos.astype(np.float64) @ m[:, :3].T + m[:, 3]
@@ -199,7 +199,7 @@ class RotatedSamples:
         f, H = self.field, self.field.height
         if use_native and _native.available() and H >= 6:      # the kernel's bitset has 64-leaf words
             def run(cap, b, pos, counts, used):
-                _native.lib.glf_rotate(len(need), need, f.offsets, f.hpacked, f.bits, H, self.hmin,
+                _native.rotate(len(need), need, f.offsets, f.hpacked, f.bits, H, self.hmin,
                                        int(self.lmap.identity), self.lmap.inv_off, self.lmap.inv_idx,
                                        cap, b["s"], b["h"], b["q"], pos, counts, used)
             bufs, pos, counts = _placed(run, len(need), max(1 << 16, 256 * len(need)), {
@@ -230,7 +230,7 @@ class RotatedSamples:
         sp = self.samples
         if use_native and _native.available():
             def run(cap, b, pos, counts, used):
-                _native.lib.glf_cells(len(need), cslots, sp.off, sp.cnt, sp.s, sp.h, sp.q, self.field.height,
+                _native.cells(len(need), cslots, sp.off, sp.cnt, sp.s, sp.h, sp.q, self.field.height,
                                       cap, b["a"], b["b"], b["v"], pos, counts, used)
             bufs, pos, counts = _placed(run, len(need), max(1 << 16, 512 * len(need)), {
                 "a": (np.int32, ()), "b": (np.int32, ()), "v": (np.uint8, (8,))})
@@ -383,7 +383,7 @@ def combine_native(base: CutSet, cut_of: np.ndarray, cells: np.ndarray, weights:
     cps = [p.cells for p in pools]
 
     def run(cap, b, pos, counts, used):
-        _native.lib.glf_combine(V, cut_of, c(base.offsets, np.int64), c(base.heights, np.uint8), c(base.quant, np.uint8),
+        _native.combine(V, cut_of, c(base.offsets, np.int64), c(base.heights, np.uint8), c(base.quant, np.uint8),
                                 base.height, O, cslot, weights, P([p.off for p in cps]), P([p.cnt for p in cps]),
                                 P([p.a for p in cps]), P([p.b for p in cps]), P([p.v for p in cps]),
                                 cap, b["h"], b["q"], pos, counts, used)
@@ -405,12 +405,18 @@ class Combiner:
     calls (one per session or renderer).
 
     hmin : field cuts are rebuilt with nodes of at least 2^hmin leaves (0: exact).
+    kernels : the kernel backend (worker/native/kernels.py; default: the process's): "native"
+        runs the C kernels of fields.c, "numpy" their references.
     max_pools : (field, rotation) pools kept; a rotation drag makes a new one every frame.
     pool_bytes : a pool larger than this is dropped and rebuilt on demand.
+    Not thread-safe: one per session or renderer.
     """
 
-    def __init__(self, hmin: int = DEFAULT_HMIN, tree: DirectionTree | None = None, max_pools: int = 8,
-                 pool_bytes: int = 512 << 20):
+    def __init__(self, hmin: int = DEFAULT_HMIN, tree: DirectionTree | None = None, kernels=None,
+                 max_pools: int = 8, pool_bytes: int = 512 << 20):
+        from ...native.kernels import kernels as default_kernels
+
+        self.native = (kernels or default_kernels()).name == "native" and _native.available()
         self.hmin = int(hmin)
         self.tree = tree or get_tree()
         self.max_pools = max_pools
@@ -424,7 +430,7 @@ class Combiner:
         key = (field.key or id(field), np.round(np.asarray(q, np.float64), 9).tobytes(), self.hmin)
         p = self._pools.get(key)
         if p is None or p.nbytes > self.pool_bytes:
-            p = RotatedSamples(field, LeafMap(self.tree, q), self.hmin)
+            p = RotatedSamples(field, LeafMap(self.tree, q, self.native), self.hmin)
             self._pools[key] = p
         self._pools.move_to_end(key)
         while len(self._pools) > self.max_pools:
@@ -432,7 +438,7 @@ class Combiner:
         return p
 
     def combine(self, base: CutSet, cut_ids: np.ndarray, positions: np.ndarray, normals: np.ndarray,
-                occluders, use_native: bool = True) -> CutSet:
+                occluders) -> CutSet:
         """Cuts of K receiver vertices with the occluders multiplied in (cyber-worlds eq. 4).
 
         base : CutSet of the receivers' own cuts (over their frame's leaves); cut_ids (K,) int
@@ -442,7 +448,7 @@ class Combiner:
         ready for glk_shade_points with cut_of = arange(K). ``last_stats`` says what it cost.
         """
         t0 = time.perf_counter()
-        native = use_native and _native.available()
+        native = self.native
         cut_ids = np.asarray(cut_ids, np.int32)
         K = len(cut_ids)
         O = len(occluders)
@@ -481,6 +487,6 @@ class Combiner:
 
 
 def combined_cuts(base: CutSet, cut_ids, positions, normals, occluders, hmin: int = DEFAULT_HMIN,
-                  use_native: bool = True) -> CutSet:
-    """One-off ``Combiner(hmin).combine(...)`` (nothing kept between calls)."""
-    return Combiner(hmin).combine(base, cut_ids, positions, normals, occluders, use_native)
+                  kernels=None) -> CutSet:
+    """One-off ``Combiner(hmin, kernels=kernels).combine(...)`` (nothing kept between calls)."""
+    return Combiner(hmin, kernels=kernels).combine(base, cut_ids, positions, normals, occluders)

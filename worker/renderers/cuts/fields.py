@@ -79,7 +79,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from ...core import cuts as cutmod
-from ...core.cuts import CutSet
+from ...core.cuts import DEFAULT_TAU, CutSet
 from ...core.directions import get_tree
 from ...core.lighting import LeafLighting, node_lighting, rotate_map
 from ...errors import GlintError
@@ -160,7 +160,7 @@ def field_parts(scene, movable: list[str], options: Mapping[str, Any] | None = N
     """The parts moving objects need: a field per object (when anything is movable) and the
     self-visibility cuts of each movable object alone, in its local frame.
 
-    movable : names of the movable objects. options : ``tau`` (self cuts, default 1.0),
+    movable : names of the movable objects. options : ``tau`` (self cuts, default DEFAULT_TAU),
     ``field_grid`` (GridSpec or dict of its fields).
     Part.meta: {"kind": "field" | "self_cuts", "object": index}.
     """
@@ -172,7 +172,7 @@ def field_parts(scene, movable: list[str], options: Mapping[str, Any] | None = N
     if not movable:
         return []
     spec = _grid_spec(options)
-    tau = float(options.get("tau", 1.0))
+    tau = float(options.get("tau", DEFAULT_TAU))
     H = get_tree().height
     parts = []
     for i, name in enumerate(names):
@@ -200,7 +200,7 @@ def _grid_spec(options: Mapping[str, Any]) -> GridSpec:
 def compute_part(scene, part: Part, options: Mapping[str, Any] | None = None, progress=None,
                  threads: int = 2) -> tuple[bytes, dict]:
     """The bytes and stats of one part of ``field_parts``."""
-    from ...precompute import precompute_cuts
+    from .precompute import precompute_cuts
 
     options = dict(options or {})
     shape = object_shape(scene, part.meta["object"])
@@ -209,11 +209,11 @@ def compute_part(scene, part: Part, options: Mapping[str, Any] | None = None, pr
         blob = f.encode()
         return blob, {**f.stats, **f.storage(len(blob))}
     if part.meta["kind"] == "self_cuts":
-        cs, st = precompute_cuts(shape.vertices, shape.faces, shape.normals, tau=float(options.get("tau", 1.0)),
-                                 threads=threads, progress=progress)
+        cs, rays, secs = precompute_cuts(shape.vertices, shape.faces, shape.normals,
+                                         tau=float(options.get("tau", DEFAULT_TAU)), threads=threads, progress=progress)
         blob = cutmod.encode(cs)
-        return blob, {"seconds": st.seconds, "vertices": st.vertices, "rays_traced": st.rays,
-                      "mean_cut_size": st.mean_cut_size, "bytes_height_encoded": len(blob)}
+        return blob, {"seconds": secs, "vertices": cs.n_vertices, "rays_traced": rays,
+                      "mean_cut_size": float(cs.sizes().mean()) if cs.n_vertices else 0.0, "bytes_height_encoded": len(blob)}
     raise ValueError(f"not a cut-field part: {part.meta}")
 
 
@@ -228,11 +228,11 @@ def load_part(scene, part: Part, blob: bytes):
 
 # --- static cuts without the movable objects -------------------------------------------------
 
-def static_cuts(scene, movable: list[str], tau: float = 1.0, threads: int = 2, progress=None) -> tuple[CutSet, np.ndarray]:
+def static_cuts(scene, movable: list[str], tau: float = DEFAULT_TAU, threads: int = 2, progress=None) -> tuple[CutSet, np.ndarray]:
     """Self-visibility cuts of the static objects' vertices against static geometry only
     ("static self-visibility cuts leave movable objects out of the occluders").
     Returns (CutSet, vertex ids (K,) int32 in scene.mesh of its cuts, in order)."""
-    from ...precompute import precompute_cuts
+    from .precompute import precompute_cuts
 
     names = [o.name for o in scene.spec.objects]
     mov = np.array([n in movable for n in names])
@@ -243,7 +243,7 @@ def static_cuts(scene, movable: list[str], tau: float = 1.0, threads: int = 2, p
     remap[ids] = np.arange(len(ids))
     m = scene.mesh
     faces = remap[m.faces[keep_f]].astype(np.int32)
-    cs, _ = precompute_cuts(m.vertices[ids], faces, m.normals[ids], tau=tau, threads=threads, progress=progress)
+    cs, _, _ = precompute_cuts(m.vertices[ids], faces, m.normals[ids], tau=tau, threads=threads, progress=progress)
     return cs, ids
 
 
@@ -330,11 +330,12 @@ class MovingScene:
     scene : LoadedScene (objects at their precomputation transforms); movable : their names;
     static : (CutSet, vertex ids) from ``static_cuts``; self_cuts : object index -> CutSet of
     its vertices alone, local frame; fields : object index -> Field (mesh attached) for every
-    object. ``cuts(vertex_ids, transforms)`` gives the FrameGroups of a frame.
+    object. ``cuts(vertex_ids, transforms)`` gives the FrameGroups of a frame. kernels: the
+    kernel backend (worker/native/kernels.py).
     """
 
     def __init__(self, scene, movable, static: tuple[CutSet, np.ndarray], self_cuts: Mapping[int, CutSet],
-                 fields: Mapping[int, Field], hmin: int = DEFAULT_HMIN):
+                 fields: Mapping[int, Field], hmin: int = DEFAULT_HMIN, kernels=None):
         self.scene = scene
         names = [o.name for o in scene.spec.objects]
         self.movable = {names.index(m) for m in movable}
@@ -349,7 +350,7 @@ class MovingScene:
         self.shapes = {i: object_shape(scene, i) for i in self.movable}
         first = np.searchsorted(scene.object_of_vertex, np.arange(len(names)))
         self.first_vertex = first
-        self.combiner = Combiner(hmin)
+        self.combiner = Combiner(hmin, kernels=kernels)
 
     def world_from_local(self, transforms: Mapping[str, Any] | None = None) -> list[np.ndarray]:
         """(4, 4) per object: its transform now (``transforms`` by object name overrides the

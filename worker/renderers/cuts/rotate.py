@@ -59,7 +59,7 @@ def nearest_leaves(tree: DirectionTree, dirs: np.ndarray, use_native: bool = Tru
         tab = _nearest_leaf_table(tree)
         nb = _leaf_neighbours(tree)
         out = np.empty(len(d), np.int32)
-        _native.lib.glf_nearest_leaves(len(d), d, tab, tab.shape[1], nb, nb.shape[1], tree.leaves, out)
+        _native.nearest_leaves(len(d), d, tab, tab.shape[1], nb, nb.shape[1], tree.leaves, out)
         return out
     tab = _nearest_leaf_table(tree)
     res = tab.shape[1]
@@ -102,7 +102,7 @@ class LeafMap:
     identity : Q is the identity (perm is arange).
     """
 
-    def __init__(self, tree: DirectionTree, q: np.ndarray):
+    def __init__(self, tree: DirectionTree, q: np.ndarray, use_native: bool = True):
         self.q = np.asarray(q, np.float64)
         self.identity = is_identity(self.q)
         n = tree.n_leaves
@@ -110,7 +110,7 @@ class LeafMap:
             self.perm = np.arange(n, dtype=np.int32)
         else:
             # receiver leaf j in the source frame: Q^T d_j (rows: d_j^T Q)
-            self.perm = nearest_leaves(tree, tree.leaves.astype(np.float64) @ self.q)
+            self.perm = nearest_leaves(tree, tree.leaves.astype(np.float64) @ self.q, use_native)
         order = np.argsort(self.perm, kind="stable")
         self.inv_idx = order.astype(np.int32)
         self.inv_off = np.zeros(n + 1, np.int32)
