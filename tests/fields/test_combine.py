@@ -5,7 +5,14 @@ import pytest
 
 from worker.core.cuts import CutSet, build_cuts, decode_to_leaves
 from worker.renderers.cuts import _native
-from worker.renderers.cuts.combine import Combiner, RotatedSamples, combine_native, combine_numpy, lookup, validate
+from worker.renderers.cuts.combine import (
+    Combiner,
+    RotatedSamples,
+    combine_native,
+    combine_numpy,
+    lookup,
+    validate,
+)
 from worker.renderers.cuts.grid import cell_corners
 from worker.renderers.cuts.rotate import LeafMap
 from worker.trace.embree import Tracer
@@ -18,9 +25,9 @@ def rot_y(deg):
     return np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
 
 
-def similarity(q=np.eye(3), t=(0, 0, 0), s=1.0):
+def similarity(q=None, t=(0, 0, 0), s=1.0):
     m = np.eye(4)
-    m[:3, :3] = s * q
+    m[:3, :3] = s * (np.eye(3) if q is None else q)
     m[:3, 3] = t
     return m
 
@@ -200,7 +207,7 @@ def test_interpolated_occlusion_against_ray_tracing(oaktable_case, tree, trace_p
         irr, l1, occ = occlusion_errors(oaktable_case, tree, m, x, nrm, trace_points)
         keep = occ < 0.9                                         # not inside the table
         stats[name] = (irr[keep].mean(), np.percentile(irr[keep], 95), l1[keep].mean(), occ[keep].mean())
-    msg = {k: "irr mean %.4f p95 %.4f, L1 mean %.4f, occluded %.3f" % v for k, v in stats.items()}
+    msg = {k: f"irr mean {v[0]:.4f} p95 {v[1]:.4f}, L1 mean {v[2]:.4f}, occluded {v[3]:.3f}" for k, v in stats.items()}
     print(moved, msg)
     for name, (irr_mean, irr_p95, l1_mean, occ_mean) in stats.items():
         assert irr_mean < 0.006 and irr_p95 < 0.02, msg              # measured ≤ 0.0039 / 0.014

@@ -6,7 +6,13 @@ import pytest
 
 from worker.renderers.cuts import _native
 from worker.renderers.cuts.combine import lookup
-from worker.renderers.cuts.grid import FieldGrid, GridSpec, cell_corners, face_directions, lookup_numpy
+from worker.renderers.cuts.grid import (
+    FieldGrid,
+    GridSpec,
+    cell_corners,
+    face_directions,
+    lookup_numpy,
+)
 
 
 @pytest.mark.parametrize("n", [1, 4, 24])

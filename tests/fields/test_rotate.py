@@ -7,7 +7,12 @@ from scipy.spatial import cKDTree
 from worker.core.cuts import decode_to_leaves
 from worker.renderers.cuts import _native
 from worker.renderers.cuts.combine import RotatedSamples
-from worker.renderers.cuts.rotate import LeafMap, coarse_cut_numpy, nearest_leaves, rotation_part
+from worker.renderers.cuts.rotate import (
+    LeafMap,
+    coarse_cut_numpy,
+    nearest_leaves,
+    rotation_part,
+)
 from worker.trace.embree import Tracer
 
 

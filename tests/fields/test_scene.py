@@ -11,15 +11,20 @@ import json
 import numpy as np
 import pytest
 import trimesh
+from helpers import open_renderer
 
 from worker.core.brdf import pack
 from worker.core.cuts import CutSet, decode, encode
 from worker.core.directions import get_tree
 from worker.core.lighting import LeafLighting, node_lighting
 from worker.core.render import MaterialTable, shade_points
-from helpers import open_renderer
 from worker.renderers.cuts.combine import Combiner
-from worker.renderers.cuts.fields import frame_lighting, object_shape, receiver_from_local, static_cuts
+from worker.renderers.cuts.fields import (
+    frame_lighting,
+    object_shape,
+    receiver_from_local,
+    static_cuts,
+)
 from worker.renderers.cuts.grid import GridSpec
 from worker.scene import Lambert, load_scene
 
@@ -225,7 +230,7 @@ def test_after_a_move_cuts_agree_with_precomputing_the_moved_scene(scene, lighti
                     world_light, tree)
         err = rel_errors(a, b)
         report["static" if g.object is None else "oakTable"] = (err.mean(), np.percentile(err, 95))
-    msg = {k: "error mean %.4f p95 %.4f" % v for k, v in report.items()}
+    msg = {k: f"error mean {v[0]:.4f} p95 {v[1]:.4f}" for k, v in report.items()}
     print("moved:", msg)
     assert report["static"][0] < 0.01 and report["static"][1] < 0.03, msg
     assert report["oakTable"][0] < 0.012 and report["oakTable"][1] < 0.05, msg

@@ -10,7 +10,10 @@ import ctypes
 
 import numpy as np
 
-from ...native import available as _lib_built, bind, c, f32p, f64p, i32, i32p, i64, i64p, u8p, voidp  # noqa: F401
+from ...native import available as _lib_built
+from ...native import bind, c, f32p, f64p, i32, i32p, i64, i64p, u8p, voidp
+
+__all__ = ["available", "c", "cells", "combine", "gather", "lookup", "nearest_leaves", "pointers", "rotate"]
 
 vpp = ctypes.POINTER(ctypes.c_void_p)     # an array of n_occ array pointers
 

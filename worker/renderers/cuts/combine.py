@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import time
 from collections import OrderedDict
+from itertools import pairwise
 
 import numpy as np
 
@@ -26,7 +27,7 @@ from ...core.cuts import CutSet, node_starts
 from ...core.directions import DirectionTree, get_tree
 from . import _native
 from .field import Field
-from .grid import FieldGrid, cell_corners, lookup_numpy
+from .grid import cell_corners, lookup_numpy
 from .rotate import LeafMap, rotate_samples_numpy, rotation_part
 
 DEFAULT_HMIN = 3       # field cuts are kept to nodes of ≥ 8 leaves (see fields.py)
@@ -55,8 +56,8 @@ def lookup(field: Field, local_from_receiver: np.ndarray, positions: np.ndarray,
         cells = np.empty(len(pos), np.int32)
         w = np.empty((len(pos), 8), np.float32)
         test = np.empty(len(pos), np.uint8)
-        _native.lookup(len(pos), pos, nrm, m.reshape(-1).copy(), grid.params(), grid.directions,
-                               grid.radii, grid.face_table, None if clr is None else clr.ctypes.data, cells, w, test)
+        _native.lookup(len(pos), pos, nrm, m.reshape(-1).copy(), grid.params(), grid.directions, grid.radii,
+                       grid.face_table, None if clr is None else clr.ctypes.data, cells, w, test)
         return cells, w, test
     xl = pos.astype(np.float64) @ m[:, :3].T + m[:, 3]
     nl = nrm.astype(np.float64) @ m[:, :3].T
@@ -199,9 +200,8 @@ class RotatedSamples:
         f, H = self.field, self.field.height
         if use_native and _native.available() and H >= 6:      # the kernel's bitset has 64-leaf words
             def run(cap, b, pos, counts, used):
-                _native.rotate(len(need), need, f.offsets, f.hpacked, f.bits, H, self.hmin,
-                                       int(self.lmap.identity), self.lmap.inv_off, self.lmap.inv_idx,
-                                       cap, b["s"], b["h"], b["q"], pos, counts, used)
+                _native.rotate(len(need), need, f.offsets, f.hpacked, f.bits, H, self.hmin, int(self.lmap.identity),
+                               self.lmap.inv_off, self.lmap.inv_idx, cap, b["s"], b["h"], b["q"], pos, counts, used)
             bufs, pos, counts = _placed(run, len(need), max(1 << 16, 256 * len(need)), {
                 "s": (np.int32, ()), "h": (np.uint8, ()), "q": (np.uint8, ())})
             dst = sp.reserve(need, counts)
@@ -230,8 +230,8 @@ class RotatedSamples:
         sp = self.samples
         if use_native and _native.available():
             def run(cap, b, pos, counts, used):
-                _native.cells(len(need), cslots, sp.off, sp.cnt, sp.s, sp.h, sp.q, self.field.height,
-                                      cap, b["a"], b["b"], b["v"], pos, counts, used)
+                _native.cells(len(need), cslots, sp.off, sp.cnt, sp.s, sp.h, sp.q, self.field.height, cap,
+                              b["a"], b["b"], b["v"], pos, counts, used)
             bufs, pos, counts = _placed(run, len(need), max(1 << 16, 512 * len(need)), {
                 "a": (np.int32, ()), "b": (np.int32, ()), "v": (np.uint8, (8,))})
             dst = cp.reserve(need, counts)
@@ -257,7 +257,7 @@ class RotatedSamples:
         bounds = np.unique(np.concatenate([[0, 1 << H], st, ends]))
         nz = dict(zip(st.tolist(), zip(h.tolist(), q.tolist())))
         hs, qs = [], []
-        for a, b in zip(bounds[:-1], bounds[1:]):
+        for a, b in pairwise(bounds):
             if a in nz:
                 hs.append(nz[a][0]); qs.append(nz[a][1])
             else:
@@ -301,7 +301,7 @@ def cells_numpy(corner_nodes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     between consecutive node bounds where some corner is inside a non-free node."""
     bounds = _bounds(corner_nodes)
     a, b, v = [], [], []
-    for x0, x1 in zip(bounds[:-1], bounds[1:]):
+    for x0, x1 in pairwise(bounds):
         vals, busy = _values_at(corner_nodes, int(x0))
         if busy:
             a.append(x0); b.append(x1); v.append(vals)
@@ -345,7 +345,7 @@ def combine_numpy(base: CutSet, cut_of: np.ndarray, cells: np.ndarray, weights: 
         bi = np.minimum(bi, len(bs) - 1)
         bounds = bounds[(bounds == n) | (bq[bi] > 0) | (bounds == bs[bi])]
         out_h, out_q = [], []
-        for x0, x1 in zip(bounds[:-1], bounds[1:]):
+        for x0, x1 in pairwise(bounds):
             k = int(np.searchsorted(bs, x0, side="right")) - 1
             if bq[k] == 0:
                 out_h.append(bh[k]); out_q.append(0)
@@ -384,9 +384,9 @@ def combine_native(base: CutSet, cut_of: np.ndarray, cells: np.ndarray, weights:
 
     def run(cap, b, pos, counts, used):
         _native.combine(V, cut_of, c(base.offsets, np.int64), c(base.heights, np.uint8), c(base.quant, np.uint8),
-                                base.height, O, cslot, weights, P([p.off for p in cps]), P([p.cnt for p in cps]),
-                                P([p.a for p in cps]), P([p.b for p in cps]), P([p.v for p in cps]),
-                                cap, b["h"], b["q"], pos, counts, used)
+                        base.height, O, cslot, weights, P([p.off for p in cps]), P([p.cnt for p in cps]),
+                        P([p.a for p in cps]), P([p.b for p in cps]), P([p.v for p in cps]),
+                        cap, b["h"], b["q"], pos, counts, used)
     cap = int(cap_hint or int(1.5 * base.sizes()[cut_of].sum()) + 1024)
     bufs, pos, counts = _placed(run, V, cap, {"h": (np.uint8, ()), "q": (np.uint8, ())})
     off = np.zeros(V + 1, np.int64)

@@ -106,13 +106,13 @@ class Field:
     clearance: np.ndarray | None = None
     tracer: Tracer | None = field(default=None, repr=False)
 
-    def attach(self, vertices: np.ndarray, faces: np.ndarray) -> "Field":
+    def attach(self, vertices: np.ndarray, faces: np.ndarray) -> Field:
         """Give the field its mesh (local frame), so receivers can test which samples they see."""
         self.tracer = Tracer(vertices, faces)
         return self
 
     @staticmethod
-    def from_cuts(grid: FieldGrid, cs: CutSet, key: str = "", stats: dict | None = None) -> "Field":
+    def from_cuts(grid: FieldGrid, cs: CutSet, key: str = "", stats: dict | None = None) -> Field:
         hp, bits = pack_cuts(cs)
         return Field(grid, np.asarray(cs.offsets, np.int64), hp, bits, cs.height, key, dict(stats or {}))
 
@@ -166,7 +166,7 @@ class Field:
         return raw.getvalue()
 
     @staticmethod
-    def decode(blob: bytes) -> "Field":
+    def decode(blob: bytes) -> Field:
         if not blob.startswith(MAGIC):
             raise FieldError("not a Glint cut-field blob")
         try:
@@ -218,7 +218,7 @@ def cone_directions(tree: DirectionTree, origin: np.ndarray, center: np.ndarray,
     return np.nonzero(tree.leaves @ (d / dist).astype(np.float32) >= cos_half - 1e-6)[0]
 
 
-def trace_field(vertices: np.ndarray, faces: np.ndarray, spec: GridSpec = GridSpec(), tree: DirectionTree | None = None,
+def trace_field(vertices: np.ndarray, faces: np.ndarray, spec: GridSpec | None = None, tree: DirectionTree | None = None,
                 threads: int = 2, batch: int = 32, progress=None, key: str = "") -> Field:
     """Trace the field of a mesh in its own frame.
 
@@ -229,6 +229,7 @@ def trace_field(vertices: np.ndarray, faces: np.ndarray, spec: GridSpec = GridSp
     Returns a Field whose ``stats`` hold seconds, rays traced and rays per second.
     """
     tree = tree or get_tree()
+    spec = spec or GridSpec()
     c, r = bounding_sphere(vertices)
     grid = FieldGrid(c, r, spec)
     pos = grid.positions()
@@ -273,7 +274,7 @@ def trace_field(vertices: np.ndarray, faces: np.ndarray, spec: GridSpec = GridSp
     cs = CutSet.concat(parts)
     stats = {"seconds": secs, "samples": n, "rays_traced": rays[0], "rays_per_second": rays[0] / max(secs, 1e-9),
              "samples_per_second": n / max(secs, 1e-9), "mean_cut_size": float(cs.sizes().mean()),
-             "threads": threads, "triangles": int(len(faces))}
+             "threads": threads, "triangles": len(faces)}
     f = Field.from_cuts(grid, cs, key, stats)
     f.clearance = clearance
     return f

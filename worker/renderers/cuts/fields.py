@@ -73,8 +73,9 @@ Rotation, the options measured (BENCHMARKS.md "Cut fields", per frame at 10K rec
 from __future__ import annotations
 
 import copy
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -86,11 +87,26 @@ from ...errors import GlintError
 from ..base import Part
 from .combine import DEFAULT_HMIN, Combiner, combined_cuts, lookup  # noqa: F401  (the API)
 from .field import Field, FieldError, bounding_sphere, field_key, mesh_key, trace_field  # noqa: F401
-from .grid import FieldGrid, GridSpec  # noqa: F401
+from .grid import FieldGrid, GridSpec
 from .rotate import rotation_part
 
-__all__ = ["Field", "FieldGrid", "GridSpec", "Combiner", "combined_cuts", "trace_field", "ObjectShape",
-           "object_shape", "field_parts", "compute_part", "load_part", "frame_lighting", "static_cuts"]
+__all__ = [
+    "Combiner",
+    "Field",
+    "FieldGrid",
+    "FrameGroup",
+    "GridSpec",
+    "MovingScene",
+    "ObjectShape",
+    "combined_cuts",
+    "compute_part",
+    "field_parts",
+    "frame_lighting",
+    "load_part",
+    "object_shape",
+    "static_cuts",
+    "trace_field",
+]
 
 
 class MoveError(GlintError):
