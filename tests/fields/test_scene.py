@@ -204,7 +204,7 @@ def test_movable_objects_own_vertices_against_the_other_objects(scene, whole, li
 def test_after_a_move_cuts_agree_with_precomputing_the_moved_scene(scene, lighting, static, own, fields, cache_dir):
     """oakTable turned by −35° and slid 1.5 m along the table (MovingScene, as the renderer
     calls it), against the static precomputation of the scene file with oakTable there."""
-    from worker.renderers.cuts.fields import MovingScene
+    from worker.renderers.cuts.fields import MoveError, MovingScene
     from worker.scene import Transform
 
     tree = get_tree()
@@ -216,6 +216,8 @@ def test_after_a_move_cuts_agree_with_precomputing_the_moved_scene(scene, lighti
     moved_scene = LoadedScene(spec, scene.root, envmap=scene.envmap)
     ref = open_renderer(moved_scene).cuts
     ms = MovingScene(scene, ["oakTable"], static, {2: own}, fields)
+    with pytest.raises(MoveError):
+        ms.cuts(np.arange(10), {"table": moved})                   # static objects stay put
     groups = ms.cuts(np.arange(len(scene.mesh.vertices)), {"oakTable": moved})
     assert {g.object for g in groups} == {None, 2}
     eye = np.asarray(scene.spec.camera.eye, np.float64)

@@ -369,16 +369,19 @@ class MovingScene:
         self.combiner = Combiner(hmin, kernels=kernels)
 
     def world_from_local(self, transforms: Mapping[str, Any] | None = None) -> list[np.ndarray]:
-        """(4, 4) per object: its transform now (``transforms`` by object name overrides the
-        scene's for movable objects; a movable object may rotate about +Y and its scene X
-        rotation, not about Z)."""
+        """(4, 4) per object: its transform now (``transforms``, scene.Transform by object name,
+        overrides the scene's for movable objects; a static object never moves)."""
+        names = [o.name for o in self.scene.spec.objects]
+        fixed = [n for n in (transforms or {}) if n not in names or names.index(n) not in self.movable]
+        if fixed:
+            raise MoveError(f"not movable: {', '.join(fixed)}")
         out = []
         for i, o in enumerate(self.scene.spec.objects):
             t = (transforms or {}).get(o.name) if i in self.movable else None
-            if t is not None and t.rotate_deg[2] != 0:
-                raise MoveError(f"{o.name}: a movable object turns about +Y (and keeps its X rotation), "
-                                "not about Z")
-            out.append(split_transform(t or o.transform)[1])
+            shape_scale, m = split_transform(t or o.transform)
+            if t is not None and shape_scale != self.shapes[i].shape_scale:
+                raise MoveError(f"{o.name}: moving cannot change a non-uniform scale (it is part of the shape)")
+            out.append(m)
         return out
 
     def cuts(self, vertex_ids: np.ndarray, transforms: Mapping[str, Any] | None = None) -> list[FrameGroup]:
