@@ -15,7 +15,10 @@
 #endif
 #include "glint_common.h"
 
-/* Output of the variable-length kernels: each item is built in a per-thread scratch buffer, then
+/* Small calls stay on the calling thread (``if`` clauses): waking the team costs more than the
+ * work, and far more on a loaded machine, where a parallel region waits for a time slice.
+ *
+ * Output of the variable-length kernels: each item is built in a per-thread scratch buffer, then
  * copied to a shared buffer at an offset taken with an atomic add (items land in any order; a
  * gather puts them in item order). pos[i] = −1 when the buffer was too small: the caller
  * retries with *used (the room all items needed). */
@@ -50,7 +53,7 @@ void glf_lookup(int64_t P, const float *pos, const float *nrm, const double *m, 
     const double cx = grid[0], cy = grid[1], cz = grid[2], rho0 = grid[3], rhomax = grid[4], logq = grid[5];
     const int K = (int)grid[6], n = (int)grid[7];
     const double rad = grid[8];
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static) if (P > 4096)
     for (int64_t p = 0; p < P; p++) {
         float *wp = w + 8 * p;
         double x = pos[3 * p], y = pos[3 * p + 1], z = pos[3 * p + 2];
@@ -122,7 +125,7 @@ void glf_lookup(int64_t P, const float *pos, const float *nrm, const double *m, 
  */
 void glf_nearest_leaves(int64_t P, const double *dirs, const int32_t *table, int R, const int32_t *neigh, int k,
                         const float *leaves, int32_t *out) {
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static) if (P > 4096)
     for (int64_t p = 0; p < P; p++) {
         double x = dirs[3 * p], y = dirs[3 * p + 1], z = dirs[3 * p + 2];
         double bx = fabs(x), by = fabs(y), bz = fabs(z);
@@ -169,7 +172,7 @@ void glf_rotate(int64_t n, const int32_t *ids, const int64_t *f_off, const uint8
                 int64_t cap, int32_t *out_s, uint8_t *out_h, uint8_t *out_q, int64_t *pos, int32_t *counts,
                 int64_t *used) {
     const int64_t N = (int64_t)1 << H, NW = N >> 6;
-#pragma omp parallel
+#pragma omp parallel if (n > 16)
     {
         uint64_t *W = (uint64_t *)malloc(sizeof(uint64_t) * NW);
         int32_t *Z = (int32_t *)malloc(sizeof(int32_t) * 2 * NW);  /* zero counts, levels ≥ 6 */
@@ -253,7 +256,7 @@ void glf_cells(int64_t n, const int32_t *corners, const int64_t *p_off, const in
                const uint8_t *p_h, const uint8_t *p_q, int H, int64_t cap, int32_t *out_a, int32_t *out_b,
                uint8_t *out_v, int64_t *pos, int32_t *counts, int64_t *used) {
     const int64_t N = (int64_t)1 << H;
-#pragma omp parallel
+#pragma omp parallel if (n > 16)
     {
         const int32_t *os[8]; const uint8_t *oh[8], *oq[8];
         int64_t len[8], ptr[8], nxt[8];
@@ -322,7 +325,7 @@ void glf_combine(int64_t V, const int32_t *cut_of, const int64_t *b_off, const u
                  const uint8_t *const *c_v, int64_t cap, uint8_t *out_h, uint8_t *out_q, int64_t *pos, int32_t *counts,
                  int64_t *used) {
     const int64_t N = (int64_t)1 << H;
-#pragma omp parallel
+#pragma omp parallel if (V > 64)
     {
         const int32_t **ca = (const int32_t **)malloc(sizeof(void *) * (n_occ + 1));
         const int32_t **cb = (const int32_t **)malloc(sizeof(void *) * (n_occ + 1));
@@ -407,7 +410,7 @@ void glf_combine(int64_t V, const int32_t *cut_of, const int64_t *b_off, const u
 /* Gather items placed at pos[i] (counts[i] elements of esize bytes) into item order at dst_off[i]. */
 void glf_gather(int64_t n, const int64_t *pos, const int32_t *counts, const uint8_t *src, int64_t esize,
                 const int64_t *dst_off, uint8_t *dst) {
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static) if (n > 4096)
     for (int64_t i = 0; i < n; i++)
         if (counts[i]) memcpy(dst + esize * dst_off[i], src + esize * pos[i], (size_t)(esize * counts[i]));
 }

@@ -57,7 +57,8 @@ Rendering (combine.py, rotate.py; C kernels in worker/native/src/fields.c):
      self-occluded) kept whole. The output is an ordinary CutSet over the receiver frame's
      leaves, shaded by glk_shade_points.
   h_min = 3: the interpolation, not the coarser field nodes, dominates the error (shadow-shape
-  error +0.002-0.003 of the hemisphere at h_min = 3), and the field cuts get 2-3× shorter.
+  error 0.018-0.052 of the hemisphere at h_min = 0, +0.003-0.007 at h_min = 3; irradiance error
+  unchanged), and the field cuts get 2-3× shorter; h_min = 5 (+0.007-0.017) suits dragging.
 
 Rotation, the options measured (BENCHMARKS.md "Cut fields", per frame at 10K receivers):
   * re-expressing each vertex's (or its combined) cut over rotated leaves: a 2^15-leaf gather
