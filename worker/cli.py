@@ -513,6 +513,7 @@ COMMAND_MODULES: list[str] = [
     "worker.renderers.gi.cli",
     "worker.paint.cli",
     "worker.capture.cli",
+    "worker.renderers.cuts.fields_cli",      # glint field trace | bench (cut fields of movable objects)
 ]
 
 
