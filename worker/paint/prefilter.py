@@ -40,30 +40,17 @@ SUPPORT = 1e-3           # kernel support: cos^E ≥ SUPPORT (must match GLP_SUP
 MIN_ROWS = 64
 PIXELS_PER_SIGMA = 3.0
 
-# ctypes signatures of the paint kernels, declared here with their own pointer types (the
-# library is shared; these functions are this module's)
-_F32 = np.ctypeslib.ndpointer(np.float32, flags="C_CONTIGUOUS")
-_I32 = np.ctypeslib.ndpointer(np.int32, flags="C_CONTIGUOUS")
-_I64 = np.ctypeslib.ndpointer(np.int64, flags="C_CONTIGUOUS")
-
+# the paint kernels (worker/native/src/paint.c), parameters named and ordered as their prototypes;
+# the library is shared, these functions are this module's. vsh, dst and out are passed as
+# addresses (dst, vsh may be NULL), hence voidp.
 if native.lib is not None and hasattr(native.lib, "glp_prefilter"):
-    import ctypes as _ct
-    _int, _dbl, _n = _ct.c_int, _ct.c_double, _ct.c_int64
-    native.lib.glp_prefilter.argtypes = [_F32, _int, _int, _dbl, _F32]       # img, H, W, E, out
-    native.lib.glp_prefilter.restype = None
-    native.lib.glp_shade.argtypes = [
-        _n, _F32, _F32, _I32,            # P, normals (P×3), views (P×3), material index per pixel
-        _F32, _int, _int,                # material rows (n_mat × (3 + 4M)), n_mat, M
-        _F32, _I64, _I32, _I32,          # lobe maps (concatenated), offsets, H, W per map
-        _F32, _I64,                      # vector maps (concatenated), offsets (−1: none)
-        _F32, _int, _int,                # cosine tables ((M+1) × T), T, mode
-        _F32, _int, _dbl,                # exponents (M+1), fresnel flag, F0
-        _ct.c_void_p, _F32,              # per-pixel visibility SH (P×18) or NULL, zonal ((M+1) × 3)
-        _dbl, _dbl,                      # rotation (rad), intensity
-        _ct.c_void_p, _ct.c_void_p]      # destination pixel per point (int64) or NULL, out (×3 float32)
-    native.lib.glp_shade.restype = None
-    native.lib.glp_background.argtypes = [_n, _F32, _F32, _int, _int, _dbl, _dbl, _ct.c_void_p, _ct.c_void_p]
-    native.lib.glp_background.restype = None
+    from ..native import bind, f32p, f64, i32, i32p, i64, i64p, voidp
+    bind("glp_prefilter", None, img=f32p, H=i32, W=i32, E=f64, out=f32p)
+    bind("glp_shade", None, P=i64, normals=f32p, views=f32p, mat_of=i32p, mats=f32p, n_mat=i32, M=i32,
+         maps=f32p, offs=i64p, hs=i32p, ws=i32p, vmaps=f32p, voffs=i64p, tables=f32p, T=i32, mode=i32,
+         expo=f32p, fresnel=i32, f0=f64, vsh=voidp, zonal=f32p, rot=f64, intensity=f64, dst=voidp, out=voidp)
+    bind("glp_background", None, P=i64, uv=f32p, map=f32p, Hm=i32, Wm=i32, rot=f64, intensity=f64, dst=voidp,
+         out=voidp)
 
 
 def _c(a, dtype) -> np.ndarray:

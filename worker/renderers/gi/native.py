@@ -3,46 +3,53 @@ references: trace.sample_numpy, trace.emit_numpy, freeze.freeze_numpy, freeze.fr
 (tests/gi/test_native.py checks that they agree)."""
 from __future__ import annotations
 
-import ctypes
-
 import numpy as np
 
 from ... import native as _n
+from ...native import (
+    bind,
+    f32,
+    f32p,
+    f64,
+    f64p,
+    i32,
+    i32p,
+    i64,
+    i64p,
+    u8p,
+    u16p,
+    u32p,
+    u64p,
+)
 from . import zspace
 from .freeze import Frozen, PixelUnits, padded_slots, sparse_bound, use_dense
-
-_f32 = np.ctypeslib.ndpointer(np.float32, flags="C_CONTIGUOUS")
-_f64 = np.ctypeslib.ndpointer(np.float64, flags="C_CONTIGUOUS")
-_i32 = np.ctypeslib.ndpointer(np.int32, flags="C_CONTIGUOUS")
-_i64 = np.ctypeslib.ndpointer(np.int64, flags="C_CONTIGUOUS")
-_u8 = np.ctypeslib.ndpointer(np.uint8, flags="C_CONTIGUOUS")
-_u16 = np.ctypeslib.ndpointer(np.uint16, flags="C_CONTIGUOUS")
-_u64 = np.ctypeslib.ndpointer(np.uint64, flags="C_CONTIGUOUS")
-_u32 = np.ctypeslib.ndpointer(np.uint32, flags="C_CONTIGUOUS")
-_I64, _int, _dbl = ctypes.c_int64, ctypes.c_int, ctypes.c_double
 
 _lib = _n.lib
 _ok = _lib is not None and hasattr(_lib, "gi_sample")
 if _ok:
-    _lib.gi_sample.argtypes = [_I64, _f64, _f64, _f64, _f64, _f64, _int, _f64, _f64, _f64, _int, _int, _dbl,
-                               _f64, _f64, _f64, _f64, _f64, _f64, _u8, _u8]
-    _lib.gi_emit.argtypes = [_I64, _i64, _int, _int, _int, _int, _i32, _int, _I64, _I64, _I64,
-                             _i32, _i32, _f64, _f64, _f64, _i32, _f64, _i32, _i32, _f64, _i32, _i32, _f64, _f64,
-                             _f64, _f64, _f64, _f64, _f64, _f64, _f64, _f64, _f64,
-                             _i64, _I64, _i64, _i32, _f32, _I64,
-                             _f64, _i32, _f64, _i32, _i32, _f64, _i32, _i32]
-    _lib.gi_occupancy.argtypes = [_I64, _I64, _i32, _i32]
-    _lib.gi_compact.argtypes = [_I64, _I64, _i32, _f32, ctypes.c_float, _I64, _i64, _i32, _u16, _u32, _u16, _f32]
-    _lib.gi_half.argtypes = [_I64, _f32, _u16, _int, _f32]
-    _lib.gi_freeze.argtypes = [_I64, _int, _u64, _u64, _u64, _u64, _u64, _u64, _u64, _u64, _int, _i32, _f32, _i32,
-                               _f32, _f32, _int, _int, _int, _int, _int, _i64, _i64, _f32, _u16, _i32, _f32,
-                               _int, _int, _int, _u16]
-    _lib.gi_maxpow.argtypes = [_I64, _int, _u64, _u64, _u64, _i64]
-    _lib.gi_maxpow.restype = _int
-    _lib.gi_frame.argtypes = [_I64, _int, _f32, _f32, _i64, _i64, _u16, _f32, _f32, _i32, _f32, _f32, _I64, _i64, _f32]
-    _lib.gi_frame_dense.argtypes = [_I64, _int, _f32, _f32, _i64, _int, _int, _u16, _f32, _f32, _i32, _f32, _f32,
-                                    _f32, _i64, _f32]
-
+    # parameters named and ordered as the prototypes in gi.c
+    bind("gi_sample", None, R=i64, pos=f64p, ng=f64p, ns=f64p, wo=f64p, u=f64p, nu=i32, row_cdf=f64p,
+         col_cdf=f64p, tp=f64p, H=i32, W=i32, rot=f64, dl=f64p, db=f64p, pdf_ll=f64p, pdf_bl=f64p, pdf_bb=f64p,
+         pdf_lb=f64p, valid_l=u8p, valid_b=u8p)
+    bind("gi_emit", None, P=i64, starts=i64p, k=i32, J=i32, J2=i32, layers=i32, oq=i32p, K1=i32, Tk=i64, W2=i64,
+         Zs=i64, unit=i32p, obj=i32p, ns=f64p, wo=f64p, beta=f64p, p1b=i32p, p1w=f64p, p2c=i32p, p2b=i32p,
+         p2w=f64p, z=i32p, zc=i32p, onu=f64p, oaxis=f64p, dl=f64p, db=f64p, Ll=f64p, Lb=f64p, wl=f64p, wb=f64p,
+         pdf_bb=f64p, fl=f64p, fb=f64p, C=i64p, Crows=i64, zoff=i64p, hkeys=i32p, hvals=f32p, cap=i64,
+         o_beta=f64p, o_p1b=i32p, o_p1w=f64p, o_p2c=i32p, o_p2b=i32p, o_p2w=f64p, o_z=i32p, o_zc=i32p)
+    bind("gi_occupancy", None, P=i64, cap=i64, keys=i32p, occ=i32p)
+    bind("gi_compact", None, P=i64, cap=i64, keys=i32p, vals=f32p, inv_spp=f32, Tk=i64, ub=i64p, cnt=i32p,
+         slot=u16p, tail=u32p, val=u16p, scale=f32p)
+    bind("gi_half", None, n=i64, in_=f32p, out=u16p, to_half=i32, back=f32p)  # in_: C's `in`
+    # a_*: tables of addresses (uint64), one per bounce
+    bind("gi_freeze", None, P=i64, nb=i32, a_off=u64p, a_slot=u64p, a_tail=u64p, a_val=u64p, a_scale=u64p,
+         a_kk=u64p, a_pw=u64p, a_A=u64p, L=i32, units=i32p, weights=f32p, k0=i32p, tt=f32p, C1=f32p, KT=i32,
+         K1=i32, K2=i32, NP=i32, iu=i32, qpos=i64p, ub=i64p, V=f32p, F=u16p, cnt=i32p, fscale=f32p, dense=i32,
+         NPe=i32, S=i32, Fd=u16p)
+    bind("gi_maxpow", i32, P=i64, nb=i32, a_off=u64p, a_tail=u64p, a_pw=u64p, qpos=i64p)
+    bind("gi_frame", None, P=i64, K2NP=i32, V=f32p, ckn=f32p, qpos=i64p, offs=i64p, F=u16p, fscale=f32p,
+         hq=f32p, k0=i32p, tt=f32p, Tab=f32p, nkeys=i64, pix=i64p, out=f32p)
+    bind("gi_frame_dense", None, P=i64, NP=i32, V=f32p, ckn=f32p, qpos=i64p, NPe=i32, S=i32, Fd=u16p,
+         fscale=f32p, hq=f32p, k0=i32p, tt=f32p, CT=f32p, dpow=f32p, pix=i64p, img=f32p)
 
 def available() -> bool:
     return _ok
