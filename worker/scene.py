@@ -82,6 +82,9 @@ class SceneObject(_Strict):
     material: Material = Field(default_factory=Lambert)
     # GI renderer (polynomial-gi §5.3): false bakes this material into the precomputation
     editable: bool = True
+    # cut renderer (cyber-worlds §V): true precomputes a visibility cut field for the object, so
+    # it can be moved without precomputing again
+    movable: bool = False
 
 
 class SceneFile(_Strict):

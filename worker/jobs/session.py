@@ -223,7 +223,7 @@ class SessionRuntime:
         before = self.state
         self.state, eff = apply(before, msg)
         ev: list[dict] = []
-        if msg.type in ("view", "light"):
+        if msg.type in ("view", "light", "move"):
             self._drag = eff.drag
         if eff.kind == "rebase":
             self.fitter = None             # strokes painted over the old material do not carry over
@@ -376,7 +376,7 @@ class SessionRuntime:
             camera = self.scene.spec.camera
             lighting = Lighting(self.scene.spec.environment.rotation_deg, st.intensity)
         req = FrameRequest(camera=camera, lighting=lighting, materials=st.materials,
-                           lod="drag" if self._drag else "full",
+                           lod="drag" if self._drag else "full", transforms=st.transforms or None,
                            vertex_radiance=None if self._drag else self._override())
         out = self.renderer.render(req)
         rgb = tonemap(out.radiance, st.exposure, st.tone)

@@ -26,7 +26,7 @@ from pydantic_core import PydanticCustomError, core_schema
 
 from ..fit.brush import DEFAULT_UNPAINTED_WEIGHT, Stroke
 from ..models import Material, Vec3, parse_material
-from ..scene import Camera
+from ..scene import Camera, Transform
 
 Tone = Literal["linear", "aces", "neutral"]
 
@@ -91,6 +91,9 @@ class SessionState(BaseModel):
     renderers: list[str] = Field(default_factory=lambda: ["cuts"])
     # the paint designer's last readings per object (what the paint panel shows)
     paint: dict[str, dict] = Field(default_factory=dict)
+    # where movable objects are now (scene objects with "movable": true), by name
+    transforms: dict[str, Transform] = Field(default_factory=dict)
+    movable: list[str] = Field(default_factory=list)
 
     def allows(self, control: str) -> bool:
         from ..renderers import controls
@@ -115,11 +118,13 @@ def new_state(spec, object_name: str | None = None, camera=None, **fields) -> Se
     mats = [o.get("material") or {"model": "lambert"} for o in spec["objects"]]
     env = spec["environment"]
     kind = spec.get("renderer") or "cuts"
+    movable = [o["name"] for o in spec["objects"] if o.get("movable")]
     return SessionState.model_validate({
         "objects": names, "object": obj, "camera": camera or spec["camera"],
         "rotation_deg": env.get("rotation_deg", 0.0), "intensity": env.get("intensity", 1.0),
         "materials": mats, "base_material": mats[names.index(obj)], "renderer": kind,
-        "renderers": [kind] + (["cuts"] if kind != "cuts" else []), **fields})
+        "renderers": [kind] + (["cuts"] if kind != "cuts" else []), "movable": movable,
+        "transforms": {o["name"]: o.get("transform") or {} for o in spec["objects"] if o.get("movable")}, **fields})
 
 
 def restore_state(raw: dict, spec) -> tuple[SessionState, list[str]]:
@@ -406,6 +411,28 @@ class EnvironmentMsg(ClientMsg):
         st.environment_index = i
         st.rotation_deg = st.environments[i].rotation_deg
         return None
+
+
+@message
+class MoveMsg(ClientMsg):
+    """Place a movable object (cyber-worlds §V: visibility cut fields): its transform as in the
+    scene file (scale, rotate, translate), replacing the one it had. ``drag`` while the user
+    drags it (the drag level of detail)."""
+    readonly_ok: ClassVar[bool] = True
+    type: Literal["move"] = "move"
+    object: str = Field(min_length=1, max_length=255)
+    transform: Transform
+    drag: bool = False
+
+    def apply(self, st):
+        if not st.allows("move"):
+            raise StateError(f"move: the {st.renderer} renderer cannot move objects")
+        if self.object not in st.objects:
+            raise StateError(f"move: no object {self.object!r} (objects: {', '.join(st.objects)})")
+        if self.object not in st.movable:
+            raise StateError(f"move: {self.object!r} is not movable (mark it \"movable\": true in the scene file)")
+        st.transforms = {**st.transforms, self.object: self.transform}
+        return Effect("move", drag=self.drag, data={"object": self.object})
 
 
 @message

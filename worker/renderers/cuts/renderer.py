@@ -135,8 +135,9 @@ class CutRenderer(Renderer):
 
     # -- frames -----------------------------------------------------------------------------------
     def render(self, req: FrameRequest) -> Rendered:
-        if req.transforms:
-            raise Unsupported("this scene has no movable objects precomputed (cut fields)")
+        if req.transforms and any(self.scene.spec.objects[self._index(n)].transform != t
+                                  for n, t in req.transforms.items()):
+            raise Unsupported("moving objects needs their visibility cut fields (not wired yet)")
         t = {}
         t0 = time.perf_counter()
         camera = req.camera
@@ -183,6 +184,9 @@ class CutRenderer(Renderer):
         return Rendered(img.reshape(camera.height, camera.width, 3), obj.reshape(camera.height, camera.width), t,
                         {"lod": req.lod, "tau": DRAG_TAU if drag else self.data.tau, "width": camera.width,
                          "height": camera.height, "visible_vertices": int(len(v.visible))})
+
+    def _index(self, name: str) -> int:
+        return [o.name for o in self.scene.spec.objects].index(name)
 
     def object_mask(self, camera) -> np.ndarray:
         """(H, W) int32 object index per pixel, −1 background."""
