@@ -5,6 +5,8 @@ import { FrameView } from "./canvas.js";
 import { CurveEditor, drawLobe } from "./curve.js";
 import { toCurve } from "./brdf.js";
 import { orbit } from "./orbit.js";
+import { createLobeVisualiser, createPaintPanel, createSwatchPalette, downloadMeasurements } from "./paint.js";
+import { mountCapturePanel } from "./capture.js";
 
 const $ = (id) => document.getElementById(id);
 const status = (t) => { $("status").textContent = t; };
@@ -106,8 +108,56 @@ export function fitSummary(s) {
   return parts.join(", ");
 }
 
+// -- renderers: what this session's renderer lets the designer change -------------------------------
+let controls = new Set(["camera", "light", "materials", "environment"]), renderers = ["cuts"], rendererKind = "cuts";
+const RENDERER_NAMES = { cuts: "direct light (visibility cuts)", gi: "global illumination", paint: "car paint (prefiltered lobes)" };
+function showRenderer(kind, ctl, available) {
+  rendererKind = kind; controls = new Set(ctl); if (available) renderers = available;
+  const fixed = !controls.has("camera");
+  $("renderer-info").textContent = RENDERER_NAMES[kind] || kind;
+  if (fixed) $("renderer-info").textContent += " — view and light are fixed by the precomputation; edit materials";
+  document.querySelectorAll("#tool-orbit, #tool-light").forEach((e) => { e.disabled = fixed; });
+  if (fixed && tool() !== "brush") $("tool-brush").checked = true;
+  const other = renderers.find((k) => k !== kind);
+  const sw = $("renderer-switch");
+  sw.classList.toggle("hidden", !other);
+  if (other) { sw.textContent = `Switch to ${RENDERER_NAMES[other] || other}`; sw.onclick = () => stream?.send("renderer", { kind: other }); }
+}
+
+// -- paint designer and lighting capture ------------------------------------------------------------
+let paintPanel = null, lastPaint = null;
+const lobeView = createLobeVisualiser($("paint-lobe"));
+const palette = createSwatchPalette($("paint-palette"), { onSelect: (d) => paintPanel?.set(d.measurements) });
+function mountPaint(object, initial) {
+  $("paint-panel").innerHTML = "";
+  paintPanel = createPaintPanel($("paint-panel"), { object, initial,
+    // the panel numbers its own messages; the stream gives them the session's seq
+    send: ({ type, seq, ...fields }) => stream?.send("paint", fields) });
+}
+$("paint-keep").onclick = () => {
+  if (!lastPaint) return status("move a paint slider first");
+  const name = $("design-name").value || "paint";
+  palette.add({ name, measurements: lastPaint.measured, material: lastPaint.material });
+  stream?.send("save", { name, material_id: designId });
+};
+$("paint-export-json").onclick = () => lastPaint && downloadMeasurements(lastPaint.measured, $("design-name").value || "paint", "json");
+$("paint-export-csv").onclick = () => lastPaint && downloadMeasurements(lastPaint.measured, $("design-name").value || "paint", "csv");
+mountCapturePanel($("capture-panel"), { api, onApply: (assetId) => stream?.send("environment", { asset_id: assetId }) });
+
 function onEvent(ev) {
-  if (ev.type === "fit") {
+  if (ev.type === "hello") {
+    showRenderer(ev.renderer || "cuts", ev.controls || [], ev.renderers);
+    mountPaint(ev.state.object, ev.state.paint?.[ev.state.object] || null);
+  } else if (ev.type === "renderer") {
+    showRenderer(ev.kind, ev.controls);
+    status(`now drawing with ${RENDERER_NAMES[ev.kind] || ev.kind}`);
+  } else if (ev.type === "paint") {
+    lastPaint = ev;
+    setMaterial(ev.material);
+    paintPanel?.showEvent(ev);
+    lobeView.update(ev.material, 45);
+    status(`paint: fitted in ${ev.ms_fit.toFixed(1)} ms, error ${(100 * ev.error_l1).toFixed(1)}%`);
+  } else if (ev.type === "fit") {
     setMaterial(ev.material);
     status(fitSummary(ev.stats || {}));
     if (ev.notes?.length) status(ev.notes.join("; "));
