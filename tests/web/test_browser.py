@@ -114,6 +114,7 @@ def test_studio_and_viewer(server, bunny_scene, browser, artifacts):
 
     # 4. dragging a point of the curve editor changes the material and the frame
     pts = json.loads(page.locator("#curve").get_attribute("data-points"))
+    page.locator("#curve").scroll_into_view_if_needed()              # the side panel is taller than the window
     box = page.locator("#curve").bounding_box()
     px, py = pts[1]
     n = frame_no(page)
