@@ -28,7 +28,7 @@ browser:
 	./scripts/ensure-chromium
 
 test: install browser
-	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -ra
+	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -ra $(PYTEST_ARGS)
 
 bench: install
 	$(VENV)/bin/glint bench render bench/oakChair.json --frames 40 --json
