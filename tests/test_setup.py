@@ -22,3 +22,11 @@ def test_make_test_installs_the_browser_it_needs():
     assert setup and tests and setup[0] < tests[0], out
     script = (ROOT / "scripts" / "ensure-chromium").read_text()
     assert "apt-get install" in script and "chromium" in script
+
+
+def test_test_modules_have_unique_names():
+    """Test folders are not packages: two modules with one basename cannot both be collected
+    in one run (pytest's prepend import mode), which only a whole-suite run shows."""
+    names = [p.name for p in (ROOT / "tests").rglob("test_*.py")]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    assert not dup, f"test modules share a name: {dup}"
