@@ -269,6 +269,7 @@ async def stream(ws: WebSocket, sid: str, token: str | None = Query(None)):
             kind, p = await q.get()
             if kind == "frame":
                 hdr, img = p
+                st.metrics.frame(sid, hdr)
                 if q.dropped_frames:
                     hdr = {**hdr, "dropped_frames": q.dropped_frames}
                 await ws.send_bytes(encode_frame(hdr, img))
@@ -306,6 +307,7 @@ async def stream(ws: WebSocket, sid: str, token: str | None = Query(None)):
                 await ws.send_text(json.dumps(err))
                 continue
             st.pool.send(sid, fwd)
+            st.metrics.message(sid, fwd)
     except WebSocketDisconnect:
         pass
     except RuntimeError as e:   # sending on a socket the client already closed
@@ -314,6 +316,7 @@ async def stream(ws: WebSocket, sid: str, token: str | None = Query(None)):
         sender.cancel()
         st.streams.pop(sid, None)
         st.pool.close_session(sid)
+        st.metrics.session_ended(sid)
         await run_in_threadpool(_ended, st, sid)
 
 
