@@ -25,6 +25,9 @@ def _design(db, material_id: str) -> MaterialDesign:
 
 
 def add_version(db, d: MaterialDesign, body: dict, note: str = "") -> MaterialVersion:
+    # the design row is locked until commit, so concurrent saves (sessions, REST) number their
+    # versions one after the other (PostgreSQL; SQLite serialises writers anyway)
+    db.execute(select(MaterialDesign.id).where(MaterialDesign.id == d.id).with_for_update())
     cur = latest_version(db, d.id)
     v = MaterialVersion(design_id=d.id, version=(cur.version + 1) if cur else 1, body=body, note=note)
     db.add(v)
