@@ -513,7 +513,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 # one line per capability (its module's add_commands registers its subcommands)
-COMMAND_MODULES: list[str] = []
+COMMAND_MODULES: list[str] = ["worker.bench_ray"]
 
 
 def main(argv=None) -> int:

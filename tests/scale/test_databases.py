@@ -182,3 +182,13 @@ def test_concurrent_sessions_save_designs(server, client, bunny_scene):
     versions = [v["version"] for v in client.get(f"/v1/materials/{mid}/versions").json()]
     assert versions == list(range(1, 1 + 1 + 4 + 6)), versions
     assert "IntegrityError" not in server["server"].log() and "unhandled error" not in server["server"].log()
+
+
+def test_make_test_installs_postgresql_before_the_tests():
+    """`make test` runs scripts/ensure-postgresql before pytest (a fresh machine has no server)."""
+    out = subprocess.run(["make", "-n", "test"], cwd=ROOT, capture_output=True, text=True, check=True).stdout
+    lines = out.splitlines()
+    setup = [i for i, line in enumerate(lines) if "ensure-postgresql" in line]
+    tests = [i for i, line in enumerate(lines) if "-m pytest" in line]
+    assert setup and tests and setup[0] < tests[0], out
+    assert "apt-get install" in (ROOT / "scripts" / "ensure-postgresql").read_text()
