@@ -71,6 +71,8 @@ def bench_ray_precompute(scene_path: str, address: str, node_ip: str | None = No
                 "vertices": st.get("vertices"), "nodes_in_cluster": nodes, "ray_cpus": st["ray_cpus"],
                 "ray_chunks": st["ray_chunks"], "ray_nodes_used": st["ray_nodes"],
                 "seconds_wall": st["seconds_wall"], "seconds_chunks_max": st["seconds_chunks_max"],
+                "chunk_concurrency": st["seconds_chunks_sum"] / st["seconds_wall"],
+                "cpu_share_of_chunk_time": st["cpu_seconds_chunks_sum"] / st["seconds_chunks_sum"],
                 "seconds_job": total, "part_sha256": sha}
     finally:
         shutil.rmtree(root, ignore_errors=True)

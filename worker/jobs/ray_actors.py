@@ -210,7 +210,11 @@ class SessionHost:
             wall = time.perf_counter() - t1
             nodes = sorted({r["node_id"] for r in results})
             ray_stats = {"ray_chunks": len(chunks), "ray_nodes": len(nodes), "ray_cpus": cpus,
-                         "seconds_wall": wall, "seconds_chunks_max": max(r["seconds"] for r in results)}
+                         "seconds_wall": wall, "seconds_chunks_max": max(r["seconds"] for r in results),
+                         # chunk seconds summed over wall time: how many chunks ran at once (the
+                         # parallelism the cluster gave, whatever else loads the machines)
+                         "seconds_chunks_sum": sum(r["seconds"] for r in results),
+                         "cpu_seconds_chunks_sum": sum(r["cpu_seconds"] for r in results)}
             info[part.key] = {"label": part.label, "cached": False, "seconds": wall, "bytes": len(blob),
                               **stats, **ray_stats}
             computed += 1
@@ -249,7 +253,7 @@ def compute_chunk(settings: WorkerSettings, scene_p: dict, kind: str, part, opti
     from worker.renderers import get
 
     native.set_threads(1)                            # one CPU per task: no OpenMP oversubscription
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     cache = _task_cache(settings)
     _, pre = get(kind)
     sc = cache.scene(scene_p)
@@ -267,4 +271,5 @@ def compute_chunk(settings: WorkerSettings, scene_p: dict, kind: str, part, opti
     res = pre.compute(sc, part, options, chunk, progress, threads=1)
     if pending[0]:
         host.tick.remote(jid, pending[0])
-    return {"result": res, "node_id": ray.get_runtime_context().get_node_id(), "seconds": time.perf_counter() - t0}
+    return {"result": res, "node_id": ray.get_runtime_context().get_node_id(), "seconds": time.perf_counter() - t0,
+            "cpu_seconds": time.process_time() - c0}
