@@ -93,6 +93,9 @@ def test_precomputation_split_across_both_nodes_is_byte_identical(ray_server, bu
     assert hashlib.sha256(stored).hexdigest() == hashlib.sha256(local).hexdigest(), \
         f"Ray assembly differs from the local run ({len(stored)} vs {len(local)} bytes)"
     f["scene"] = scene
+    # a REST render runs on a session host too
+    r = c.post("/v1/renders", json={"scene_id": scene})
+    assert r.status_code == 200 and r.headers["content-type"] == "image/png" and r.content[:4] == b"\x89PNG", r.text[:300]
 
 
 def test_session_and_a_killed_actor(ray_server):
@@ -141,3 +144,15 @@ def test_session_and_a_killed_actor(ray_server):
     metrics = c.get("/metrics").text
     line = next(x for x in metrics.splitlines() if x.startswith("glint_worker_restarts_total"))
     assert float(line.split()[-1]) >= 1, line
+
+
+def test_the_api_process_with_the_ray_pool_loads_no_numerical_libraries():
+    """The Ray pool imports Ray and the actor classes, never Embree, OpenCV, trimesh or the QP solver (NumPy comes with the shared state models)."""
+    import subprocess
+
+    code = ("import sys; from server.config import Settings; from server.main import create_app; "
+            "import server.ray_pool, worker.jobs.ray_actors; create_app(Settings(backend='ray', demo=False)); "
+            "print(','.join(m for m in ('embreex', 'cv2', 'daqp', 'trimesh') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "", f"the API process imported {out.stdout.strip()}"

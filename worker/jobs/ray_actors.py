@@ -19,8 +19,8 @@ Blobs: every node reads meshes and maps, and the host writes parts, through ``Bl
 same ``blob_root`` path; on several hosts that path must be a shared directory (NFS, a mounted
 volume) or the store an S3-compatible one behind the same methods (worker/blobs.py).
 
-Nothing here imports NumPy or the tracer at module level: the API process imports this module to
-name the actor class, and must stay free of numerical libraries.
+Nothing here imports the tracer, OpenCV or the solvers at module level: the API process imports
+this module to name the actor class, and must stay free of them (tests/scale/test_ray.py).
 """
 from __future__ import annotations
 
