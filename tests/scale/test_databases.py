@@ -192,3 +192,45 @@ def test_make_test_installs_postgresql_before_the_tests():
     tests = [i for i, line in enumerate(lines) if "-m pytest" in line]
     assert setup and tests and setup[0] < tests[0], out
     assert "apt-get install" in (ROOT / "scripts" / "ensure-postgresql").read_text()
+
+
+def test_versions_are_numbered_one_after_the_other_under_contention(empty_db, monkeypatch):
+    """Eight threads add a version to one design at the same moment, each pausing between
+    reading the latest version and inserting the next (the race window, widened): the lock on the
+    design makes the versions 1…9 on SQLite and on PostgreSQL (without it, they collide)."""
+    import server.routes.materials as materials
+    from server.db import MaterialDesign, MaterialVersion, make_sessionmaker
+
+    Session_ = make_sessionmaker(empty_db)
+    with Session_() as s, s.begin():
+        d = MaterialDesign(name="contended")
+        s.add(d)
+        s.flush()
+        materials.add_version(s, d, {"model": "lambert", "albedo": [0.5, 0.5, 0.5]})
+        did = d.id
+    real = materials.latest_version
+
+    def slow_latest(db, design_id):
+        v = real(db, design_id)
+        time.sleep(0.05)
+        return v
+    monkeypatch.setattr(materials, "latest_version", slow_latest)
+    go = threading.Barrier(8)
+    errors = []
+
+    def add(k):
+        try:
+            go.wait()
+            with Session_() as s, s.begin():
+                materials.add_version(s, s.get(MaterialDesign, did), {"model": "lambert", "albedo": [0.1 * k, 0.2, 0.3]})
+        except Exception as e:  # noqa: BLE001 -- collected for the assertion
+            errors.append(repr(e))
+    threads = [threading.Thread(target=add, args=(k,)) for k in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    with Session_() as s:
+        versions = sorted(s.scalars(select(MaterialVersion.version).where(MaterialVersion.design_id == did)))
+    Session_.kw["bind"].dispose()
+    assert not errors and versions == list(range(1, 10)), (errors[:2], versions)
