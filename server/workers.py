@@ -319,8 +319,6 @@ class LocalWorkerPool(WorkerPool):
             "type": "note", "message": "the worker restarted; the session was restored"}))
 
 
-
-
 def make_pool(settings, restore: Callable[[str], dict] | None = None) -> WorkerPool:
     """The pool ``settings.backend`` names: local processes (default) or a Ray cluster."""
     if settings.backend == "ray":
