@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import re
+import secrets
 import shutil
 import signal
 import subprocess
@@ -22,7 +23,11 @@ class RayCluster:
     def __init__(self, nodes: int = 2, cpus: int = 1, object_store_mb: int = 150):
         self.tmp = Path(tempfile.mkdtemp(prefix="glr-", dir="/tmp"))     # short: Ray's socket paths
         self.cpus, self.object_store = cpus, object_store_mb * 1024 * 1024
-        self.env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0", "OPENBLAS_NUM_THREADS": "1"}
+        # token authentication with a token of this cluster's own (Ray ≥ 2.5x): every node and the
+        # driver must present it; a token left in ~/.ray by another Ray is never used
+        self.token = secrets.token_hex(32)
+        self.env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0", "OPENBLAS_NUM_THREADS": "1",
+                    "RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": self.token}
         self.procs: list[subprocess.Popen] = []
         self.address: str | None = None
         self.head_ip = "127.0.0.2"
@@ -78,7 +83,7 @@ class RayCluster:
     def driver_env(self) -> dict:
         """What a Glint server needs to join this cluster."""
         return {"GLINT_BACKEND": "ray", "GLINT_RAY_ADDRESS": self.address, "GLINT_RAY_NODE_IP": self.head_ip,
-                "RAY_USAGE_STATS_ENABLED": "0"}
+                "RAY_USAGE_STATS_ENABLED": "0", "RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": self.token}
 
     def _leftovers(self) -> list[int]:
         mark = str(self.tmp)
