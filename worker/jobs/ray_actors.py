@@ -33,6 +33,7 @@ import threading
 import time
 import traceback
 from collections import deque
+from pathlib import Path
 
 import ray
 
@@ -237,10 +238,27 @@ def _task_cache(settings: WorkerSettings):
 
     c = _task_caches.get(settings.blob_root)
     if c is None:
-        tmp = tempfile.mkdtemp(prefix="glint-task-")
+        # Ray ends its worker processes without running atexit, so each process's folder is named
+        # by its pid and the folders of processes that are gone are removed here
+        base = Path(tempfile.gettempdir())
+        for old in base.glob("glint-task-*"):
+            pid = old.name.split("-")[2]                  # glint-task-<pid>-<n>
+            if pid.isdigit() and not _alive(int(pid)):
+                shutil.rmtree(old, ignore_errors=True)
+        tmp = base / f"glint-task-{os.getpid()}-{len(_task_caches)}"
         atexit.register(shutil.rmtree, tmp, True)
-        c = _task_caches[settings.blob_root] = DataCache(settings.model_copy(update={"tmp_dir": tmp}))
+        c = _task_caches[settings.blob_root] = DataCache(settings.model_copy(update={"tmp_dir": str(tmp)}))
     return c
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 @ray.remote(num_cpus=1, max_retries=1)
