@@ -23,7 +23,7 @@ class RayCluster:
     def __init__(self, nodes: int = 2, cpus: int = 1, object_store_mb: int = 150):
         self.tmp = Path(tempfile.mkdtemp(prefix="glr-", dir="/tmp"))     # short: Ray's socket paths
         self.cpus, self.object_store = cpus, object_store_mb * 1024 * 1024
-        # token authentication with a token of this cluster's own (Ray ≥ 2.5x): every node and the
+        # token authentication with a token of this cluster's own (Ray 2.60): every node and the
         # driver must present it; a token left in ~/.ray by another Ray is never used
         self.token = secrets.token_hex(32)
         self.env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0", "OPENBLAS_NUM_THREADS": "1",
