@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install build browser serve test bench clean
+.PHONY: install build browser postgres serve test bench bench-ray clean
 
 $(STAMP): pyproject.toml setup.py $(wildcard worker/native/src/*.c worker/native/src/*.h)
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -27,7 +27,11 @@ serve: install
 browser:
 	./scripts/ensure-chromium
 
-test: install browser
+# Debian's postgresql for the service tests on PostgreSQL (tests/pg.py; installed when missing)
+postgres:
+	./scripts/ensure-postgresql
+
+test: install browser postgres
 	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -ra $(PYTEST_ARGS)
 
 bench: install

@@ -39,6 +39,14 @@ class Settings(BaseModel):
     max_sessions: int = Field(64, ge=1, description="open streams in total")
     max_sessions_per_client: int = Field(8, ge=1, description="open streams per client (token or address)")
     session_idle_seconds: float = Field(900.0, gt=0, description="a stream with no message for this long is closed")
+    # beyond one machine (issue 17): "local" worker processes, or a Ray cluster (server/ray_pool.py)
+    backend: str = Field("local", pattern="^(local|ray)$", description="worker backend: local or ray")
+    ray_address: str | None = Field(None, description="Ray cluster to join (host:port of its GCS); unset: start one in-process")
+    ray_node_ip: str | None = Field(None, description="this process's address as the Ray cluster sees it (e.g. 127.0.0.2 on loopback)")
+    ray_chunks_per_cpu: float = Field(2.0, gt=0, description="precomputation chunks per cluster CPU (load balance vs overhead)")
+    # operations
+    log_format: str = Field("text", pattern="^(text|json)$", description="log lines as text or one JSON object per line")
+    shutdown_grace_seconds: float = Field(0.0, ge=0, description="on SIGTERM, how long running precomputations may finish before they are failed")
     demo: bool = True
     demo_scene: Path | None = Field(None, description="scene file of the demo (default: the fetched oak chair)")
     web_dir: Path = Field(default_factory=lambda: Path(__file__).resolve().parent.parent / "web")

@@ -20,11 +20,13 @@ from pathlib import Path
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import HTMLResponse, JSONResponse
+from fastapi.responses import HTMLResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 
 from .config import Settings
-from .deps import check_host, check_origin
+from .deps import Client, check_host, check_origin
+from .logs import RequestContext
+from .metrics import CONTENT_TYPE, Metrics
 from .routes import assets, captures, materials, publications, renders, scenes, sessions
 from .state import AppState
 
@@ -63,11 +65,15 @@ def _validation_message(exc: RequestValidationError) -> str:
 def create_app(settings: Settings | None = None, pool=None) -> FastAPI:
     settings = settings or Settings.from_env()
     install_log_redaction()
+    metrics = Metrics(lambda: getattr(app.state, "glint", None),
+                      {"version": VERSION, "backend": settings.backend, "database": settings.db_url.split(":")[0].split("+")[0]})
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
         st = AppState(settings, pool)
         app.state.glint = st
+        st.metrics = metrics
+        st.pool.run_job = metrics.wrap_job(st.pool.run_job)
         st.pool.start()
         who = "anonymous access is allowed from loopback only; other clients need an API token" \
             if settings.allow_anonymous_loopback else "every client needs an API token (glint token create)"
@@ -81,9 +87,7 @@ def create_app(settings: Settings | None = None, pool=None) -> FastAPI:
         try:
             yield
         finally:
-            for t in tasks + list(st.precompute_tasks.values()):
-                t.cancel()
-            st.pool.stop()
+            await _shutdown(st, tasks)
 
     app = FastAPI(title="Glint", version=VERSION, lifespan=lifespan,
                   description="Design materials (BRDFs) under real-world lighting: assets, scenes, "
@@ -100,6 +104,9 @@ def create_app(settings: Settings | None = None, pool=None) -> FastAPI:
             return JSONResponse({"detail": "cross-origin request refused (GLINT_ALLOWED_ORIGINS)"}, status_code=403)
         return await call_next(request)
 
+    # outermost: a request id for every request and stream, its access line and its metrics
+    app.add_middleware(RequestContext, observe=metrics.http)
+
     @app.exception_handler(RequestValidationError)
     async def _bad_request(request: Request, exc: RequestValidationError):
         return JSONResponse({"detail": _validation_message(exc)}, status_code=422)
@@ -115,6 +122,12 @@ def create_app(settings: Settings | None = None, pool=None) -> FastAPI:
         h = st.pool.health()
         ok = h.get("workers_alive", 0) == h.get("workers", 0)
         return {"status": "ok" if ok else "degraded", "version": VERSION, **h, "streams": len(st.streams)}
+
+    @app.get("/metrics", include_in_schema=False)
+    async def prometheus_metrics(_: Client):
+        """Prometheus metrics (text exposition format): sessions, frames, latencies, jobs, workers
+        (server/metrics.py lists them). Anonymous from loopback, else an API token."""
+        return Response(metrics.render(), media_type=CONTENT_TYPE)
 
     @app.get("/v1/status", tags=["health"])
     async def status(request: Request):
@@ -152,6 +165,26 @@ def create_app(settings: Settings | None = None, pool=None) -> FastAPI:
     async def viewer(pub_id: str):
         return page("viewer.html")
     return app
+
+
+async def _shutdown(st, tasks: list) -> None:
+    """Graceful stop (SIGTERM): running precomputations get ``shutdown_grace_seconds`` to finish,
+    then are cancelled, and each one's cancellation is awaited so that it is recorded as failed
+    with a message before the workers stop (nothing is left "running" in the database)."""
+    running = [t for t in st.precompute_tasks.values() if not t.done()]
+    grace = st.settings.shutdown_grace_seconds
+    if running and grace > 0:
+        log.info("stopping: waiting up to %.0f s for %d precomputation(s)", grace, len(running))
+        await asyncio.wait(running, timeout=grace)
+    pending = [t for t in tasks + list(st.precompute_tasks.values()) if not t.done()]
+    for t in pending:
+        t.cancel()
+    if pending:
+        await asyncio.wait(pending, timeout=15)
+    n = sum(1 for t in running if t.cancelled() or (t.done() and t.exception() is not None))
+    if n:
+        log.warning("stopping: %d precomputation(s) failed as cancelled; start them again after the restart", n)
+    st.pool.stop()
 
 
 async def _janitor(st, every: float = 60.0) -> None:

@@ -11,7 +11,7 @@ from worker.blobs import BlobStore
 
 from .config import Settings
 from .db import Asset, Capture, Precomputation, Scene, Session, StrokeRow, make_sessionmaker
-from .workers import LocalWorkerPool, WorkerPool
+from .workers import WorkerPool, make_pool
 
 log = logging.getLogger("glint")
 
@@ -30,7 +30,7 @@ class AppState:
         settings.data_dir.mkdir(parents=True, exist_ok=True)
         self.db = make_sessionmaker(settings.db_url)
         self.blobs = BlobStore(settings.data_dir / "blobs")
-        self.pool = pool or LocalWorkerPool(settings.workers, settings.worker_settings, restore=self.session_payload)
+        self.pool = pool or make_pool(settings, restore=self.session_payload)
         self.precompute_tasks: dict[str, object] = {}
         self.streams: dict[str, str] = {}        # open streams: session id -> client
         self.demo: dict = {"state": "off"}       # the demo scene's preparation, for the studio

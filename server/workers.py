@@ -319,3 +319,14 @@ class LocalWorkerPool(WorkerPool):
             "type": "note", "message": "the worker restarted; the session was restored"}))
 
 
+def make_pool(settings, restore: Callable[[str], dict] | None = None) -> WorkerPool:
+    """The pool ``settings.backend`` names: local processes (default) or a Ray cluster."""
+    if settings.backend == "ray":
+        from .ray_pool import RayWorkerPool
+
+        def host_settings(slot: int):
+            return settings.worker_settings(slot).model_copy(update={
+                "tmp_dir": str(settings.data_dir / "tmp" / f"ray-{slot}"), "threads": settings.worker_threads})
+        return RayWorkerPool(settings.workers, host_settings, restore=restore, address=settings.ray_address,
+                             node_ip=settings.ray_node_ip, chunks_per_cpu=settings.ray_chunks_per_cpu)
+    return LocalWorkerPool(settings.workers, settings.worker_settings, restore=restore)

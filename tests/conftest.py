@@ -56,10 +56,55 @@ def bunny(bunny_renderer):
 
 
 
+# The service tests that also run against PostgreSQL (issue 17): sessions, strokes, saves and
+# material versions, i.e. what depends on the database's transactions and locks. Everything else
+# that uses ``server`` runs on SQLite only, so the suite does not double. A new test opts in with
+# @pytest.mark.both_databases.
+POSTGRES_TOO = {
+    "test_service.py::test_session_stroke_save_and_crash_recovery",
+    "test_service.py::test_rest_render_fit_and_material_versions",
+    "test_security.py::test_archived_designs_refuse_session_saves_and_fresnel_zero_means_zero",
+}
+
+
+def pytest_configure(config):
+    config.addinivalue_line("markers", "both_databases: run this service test on SQLite and on PostgreSQL")
+
+
+def pytest_generate_tests(metafunc):
+    """Every test that needs ``database`` (through ``server``) gets it as a parameter: sqlite, and
+    postgresql too for the tests named above or marked both_databases."""
+    if "database" not in metafunc.fixturenames:
+        return
+    name = f"{Path(metafunc.definition.fspath).name}::{metafunc.definition.originalname}"
+    both = name in POSTGRES_TOO or metafunc.definition.get_closest_marker("both_databases") is not None
+    metafunc.parametrize("database", ["sqlite", "postgresql"] if both else ["sqlite"], indirect=True, scope="session")
+
+
 @pytest.fixture(scope="session")
-def server(tmp_path_factory):
-    srv = GlintServer(tmp_path_factory.mktemp("glint-data"))
-    yield srv.as_dict()
+def postgres():
+    """A PostgreSQL server in a temporary folder, started on first use (tests/pg.py)."""
+    from pg import PostgresServer
+
+    pg = PostgresServer()
+    yield pg
+    pg.stop()
+
+
+@pytest.fixture(scope="session")
+def database(request):
+    """The server's database: "sqlite" (its data folder, the default) or "postgresql" (a fresh
+    database on the test PostgreSQL server). Returns (name, environment for GlintServer)."""
+    if request.param == "postgresql":
+        return "postgresql", {"GLINT_DATABASE_URL": request.getfixturevalue("postgres").new_database()}
+    return "sqlite", {}
+
+
+@pytest.fixture(scope="session")
+def server(tmp_path_factory, database):
+    name, env = database
+    srv = GlintServer(tmp_path_factory.mktemp(f"glint-data-{name}"), env=env)
+    yield {**srv.as_dict(), "database": name}
     srv.stop()
 
 

@@ -287,15 +287,22 @@ def cmd_serve(a) -> int:
     from server.config import Settings
     from server.main import create_app
 
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    from server.logs import configure_logging
+
     settings = Settings.from_env(host=a.host, port=a.port, data_dir=a.data_dir, workers=a.workers,
-                                 demo=False if a.no_demo else None)
+                                 demo=False if a.no_demo else None, backend=a.backend, ray_address=a.ray_address)
+    configure_logging(settings.log_format, logging.INFO)
     if settings.host not in ("127.0.0.1", "localhost", "::1") and settings.allow_anonymous_loopback:
         print("glint: listening beyond loopback; remote clients need an API token (glint token create)", file=sys.stderr)
+    # SIGTERM is a clean stop (uvicorn drains, the lifespan fails running jobs with a message);
+    # uvicorn re-raises the signal once it has shut down, which must end the process with 0
+    import signal
+
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
     # proxy headers (X-Forwarded-For) are believed only from proxies named in GLINT_TRUSTED_PROXIES
     uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level="info",
                 ws_max_size=4 * 1024 * 1024, proxy_headers=bool(settings.trusted_proxies),
-                forwarded_allow_ips=",".join(settings.trusted_proxies) or None)
+                forwarded_allow_ips=",".join(settings.trusted_proxies) or None, log_config=None)
     return 0
 
 
@@ -474,6 +481,10 @@ def build_parser() -> argparse.ArgumentParser:
     sv.add_argument("--data-dir", default=None, help="database, blobs and assets (default $GLINT_DATA_DIR or ~/.cache/glint)")
     sv.add_argument("--workers", type=int, default=None, help="worker processes (default: cores)")
     sv.add_argument("--no-demo", action="store_true", help="do not prepare the demo scene")
+    sv.add_argument("--backend", choices=["local", "ray"], default=None,
+                    help="workers: local processes (default) or a Ray cluster ($GLINT_BACKEND)")
+    sv.add_argument("--ray-address", default=None,
+                    help="with --backend ray: the cluster's GCS address host:port (default: start a local Ray)")
     sv.set_defaults(fn=cmd_serve)
 
     tk = sub.add_parser("token", help="API tokens"); tsub = tk.add_subparsers(dest="what", required=True)
@@ -514,6 +525,7 @@ COMMAND_MODULES: list[str] = [
     "worker.paint.cli",
     "worker.capture.cli",
     "worker.renderers.cuts.fields_cli",      # glint field trace | bench (cut fields of movable objects)
+    "worker.bench_ray",
 ]
 
 

@@ -279,11 +279,17 @@ async def stream(ws: WebSocket, sid: str, token: str | None = Query(None)):
             kind, p = await q.get()
             if kind == "frame":
                 hdr, img = p
+                st.metrics.frame(sid, hdr)
                 if q.dropped_frames:
                     hdr = {**hdr, "dropped_frames": q.dropped_frames}
                 await ws.send_bytes(encode_frame(hdr, img))
             else:
-                ev = await run_in_threadpool(on_worker_event, st, sid, p)
+                try:
+                    ev = await run_in_threadpool(on_worker_event, st, sid, p)
+                except Exception as e:       # storing it failed: say so, and keep streaming
+                    log.exception("session %s: storing a %s event failed", sid, p.get("type"))
+                    ev = ErrorEvent(seq=p.get("seq"), message=f"the server could not store the {p.get('type')} "
+                                                              f"({type(e).__name__}); try again").model_dump()
                 if ev is not None:
                     await ws.send_text(json.dumps(ev))
 
@@ -321,6 +327,7 @@ async def stream(ws: WebSocket, sid: str, token: str | None = Query(None)):
                 await ws.send_text(json.dumps(err))
                 continue
             st.pool.send(sid, fwd)
+            st.metrics.message(sid, fwd)
     except WebSocketDisconnect:
         pass
     except RuntimeError as e:   # sending on a socket the client already closed
@@ -329,6 +336,7 @@ async def stream(ws: WebSocket, sid: str, token: str | None = Query(None)):
         sender.cancel()
         st.streams.pop(sid, None)
         st.pool.close_session(sid)
+        st.metrics.session_ended(sid)
         await run_in_threadpool(_ended, st, sid)
 
 
