@@ -62,7 +62,8 @@ def test_only_what_changed_is_recomputed(bunny_renderer):
 
     r0 = bunny_renderer
     r = CutRenderer(r0.scene, r0.data)          # a session's own renderer, sharing the scene's data
-    assert r.tracer is r0.tracer and r.lighting is r0.lighting
+    r2 = CutRenderer(r0.scene, r0.data)
+    assert r.tracer is r0.tracer is r2.tracer and r.lighting is r2.lighting
     cam = r.scene.spec.camera
     req = FrameRequest(camera=cam, materials=r.scene.materials)
     r.render(req)

@@ -62,11 +62,12 @@ class CutData:
 
         with self._lock:
             key = id(envmap)
-            hit = self._lighting.get(key)
+            hit = self._lighting.pop(key, None)          # re-inserted last: least recently used first out
             if hit is None or hit[0] is not envmap:
                 if len(self._lighting) >= 4:
                     self._lighting.pop(next(iter(self._lighting)))
-                hit = self._lighting[key] = (envmap, LeafLighting(envmap, tree))
+                hit = (envmap, LeafLighting(envmap, tree))
+            self._lighting[key] = hit
             return hit[1]
 
 
