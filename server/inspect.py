@@ -48,7 +48,7 @@ def inspect_in_child(path: str, kind: str, limits: dict, seconds: float) -> dict
     child.close()
     try:
         if not parent.poll(seconds):
-            raise HTTPException(422, f"the upload could not be read within {seconds:.0f} s; it was refused")
+            raise HTTPException(422, f"the upload could not be read within {seconds:g} s; it was refused")
         try:
             res = parent.recv()
         except EOFError:

@@ -171,15 +171,21 @@ def test_streams_are_bounded_and_expire(limited):
     assert h["streams"] <= 1, h
 
 
-def test_uploads_are_read_in_a_child_with_a_time_limit(limited, tmp_path):
-    """A mesh that takes longer than the limit to read is refused (422) while the API answers
-    other requests meanwhile: the reading happens in another process."""
-    srv, c, _ = limited
+def _big_obj() -> bytes:
     rng = np.random.default_rng(0)
-    n = 200_000                                    # ~7 MB of OBJ: seconds for trimesh, under the 8 MB cap
+    n = 200_000                                    # ~7 MB of OBJ, under the 8 MB cap
     v = rng.random((n, 3))
     f = rng.integers(1, n + 1, size=(n // 2, 3))
     body = "".join(f"v {a:.5f} {b:.5f} {d:.5f}\n" for a, b, d in v) + "".join(f"f {a} {b} {d}\n" for a, b, d in f)
+    return body.encode()
+
+
+def test_uploads_are_read_in_a_child(limited):
+    """While a child reads a big mesh the API answers other requests: no health check waits for
+    the upload (whether the read finishes inside this server's 1.5 s limit depends on the machine,
+    so either outcome is accepted here; the refusal is tested below with a limit no read can meet)."""
+    srv, c, _ = limited
+    body = _big_obj()
     lat = []
     done = threading.Event()
 
@@ -188,14 +194,29 @@ def test_uploads_are_read_in_a_child_with_a_time_limit(limited, tmp_path):
             t0 = time.perf_counter()
             c.get("/healthz")
             lat.append(time.perf_counter() - t0)
-            time.sleep(0.05)
+            time.sleep(0.02)
     t = threading.Thread(target=poll)
     t.start()
     t0 = time.perf_counter()
-    r = c.post("/v1/assets/meshes", params={"filename": "big.obj"}, content=body.encode())
+    r = c.post("/v1/assets/meshes", params={"filename": "big.obj"}, content=body)
     took = time.perf_counter() - t0
     done.set()
     t.join()
-    assert r.status_code == 422 and "within" in r.json()["detail"], r.text
-    # the API kept answering while the child read: no health check waited for the upload
-    assert len(lat) >= 5 and max(lat) < 0.5 * took, (max(lat), took)
+    assert r.status_code in (201, 422), r.text
+    if r.status_code == 422:
+        assert "within" in r.json()["detail"], r.text
+    else:
+        assert r.json()["meta"]["faces"] == 100_000
+    assert len(lat) >= 3 and max(lat) < 0.5 * took, (len(lat), max(lat), took)
+
+
+def test_an_upload_read_too_slowly_is_refused(tmp_path_factory):
+    """A 50 ms limit: parsing 7 MB of OBJ text takes longer on any machine, so the reader is
+    stopped and the upload refused with a reason."""
+    srv = GlintServer(tmp_path_factory.mktemp("slowread"), workers=1, env={"GLINT_INSPECT_SECONDS": "0.05"})
+    try:
+        with httpx.Client(base_url=srv.base, timeout=120) as c:
+            r = c.post("/v1/assets/meshes", params={"filename": "big.obj"}, content=_big_obj())
+            assert r.status_code == 422 and "within 0.05 s" in r.json()["detail"], r.text
+    finally:
+        srv.stop()
