@@ -82,6 +82,18 @@ class SceneObject(_Strict):
     material: Material = Field(default_factory=Lambert)
 
 
+class Ground(_Strict):
+    """An invisible shadow-catcher ground plane under the objects (issue 16): it darkens the
+    background where the objects occlude the environment from it, by the ratio of occluded to
+    open-sky irradiance (worker/renderers/cuts/ground.py). ``shadow`` is the default a renderer
+    option (and the studio and viewer toggle) can override; ``intensity`` k blends the darkening
+    (1 − k(1 − ratio), as model-viewer's shadow-intensity); ``height`` is the plane's world y
+    (default: the scene's lowest vertex)."""
+    shadow: bool = True
+    intensity: float = Field(1.0, ge=0.0, le=1.0)
+    height: float | None = None
+
+
 class SceneFile(_Strict):
     version: Literal[1] = 1
     renderer: str = Field("cuts", description="how the scene is drawn: cuts (direct light, default), "
@@ -89,6 +101,7 @@ class SceneFile(_Strict):
     environment: Environment
     camera: Camera
     objects: list[SceneObject] = Field(min_length=1)
+    ground: Ground | None = Field(None, description="optional shadow-catcher ground plane (precomputed with the cuts)")
 
     @field_validator("renderer")
     @classmethod
