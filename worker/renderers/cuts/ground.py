@@ -70,7 +70,7 @@ def ground_grid(vertices: np.ndarray, height: float | None = None, n: int = GRID
     cx, cz = 0.5 * (lo[0] + hi[0]), 0.5 * (lo[2] + hi[2])
     half = max(0.5 * (hi[0] - lo[0]), 0.5 * (hi[2] - lo[2])) + max(hi[1] - y, 0.0)
     half = max(half, 1e-6)
-    return GroundGrid(y, cx - half, cz - half, 2.0 * half / (n - 1), n)
+    return GroundGrid(float(y), float(cx - half), float(cz - half), float(2.0 * half / (n - 1)), int(n))
 
 
 def ground_key(vertices, faces, grid: GroundGrid, tau: float, height: int) -> str:
