@@ -93,3 +93,24 @@ def test_background_and_resolve_agree(bunny_renderer):
         ra = resolve(v.tri, v.uv, r.scene.mesh.faces, vert, outs[1], s, np.empty((p, 3), np.float32), kernels("native"))
         rb = resolve(v.tri, v.uv, r.scene.mesh.faces, vert, outs[1], s, np.empty((p, 3), np.float32), kernels("numpy"))
         np.testing.assert_allclose(ra, rb, rtol=1e-5, atol=1e-6)
+
+
+def test_camera_rays_and_map_coordinates_agree(bunny_renderer):
+    """The rotation of cached camera-frame rays and their map coordinates (per view)."""
+    from worker.core.render import _camera_space_dirs
+
+    cam = bunny_renderer.scene.spec.camera
+    src = _camera_space_dirs(cam.fov_y_deg, cam.width, cam.height, 4)
+    q, _ = np.linalg.qr(np.random.default_rng(5).normal(size=(3, 3)))
+    basis = q.astype(np.float32)
+    a = kernels("native").rotate_dirs(src, basis)
+    b = kernels("numpy").rotate_dirs(src, basis)
+    np.testing.assert_allclose(a, b, atol=2e-7)
+    u = np.random.default_rng(6).normal(size=(20000, 3))
+    d = (u / np.linalg.norm(u, axis=1, keepdims=True)).astype(np.float32)
+    d[:4] = [[0, 1, 0], [0, -1, 0], [0, 0, -1], [-1e-8, 0, 1]]          # poles and the seam
+    ca, cb = kernels("native").env_coords(d), kernels("numpy").env_coords(d)
+    du = np.abs(ca[:, 0] - cb[:, 0])
+    du = np.minimum(du, 1 - du)                                          # u wraps at the seam
+    assert du.max() < 1e-6 and np.abs(ca[:, 1] - cb[:, 1]).max() < 1e-6
+    assert (ca[:, 0] >= 0).all() and (ca[:, 0] < 1).all()

@@ -28,14 +28,15 @@ from .directions import DirectionTree
 # --- camera -----------------------------------------------------------------------------------
 
 
-def camera_rays(eye, target, up, fov_y_deg: float, width: int, height: int, samples: int = 1):
+def camera_rays(eye, target, up, fov_y_deg: float, width: int, height: int, samples: int = 1, kernels=None):
     """Primary rays through pixel centres, DESIGN.md §2 (pixel (0, 0) top-left, image right =
     normalize(cross(forward, up))). Returns (origins (H*W*S, 3), dirs (H*W*S, 3)) float32; with
     samples S > 1, the S rays of pixel p are rows p·S … p·S + S − 1, through the sub-pixel
     positions of ``sample_offsets(S)``.
 
     The unit directions in the camera frame depend only on the field of view, the image size and
-    the samples (cached); a view change rotates them into the world with one 3×3 product."""
+    the samples (cached); a view change rotates them into the world with one 3×3 product
+    (``rotate_dirs_numpy``, the reference of the C kernel glk_rotate_dirs)."""
     eye = np.asarray(eye, np.float64)
     fwd = np.asarray(target, np.float64) - eye
     fwd /= np.linalg.norm(fwd)
@@ -43,8 +44,15 @@ def camera_rays(eye, target, up, fov_y_deg: float, width: int, height: int, samp
     right /= np.linalg.norm(right)
     true_up = np.cross(right, fwd)
     basis = np.stack([right, true_up, fwd]).astype(np.float32)       # rows: camera axes in world
-    d = _camera_space_dirs(float(fov_y_deg), int(width), int(height), int(samples)) @ basis
+    d = (kernels or _kernels()).rotate_dirs(_camera_space_dirs(float(fov_y_deg), int(width), int(height),
+                                                                int(samples)), basis)
     return np.broadcast_to(eye.astype(np.float32), d.shape).copy(), d
+
+
+def rotate_dirs_numpy(dirs, basis) -> np.ndarray:
+    """(P, 3) float32 directions dirs (P, 3) in a frame whose axes are the rows of basis (3, 3),
+    in the world: dirs @ basis."""
+    return (np.asarray(dirs, np.float32) @ np.asarray(basis, np.float32)).astype(np.float32)
 
 
 def sample_offsets(samples: int) -> np.ndarray:
@@ -260,10 +268,15 @@ def env_lookup(dirs, envmap, rotation_deg: float, intensity: float, mask=None, o
 # --- frame assembly ---------------------------------------------------------------------------
 
 
-def env_coords(dirs) -> np.ndarray:
+def env_coords(dirs, kernels=None) -> np.ndarray:
     """(P, 2) float32 equirectangular coordinates (u in [0, 1), v = acos(y)/π) of world
     directions (P, 3) with the environment unrotated (DESIGN.md §2): once per view, so that a
     light change costs a lookup (``background``)."""
+    return (kernels or _kernels()).env_coords(dirs)
+
+
+def env_coords_numpy(dirs) -> np.ndarray:
+    """NumPy reference of glk_env_coords (see env_coords)."""
     d = np.asarray(dirs, np.float64)
     u = np.mod(np.arctan2(d[:, 0], -d[:, 2]) / (2 * np.pi), 1.0)
     v = np.arccos(np.clip(d[:, 1], -1, 1)) / np.pi

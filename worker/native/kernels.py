@@ -44,6 +44,14 @@ class NumpyKernels:
         from ..core.render import resolve_numpy
         return resolve_numpy(tri, uv, faces, vert_rgb, bg, samples, out)
 
+    def rotate_dirs(self, dirs, basis):
+        from ..core.render import rotate_dirs_numpy
+        return rotate_dirs_numpy(dirs, basis)
+
+    def env_coords(self, dirs):
+        from ..core.render import env_coords_numpy
+        return env_coords_numpy(dirs)
+
     def env_lookup(self, dirs, envmap, rotation_deg, intensity, mask=None, out=None):
         from ..core.render import env_lookup_numpy
         return env_lookup_numpy(dirs, envmap, rotation_deg, intensity, mask, out)
@@ -85,6 +93,8 @@ class NativeKernels:
         self._background = bind(
             "glk_background", None, n=i64, sample=i64p, dirs=f32p, uv0=f32p, map=f32p, Hm=i32, Wm=i32, rot_turns=f64,
             intensity=f64, shadow=voidp, G=i32, gx0=f64, gz0=f64, gstep=f64, gy=f64, ex=f64, ey=f64, ez=f64, out=f32p)
+        self._rotate = bind("glk_rotate_dirs", None, P=i64, src=f32p, basis=f32p, out=f32p)
+        self._env_coords = bind("glk_env_coords", None, n=i64, dirs=f32p, out=f32p)
         self._resolve = bind("glk_resolve", None, P=i64, S=i32, tri=i32p, uv=f32p, faces=i32p, vert_rgb=f32p,
                              bg=f32p, out=f32p)
         self._env = bind("glk_env_lookup", None, P=i64, dirs=f32p, mask=voidp, map=f32p, Hm=i32, Wm=i32,
@@ -166,6 +176,20 @@ class NativeKernels:
                          c(envmap, np.float32), envmap.shape[0], envmap.shape[1], float(rotation_deg) / 360.0,
                          float(intensity), grid.ctypes.data if grid is not None else None,
                          grid.shape[0] if grid is not None else 0, *geo, *e, out)
+        return out
+
+    def rotate_dirs(self, dirs, basis):
+        """(P, 3) float32 dirs @ basis (see core.render.rotate_dirs_numpy)."""
+        src = c(dirs, np.float32)
+        out = np.empty_like(src)
+        self._rotate(len(src), src, c(basis, np.float32), out)
+        return out
+
+    def env_coords(self, dirs):
+        """(n, 2) float32 map coordinates of directions (see core.render.env_coords_numpy)."""
+        src = c(dirs, np.float32)
+        out = np.empty((len(src), 2), np.float32)
+        self._env_coords(len(src), src, out)
         return out
 
     def resolve(self, tri, uv, faces, vert_rgb, bg, samples, out):

@@ -88,3 +88,32 @@ void glk_resolve(int64_t P, int S, const int32_t *tri, const float *uv, const in
         for (int c = 0; c < 3; c++) out[3 * p + c] = S == 1 ? acc[c] : acc[c] * inv;
     }
 }
+
+/* Camera rays: the cached camera-frame directions (P, 3) rotated into the world by the rows of
+ * basis (3 × 3: right, up, forward), out (P, 3) float32 (render.py camera_rays). */
+void glk_rotate_dirs(int64_t P, const float *src, const float *basis, float *out) {
+    const float b0 = basis[0], b1 = basis[1], b2 = basis[2], b3 = basis[3], b4 = basis[4], b5 = basis[5],
+                b6 = basis[6], b7 = basis[7], b8 = basis[8];
+#pragma omp parallel for schedule(static)
+    for (int64_t p = 0; p < P; p++) {
+        float x = src[3 * p], y = src[3 * p + 1], z = src[3 * p + 2];
+        out[3 * p] = x * b0 + y * b3 + z * b6;
+        out[3 * p + 1] = x * b1 + y * b4 + z * b7;
+        out[3 * p + 2] = x * b2 + y * b5 + z * b8;
+    }
+}
+
+/* Equirectangular coordinates of world directions (n, 3), unrotated (DESIGN.md §2):
+ * out (n, 2) float32 u = atan2(x, −z)/2π wrapped into [0, 1), v = acos(y)/π (render.py env_coords). */
+void glk_env_coords(int64_t n, const float *dirs, float *out) {
+#pragma omp parallel for schedule(static)
+    for (int64_t i = 0; i < n; i++) {
+        /* single precision: 1e-7 of a turn is 1e-4 of a texel of a 1024-wide map */
+        float x = dirs[3 * i], y = dirs[3 * i + 1], z = dirs[3 * i + 2];
+        float u = atan2f(x, -z) * (float)(0.5 / PI);
+        if (u < 0) u += 1.0f;
+        if (u >= 1.0f) u -= 1.0f;
+        out[2 * i] = u;
+        out[2 * i + 1] = acosf(y < -1 ? -1 : (y > 1 ? 1 : y)) * (float)(1.0 / PI);
+    }
+}
