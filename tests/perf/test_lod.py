@@ -58,9 +58,15 @@ def test_drag_level_of_detail_when_full_frames_do_not_fit(bunny_renderer, monkey
     _orbit(rt, 8)
     monkeypatch.setattr(S, "REPROBE_S", 1e9)
     assert _orbit(rt, 9)["lod"] is False
-    # outside a drag every frame is a still frame: full quality, anti-aliased
+    # the drag ends: a still frame, anti-aliased
     h = _orbit(rt, 10, drag=False)
-    assert h["lod"] is False and h["samples"] == S.STILL_SAMPLES
+    assert h["lod"] is False and h["samples"] == S.STILL_SAMPLES and not rt.needs_still_frame()
+    # a camera moving without drag flags: full quality, one sample per frame; once it stops, the
+    # still frame the runner asks for when idle is anti-aliased
+    h = _orbit(rt, 11, drag=False)
+    assert h["lod"] is False and h["samples"] == 1 and rt.needs_still_frame()
+    h, _ = rt.frame(11)
+    assert h["samples"] == S.STILL_SAMPLES and not rt.needs_still_frame()
 
 
 def test_display_message_toggles_the_ground_shadow(cache_dir):

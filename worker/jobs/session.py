@@ -99,7 +99,7 @@ class SessionRuntime:
         # changed since the frame before ("view": camera, "light": lighting, "other")
         self.frame_budget_ms = FRAME_BUDGET_MS
         self._full_ms = {k: deque(maxlen=3) for k in ("view", "light", "other")}
-        self._last = None                      # (camera, rotation, intensity) of the last frame
+        self._last = None                      # (camera, rotation, intensity, dragging, samples) of the last frame
         self._last_full = 0.0                  # time.monotonic() of the last full frame
         self._apply_environment()
         # pay the basis's one-time costs (energy rows, solver import) at open, not on the first stroke
@@ -349,15 +349,19 @@ class SessionRuntime:
         return "other"
 
     def level_of_detail(self) -> tuple[str, int]:
-        """(lod, samples) of the next frame (issue 16). A frame outside a drag (the client did
-        not flag its last view or light message ``drag``) is a still frame: full quality,
-        anti-aliased with STILL_SAMPLES per pixel. While the user drags, frames are full quality
-        (one sample) whenever the measured cost of recent full frames of the same kind of change
-        (camera, light, other) fits the frame budget, and at the drag level of detail otherwise,
-        with a full frame tried again every REPROBE_S (the machine's load changes)."""
+        """(lod, samples) of the next frame (issue 16). Outside a drag (the client did not flag its
+        last view or light message ``drag``) frames are full quality, and anti-aliased with
+        STILL_SAMPLES per pixel once the view has settled: the camera is where the last frame
+        had it, or that frame was drawn during a drag (its end); a camera moving without drag
+        flags gets one sample per frame (``needs_still_frame`` asks for the settled one after).
+        While the user drags, frames are full quality (one sample) whenever the measured cost of
+        recent full frames of the same kind of change (camera, light, other) fits the frame
+        budget, and at the drag level of detail otherwise, with a full frame tried again every
+        REPROBE_S (the machine's load changes)."""
         change = self._change()
         if not self._drag:
-            return "full", STILL_SAMPLES
+            settled = change != "view" or self._last is None or self._last[3]
+            return "full", STILL_SAMPLES if settled else 1
         hist = self._full_ms[change] or self._full_ms["view"]
         if not hist:
             return "full", 1                                     # no measurement yet: measure one
@@ -367,6 +371,12 @@ class SessionRuntime:
         if est <= self.frame_budget_ms or time.monotonic() - self._last_full >= REPROBE_S:
             return "full", 1
         return "drag", 1
+
+    def needs_still_frame(self) -> bool:
+        """Whether the last frame was a moving one (one sample, or the drag level of detail) and
+        the session is not dragging: when no message is waiting, one more frame (``frame``) is
+        the settled, anti-aliased image of the same state."""
+        return self._last is not None and not self._drag and self._last[4] < STILL_SAMPLES
 
     def frame(self, ack: int, skipped: int = 0) -> tuple[dict, bytes]:
         """The current frame: (header (FrameHeader fields), JPEG bytes)."""
@@ -389,7 +399,7 @@ class SessionRuntime:
             self._last_full = time.monotonic()
             if samples == 1:
                 self._full_ms[change].append((t2 - t0) * 1e3)
-        self._last = (st.camera, st.rotation_deg, st.intensity)
+        self._last = (st.camera, st.rotation_deg, st.intensity, self._drag, int(out.info.get("samples", 1)))
         self.frame_no += 1
         h, w = rgb.shape[:2]
         hdr = {"frame": self.frame_no, "ack": ack, "width": w, "height": h, "format": "jpeg",

@@ -68,10 +68,10 @@ class View:
     """Primary visibility of one camera with S samples per pixel (rows p·S + s): tri (P·S,) int32
     face per sample (−1 background), uv (P·S, 2) float32 Embree barycentrics, dirs (P·S, 3)
     float32 ray directions, visible (K,) int32 vertices of the faces seen, wo (K, 3) float32 unit
-    directions from them to the eye, bg (n,) int64 background sample rows and uv0 (n, 2) float32
-    their directions bgdirs (n, 3) and map coordinates uv0 (n, 2) float32 (render.env_coords),
-    obj (H, W) int32 object per pixel (from the pixel centres, −1 background); bgbuf (P·S, 3)
-    float32 the background last drawn (bg_key: its lighting and ground shadow)."""
+    directions from them to the eye, bg (n,) int64 the background sample rows, bgdirs (n, 3) their
+    directions and uv0 (n, 2) float32 their map coordinates (render.env_coords), obj (H, W) int32
+    object per pixel (from the pixel centres, −1 background); bgbuf (P·S, 3) float32 the
+    background last drawn (bg_key: its lighting and ground shadow)."""
     camera: object
     tri: np.ndarray
     uv: np.ndarray
@@ -214,10 +214,10 @@ class CutRenderer(Renderer):
             self._ground_key = key
         return self._ground_factor, g.grid.geometry()
 
-    def _background(self, v: View, lighting: Lighting, shadow) -> np.ndarray:
+    def _background(self, v: View, lighting: Lighting, shadow, key) -> np.ndarray:
         """(P·S, 3) float32 buffer holding the view's background samples for this lighting and
-        ground shadow (redrawn only when one of them changed)."""
-        key = (self._light_key, self._ground_key if shadow is not None else None)
+        ground shadow (key: the light and ground keys they were made with; redrawn only when one
+        of them changed)."""
         if v.bgbuf is None or v.bg_key != key:
             if v.bgbuf is None:
                 v.bgbuf = np.zeros((len(v.tri), 3), np.float32)
@@ -261,13 +261,14 @@ class CutRenderer(Renderer):
             raise ValueError(f"{len(materials)} materials for {len(self.scene.spec.objects)} objects")
         v = self.view(camera, samples)
         t1 = time.perf_counter(); t["view"] = (t1 - t0) * 1e3
-        with self._lock:
+        with self._lock:        # the tables of one lighting, even if the fitter's thread asks for another
             node_l, node_w = self.light(req.lighting)
             node8 = self._node8
             shadow = self._ground(req)
+            bg_key = (self._light_key, self._ground_key if shadow is not None else None)
         mats = self.material_table(materials)
         t2 = time.perf_counter(); t["light"] = (t2 - t1) * 1e3
-        bg = self._background(v, req.lighting, shadow)
+        bg = self._background(v, req.lighting, shadow, bg_key)
         t3 = time.perf_counter(); t["background"] = (t3 - t2) * 1e3
         mesh = self.scene.mesh
         img = np.empty((camera.width * camera.height, 3), np.float32)
