@@ -309,7 +309,7 @@ class SessionRuntime:
         (inverse-brdf-modeling eq. 22 with the basis): while only the fitted coefficients change
         (strokes, undo, redo), a frame's shading of that object is one mat-vec."""
         r = self.renderer
-        smp = r.vertex_samples(cam, self.state.object_index)
+        smp = r.vertex_samples(cam, self.state.object_index, samples=STILL_SAMPLES)   # stroke frames are still
         T, E = r.transfer(smp, self.fitter.basis, Lighting(rot, inten))
         return (self._view_key(cam, rot, inten), smp.pix, T, E)
 

@@ -38,6 +38,7 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -51,6 +52,14 @@ from .precompute import CutData
 
 DRAG_TAU = 16.0     # drag level of detail: cuts coarsened to τ = 16 (0.4% image change on the demo chair)
 _pool = None
+
+
+@lru_cache(maxsize=1)
+def _placeholder():
+    """The packed material of objects no point of a frame is shaded with (never read)."""
+    from ...models import Lambert
+
+    return Lambert().pack()
 
 
 def _tracing_pool():
@@ -226,11 +235,15 @@ class CutRenderer(Renderer):
             v.bg_key = key
         return v.bgbuf
 
-    def material_table(self, materials) -> MaterialTable:
-        """Packed materials (cached by the identity of the list's items)."""
-        key = tuple(id(m) for m in materials)
+    def material_table(self, materials, needed=None) -> MaterialTable:
+        """Packed materials (cached by the identity of the list's items). needed: the indices of
+        the materials any point will be shaded with (default all); the others get a placeholder,
+        so a frame whose edited object is all known radiance (strokes) does not pack its srbf."""
+        needed = frozenset(range(len(materials)) if needed is None else needed)
+        key = (tuple(id(m) for m in materials), needed)
         if key != self._mats_key:
-            self._mats = MaterialTable([m.pack() for m in materials])
+            self._mats = MaterialTable([m.pack() if i in needed else _placeholder()
+                                        for i, m in enumerate(materials)])
             self._mats_key = key
             self._mats_refs = list(materials)        # keep them alive: ids stay unique
         return self._mats
@@ -266,7 +279,6 @@ class CutRenderer(Renderer):
             node8 = self._node8
             shadow = self._ground(req)
             bg_key = (self._light_key, self._ground_key if shadow is not None else None)
-        mats = self.material_table(materials)
         t2 = time.perf_counter(); t["light"] = (t2 - t1) * 1e3
         bg = self._background(v, req.lighting, shadow, bg_key)
         t3 = time.perf_counter(); t["background"] = (t3 - t2) * 1e3
@@ -278,8 +290,10 @@ class CutRenderer(Renderer):
             if known:
                 keep = ~np.isin(vi, np.concatenate([ids for ids, _ in known.values()]))
                 vi, wo = vi[keep], wo[keep]
-            rad = shade_points(mesh.normals[vi], wo, vi, self.scene.object_of_vertex[vi], cuts, node_l, node_w,
-                               self.tree, mats, self.k, node8=node8)
+            mat_of = self.scene.object_of_vertex[vi]
+            mats = self.material_table(materials, np.unique(mat_of).tolist())
+            rad = shade_points(mesh.normals[vi], wo, vi, mat_of, cuts, node_l, node_w, self.tree, mats, self.k,
+                               node8=node8)
             vert = self._vert            # only the visible vertices' rows are read
             vert[vi] = rad
             for ids, r in known.values():
@@ -289,6 +303,7 @@ class CutRenderer(Renderer):
             t["resolve"] = (time.perf_counter() - t4) * 1e3
         elif req.shading == "pixel":
             hit = np.nonzero(v.tri >= 0)[0]
+            mats = self.material_table(materials)
             s = self._pixel_samples(v, camera, hit)
             val = bg.copy()
             val[hit] = self._shade(s, cuts, node_l, node_w, mats, self.scene.object_of_vertex, node8)
@@ -330,10 +345,14 @@ class CutRenderer(Renderer):
         pix = np.nonzero(obj_of == object_index)[0]
         return self._pixel_samples(View(camera, tri, uv, d, np.zeros(0, np.int32)), camera, pix)
 
-    def vertex_samples(self, camera, object_index: int) -> Samples:
-        """The object's vertices the camera sees (vertex-mode shading points)."""
+    def vertex_samples(self, camera, object_index: int, samples: int = 1) -> Samples:
+        """The object's vertices the camera sees (vertex-mode shading points): with samples S > 1,
+        those of the one-sample and the S-sample views, so that radiance known for them
+        (``FrameRequest.vertex_radiance``) covers anti-aliased frames too."""
         mesh = self.scene.mesh
         vis = self.view(camera).visible
+        if samples > 1:
+            vis = np.union1d(vis, self.view(camera, samples).visible).astype(np.int32)
         ids = vis[self.scene.object_of_vertex[vis] == object_index].astype(np.int32)
         wo = np.asarray(camera.eye, np.float32) - mesh.vertices[ids]
         wo /= np.linalg.norm(wo, axis=1, keepdims=True)
