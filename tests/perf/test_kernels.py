@@ -114,3 +114,19 @@ def test_camera_rays_and_map_coordinates_agree(bunny_renderer):
     du = np.minimum(du, 1 - du)                                          # u wraps at the seam
     assert du.max() < 1e-6 and np.abs(ca[:, 1] - cb[:, 1]).max() < 1e-6
     assert (ca[:, 0] >= 0).all() and (ca[:, 0] < 1).all()
+
+
+def test_intensity_change_scales_the_light_tables(bunny_renderer):
+    """A change of intensity alone scales the cached tables instead of rebuilding them: the
+    same as rebuilding, to float rounding."""
+    from worker.renderers import Lighting
+    from worker.renderers.cuts import CutRenderer
+
+    r = CutRenderer(bunny_renderer.scene, bunny_renderer.data)
+    r.light(Lighting(20.0, 1.0))
+    nl, nw = r.light(Lighting(20.0, 2.5))
+    n8 = r._node8
+    ref = light_tables(r.lighting, 20.0, 2.5, r.tree, kernels("numpy"))
+    np.testing.assert_allclose(nl, ref[0], rtol=1e-5, atol=1e-6 * ref[0].max())
+    np.testing.assert_allclose(nw, ref[1], atol=1e-6)
+    np.testing.assert_allclose(n8, ref[2], rtol=1e-5, atol=1e-6 * ref[0].max())

@@ -198,10 +198,20 @@ class CutRenderer(Renderer):
         shading kernel are kept beside them (``_node8``)."""
         with self._lock:
             key = (float(lighting.rotation_deg), float(lighting.intensity), id(self.lighting))
-            if key != self._light_key:
+            old = self._light_key
+            if key == old:
+                return self._node_light
+            if old is not None and old[0] == key[0] and old[2] == key[2] and old[1] > 0 and key[1] > 0:
+                # intensity alone: radiance scales, the light-weighted centroids do not move
+                f = np.float32(key[1] / old[1])
+                nl = self._node_light[0] * f
+                n8 = self._node8.copy()
+                n8[:, 0:3] *= f
+                self._node_light, self._node8 = (nl, self._node_light[1]), n8
+            else:
                 nl, nw, n8 = light_tables(self.lighting, lighting.rotation_deg, lighting.intensity, self.tree, self.k)
                 self._node_light, self._node8 = (nl, nw), n8
-                self._light_key = key
+            self._light_key = key
             return self._node_light
 
     def ground_available(self) -> bool:
