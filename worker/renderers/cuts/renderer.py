@@ -63,12 +63,16 @@ def _placeholder():
 
 
 def _tracing_pool():
-    """Threads for primary rays, shared by the process's renderers (two: the cores we get)."""
+    """(pool, size): threads for primary rays, shared by the process's renderers, as many as the
+    kernels' OpenMP threads (a service worker given one core traces on one)."""
     global _pool
     if _pool is None:
         from concurrent.futures import ThreadPoolExecutor
 
-        _pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="glint-trace")
+        from ... import native
+
+        n = max(1, native.max_threads())
+        _pool = (ThreadPoolExecutor(max_workers=n, thread_name_prefix="glint-trace"), n)
     return _pool
 
 
@@ -180,16 +184,17 @@ class CutRenderer(Renderer):
             self._view = v
         return v
 
-    def _first_hit(self, o, d, parts: int = 2):
-        """(tri, uv) of primary rays, traced in ``parts`` slices on threads (Embree releases the
-        GIL, so two slices take about half the time on two cores)."""
+    def _first_hit(self, o, d):
+        """(tri, uv) of primary rays, traced in slices on the tracing threads (Embree releases
+        the GIL, so two slices take about half the time on two cores)."""
         n = len(d)
+        pool, parts = _tracing_pool()
         if n < 4096 or parts < 2:
             tri, uv, _ = self.tracer.first_hit(o, d)
             return tri, uv
         cut = [n * i // parts for i in range(parts + 1)]
-        res = list(_tracing_pool().map(lambda i: self.tracer.first_hit(o[cut[i]:cut[i + 1]], d[cut[i]:cut[i + 1]]),
-                                       range(parts)))
+        res = list(pool.map(lambda i: self.tracer.first_hit(o[cut[i]:cut[i + 1]], d[cut[i]:cut[i + 1]]),
+                            range(parts)))
         return np.concatenate([r[0] for r in res]), np.concatenate([r[1] for r in res])
 
     def light(self, lighting: Lighting):
