@@ -9,8 +9,12 @@ scene (the oak chair, 640×480).
 * ``stroke_p50_ms`` / ``stroke_p95_ms``: a stroke in an unchanged view until the first frame
   whose ``ack`` covers it, one at a time;
 * ``orbit_fps_drag``: frames received per second while ``view`` messages with ``drag: true``
-  arrive at 60 Hz (the drag level of detail: ``width_drag`` × ``height_drag``, coarsened cuts);
-* ``orbit_fps_full``: the same with ``drag: false`` (every frame full quality, 640×480);
+  arrive at 60 Hz. The session draws each at full quality when recent full frames fit its frame
+  budget and at the drag level of detail (``width_drag`` × ``height_drag``, coarsened cuts)
+  otherwise (issue 16): ``orbit_share_full_drag`` is the share of full-quality frames, with
+  their render times ``orbit_frame_render_ms_p50_drag_full`` and ``…_drag_lod``;
+* ``orbit_fps_full``: the same with ``drag: false``, where every frame is a still frame (full
+  quality, 640×480, anti-aliased with ``orbit_samples_full`` samples per pixel);
 * ``first_stroke_ms``: a stroke 0.3 s after an orbit ends (a designer moving the camera, then
   painting), until its frame; ``first_stroke_ms_immediate``: the stroke sent right after the
   last orbit message (the worst case, no time to prepare the view).
@@ -260,11 +264,16 @@ async def _stream(port: int, ses: dict, strokes: int, orbit_seconds: float, repe
                 dt, _ = await s.stroke_latency(100 + r)
                 out.append(dt)
         dh = [h for _, h in drag["frames"] if h.get("lod")]
+        fh = [h for _, h in drag["frames"] if not h.get("lod")]
         res = {"stroke_p50_ms": pct(lat, 50), "stroke_p95_ms": pct(lat, 95), "strokes": len(lat),
                "stroke_frame_render_ms_p50": pct(render_ms, 50),
                "orbit_fps_drag": drag["fps"], "width_drag": dh[0]["width"] if dh else None,
                "height_drag": dh[0]["height"] if dh else None,
+               "orbit_share_full_drag": len(fh) / max(1, len(dh) + len(fh)),
+               "orbit_frame_render_ms_p50_drag_full": pct([h["ms_render"] for h in fh], 50),
+               "orbit_frame_render_ms_p50_drag_lod": pct([h["ms_render"] for h in dh], 50),
                "orbit_fps_full": full["fps"], "width": s.W, "height": s.H,
+               "orbit_samples_full": pct([h.get("samples", 1) for _, h in full["frames"]], 50),
                "orbit_view_p50_ms_drag": pct(s.view_latencies(drag["frames"]), 50),
                "orbit_view_p50_ms_full": pct(s.view_latencies(full["frames"]), 50),
                "orbit_frame_render_ms_p50_drag": pct([h["ms_render"] for _, h in drag["frames"]], 50),

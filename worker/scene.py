@@ -87,6 +87,18 @@ class SceneObject(_Strict):
     movable: bool = False
 
 
+class Ground(_Strict):
+    """An invisible shadow-catcher ground plane under the objects (issue 16): it darkens the
+    background where the objects occlude the environment from it, by the ratio of occluded to
+    open-sky irradiance (worker/renderers/cuts/ground.py). ``shadow`` is the default a renderer
+    option (and the studio and viewer toggle) can override; ``intensity`` k blends the darkening
+    (1 − k(1 − ratio), as model-viewer's shadow-intensity); ``height`` is the plane's world y
+    (default: the scene's lowest vertex)."""
+    shadow: bool = True
+    intensity: float = Field(1.0, ge=0.0, le=1.0)
+    height: float | None = None
+
+
 class SceneFile(_Strict):
     version: Literal[1] = 1
     renderer: str = Field("cuts", description="how the scene is drawn: cuts (direct light, default), "
@@ -98,6 +110,8 @@ class SceneFile(_Strict):
     # worker/renderers/gi/options.py), the paint renderer's (e.g. {"visibility": true})
     gi: dict[str, Any] | None = None
     paint: dict[str, Any] | None = None
+
+    ground: Ground | None = Field(None, description="optional shadow-catcher ground plane (precomputed with the cuts)")
 
     @field_validator("renderer")
     @classmethod

@@ -65,7 +65,8 @@ async function upload() {
     const c = lo.map((x, i) => (x + hi[i]) / 2), r = Math.hypot(...hi.map((x, i) => x - lo[i])) / 2;
     const scene = { version: 1, environment: { map: e.id },
       camera: { eye: [c[0], c[1] + 0.4 * r, c[2] + 2.8 * r], target: c, up: [0, 1, 0], fov_y_deg: 40, width: 640, height: 480 },
-      objects: [{ name: mesh.name.replace(/\.[^.]+$/, ""), mesh: m.id, material: { model: "lambert", albedo: [0.6, 0.6, 0.6] } }] };
+      objects: [{ name: mesh.name.replace(/\.[^.]+$/, ""), mesh: m.id, material: { model: "lambert", albedo: [0.6, 0.6, 0.6] } }],
+      ground: { shadow: true } };
     const s = await api(`/v1/scenes?name=${encodeURIComponent(mesh.name)}`, { method: "POST", body: scene });
     await api(`/v1/scenes/${s.id}/precompute`, { method: "POST" });
     await waitPrecompute(s.id);
@@ -84,8 +85,9 @@ async function openScene(id) {
   const scene = await api(`/v1/scenes/${id}`);
   const objIdx = Math.max(0, scene.spec.objects.findIndex((o) => o.name === state.object));
   setMaterial(state.materials[objIdx]);
+  $("shadow").checked = state.shadow ?? scene.spec.ground?.shadow ?? false;
   stream = new SessionStream(session, {
-    onFrame: (f) => view.push(f),
+    onFrame: (f) => { $("shadow").disabled = f.header.shadow == null; view.push(f); },
     onEvent: onEvent,
     onState: (s) => status(`${state.object}: ${s}`),
   });
@@ -211,14 +213,19 @@ $("view").addEventListener("pointerup", () => {
   if (mode === "orbit") stream.send("view", { eye: state.camera.eye, drag: false });
   else stream.send("light", { rotation_deg: state.rotation_deg, drag: false });
 });
+let wheelEnd = null;
 $("view").addEventListener("wheel", (e) => {
   if (!stream) return;
   e.preventDefault();
   state.camera = orbit(state.camera, 0, 0, Math.exp(e.deltaY * 0.001));
-  stream.send("view", { eye: state.camera.eye });
+  // zooming is a drag: fast frames while the wheel turns, a still (anti-aliased) one after
+  stream.send("view", { eye: state.camera.eye, drag: true });
+  clearTimeout(wheelEnd);
+  wheelEnd = setTimeout(() => stream?.send("view", { eye: state.camera.eye, drag: false }), 150);
 }, { passive: false });
 $("exposure").addEventListener("input", () => stream?.send("display", { exposure: +$("exposure").value }));
 $("tone").addEventListener("change", () => stream?.send("display", { tone: $("tone").value }));
+$("shadow").addEventListener("change", () => stream?.send("display", { shadow: $("shadow").checked }));
 
 // -- brush -------------------------------------------------------------------------------------------
 function drawStroke() {

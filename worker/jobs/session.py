@@ -19,8 +19,10 @@ from __future__ import annotations
 
 import io
 import json
+import statistics
 import threading
 import time
+from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
@@ -37,6 +39,9 @@ from .state import (ErrorEvent, FitEvent, NoteEvent, RendererEvent, SaveRequest,
                     client_msg, restore_state)
 
 CURVE_SAMPLES = 91
+FRAME_BUDGET_MS = 33.0     # a frame while the user drags: 30 fps
+STILL_SAMPLES = 4          # anti-aliasing samples per pixel of a still frame
+REPROBE_S = 2.0            # while at the drag level of detail, try a full frame this often
 # one background builder per worker process: views are prepared one at a time, at low priority
 _builder = ThreadPoolExecutor(max_workers=1, thread_name_prefix="glint-prefetch")
 
@@ -92,6 +97,12 @@ class SessionRuntime:
         self._vt = None           # per-vertex transfer of the edited object: (key, ids, T, E)
         self._pending: dict = {}  # prefetch futures by what they build
         self._env_key = None
+        # frame cost history for the level of detail: ms of full one-sample frames by what
+        # changed since the frame before ("view": camera, "light": lighting, "other")
+        self.frame_budget_ms = FRAME_BUDGET_MS
+        self._full_ms = {k: deque(maxlen=3) for k in ("view", "light", "other")}
+        self._last = None                      # (camera, rotation, intensity, dragging, samples) of the last frame
+        self._last_full = 0.0                  # time.monotonic() of the last full frame
         if self.state.renderer != renderer.kind:
             self._switch_renderer(self.state.renderer)
         self._apply_environment()
@@ -337,7 +348,7 @@ class SessionRuntime:
         (inverse-brdf-modeling eq. 22 with the basis): while only the fitted coefficients change
         (strokes, undo, redo), a frame's shading of that object is one mat-vec."""
         r = self.renderer
-        smp = r.vertex_samples(cam, self.state.object_index)
+        smp = r.vertex_samples(cam, self.state.object_index, samples=STILL_SAMPLES)   # stroke frames are still
         T, E = r.transfer(smp, self.fitter.basis, Lighting(rot, inten))
         return (self._view_key(cam, rot, inten), smp.pix, T, E)
 
@@ -367,16 +378,58 @@ class SessionRuntime:
         return {i: (ids, rad.astype(np.float32))}
 
     # -- frames -----------------------------------------------------------------------------------
+    def _change(self) -> str:
+        """What changed since the last frame: "view" (the camera), "light", or "other"."""
+        st, last = self.state, self._last
+        if last is None or last[0] != st.camera:
+            return "view"
+        if (last[1], last[2]) != (st.rotation_deg, st.intensity):
+            return "light"
+        return "other"
+
+    def level_of_detail(self) -> tuple[str, int]:
+        """(lod, samples) of the next frame (issue 16). Outside a drag (the client did not flag its
+        last view or light message ``drag``) frames are full quality, and anti-aliased with
+        STILL_SAMPLES per pixel once the view has settled: the camera is where the last frame
+        had it, or that frame was drawn during a drag (its end); a camera moving without drag
+        flags gets one sample per frame (``needs_still_frame`` asks for the settled one after).
+        While the user drags, frames are full quality (one sample) whenever the measured cost of
+        recent full frames of the same kind of change (camera, light, other) fits the frame
+        budget, and at the drag level of detail otherwise, with a full frame tried again every
+        REPROBE_S (the machine's load changes)."""
+        change = self._change()
+        if not self._drag:
+            settled = change != "view" or self._last is None or self._last[3]
+            return "full", STILL_SAMPLES if settled else 1
+        hist = self._full_ms[change] or self._full_ms["view"]
+        if not hist:
+            return "full", 1                                     # no measurement yet: measure one
+        # the latest measurement can lower the estimate at once (a probe on a quieter machine),
+        # one slow frame among fast ones cannot raise it
+        est = min(statistics.median(hist), hist[-1])
+        if est <= self.frame_budget_ms or time.monotonic() - self._last_full >= REPROBE_S:
+            return "full", 1
+        return "drag", 1
+
+    def needs_still_frame(self) -> bool:
+        """Whether the last frame was a moving one (one sample, or the drag level of detail) and
+        the session is not dragging: when no message is waiting, one more frame (``frame``) is
+        the settled, anti-aliased image of the same state."""
+        return self._last is not None and not self._drag and self._last[4] < STILL_SAMPLES
+
     def frame(self, ack: int, skipped: int = 0) -> tuple[dict, bytes]:
         """The current frame: (header (FrameHeader fields), JPEG bytes)."""
         t0 = time.perf_counter()
         st = self.state
+        change = self._change()
+        lod, samples = self.level_of_detail()
         camera, lighting = st.camera, Lighting(st.rotation_deg, st.intensity)
         if not st.allows("camera"):          # a fixed-view renderer draws its own camera and light
             camera = self.scene.spec.camera
             lighting = Lighting(self.scene.spec.environment.rotation_deg, st.intensity)
-        req = FrameRequest(camera=camera, lighting=lighting, materials=st.materials,
-                           lod="drag" if self._drag else "full", transforms=st.transforms or None,
+        req = FrameRequest(camera=camera, lighting=lighting, materials=st.materials, lod=lod, samples=samples,
+                           ground_shadow=st.shadow, transforms=st.transforms or None,
+                           # the per-vertex transfer is per view: built for still views, not per drag frame
                            vertex_radiance=None if self._drag else self._override())
         out = self.renderer.render(req)
         rgb = tonemap(out.radiance, st.exposure, st.tone)
@@ -384,11 +437,17 @@ class SessionRuntime:
         buf = io.BytesIO()
         # lower quality while the user drags (DESIGN.md §5), full quality when still
         Image.fromarray(rgb).save(buf, format="JPEG", quality=min(st.quality, 60) if self._drag else st.quality)
+        t2 = time.perf_counter()
+        if lod == "full":
+            self._last_full = time.monotonic()
+            if samples == 1:
+                self._full_ms[change].append((t2 - t0) * 1e3)
+        self._last = (st.camera, st.rotation_deg, st.intensity, self._drag, int(out.info.get("samples", 1)))
         self.frame_no += 1
         h, w = rgb.shape[:2]
         hdr = {"frame": self.frame_no, "ack": ack, "width": w, "height": h, "format": "jpeg",
-               "ms_render": round((t1 - t0) * 1e3, 2), "lod": self._drag,
-               "ms_encode": round((time.perf_counter() - t1) * 1e3, 2), "skipped": skipped}
+               "ms_render": round((t1 - t0) * 1e3, 2), "lod": lod == "drag", "samples": int(out.info.get("samples", 1)),
+               "shadow": out.info.get("ground_shadow"), "ms_encode": round((t2 - t1) * 1e3, 2), "skipped": skipped}
         return hdr, buf.getvalue()
 
 

@@ -76,6 +76,7 @@ class SessionState(BaseModel):
     exposure: float = 0.0
     tone: Tone = "neutral"
     quality: int = 85
+    shadow: bool | None = None              # ground shadow on/off; None: the scene's default
     constrained: bool = True
     unpainted_weight: float = DEFAULT_UNPAINTED_WEIGHT
     readonly: bool = False
@@ -342,15 +343,17 @@ class SaveMsg(ClientMsg):
 
 @message
 class DisplayMsg(ClientMsg):
-    """Display settings: exposure (EV), tone curve, JPEG quality."""
+    """Display settings: exposure (EV), tone curve, JPEG quality, and the ground shadow under the
+    objects (scenes with a ``ground``; the frame header's ``shadow`` says whether it is drawn)."""
     readonly_ok: ClassVar[bool] = True
     type: Literal["display"] = "display"
     exposure: float | None = Field(None, ge=-20.0, le=20.0)
     tone: Tone | None = None
     quality: int | None = Field(None, ge=10, le=100)
+    shadow: bool | None = None
 
     def apply(self, st):
-        for k in ("exposure", "tone", "quality"):
+        for k in ("exposure", "tone", "quality", "shadow"):
             if getattr(self, k) is not None:
                 setattr(st, k, getattr(self, k))
         return None
@@ -534,7 +537,10 @@ class FrameHeader(BaseModel):
     width: int
     height: int
     format: Literal["jpeg"] = "jpeg"
-    lod: bool = Field(description="drawn at the drag level of detail")
+    lod: bool = Field(description="drawn at the drag level of detail (coarser cuts, half resolution): chosen "
+                                  "while the user drags only when full frames do not fit the frame budget")
+    samples: int = Field(1, description="primary-visibility samples per pixel (anti-aliasing of still frames)")
+    shadow: bool | None = Field(None, description="the ground shadow is drawn; null: the scene has no ground")
     ms_render: float
     ms_encode: float
     skipped: int = Field(0, description="client messages folded into this frame without a frame of their own")

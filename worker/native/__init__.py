@@ -12,12 +12,18 @@ from __future__ import annotations
 import ctypes
 import glob
 import logging
+import os
 from pathlib import Path
 
 import numpy as np
 
 log = logging.getLogger("glint.native")
 _here = Path(__file__).parent
+# Idle OpenMP threads sleep instead of spinning (libgomp reads this when the library loads): on
+# a shared machine spinning threads take the cores the other threads of a frame are waiting
+# for; measured on 2 loaded cores, the light tables took 128 ms spinning and 15 ms sleeping
+# (BENCHMARKS.md, issue 16). Set OMP_WAIT_POLICY=ACTIVE to spin.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 # C parameter types, named like the C side
 f32p = np.ctypeslib.ndpointer(np.float32, flags="C_CONTIGUOUS")

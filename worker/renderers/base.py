@@ -66,6 +66,9 @@ class FrameRequest:
     vertex_radiance : object index -> (vertex ids (K,) int32, radiance (K, 3) float32), radiance
         already known (e.g. from a per-vertex transfer matrix); renderers that shade vertices
         use it instead of shading those vertices.
+    ground_shadow : draw the shadow-catcher ground's shadow (None: the scene's ``ground.shadow``,
+        off for a scene without ``ground``); renderers without one ignore it.
+    ground_intensity : its strength k in [0, 1] (None: the scene's ``ground.intensity``).
     """
     camera: Any
     lighting: Lighting = Lighting()
@@ -75,6 +78,8 @@ class FrameRequest:
     transforms: Mapping[str, Any] | None = None
     samples: int = 1
     vertex_radiance: Mapping[int, tuple[np.ndarray, np.ndarray]] | None = None
+    ground_shadow: bool | None = None
+    ground_intensity: float | None = None
 
 
 @dataclass

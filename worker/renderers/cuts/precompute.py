@@ -8,7 +8,8 @@ Only directions above the vertex's horizon are traced (the others are zero by th
 As a ``Precomputation`` (renderers/base.py): one part, the cut set, content-keyed by the
 world-space geometry, normals, τ and the tree height; it splits into vertex ranges that can run
 anywhere (threads here, Ray tasks across a cluster) and assemble byte for byte into the same
-blob as a single run.
+blob as a single run. A scene with a ``ground`` (the shadow catcher, ground.py) has a second
+part: the cuts of the ground's sample points, keyed by the geometry and the grid.
 """
 from __future__ import annotations
 
@@ -36,6 +37,7 @@ class CutData:
     the leaf lighting of each map), so that many sessions on one scene cost one copy."""
     cuts: CutSet
     tau: float = DEFAULT_TAU
+    ground: object = None          # ground.GroundData when the scene has a shadow-catcher ground
 
     def __post_init__(self):
         self._lock = threading.Lock()
@@ -157,7 +159,8 @@ def storage_stats(cs: CutSet, blob_bytes: int) -> dict:
 
 
 class CutPrecomputation(Precomputation):
-    """The cut set of the whole scene (options: ``tau``)."""
+    """The cut set of the whole scene (options: ``tau``; ``ground``: False skips, True forces the
+    ground-shadow part, which scenes with a ``ground`` field have by default)."""
 
     kind = "cuts"
 
@@ -165,9 +168,20 @@ class CutPrecomputation(Precomputation):
         tau = float(options.get("tau", DEFAULT_TAU))
         m = scene.mesh
         key = geometry_key(m.vertices, m.faces, m.normals, tau, get_tree().height)
-        return [Part(key, "visibility cuts", len(m.vertices), {"tau": tau})]
+        parts = [Part(key, "visibility cuts", len(m.vertices), {"tau": tau})]
+        g = getattr(scene.spec, "ground", None)
+        want = options.get("ground")
+        if (g is not None and want is not False) or want is True:
+            from .ground import ground_grid, ground_key
+
+            grid = ground_grid(m.vertices, g.height if g is not None else None)
+            parts.append(Part(ground_key(m.vertices, m.faces, grid, tau, get_tree().height), "ground shadow cuts",
+                              grid.n * grid.n, {"tau": tau, "ground": grid}))
+        return parts
 
     def chunks(self, scene, part, options, n):
+        if "ground" in part.meta:
+            return [None]
         nv = len(scene.mesh.vertices)
         # ranges on batch boundaries so that every chunking traces the same batches
         step = max(BATCH, -(-nv // max(1, n) // BATCH) * BATCH)
@@ -175,6 +189,12 @@ class CutPrecomputation(Precomputation):
 
     def compute(self, scene, part, options, chunk=None, progress=None, threads=2):
         m = scene.mesh
+        if "ground" in part.meta:
+            from .ground import precompute_ground
+
+            cs, rays, secs = precompute_ground(Tracer(m.vertices, m.faces), part.meta["ground"], part.meta["tau"],
+                                               threads=threads, progress=progress)
+            return {"cuts": cs, "rays": rays, "seconds": secs}
         s, e = chunk if chunk is not None else (0, len(m.vertices))
         cs, rays, secs = precompute_cuts(m.vertices, m.faces, m.normals, tau=part.meta["tau"], threads=threads,
                                          progress=progress, start=s, stop=e)
@@ -184,6 +204,9 @@ class CutPrecomputation(Precomputation):
         cs = CutSet.concat([r["cuts"] for r in results])
         blob = cutmod.encode(cs)
         secs = sum(r["seconds"] for r in results)
+        if "ground" in part.meta:    # its own names: a job's stats merge the parts' into one dict
+            return blob, {"ground_points": cs.n_vertices - 1, "ground_rays_traced": int(sum(r["rays"] for r in results)),
+                          "ground_seconds_tracing": secs}
         samples = cs.n_vertices * (1 << cs.height)
         stats = {"rays_traced": int(sum(r["rays"] for r in results)), "tau": part.meta["tau"],
                  "seconds_tracing": secs, "samples_per_second": samples / max(secs, 1e-9),
@@ -191,11 +214,22 @@ class CutPrecomputation(Precomputation):
         return blob, stats
 
     def describe(self, scene, part, blob):
+        if "ground" in part.meta:
+            return {"ground_points": part.meta["ground"].n ** 2, "ground_bytes": len(blob)}
         return {"tau": part.meta["tau"], **storage_stats(cutmod.decode(blob), len(blob))}
 
     def load(self, scene, blobs, options):
-        (part,) = self.parts(scene, options)
+        part, *rest = self.parts(scene, options)
         cs = cutmod.decode(blobs[part.key])
         if cs.n_vertices != len(scene.mesh.vertices):
             raise ValueError(f"stored cuts are for {cs.n_vertices} vertices, the scene has {len(scene.mesh.vertices)}")
-        return CutData(cs, part.meta["tau"])
+        ground = None
+        for p in rest:
+            from .ground import GroundData
+
+            grid = p.meta["ground"]
+            gc = cutmod.decode(blobs[p.key])
+            if gc.n_vertices != grid.n * grid.n + 1:
+                raise ValueError(f"stored ground cuts are for {gc.n_vertices - 1} points, the grid has {grid.n ** 2}")
+            ground = GroundData(grid, gc)
+        return CutData(cs, part.meta["tau"], ground)

@@ -10,10 +10,24 @@ cosine-weighted visibility and ω_k its light-weighted centroid. Two shading mod
   view direction and blends them by barycentric weight (equal to interpolating the cuts, the
   integral being linear in visibility). Sharper glossy highlights on coarse meshes.
 
-It caches what a frame reuses (the hit buffer per camera, the per-node light per lighting, the
-packed materials per material list), so a BRDF or light change reuses the hit buffer and the
-cuts, and a view change reuses the cuts and the lighting. The drag level of detail shades
-cuts coarsened to τ = 16 at half resolution.
+It caches what a frame reuses (per camera and sample count: the hit buffer, the visible
+vertices and their view directions, the background's map coordinates and the object ids; per
+lighting: the per-node light tables (C, lighting.c) and the ground shadow; per view and lighting:
+the background; per material list: the packed materials), so a BRDF change costs the shading
+of the visible vertices and the resolve, a light change adds the light tables and the
+background, and a view change adds the primary rays. The drag level of detail shades cuts
+coarsened to τ = 16 at half resolution.
+
+Anti-aliasing (``FrameRequest.samples`` S > 1, vertex mode): S primary rays per pixel through
+a pattern symmetric about the pixel centre (render.sample_offsets); the vertices of every
+sample's triangle are shaded once, and each pixel is the mean of its samples' interpolations
+or background (C glk_resolve). Inside a triangle this equals one sample exactly; silhouettes
+and the background's edges get S levels of coverage. It costs S× primary rays (once per view)
+and S× interpolation, no extra shading beyond the few vertices only a sub-pixel sample sees.
+
+Ground shadow (ground.py): when the scene's precomputation has the ground part and the frame
+asks for it (``FrameRequest.ground_shadow``, default the scene's ``ground.shadow``), background
+samples whose rays go down through the ground plane are darkened by the occlusion ratio.
 
 Besides frames, it answers the paint-to-BRDF fitter's questions through named methods
 (``surface_samples``, ``vertex_samples``, ``transfer``, ``shade_samples``, ``light``): where an
@@ -24,30 +38,66 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
 from ...core import cuts as cutmod
 from ...core.directions import get_tree
-from ...core.lighting import node_lighting
-from ...core.render import MaterialTable, camera_rays, env_lookup, interpolate, shade_points
+from ...core.lighting import light_tables
+from ...core.render import MaterialTable, background, camera_rays, env_coords, resolve, shade_points
 from ...native.kernels import kernels as _kernels
 from ..base import FrameRequest, Lighting, Rendered, Renderer, Unsupported
 from .precompute import CutData
 
 DRAG_TAU = 16.0     # drag level of detail: cuts coarsened to τ = 16 (0.4% image change on the demo chair)
+_pool = None
 
 
-@dataclass
+@lru_cache(maxsize=1)
+def _placeholder():
+    """The packed material of objects no point of a frame is shaded with (never read)."""
+    from ...models import Lambert
+
+    return Lambert().pack()
+
+
+def _tracing_pool():
+    """(pool, size): threads for primary rays, shared by the process's renderers, as many as the
+    kernels' OpenMP threads (a service worker given one core traces on one)."""
+    global _pool
+    if _pool is None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        from ... import native
+
+        n = max(1, native.max_threads())
+        _pool = (ThreadPoolExecutor(max_workers=n, thread_name_prefix="glint-trace"), n)
+    return _pool
+
+
+@dataclass(eq=False)
 class View:
-    """Primary visibility of one camera: tri (P,) int32 face per pixel (−1 background), uv
-    (P, 2) float32 Embree barycentrics, dirs (P, 3) float32 ray directions, visible (K,) int32
-    vertices of the faces seen."""
+    """Primary visibility of one camera with S samples per pixel (rows p·S + s): tri (P·S,) int32
+    face per sample (−1 background), uv (P·S, 2) float32 Embree barycentrics, dirs (P·S, 3)
+    float32 ray directions, visible (K,) int32 vertices of the faces seen, wo (K, 3) float32 unit
+    directions from them to the eye, bg (n,) int64 the background sample rows, bgdirs (n, 3) their
+    directions and uv0 (n, 2) float32 their map coordinates (render.env_coords), obj (H, W) int32
+    object per pixel (from the pixel centres, −1 background); bgbuf (P·S, 3) float32 the
+    background last drawn (bg_key: its lighting and ground shadow)."""
     camera: object
     tri: np.ndarray
     uv: np.ndarray
     dirs: np.ndarray
     visible: np.ndarray
+    samples: int = 1
+    wo: np.ndarray | None = None
+    bg: np.ndarray | None = None
+    uv0: np.ndarray | None = None
+    obj: np.ndarray | None = None
+    bgdirs: np.ndarray | None = None
+    bgbuf: np.ndarray | None = None
+    bg_key: object = None
 
 
 @dataclass
@@ -73,6 +123,7 @@ class CutRenderer(Renderer):
     """
 
     kind = "cuts"
+    controls = frozenset({"camera", "light", "materials", "environment", "ground"})
 
     def __init__(self, scene, data: CutData, kernels=None):
         super().__init__(scene, data, kernels)
@@ -82,8 +133,13 @@ class CutRenderer(Renderer):
         self.tracer = data.tracer(scene)                    # shared by the scene's renderers
         self.lighting = data.lighting(scene.envmap, self.tree)
         self._view: View | None = None
+        self._views: list[View] = []        # the last few (camera, samples): still frames re-use moving ones'
         self._light_key = None
         self._node_light = None
+        self._node8 = None
+        self._ground_key = None
+        self._ground_factor = None
+        self._vert = np.zeros((len(scene.mesh.vertices), 3), np.float32)
         self._mats_key = None
         self._mats: MaterialTable | None = None
         self._lock = threading.RLock()      # the session thread and its background builder
@@ -96,34 +152,113 @@ class CutRenderer(Renderer):
             self.lighting = self.data.lighting(envmap, self.tree)
             self._light_key = None
 
-    def view(self, camera) -> View:
-        """Primary hits of a camera (cached for the last camera)."""
-        v = self._view
-        if v is not None and v.camera == camera:
-            return v
-        o, d = camera_rays(camera.eye, camera.target, camera.up, camera.fov_y_deg, camera.width, camera.height)
-        tri, uv, _ = self.tracer.first_hit(o, d)
-        seen = np.unique(tri[tri >= 0])
-        visible = np.unique(self.scene.mesh.faces[seen]).astype(np.int32)
-        v = self._view = View(camera, tri, uv, d, visible)
+    def view(self, camera, samples: int = 1) -> View:
+        """Primary hits of a camera with S samples per pixel (cached for the last few)."""
+        with self._lock:
+            for v in self._views:
+                if v.samples == samples and v.camera == camera:
+                    self._view = v
+                    return v
+        o, d = camera_rays(camera.eye, camera.target, camera.up, camera.fov_y_deg, camera.width, camera.height,
+                           samples, kernels=self.k)
+        tri, uv = self._first_hit(o, d)
+        mesh = self.scene.mesh
+        # faces and vertices seen, by marking (O(P + F), no sort)
+        fmask = np.zeros(len(mesh.faces), bool)
+        fmask[tri[tri >= 0]] = True
+        vmask = np.zeros(len(mesh.vertices), bool)
+        vmask[mesh.faces[fmask].reshape(-1)] = True
+        visible = np.nonzero(vmask)[0].astype(np.int32)
+        wo = np.asarray(camera.eye, np.float32) - mesh.vertices[visible]
+        wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+        bg = np.nonzero(tri < 0)[0]
+        bgdirs = d[bg]
+        v = View(camera, tri, uv, d, visible, samples, wo, bg, env_coords(bgdirs, self.k), bgdirs=bgdirs)
+        if samples == 1:
+            obj = np.where(tri >= 0, self.scene.object_of_face[np.maximum(tri, 0)], -1).astype(np.int32)
+            v.obj = obj.reshape(camera.height, camera.width)
+        else:
+            v.obj = self.view(camera, 1).obj
+        with self._lock:
+            self._views = [v] + [x for x in self._views if x is not v][:2]
+            self._view = v
         return v
+
+    def _first_hit(self, o, d):
+        """(tri, uv) of primary rays, traced in slices on the tracing threads (Embree releases
+        the GIL, so two slices take about half the time on two cores)."""
+        n = len(d)
+        pool, parts = _tracing_pool()
+        if n < 4096 or parts < 2:
+            tri, uv, _ = self.tracer.first_hit(o, d)
+            return tri, uv
+        cut = [n * i // parts for i in range(parts + 1)]
+        res = list(pool.map(lambda i: self.tracer.first_hit(o[cut[i]:cut[i + 1]], d[cut[i]:cut[i + 1]]),
+                            range(parts)))
+        return np.concatenate([r[0] for r in res]), np.concatenate([r[1] for r in res])
 
     def light(self, lighting: Lighting):
         """(node_l (2N−1, 3) float32 radiance×sr, node_w (2N−1, 3) float32 unit centroid
-        directions) for a lighting (cached for the last one)."""
+        directions) for a lighting (cached for the last one); the packed node records of the
+        shading kernel are kept beside them (``_node8``)."""
         with self._lock:
             key = (float(lighting.rotation_deg), float(lighting.intensity), id(self.lighting))
-            if key != self._light_key:
-                l, ld = self.lighting.leaf_radiance(lighting.rotation_deg, lighting.intensity)
-                self._node_light = node_lighting(l, ld, self.tree)
-                self._light_key = key
+            old = self._light_key
+            if key == old:
+                return self._node_light
+            if old is not None and old[0] == key[0] and old[2] == key[2] and old[1] > 0 and key[1] > 0:
+                # intensity alone: radiance scales, the light-weighted centroids do not move
+                f = np.float32(key[1] / old[1])
+                nl = self._node_light[0] * f
+                n8 = self._node8.copy()
+                n8[:, 0:3] *= f
+                self._node_light, self._node8 = (nl, self._node_light[1]), n8
+            else:
+                nl, nw, n8 = light_tables(self.lighting, lighting.rotation_deg, lighting.intensity, self.tree, self.k)
+                self._node_light, self._node8 = (nl, nw), n8
+            self._light_key = key
             return self._node_light
 
-    def material_table(self, materials) -> MaterialTable:
-        """Packed materials (cached by the identity of the list's items)."""
-        key = tuple(id(m) for m in materials)
+    def ground_available(self) -> bool:
+        """Whether this scene's precomputation has the ground shadow part."""
+        return self.data.ground is not None
+
+    def _ground(self, req: FrameRequest):
+        """(factor grid (G, G, 3) float32, (x0, z0, step, y)) for the frame's lighting, or None
+        when the frame has no ground shadow."""
+        g, spec = self.data.ground, getattr(self.scene.spec, "ground", None)
+        on = req.ground_shadow if req.ground_shadow is not None else bool(spec is not None and spec.shadow)
+        if not on or g is None:
+            return None
+        k = req.ground_intensity if req.ground_intensity is not None else (spec.intensity if spec is not None else 1.0)
+        key = (self._light_key, float(k))
+        if key != self._ground_key:
+            node_l, node_w = self._node_light
+            self._ground_factor = g.factor(g.shadow(node_l, node_w, self._node8, self.tree, self.k), k)
+            self._ground_key = key
+        return self._ground_factor, g.grid.geometry()
+
+    def _background(self, v: View, lighting: Lighting, shadow, key) -> np.ndarray:
+        """(P·S, 3) float32 buffer holding the view's background samples for this lighting and
+        ground shadow (key: the light and ground keys they were made with; redrawn only when one
+        of them changed)."""
+        if v.bgbuf is None or v.bg_key != key:
+            if v.bgbuf is None:
+                v.bgbuf = np.zeros((len(v.tri), 3), np.float32)
+            background(v.bg, v.bgdirs, v.uv0, self.lighting.map, lighting.rotation_deg, lighting.intensity,
+                       v.bgbuf, shadow, v.camera.eye, kernels=self.k)
+            v.bg_key = key
+        return v.bgbuf
+
+    def material_table(self, materials, needed=None) -> MaterialTable:
+        """Packed materials (cached by the identity of the list's items). needed: the indices of
+        the materials any point will be shaded with (default all); the others get a placeholder,
+        so a frame whose edited object is all known radiance (strokes) does not pack its srbf."""
+        needed = frozenset(range(len(materials)) if needed is None else needed)
+        key = (tuple(id(m) for m in materials), needed)
         if key != self._mats_key:
-            self._mats = MaterialTable([m.pack() for m in materials])
+            self._mats = MaterialTable([m.pack() if i in needed else _placeholder()
+                                        for i, m in enumerate(materials)])
             self._mats_key = key
             self._mats_refs = list(materials)        # keep them alive: ids stay unique
         return self._mats
@@ -145,54 +280,62 @@ class CutRenderer(Renderer):
         cuts = self.coarse_cuts() if drag else self.cuts
         if drag and camera.width >= 320:
             camera = camera.model_copy(update={"width": camera.width // 2, "height": camera.height // 2})
+        samples = 1 if drag else int(req.samples)
+        if samples < 1:
+            raise ValueError(f"samples: {samples} per pixel (at least 1)")
         materials = list(req.materials) or self.scene.materials
         if len(materials) != len(self.scene.spec.objects):
             raise ValueError(f"{len(materials)} materials for {len(self.scene.spec.objects)} objects")
-        v = self.view(camera)
+        v = self.view(camera, samples)
         t1 = time.perf_counter(); t["view"] = (t1 - t0) * 1e3
-        node_l, node_w = self.light(req.lighting)
-        mats = self.material_table(materials)
+        with self._lock:        # the tables of one lighting, even if the fitter's thread asks for another
+            node_l, node_w = self.light(req.lighting)
+            node8 = self._node8
+            shadow = self._ground(req)
+            bg_key = (self._light_key, self._ground_key if shadow is not None else None)
         t2 = time.perf_counter(); t["light"] = (t2 - t1) * 1e3
+        bg = self._background(v, req.lighting, shadow, bg_key)
+        t3 = time.perf_counter(); t["background"] = (t3 - t2) * 1e3
         mesh = self.scene.mesh
-        img = np.zeros((len(v.tri), 3), np.float32)
-        bg = v.tri < 0
-        env_lookup(v.dirs, self.lighting.map, req.lighting.rotation_deg, req.lighting.intensity, mask=bg, out=img,
-                   kernels=self.k)
+        img = np.empty((camera.width * camera.height, 3), np.float32)
         if req.shading == "vertex":
             known = {} if drag else dict(req.vertex_radiance or {})
-            vi = v.visible
+            vi, wo = v.visible, v.wo
             if known:
-                vi = vi[~np.isin(vi, np.concatenate([ids for ids, _ in known.values()]))]
-            wo = np.asarray(camera.eye, np.float32) - mesh.vertices[vi]
-            wo /= np.linalg.norm(wo, axis=1, keepdims=True)
-            rad = shade_points(mesh.normals[vi], wo, vi, self.scene.object_of_vertex[vi], cuts,
-                               node_l, node_w, self.tree, mats, self.k)
-            vert = np.zeros((len(mesh.vertices), 3), np.float32)
+                keep = ~np.isin(vi, np.concatenate([ids for ids, _ in known.values()]))
+                vi, wo = vi[keep], wo[keep]
+            mat_of = self.scene.object_of_vertex[vi]
+            mats = self.material_table(materials, np.unique(mat_of).tolist())
+            rad = shade_points(mesh.normals[vi], wo, vi, mat_of, cuts, node_l, node_w, self.tree, mats, self.k,
+                               node8=node8)
+            vert = self._vert            # only the visible vertices' rows are read
             vert[vi] = rad
             for ids, r in known.values():
                 vert[ids] = r
-            t3 = time.perf_counter(); t["shade"] = (t3 - t2) * 1e3
-            interpolate(v.tri, v.uv, mesh.faces, vert, img, self.k)
-            t["interpolate"] = (time.perf_counter() - t3) * 1e3
+            t4 = time.perf_counter(); t["shade"] = (t4 - t3) * 1e3
+            resolve(v.tri, v.uv, mesh.faces, vert, bg, samples, img, self.k)
+            t["resolve"] = (time.perf_counter() - t4) * 1e3
         elif req.shading == "pixel":
-            s = self._pixel_samples(v, camera, np.nonzero(~bg)[0])
-            img[s.pix] = self._shade(s, cuts, node_l, node_w, mats, self.scene.object_of_vertex)
-            t["shade"] = (time.perf_counter() - t2) * 1e3
+            hit = np.nonzero(v.tri >= 0)[0]
+            mats = self.material_table(materials)
+            s = self._pixel_samples(v, camera, hit)
+            val = bg.copy()
+            val[hit] = self._shade(s, cuts, node_l, node_w, mats, self.scene.object_of_vertex, node8)
+            img[:] = val.reshape(-1, samples, 3).mean(1)
+            t["shade"] = (time.perf_counter() - t3) * 1e3
         else:
             raise ValueError(f"unknown shading mode {req.shading!r} (vertex or pixel)")
-        obj = np.where(v.tri >= 0, self.scene.object_of_face[np.maximum(v.tri, 0)], -1).astype(np.int32)
-        return Rendered(img.reshape(camera.height, camera.width, 3), obj.reshape(camera.height, camera.width), t,
+        return Rendered(img.reshape(camera.height, camera.width, 3), v.obj, t,
                         {"lod": req.lod, "tau": DRAG_TAU if drag else self.data.tau, "width": camera.width,
-                         "height": camera.height, "visible_vertices": int(len(v.visible))})
+                         "height": camera.height, "visible_vertices": int(len(v.visible)), "samples": samples,
+                         "ground_shadow": None if self.data.ground is None else shadow is not None})
 
     def _index(self, name: str) -> int:
         return [o.name for o in self.scene.spec.objects].index(name)
 
     def object_mask(self, camera) -> np.ndarray:
         """(H, W) int32 object index per pixel, −1 background."""
-        v = self.view(camera)
-        m = np.where(v.tri >= 0, self.scene.object_of_face[np.maximum(v.tri, 0)], -1)
-        return m.reshape(camera.height, camera.width).astype(np.int32)
+        return self.view(camera).obj
 
     # -- what the fitter asks ------------------------------------------------------------------
     def _pixel_samples(self, v: View, camera, pix: np.ndarray) -> Samples:
@@ -212,16 +355,21 @@ class CutRenderer(Renderer):
         """The object's pixels in a view at the camera's resolution, each with its own normal and
         view direction and its triangle's three cuts blended by barycentric weight
         (inverse-brdf-modeling §4.1)."""
-        o, d = camera_rays(camera.eye, camera.target, camera.up, camera.fov_y_deg, camera.width, camera.height)
-        tri, uv, _ = self.tracer.first_hit(o, d)
+        o, d = camera_rays(camera.eye, camera.target, camera.up, camera.fov_y_deg, camera.width, camera.height,
+                           kernels=self.k)
+        tri, uv = self._first_hit(o, d)
         obj_of = np.where(tri >= 0, self.scene.object_of_face[np.maximum(tri, 0)], -1)
         pix = np.nonzero(obj_of == object_index)[0]
         return self._pixel_samples(View(camera, tri, uv, d, np.zeros(0, np.int32)), camera, pix)
 
-    def vertex_samples(self, camera, object_index: int) -> Samples:
-        """The object's vertices the camera sees (vertex-mode shading points)."""
+    def vertex_samples(self, camera, object_index: int, samples: int = 1) -> Samples:
+        """The object's vertices the camera sees (vertex-mode shading points): with samples S > 1,
+        those of the one-sample and the S-sample views, so that radiance known for them
+        (``FrameRequest.vertex_radiance``) covers anti-aliased frames too."""
         mesh = self.scene.mesh
         vis = self.view(camera).visible
+        if samples > 1:
+            vis = np.union1d(vis, self.view(camera, samples).visible).astype(np.int32)
         ids = vis[self.scene.object_of_vertex[vis] == object_index].astype(np.int32)
         wo = np.asarray(camera.eye, np.float32) - mesh.vertices[ids]
         wo /= np.linalg.norm(wo, axis=1, keepdims=True)
@@ -241,14 +389,16 @@ class CutRenderer(Renderer):
 
     def shade_samples(self, samples: Samples, material, object_index: int, lighting: Lighting) -> np.ndarray:
         """(N, 3) float64 radiance of the samples under a material, shaded like pixel mode."""
-        node_l, node_w = self.light(lighting)
+        with self._lock:
+            node_l, node_w = self.light(lighting)
+            node8 = self._node8
         mats = MaterialTable([material.pack()])
-        return self._shade(samples, self.cuts, node_l, node_w, mats, None).astype(np.float64)
+        return self._shade(samples, self.cuts, node_l, node_w, mats, None, node8).astype(np.float64)
 
-    def _shade(self, s: Samples, cuts, node_l, node_w, mats, mat_of_vertex) -> np.ndarray:
+    def _shade(self, s: Samples, cuts, node_l, node_w, mats, mat_of_vertex, node8=None) -> np.ndarray:
         n = len(s)
         flat = s.verts.reshape(-1)
         mat_of = np.zeros(3 * n, np.int32) if mat_of_vertex is None else mat_of_vertex[flat]
         rad = shade_points(np.repeat(s.normals, 3, 0), np.repeat(s.wo, 3, 0), flat, mat_of, cuts, node_l, node_w,
-                           self.tree, mats, self.k).reshape(n, 3, 3)
+                           self.tree, mats, self.k, node8=node8).reshape(n, 3, 3)
         return (s.bary[:, :, None] * rad).sum(1)
