@@ -87,6 +87,28 @@ class SceneObject(_Strict):
     movable: bool = False
 
 
+class FieldGridSettings(_Strict):
+    """Sampling of the visibility cut fields of a scene with movable objects (cyber-worlds §V;
+    worker/renderers/cuts/grid.py GridSpec, whose defaults BENCHMARKS.md justifies): ``shells``
+    concentric spheres, ``face`` cube-face cells per side, radii from ``rho_min`` to ``rho_max``
+    bounding radii. Coarser grids trace faster and blur shadows of moved objects more."""
+    shells: int = Field(24, ge=2, le=64)
+    face: int = Field(24, ge=1, le=64)
+    rho_min: float = Field(0.25, gt=0.0)
+    rho_max: float = Field(8.0, gt=0.0)
+
+    @model_validator(mode="after")
+    def _order(self):
+        if not self.rho_min < self.rho_max:
+            raise ValueError("rho_min must be below rho_max")
+        return self
+
+
+class CutSettings(_Strict):
+    """The cut renderer's settings (optional): the field grid of movable objects."""
+    field_grid: FieldGridSettings | None = None
+
+
 class SceneFile(_Strict):
     version: Literal[1] = 1
     renderer: str = Field("cuts", description="how the scene is drawn: cuts (direct light, default), "
@@ -98,6 +120,7 @@ class SceneFile(_Strict):
     # worker/renderers/gi/options.py), the paint renderer's (e.g. {"visibility": true})
     gi: dict[str, Any] | None = None
     paint: dict[str, Any] | None = None
+    cuts: CutSettings | None = None
 
     @field_validator("renderer")
     @classmethod

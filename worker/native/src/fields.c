@@ -318,9 +318,12 @@ void glf_cells(int64_t n, const int32_t *corners, const int64_t *p_off, const in
  * Occluder o of vertex v: cslot[v·n_occ + o] (−1: culled) indexes its cell pool (c_off, c_cnt,
  * c_a, c_b, c_v: arrays of n_occ pointers), weights wts[(v·n_occ + o)·8 + c].
  * Output: vertex v at pos[v] in (out_h, out_q), counts[v] nodes (see bump).
+ * delta = 1 writes what the occluders take away instead, v_base − v_base · Π_o F_o (0 where no
+ * stretch covers a node): a renderer that knows the radiance of the base cut subtracts the
+ * radiance of this cut, whose non-zero nodes are only those the occluders shade.
  */
 void glf_combine(int64_t V, const int32_t *cut_of, const int64_t *b_off, const uint8_t *b_h, const uint8_t *b_q,
-                 int H, int n_occ, const int32_t *cslot, const float *wts, const int64_t *const *c_off,
+                 int H, int n_occ, int delta, const int32_t *cslot, const float *wts, const int64_t *const *c_off,
                  const int32_t *const *c_cnt, const int32_t *const *c_a, const int32_t *const *c_b,
                  const uint8_t *const *c_v, int64_t cap, uint8_t *out_h, uint8_t *out_q, int64_t *pos, int32_t *counts,
                  int64_t *used) {
@@ -362,13 +365,14 @@ void glf_combine(int64_t V, const int32_t *cut_of, const int64_t *b_off, const u
                 int64_t e = x + ((int64_t)1 << h0);
                 int qb = bq[k];
                 if (qb == 0 || (e <= next && F == 1.0)) {   /* dark, or untouched: the base node as is */
-                    dh[c] = (uint8_t)h0; dq[c] = (uint8_t)qb; c++; x = e;
+                    dh[c] = (uint8_t)h0; dq[c] = delta ? 0 : (uint8_t)qb; c++; x = e;
                     continue;
                 }
                 while (x < e) {
                     int64_t b = e < next ? e : next;
                     long q = lrint(qb * F);
-                    uint8_t qq = (uint8_t)(q < 0 ? 0 : (q > 255 ? 255 : q));
+                    q = q < 0 ? 0 : (q > 255 ? 255 : q);
+                    uint8_t qq = (uint8_t)(delta ? qb - q : q);
                     while (x < b) {          /* [x, b) as maximal aligned nodes */
                         int h = x ? __builtin_ctzll((uint64_t)x) : H;
                         if (h > h0) h = h0;

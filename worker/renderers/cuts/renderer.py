@@ -87,6 +87,11 @@ class CutRenderer(Renderer):
         self._mats_key = None
         self._mats: MaterialTable | None = None
         self._lock = threading.RLock()      # the session thread and its background builder
+        self._moving = None                 # frames of a scene with movable objects (moving.py)
+        if data.moving is not None:
+            from .moving import MovingFrames
+
+            self._moving = MovingFrames(self, data.moving)
 
     # -- caches -----------------------------------------------------------------------------------
     def set_environment(self, envmap: np.ndarray) -> None:
@@ -131,13 +136,17 @@ class CutRenderer(Renderer):
     def coarse_cuts(self) -> cutmod.CutSet:
         """The drag-time cut set (cuts coarsened to DRAG_TAU), built once per scene (≈0.1 s
         for 21K vertices in C)."""
+        if self._moving is not None:
+            self._moving.level("drag")              # the movable objects' drag-time cuts too
         return self.data.coarse(DRAG_TAU, self.k)
 
     # -- frames -----------------------------------------------------------------------------------
     def render(self, req: FrameRequest) -> Rendered:
+        if self._moving is not None:
+            return self._render_moving(req)
         if req.transforms and any(self.scene.spec.objects[self._index(n)].transform != t
                                   for n, t in req.transforms.items()):
-            raise Unsupported("moving objects needs their visibility cut fields (not wired yet)")
+            raise Unsupported("this scene has no movable objects (mark them \"movable\": true in the scene file)")
         t = {}
         t0 = time.perf_counter()
         camera = req.camera
@@ -187,6 +196,11 @@ class CutRenderer(Renderer):
 
     def _index(self, name: str) -> int:
         return [o.name for o in self.scene.spec.objects].index(name)
+
+    def _render_moving(self, req: FrameRequest) -> Rendered:
+        """A frame of a scene with movable objects, placed by req.transforms (moving.py)."""
+        with self._lock:
+            return self._moving.render(req)
 
     def object_mask(self, camera) -> np.ndarray:
         """(H, W) int32 object index per pixel, −1 background."""
