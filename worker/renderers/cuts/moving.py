@@ -50,8 +50,16 @@ from ...core.render import camera_rays, env_lookup, interpolate, shade_points
 from ...trace.embree import Tracer
 from ..base import Part, Rendered, Unsupported
 from .combine import DEFAULT_HMIN, Combiner
-from .fields import (MoveError, ObjectShape, compute_part, field_parts, frame_lighting, load_part, object_shape,
-                     split_transform)
+from .fields import (
+    MoveError,
+    ObjectShape,
+    compute_part,
+    field_parts,
+    frame_lighting,
+    load_part,
+    object_shape,
+    split_transform,
+)
 from .rotate import rotation_part
 
 DRAG_HMIN = 5          # field cuts of the drag level of detail: nodes of ≥ 32 leaves (fields.py)
@@ -508,7 +516,7 @@ class MovingFrames:
             x, n = mesh.vertices[sv], mesh.normals[sv]
             cells, wts, _ = lv.combiner.stencils(x, n, occ)
             aff = np.nonzero((cells >= 0).any(axis=1))[0]
-            stats.update(visible_static=int(len(sv)), affected_static=int(len(aff)))
+            stats.update(visible_static=len(sv), affected_static=len(aff))
             if len(aff):
                 delta = lv.combiner.combine(lv.static, d.static_row[sv[aff]], x[aff], n[aff], occ, delta=True,
                                             stencils=(cells[aff], wts[aff]), tag="static")
@@ -538,7 +546,7 @@ class MovingFrames:
             nl, nw = self.frame_light(q, req.lighting)
             vert[ids] = shade_points(sh.normals[local], wo, np.arange(len(ids), dtype=np.int32), obj_of[ids], cs, nl, nw,
                                      r.tree, mats, r.k)
-            stats["moving_vertices"] += int(len(ids))
+            stats["moving_vertices"] += len(ids)
         t4 = time.perf_counter(); t["moving"] = (t4 - t3) * 1e3
         interpolate(v.tri, v.uv, mesh.faces, vert, img, r.k)
         t["interpolate"] = (time.perf_counter() - t4) * 1e3
@@ -546,7 +554,7 @@ class MovingFrames:
         self.last_stats = stats
         return Rendered(img.reshape(camera.height, camera.width, 3), obj.reshape(camera.height, camera.width), t,
                         {"lod": req.lod, "tau": DRAG_TAU if drag else d.tau, "width": camera.width,
-                         "height": camera.height, "visible_vertices": int(len(vis)), "moving": stats,
+                         "height": camera.height, "visible_vertices": len(vis), "moving": stats,
                          "hmin": lv.combiner.hmin})
 
     @staticmethod
