@@ -123,7 +123,7 @@ def crate(tmp_path_factory, shared_assets):
     spec = {
         "version": 1,
         "environment": {"map": str(shared_assets / "env" / "sunset.exr"), "rotation_deg": 140.0},
-        "camera": {"eye": [0, 150, 250], "target": [0, 15, 0], "fov_y_deg": 40, "width": 96, "height": 72},
+        "camera": {"eye": [0, 150, 250], "target": [0, 15, 0], "fov_y_deg": 40, "width": 320, "height": 240},
         "cuts": {"field_grid": {"shells": 4, "face": 4}},
         "objects": [
             {"name": "floor", "mesh": str(d / "floor.ply"), "material": {"model": "lambert", "albedo": [0.6, 0.6, 0.6]}},

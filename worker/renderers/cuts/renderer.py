@@ -73,6 +73,7 @@ class CutRenderer(Renderer):
     """
 
     kind = "cuts"
+    controls = frozenset({"camera", "light", "materials", "environment", "move"})
 
     def __init__(self, scene, data: CutData, kernels=None):
         super().__init__(scene, data, kernels)
