@@ -7,6 +7,10 @@ precomputation finds the same fields by the same keys.
 Ground truth everywhere is Embree ray tracing of the same meshes (worker.trace.embree)."""
 from __future__ import annotations
 
+import json
+import time
+from pathlib import Path
+
 import numpy as np
 import pytest
 import trimesh
@@ -132,3 +136,32 @@ def crate(tmp_path_factory, shared_assets):
         ],
     }
     return SceneKit(d, spec)
+
+
+@pytest.fixture(scope="session")
+def crate_scene(crate, client, shared_assets):
+    """Scene id of the crate scene (a floor and a movable box) uploaded and precomputed."""
+    spec = json.loads(json.dumps(crate.spec))
+    ids = {}
+    for path in {spec["objects"][0]["mesh"], spec["objects"][1]["mesh"]}:
+        r = client.post("/v1/assets/meshes", params={"filename": Path(path).name}, content=Path(path).read_bytes())
+        assert r.status_code == 201, r.text
+        ids[path] = r.json()["id"]
+    env = client.post("/v1/assets/envmaps", params={"filename": "sunset.exr"},
+                      content=(shared_assets / "env" / "sunset.exr").read_bytes())
+    assert env.status_code == 201, env.text
+    spec["environment"]["map"] = env.json()["id"]
+    for o in spec["objects"]:
+        o["mesh"] = ids[o["mesh"]]
+    sc = client.post("/v1/scenes", json=spec, params={"name": "crate"})
+    assert sc.status_code == 201, sc.text
+    sid = sc.json()["id"]
+    pre = client.post(f"/v1/scenes/{sid}/precompute")
+    assert pre.status_code == 202, pre.text
+    for _ in range(600):
+        p = client.get(f"/v1/precomputations/{pre.json()['id']}").json()
+        if p["status"] in ("done", "failed"):
+            break
+        time.sleep(0.5)
+    assert p["status"] == "done", p
+    return sid

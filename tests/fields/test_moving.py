@@ -188,7 +188,7 @@ def test_drag_level_of_detail(room_scene, room_renderer):
     frame, and a turn within one snap step re-uses every rotated sample."""
     cam = room_scene.spec.camera.model_copy(update={"width": 320, "height": 240})   # drag halves from 320 up
     t0 = moved_transform(room_scene)
-    req = dict(camera=cam, materials=room_scene.materials)
+    req = {"camera": cam, "materials": room_scene.materials}
     full = room_renderer.render(FrameRequest(**req, transforms={"bunny": t0})).radiance
     drag = room_renderer.render(FrameRequest(**req, lod="drag", transforms={"bunny": t0}))
     assert drag.radiance.shape == (cam.height // 2, cam.width // 2, 3) and drag.info["hmin"] == 5

@@ -18,7 +18,13 @@ from worker.core.directions import get_tree
 from worker.core.lighting import LeafLighting, node_lighting
 from worker.core.render import MaterialTable, shade_points
 from worker.renderers.cuts.combine import Combiner
-from worker.renderers.cuts.fields import MoveError, MovingScene, frame_lighting, object_shape, receiver_from_local
+from worker.renderers.cuts.fields import (
+    MoveError,
+    MovingScene,
+    frame_lighting,
+    object_shape,
+    receiver_from_local,
+)
 from worker.scene import Lambert, LoadedScene, Transform
 
 BUNNY = 2

@@ -2,7 +2,6 @@
 real server (the ``server`` fixture), rendered over REST with transforms and moved in a session
 with ``move`` messages; frames compared with the cut renderer run here on the same scene."""
 import asyncio
-import io
 import json
 
 import numpy as np
@@ -16,37 +15,6 @@ from worker.renderers import FrameRequest, Lighting
 from worker.scene import Transform
 
 MOVED = {"rotate_deg": [0, 35, 0], "translate": [25.0, 15.0, -15.0]}
-
-
-@pytest.fixture(scope="module")
-def crate_scene(crate, client, shared_assets):
-    """Scene id of the crate scene (a floor and a movable box) uploaded and precomputed."""
-    spec = json.loads(json.dumps(crate.spec))
-    ids = {}
-    for path in {spec["objects"][0]["mesh"], spec["objects"][1]["mesh"]}:
-        r = client.post("/v1/assets/meshes", params={"filename": path.rsplit("/", 1)[-1]}, content=open(path, "rb").read())
-        assert r.status_code == 201, r.text
-        ids[path] = r.json()["id"]
-    env = client.post("/v1/assets/envmaps", params={"filename": "sunset.exr"},
-                      content=(shared_assets / "env" / "sunset.exr").read_bytes())
-    assert env.status_code == 201, env.text
-    spec["environment"]["map"] = env.json()["id"]
-    for o in spec["objects"]:
-        o["mesh"] = ids[o["mesh"]]
-    sc = client.post("/v1/scenes", json=spec, params={"name": "crate"})
-    assert sc.status_code == 201, sc.text
-    sid = sc.json()["id"]
-    pre = client.post(f"/v1/scenes/{sid}/precompute")
-    assert pre.status_code == 202, pre.text
-    import time
-
-    for _ in range(600):
-        p = client.get(f"/v1/precomputations/{pre.json()['id']}").json()
-        if p["status"] in ("done", "failed"):
-            break
-        time.sleep(0.5)
-    assert p["status"] == "done", p
-    return sid
 
 
 @pytest.fixture(scope="module")
