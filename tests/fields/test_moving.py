@@ -219,3 +219,46 @@ def test_moving_what_cannot_move_is_an_error(crate):
         r.render(FrameRequest(camera=cam, materials=mats, shading="pixel"))
     # the floor at its own place is fine
     r.render(FrameRequest(camera=cam, materials=mats, transforms={"floor": scene.spec.objects[0].transform}))
+
+
+def test_the_fitters_questions_are_answered_where_objects_stand(room_scene, room_renderer):
+    """After a frame with the bunny moved and turned, the paint-to-BRDF fitter's questions (vertex
+    and surface samples, shading, SRBF transfer rows) describe the bunny where it now stands:
+    positions, shading against cuts traced there, and transfer rows that predict the shading."""
+    from worker.core.render import MaterialTable, shade_points
+    from worker.fit.basis import default_basis
+    from worker.models import parse_material
+
+    r, cam = room_renderer, room_scene.spec.camera
+    light = Lighting(room_scene.spec.environment.rotation_deg, 1.0)
+    t = moved_transform(room_scene)
+    r.render(FrameRequest(camera=cam, lighting=light, materials=room_scene.materials, transforms={"bunny": t}))
+    sc = placed(room_scene, "bunny", t)
+    smp = r.vertex_samples(cam, 2)
+    assert len(smp) > 300
+    np.testing.assert_allclose(smp.positions, sc.mesh.vertices[smp.pix], atol=1e-2)
+    np.testing.assert_allclose(smp.normals, sc.mesh.normals[smp.pix], atol=1e-3)
+    mask = r.object_mask(cam)
+    tri, _ = hits(sc, cam)
+    assert ((mask == 2) == (sc.object_of_face[np.maximum(tri, 0)] == 2).reshape(mask.shape) & (tri >= 0).reshape(mask.shape)).mean() > 0.998
+    ggx = room_scene.materials[2]
+    got = r.shade_samples(smp, ggx, 2, light)
+    from worker.core.lighting import node_lighting
+
+    world = node_lighting(*r.lighting.leaf_radiance(light.rotation_deg, 1.0), r.tree)
+    ref = shade_points(smp.normals, smp.wo, np.arange(len(smp), dtype=np.int32), np.zeros(len(smp), np.int32),
+                       reference_cuts(sc.mesh, smp.pix), *world, r.tree, MaterialTable([ggx.pack()]))
+    err = np.abs(got.mean(1) - ref.mean(1)) / ref.mean()
+    assert err.mean() < 0.03, err.mean()                        # measured 0.011 (the tests' 8 × 8² fields)
+    # transfer rows predict the shading of an srbf material: ρ_d E + T c
+    basis = default_basis()
+    rng = np.random.default_rng(0)
+    c = rng.uniform(0, 0.2, (basis.J, 3))
+    srbf = parse_material(basis.to_material(c, [0.2, 0.2, 0.2]))
+    T, E = r.transfer(smp, basis, light)
+    pred = 0.2 * E + np.stack([T[k] @ c[:, k] for k in range(3)], axis=1)
+    shade = r.shade_samples(smp, srbf, 2, light)
+    rel = np.abs(pred - shade).mean() / shade.mean()
+    assert rel < 0.02, rel
+    surf = r.surface_samples(cam, 2)
+    assert len(surf) > 0.9 * (mask == 2).sum()

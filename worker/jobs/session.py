@@ -92,6 +92,12 @@ class SessionRuntime:
         self._vt = None           # per-vertex transfer of the edited object: (key, ids, T, E)
         self._pending: dict = {}  # prefetch futures by what they build
         self._env_key = None
+        # movable objects (cut fields): the renderer answers the fitter where they now stand;
+        # fit views are valid for the placement they were built in (counted by moves)
+        self._moves = 0
+        self._view_moves: dict[int, int] = {}
+        if hasattr(renderer, "place"):
+            renderer.place(self.state.transforms or None)
         if self.state.renderer != renderer.kind:
             self._switch_renderer(self.state.renderer)
         self._apply_environment()
@@ -135,6 +141,7 @@ class SessionRuntime:
 
     def _ensure_fitter(self) -> Fitter:
         if self.fitter is None:
+            self._view_moves = {}
             try:
                 self.fitter = Fitter(self.renderer, self.state.object, base_material=self.state.base_material,
                                      fit_scale=0.25)
@@ -148,17 +155,21 @@ class SessionRuntime:
     def _view_index(self, camera: Camera, rot: float, inten: float) -> int:
         fx = self._ensure_fitter()
         for i, v in enumerate(fx.views):
-            if v.camera == camera and v.rotation_deg == rot and v.intensity == inten:
+            if v.camera == camera and v.rotation_deg == rot and v.intensity == inten and \
+                    self._view_moves.get(i, 0) == self._moves:
                 return i
-        key = ("view", self.state.epoch, self._view_key(camera, rot, inten))
+        key = ("view", self.state.epoch, self._moves, self._view_key(camera, rot, inten))
         fut = self._pending.pop(key, None)
         if fut is not None and not fut.cancelled():
             view = fut.result()           # prepared while the user orbited (or wait for it)
             if isinstance(view, Exception):
                 raise view
             fx.views.append(view)
+            self._view_moves[len(fx.views) - 1] = self._moves
             return len(fx.views) - 1
-        return fx.add_view(camera, rot, inten)
+        i = fx.add_view(camera, rot, inten)
+        self._view_moves[i] = self._moves
+        return i
 
     def _add_stroke(self, rec: dict) -> StrokeEvent:
         """Add a stored or new stroke record; a stroke that cannot apply is rejected (reported,
@@ -225,6 +236,12 @@ class SessionRuntime:
         ev: list[dict] = []
         if msg.type in ("view", "light", "move"):
             self._drag = eff.drag
+        if eff.kind == "move":             # views and the vertex transfer were of the old placement
+            if hasattr(self.renderer, "place"):
+                self.renderer.place(self.state.transforms or None)
+            self._moves += 1
+            self._vt = None
+            self._pending.clear()
         if eff.kind == "rebase":
             self.fitter = None             # strokes painted over the old material do not carry over
             self._needs_fit = False
@@ -311,8 +328,9 @@ class SessionRuntime:
             return
         cam, rot, inten = self.state.camera, self.state.rotation_deg, self.state.intensity
         fx = self.fitter
-        if not any(v.camera == cam and v.rotation_deg == rot and v.intensity == inten for v in fx.views):
-            key = ("view", self.state.epoch, self._view_key(cam, rot, inten))
+        if not any(v.camera == cam and v.rotation_deg == rot and v.intensity == inten and
+                   self._view_moves.get(i, 0) == self._moves for i, v in enumerate(fx.views)):
+            key = ("view", self.state.epoch, self._moves, self._view_key(cam, rot, inten))
             if key not in self._pending:
                 for k in [k for k in self._pending if k[0] == "view"]:
                     self._pending[k].cancel()           # only the latest view is worth building

@@ -321,8 +321,9 @@ def combine_numpy(base: CutSet, cut_of: np.ndarray, cells: np.ndarray, weights: 
 
     base : CutSet; cut_of (V,) its cut per vertex. cells (V, O) int32 cell per occluder (−1:
     culled), weights (V, O, 8) float32. Returns V cuts. delta: what the occluders take away
-    instead, v_base − round(v_base · Π_o F_o), 0 outside the occluders' stretches (glf_combine's
-    delta mode).
+    instead, v_base − round(v_base · Π_o F_o), 0 outside the occluders' stretches, with runs of
+    zeros as maximal aligned nodes (glf_combine's delta mode; the C kernel merges only runs of
+    untouched base nodes, so the two agree leaf by leaf, not node by node).
     """
     H = base.height
     n = 1 << H
@@ -365,11 +366,30 @@ def combine_numpy(base: CutSet, cut_of: np.ndarray, cells: np.ndarray, weights: 
                 qq = int(bq[k]) - qq
             for _, hh in _dyadic(int(x0), int(x1), H):
                 out_h.append(hh); out_q.append(qq)
+        if delta:
+            out_h, out_q = _merge_zero_runs(out_h, out_q, H)
         hs.append(np.array(out_h, np.uint8)); qs.append(np.array(out_q, np.uint8)); counts.append(len(out_h))
     off = np.zeros(V + 1, np.int64)
     np.cumsum(counts, out=off[1:])
     return CutSet(off, np.concatenate(hs) if hs else np.zeros(0, np.uint8),
                   np.concatenate(qs) if qs else np.zeros(0, np.uint8), H)
+
+
+def _merge_zero_runs(hs, qs, H):
+    """A cut with every run of 0-valued nodes rewritten as maximal aligned nodes."""
+    out_h, out_q, x, z = [], [], 0, None
+    for h, q in zip(hs, qs):
+        if q == 0:
+            z = x if z is None else z
+        else:
+            if z is not None:
+                out_h += [hh for _, hh in _dyadic(z, x, H)]; out_q += [0] * (len(out_h) - len(out_q))
+                z = None
+            out_h.append(h); out_q.append(q)
+        x += 1 << int(h)
+    if z is not None:
+        out_h += [hh for _, hh in _dyadic(z, x, H)]; out_q += [0] * (len(out_h) - len(out_q))
+    return out_h, out_q
 
 
 def combine_native(base: CutSet, cut_of: np.ndarray, cells: np.ndarray, weights: np.ndarray,

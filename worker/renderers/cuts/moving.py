@@ -323,6 +323,8 @@ class MovingFrames:
         self._hits: OrderedDict = OrderedDict()        # camera -> static hits
         self._static: dict[str, _StaticShading] = {}
         self._frame_light: OrderedDict = OrderedDict()
+        self._bg = None
+        self._placed_key, self._placed_W, self._placed = None, None, {}
         self.last_stats: dict = {}
 
     # -- placement ---------------------------------------------------------------------------------
@@ -489,7 +491,8 @@ class MovingFrames:
         if len(materials) != len(r.scene.spec.objects):
             raise ValueError(f"{len(materials)} materials for {len(r.scene.spec.objects)} objects")
         lv = self.level(req.lod)
-        W = self.placement(req.transforms)
+        self.place(req.transforms)
+        W = self.W
         Wf = [self.snapped(m, lv.snap) if self.d.is_movable[i] else m for i, m in enumerate(W)]
         v = self.view(camera, W)
         t1 = time.perf_counter(); t["view"] = (t1 - t0) * 1e3
@@ -497,10 +500,7 @@ class MovingFrames:
         mats = r.material_table(materials)
         t2 = time.perf_counter(); t["light"] = (t2 - t1) * 1e3
         mesh, d = r.scene.mesh, self.d
-        img = np.zeros((len(v.tri), 3), np.float32)
-        bg = v.tri < 0
-        env_lookup(v.dirs, r.lighting.map, req.lighting.rotation_deg, req.lighting.intensity, mask=bg, out=img,
-                   kernels=r.k)
+        img = self._background(camera, v.dirs, req.lighting).copy()      # surfaces are drawn over it
         eye = np.asarray(camera.eye, np.float64)
         vert = np.zeros((len(mesh.vertices), 3), np.float32)
         obj_of = r.scene.object_of_vertex
@@ -556,6 +556,91 @@ class MovingFrames:
                         {"lod": req.lod, "tau": DRAG_TAU if drag else d.tau, "width": camera.width,
                          "height": camera.height, "visible_vertices": len(vis), "moving": stats,
                          "hmin": lv.combiner.hmin})
+
+    # -- the current placement: what the fitter's questions are answered for --------------------------
+    def place(self, transforms: Mapping[str, Any] | None) -> None:
+        """Where the movable objects stand for the fitter's questions (``surface_samples``,
+        ``transfer``, …): the request's transforms of the last frame, or as set here."""
+        W = self.placement(transforms)
+        key = np.stack(W).round(9).tobytes()
+        if key != self._placed_key:
+            self._placed_key, self._placed_W = key, W
+            self._placed = {}
+
+    @property
+    def W(self) -> list[np.ndarray]:
+        if self._placed_W is None:
+            self.place(None)
+        return self._placed_W
+
+    def geometry(self) -> tuple[np.ndarray, np.ndarray]:
+        """(vertices (V, 3), normals (V, 3)) float32 of the scene mesh as it stands (world)."""
+        if "geometry" not in self._placed:
+            mesh, W = self.r.scene.mesh, self.W
+            x, n = mesh.vertices.copy(), mesh.normals.copy()
+            for i in self.d.movable:
+                sh, s = self.d.shapes[i], slice(self.d.first_vertex[i], self.d.first_vertex[i] + len(self.d.shapes[i].vertices))
+                q, _ = rotation_part(W[i])
+                x[s] = (sh.vertices.astype(np.float64) @ W[i][:3, :3].T + W[i][:3, 3]).astype(np.float32)
+                n[s] = (sh.normals.astype(np.float64) @ q.T).astype(np.float32)
+            self._placed["geometry"] = (x, n)
+        return self._placed["geometry"]
+
+    def cuts(self) -> CutSet:
+        """Every scene vertex's cut as things stand (cut v for vertex v): static vertices × the
+        movable objects' fields over the world's leaves, each movable object's vertices × the
+        others' fields over its own frame's leaves (``frame``). Built once per placement (a
+        few µs per vertex)."""
+        if "cuts" not in self._placed:
+            d, W, mesh = self.d, self.W, self.r.scene.mesh
+            cb = Combiner(DEFAULT_HMIN, kernels=self.r.k)
+            V = len(mesh.vertices)
+            parts: list[tuple[np.ndarray, CutSet]] = []
+            if len(d.sm.ids):
+                occ = [(d.fields[i], W[i]) for i in d.movable]
+                parts.append((d.sm.ids, cb.combine(d.static, np.arange(len(d.sm.ids)), d.sm.vertices, d.sm.normals,
+                                                   occ, tag="static")))
+            for i in d.movable:
+                sh = d.shapes[i]
+                inv = np.linalg.inv(W[i])
+                occ = [(d.fields[j], inv @ W[j]) for j in range(len(W)) if j != i]
+                ids = d.first_vertex[i] + np.arange(len(sh.vertices))
+                parts.append((ids, cb.combine(d.self_cuts[i], np.arange(len(ids)), sh.vertices, sh.normals, occ,
+                                              tag=f"object {i}")))
+            sizes = np.zeros(V, np.int64)
+            for ids, cs in parts:
+                sizes[ids] = cs.sizes()
+            off = np.zeros(V + 1, np.int64)
+            np.cumsum(sizes, out=off[1:])
+            h = np.empty(off[-1], np.uint8)
+            q = np.empty(off[-1], np.uint8)
+            for ids, cs in parts:
+                dst = np.repeat(off[ids] - cs.offsets[:-1], cs.sizes()) + np.arange(cs.n_nodes)
+                h[dst], q[dst] = cs.heights, cs.quant
+            self._placed["cuts"] = CutSet(off, h, q, d.static.height)
+        return self._placed["cuts"]
+
+    def frame(self, object_index: int) -> np.ndarray | None:
+        """(3, 3) world_from_frame of an object's cuts, None for the world (static objects)."""
+        if not self.d.is_movable[object_index]:
+            return None
+        return rotation_part(self.W[object_index])[0]
+
+    def hits(self, camera):
+        """(tri, uv, dirs) of the camera as things stand."""
+        v = self.view(camera, self.W)
+        return v.tri, v.uv, v.dirs
+
+    def _background(self, camera, dirs, lighting) -> np.ndarray:
+        """(P, 3) float32 environment radiance along every primary ray, kept for the camera and
+        lighting (a moving object changes which pixels show it, not what they would show)."""
+        r = self.r
+        key = (camera.model_dump_json(), float(lighting.rotation_deg), float(lighting.intensity), id(r.lighting.map))
+        if self._bg is None or self._bg[0] != key or self._bg[1] is not r.lighting.map:
+            img = np.zeros((len(dirs), 3), np.float32)
+            env_lookup(dirs, r.lighting.map, lighting.rotation_deg, lighting.intensity, out=img, kernels=r.k)
+            self._bg = (key, r.lighting.map, img)
+        return self._bg[2]
 
     @staticmethod
     def _count(stats, cs):

@@ -74,6 +74,7 @@ class CutRenderer(Renderer):
 
     kind = "cuts"
     controls = frozenset({"camera", "light", "materials", "environment", "move"})
+    _moving = None          # MovingFrames (moving.py) of a scene with movable objects
 
     def __init__(self, scene, data: CutData, kernels=None):
         super().__init__(scene, data, kernels)
@@ -104,6 +105,10 @@ class CutRenderer(Renderer):
 
     def view(self, camera) -> View:
         """Primary hits of a camera (cached for the last camera)."""
+        if self._moving is not None:           # the movable objects where the last frame had them
+            with self._lock:
+                mv = self._moving.view(camera, self._moving.W)
+            return View(camera, mv.tri, mv.uv, mv.dirs, mv.visible)
         v = self._view
         if v is not None and v.camera == camera:
             return v
@@ -198,6 +203,43 @@ class CutRenderer(Renderer):
     def _index(self, name: str) -> int:
         return [o.name for o in self.scene.spec.objects].index(name)
 
+    @property
+    def cuts(self) -> cutmod.CutSet:
+        """The cut of every scene vertex (cut v for vertex v). With movable objects: as they
+        stand in the last frame (moving.py MovingFrames.cuts; a moved object's own cuts are over
+        its frame's leaves, see ``_frame_of``)."""
+        if self._moving is not None:
+            with self._lock:
+                return self._moving.cuts()
+        return self._cuts
+
+    @cuts.setter
+    def cuts(self, cs: cutmod.CutSet) -> None:
+        self._cuts = cs
+
+    def place(self, transforms) -> None:
+        """Where movable objects stand for the fitter's questions until the next frame (a
+        session restoring its strokes places them first); no-op without movable objects."""
+        if self._moving is not None:
+            with self._lock:
+                self._moving.place(transforms)
+
+    def _geometry(self):
+        """(vertices, normals) (V, 3) float32 of the scene as it stands (world)."""
+        if self._moving is not None:
+            with self._lock:
+                return self._moving.geometry()
+        return self.scene.mesh.vertices, self.scene.mesh.normals
+
+    def _frame_of(self, object_index: int):
+        """world_from_frame (3, 3) of an object's cuts when it is not the world's (a movable
+        object's own cuts), else None."""
+        return None if self._moving is None else self._moving.frame(object_index)
+
+    def _frame_light(self, q, lighting: Lighting):
+        with self._lock:
+            return self._moving.frame_light(q, lighting)
+
     def _render_moving(self, req: FrameRequest) -> Rendered:
         """A frame of a scene with movable objects, placed by req.transforms (moving.py)."""
         with self._lock:
@@ -212,12 +254,13 @@ class CutRenderer(Renderer):
     # -- what the fitter asks ------------------------------------------------------------------
     def _pixel_samples(self, v: View, camera, pix: np.ndarray) -> Samples:
         mesh = self.scene.mesh
+        vx, vn = self._geometry()
         f = mesh.faces[v.tri[pix]]
         u, w2 = v.uv[pix, 0:1], v.uv[pix, 1:2]
         bary = np.concatenate([1 - u - w2, u, w2], axis=1).astype(np.float32)
-        nrm = (bary[:, :, None] * mesh.normals[f]).sum(1)
+        nrm = (bary[:, :, None] * vn[f]).sum(1)
         nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
-        pos = (bary[:, :, None] * mesh.vertices[f]).sum(1)
+        pos = (bary[:, :, None] * vx[f]).sum(1)
         wo = np.asarray(camera.eye, np.float32) - pos
         wo /= np.linalg.norm(wo, axis=1, keepdims=True)
         return Samples(pix, pos.astype(np.float32), nrm.astype(np.float32), wo.astype(np.float32),
@@ -227,22 +270,26 @@ class CutRenderer(Renderer):
         """The object's pixels in a view at the camera's resolution, each with its own normal and
         view direction and its triangle's three cuts blended by barycentric weight
         (inverse-brdf-modeling §4.1)."""
-        o, d = camera_rays(camera.eye, camera.target, camera.up, camera.fov_y_deg, camera.width, camera.height)
-        tri, uv, _ = self.tracer.first_hit(o, d)
+        if self._moving is not None:
+            with self._lock:
+                tri, uv, d = self._moving.hits(camera)
+        else:
+            o, d = camera_rays(camera.eye, camera.target, camera.up, camera.fov_y_deg, camera.width, camera.height)
+            tri, uv, _ = self.tracer.first_hit(o, d)
         obj_of = np.where(tri >= 0, self.scene.object_of_face[np.maximum(tri, 0)], -1)
         pix = np.nonzero(obj_of == object_index)[0]
         return self._pixel_samples(View(camera, tri, uv, d, np.zeros(0, np.int32)), camera, pix)
 
     def vertex_samples(self, camera, object_index: int) -> Samples:
         """The object's vertices the camera sees (vertex-mode shading points)."""
-        mesh = self.scene.mesh
+        vx, vn = self._geometry()
         vis = self.view(camera).visible
         ids = vis[self.scene.object_of_vertex[vis] == object_index].astype(np.int32)
-        wo = np.asarray(camera.eye, np.float32) - mesh.vertices[ids]
+        wo = np.asarray(camera.eye, np.float32) - vx[ids]
         wo /= np.linalg.norm(wo, axis=1, keepdims=True)
         bary = np.zeros((len(ids), 3), np.float32)
         bary[:, 0] = 1.0
-        return Samples(ids, mesh.vertices[ids], mesh.normals[ids], wo.astype(np.float32),
+        return Samples(ids, vx[ids], vn[ids], wo.astype(np.float32),
                        np.repeat(ids[:, None], 3, axis=1), bary)
 
     def transfer(self, samples: Samples, basis, lighting: Lighting):
@@ -250,15 +297,25 @@ class CutRenderer(Renderer):
         (T (3, N, J) float32, E (N, 3) float32)."""
         from ...fit.transfer import transfer
 
-        node_l, node_w = self.light(lighting)
-        return transfer(samples.normals, samples.wo, samples.verts, samples.bary, self.cuts, node_l, node_w,
+        nrm, wo, (node_l, node_w) = self._in_frame(samples, lighting)
+        return transfer(nrm, wo, samples.verts, samples.bary, self.cuts, node_l, node_w,
                         self.tree, basis, self.k)
+
+    def _in_frame(self, s: Samples, lighting: Lighting):
+        """(normals, wo, node lighting) of samples of one object in the frame of its cuts: the
+        world's, or a moved object's own (normals and view directions turned by R^T, the light
+        turned into the frame)."""
+        q = self._frame_of(int(self.scene.object_of_vertex[s.verts[0, 0]])) if len(s) else None
+        if q is None:
+            return s.normals, s.wo, self.light(lighting)
+        return ((s.normals @ q).astype(np.float32), (s.wo @ q).astype(np.float32), self._frame_light(q, lighting))
 
     def shade_samples(self, samples: Samples, material, object_index: int, lighting: Lighting) -> np.ndarray:
         """(N, 3) float64 radiance of the samples under a material, shaded like pixel mode."""
-        node_l, node_w = self.light(lighting)
+        nrm, wo, (node_l, node_w) = self._in_frame(samples, lighting)
         mats = MaterialTable([material.pack()])
-        return self._shade(samples, self.cuts, node_l, node_w, mats, None).astype(np.float64)
+        s = Samples(samples.pix, samples.positions, nrm, wo, samples.verts, samples.bary)
+        return self._shade(s, self.cuts, node_l, node_w, mats, None).astype(np.float64)
 
     def _shade(self, s: Samples, cuts, node_l, node_w, mats, mat_of_vertex) -> np.ndarray:
         n = len(s)
