@@ -11,6 +11,7 @@ from worker.renderers.cuts.combine import (
     combine_native,
     combine_numpy,
     lookup,
+    skip_table,
     validate,
 )
 from worker.renderers.cuts.grid import cell_corners
@@ -88,6 +89,8 @@ def test_c_and_numpy_agree_for_cells_and_products(bunny_case, tree, hmin):
     dg = combine_native(base, ids, cells, weights, pools_c, delta=True)
     dr = combine_numpy(base, ids, cells, weights, pools_n, delta=True)
     assert dg.n_nodes < 0.8 * got.n_nodes
+    ds = combine_native(base, ids, cells, weights, pools_c, delta=True, skip=skip_table(base))   # blocks skipped
+    assert all(np.array_equal(getattr(ds, k), getattr(dg, k)) for k in ("offsets", "heights", "quant"))
     for v in range(len(x)):
         for d in (dg, dr):
             assert (1 << d.cut(v)[0].astype(np.int64)).sum() == tree.n_leaves

@@ -392,10 +392,25 @@ def _merge_zero_runs(hs, qs, H):
     return out_h, out_q
 
 
+SKIP = 32          # glf_combine's skip blocks (fields.c SKIP)
+
+
+def skip_table(cs: CutSet) -> np.ndarray:
+    """(⌈M / SKIP⌉ + 1,) int32: the leaf where node g·SKIP of the cut set's node array starts
+    within its own cut (glf_combine's b_skip, for the delta mode)."""
+    span = np.left_shift(np.int64(1), cs.heights.astype(np.int64))
+    start = np.cumsum(span) - span
+    first = np.repeat(start[cs.offsets[:-1]], cs.sizes())
+    local = (start - first).astype(np.int32)
+    return np.concatenate([local[::SKIP], [0]]).astype(np.int32)
+
+
 def combine_native(base: CutSet, cut_of: np.ndarray, cells: np.ndarray, weights: np.ndarray,
-                   pools: list[RotatedSamples], cap_hint: int | None = None, delta: bool = False) -> CutSet:
+                   pools: list[RotatedSamples], cap_hint: int | None = None, delta: bool = False,
+                   skip: np.ndarray | None = None) -> CutSet:
     """glf_combine (same arguments as combine_numpy; the pools' cells must be kept
-    (ensure_cells); cap_hint: expected total output nodes)."""
+    (ensure_cells); cap_hint: expected total output nodes; skip: ``skip_table(base)``, which
+    lets the delta mode pass untouched base nodes a block at a time)."""
     c = _native.c
     V, O = cells.shape
     cut_of = c(cut_of, np.int32)
@@ -408,7 +423,7 @@ def combine_native(base: CutSet, cut_of: np.ndarray, cells: np.ndarray, weights:
 
     def run(cap, b, pos, counts, used):
         _native.combine(V, cut_of, c(base.offsets, np.int64), c(base.heights, np.uint8), c(base.quant, np.uint8),
-                        base.height, O, int(bool(delta)), cslot, weights, P([p.off for p in cps]), P([p.cnt for p in cps]),
+                        skip.ctypes.data if (skip is not None and delta) else None, base.height, O, int(bool(delta)), cslot, weights, P([p.off for p in cps]), P([p.cnt for p in cps]),
                         P([p.a for p in cps]), P([p.b for p in cps]), P([p.v for p in cps]),
                         cap, b["h"], b["q"], pos, counts, used)
     cap = int(cap_hint or int(1.5 * base.sizes()[cut_of].sum()) + 1024)
@@ -481,7 +496,7 @@ class Combiner:
         return cells, weights, segments
 
     def combine(self, base: CutSet, cut_ids: np.ndarray, positions: np.ndarray, normals: np.ndarray,
-                occluders, delta: bool = False, stencils=None, tag: str = "") -> CutSet:
+                occluders, delta: bool = False, stencils=None, tag: str = "", skip: np.ndarray | None = None) -> CutSet:
         """Cuts of K receiver vertices with the occluders multiplied in (cyber-worlds eq. 4).
 
         base : CutSet of the receivers' own cuts (over their frame's leaves); cut_ids (K,) int
@@ -490,6 +505,7 @@ class Combiner:
         delta : return what the occluders take away, v_base − v_base · Π F (glf_combine's delta
             mode), for a caller that already has the radiance of the base cuts.
         stencils : (cells, weights) from ``stencils`` for these receivers (else computed here).
+        skip : ``skip_table(base)`` for the delta mode (faster; the same result).
         tag : names the call site, whose output size sizes the next call's buffer.
         Returns a CutSet of K cuts over the receiver frame's leaves (cut k for receiver k),
         ready for glk_shade_points with cut_of = arange(K). ``last_stats`` says what it cost.
@@ -517,7 +533,7 @@ class Combiner:
         t2 = time.perf_counter()
         if native:
             est = int(1.5 * base.sizes()[cut_ids].sum()) + 1024
-            out = combine_native(base, cut_ids, cells, weights, pools, max(est, self._caps.get(tag, 0)), delta)
+            out = combine_native(base, cut_ids, cells, weights, pools, max(est, self._caps.get(tag, 0)), delta, skip)
             self._caps[tag] = int(1.2 * out.n_nodes) + 1024
         else:
             out = combine_numpy(base, cut_ids, cells, weights, pools, delta)

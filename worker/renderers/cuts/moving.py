@@ -182,9 +182,12 @@ def describe_moving(part: Part, blob: bytes) -> dict:
         raw = zlib.decompressobj().decompress(blob[len(MAGIC):], 1 << 16)
         head = json.loads(raw[4:4 + int.from_bytes(raw[:4], "little")])
         st = head.get("stats", {})
-        return {"kind": kind, "bytes": len(blob), "samples": head["samples"], "nodes": head["nodes"],
-                "mean_cut_size": head["nodes"] / max(head["samples"], 1),
-                **{k: st[k] for k in ("seconds", "rays_traced", "rays_per_second") if k in st}}
+        ns, nn = head["samples"], head["nodes"]
+        return {"kind": kind, "bytes": len(blob), "samples": ns, "nodes": nn, "mean_cut_size": nn / max(ns, 1),
+                "grid": head["grid"], "bytes_compressed": len(blob),
+                "bytes_raw": 2 * ns + (nn + 1) // 2 + (nn + 7) // 8,          # as Field.storage
+                "bytes_index_encoded": 2 * ns + 2 * nn + (nn + 7) // 8,
+                **{k: st[k] for k in ("seconds", "rays_traced", "rays_per_second", "triangles", "threads") if k in st}}
     if kind == "static_cuts":
         return {"kind": kind, "tau": part.meta["tau"], **storage_stats(cutmod.decode(blob), len(blob))}
     return {"kind": kind, "bytes": len(blob)}
@@ -262,6 +265,17 @@ class MovingData:
                 self._tracers[i] = Tracer(sh.vertices, sh.faces)
             return self._tracers[i]
 
+    def skip(self, cs: CutSet) -> np.ndarray:
+        """combine.skip_table of a cut set (the static cuts or their coarse level), once."""
+        from .combine import skip_table
+
+        with self._lock:
+            key = ("skip", id(cs))
+            hit = self._coarse.get(key)
+            if hit is None or hit[0] is not cs:
+                hit = self._coarse[key] = (cs, skip_table(cs))
+            return hit[1]
+
     def coarse(self, i: int, tau: float, kernels=None) -> CutSet:
         """A movable object's self cuts coarsened to τ, built once (the static cuts' are
         CutData.coarse)."""
@@ -293,6 +307,7 @@ class _Level:
     static: CutSet
     self_cuts: dict
     snap: float | None
+    skip: np.ndarray | None = None      # combine.skip_table(static)
 
 
 @dataclass
@@ -374,6 +389,8 @@ class MovingFrames:
             st = self.r.data.cuts
             lv.static = self.r.data.coarse(DRAG_TAU, self.r.k) if st.n_vertices else st
             lv.self_cuts = {i: self.d.coarse(i, DRAG_TAU, self.r.k) for i in self.d.movable}
+        if lv.skip is None:
+            lv.skip = self.d.skip(lv.static)
         return lv
 
     # -- primary visibility ------------------------------------------------------------------------
@@ -519,7 +536,7 @@ class MovingFrames:
             stats.update(visible_static=len(sv), affected_static=len(aff))
             if len(aff):
                 delta = lv.combiner.combine(lv.static, d.static_row[sv[aff]], x[aff], n[aff], occ, delta=True,
-                                            stencils=(cells[aff], wts[aff]), tag="static")
+                                            stencils=(cells[aff], wts[aff]), tag="static", skip=lv.skip)
                 self._count(stats, lv.combiner.last_stats)
                 wo = _unit(eye - x[aff])
                 dr = shade_points(n[aff], wo, np.arange(len(aff), dtype=np.int32), obj_of[sv[aff]], delta, node_l,
