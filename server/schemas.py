@@ -8,7 +8,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from worker.fit.brush import Stroke
 from worker.fit.files import ViewSpec
-from worker.scene import Camera, Color, Material, SceneFile
+from worker.scene import Camera, Color, Material, SceneFile, Transform
 
 
 class Strict(BaseModel):
@@ -51,6 +51,8 @@ class RenderRequest(Strict):
     rotation_deg: float | None = None
     intensity: float | None = Field(None, ge=0.0)
     materials: dict[str, Material] = Field(default_factory=dict, description="per object name")
+    transforms: dict[str, Transform] = Field(default_factory=dict, description="per object name: where the scene's "
+                                             "movable objects stand (\"movable\": true; nothing is precomputed again)")
     mode: Literal["vertex", "pixel"] = "vertex"
     format: Literal["png", "exr"] = "png"
     exposure: float = Field(0.0, ge=-20, le=20)

@@ -74,6 +74,8 @@ def cmd_precompute(a) -> int:
     stats = {"seconds": ens["seconds"], "cached": ens["computed"] == 0, "key": key,
              **{k: v for k, v in part.items() if k not in ("label", "cached")}}
     stats["seconds_total"] = time.perf_counter() - t0
+    if len(ens["parts"]) > 1:         # a scene with movable objects: static cuts, self cuts, fields
+        stats.update(computed=ens["computed"], parts=[{"key": k, **v} for k, v in ens["parts"].items()])
     if a.json:
         print(json.dumps(stats))
     else:
@@ -123,7 +125,7 @@ def cmd_render(a) -> int:
 
     from .core.tonemap import tonemap
 
-    r, _ = _renderer(a)
+    r, ens = _renderer(a, quiet=a.json)
     mats = load_material_overrides(r.scene, a.material)
     t0 = time.perf_counter()
     img = _frame(r, mats, "pixel" if a.per_pixel else "vertex", samples=a.samples).radiance
@@ -134,6 +136,10 @@ def cmd_render(a) -> int:
     if a.raw:
         np.save(a.raw, img.astype(np.float32))
     print(f"wrote {out} ({img.shape[1]}×{img.shape[0]}, {dt * 1000:.0f} ms)" + (f" and {a.raw}" if a.raw else ""), file=sys.stderr)
+    if a.json:      # what had to be precomputed first (nothing, after moving a movable object)
+        print(json.dumps({"out": str(out), "width": img.shape[1], "height": img.shape[0], "ms_render": dt * 1e3,
+                          "precomputed_parts": ens["computed"], "seconds_precompute": ens["seconds"],
+                          "parts": [{"key": k, "label": v["label"], "cached": v["cached"]} for k, v in ens["parts"].items()]}))
     return 0
 
 
@@ -433,6 +439,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--cuts", help="cut cache folder"); r.add_argument("--tau", type=float, default=DEFAULT_TAU)
     r.add_argument("--material", action="append", metavar="OBJECT=FILE",
                    help="replace an object's material with a JSON material (e.g. from glint fit); repeatable")
+    r.add_argument("--json", action="store_true", help="print what was precomputed first and the render time")
     r.set_defaults(fn=cmd_render)
 
     def fit_options(f):

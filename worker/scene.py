@@ -98,6 +98,27 @@ class Ground(_Strict):
     intensity: float = Field(1.0, ge=0.0, le=1.0)
     height: float | None = None
 
+class FieldGridSettings(_Strict):
+    """Sampling of the visibility cut fields of a scene with movable objects (cyber-worlds §V;
+    worker/renderers/cuts/grid.py GridSpec, whose defaults BENCHMARKS.md justifies): ``shells``
+    concentric spheres, ``face`` cube-face cells per side, radii from ``rho_min`` to ``rho_max``
+    bounding radii. Coarser grids trace faster and blur shadows of moved objects more."""
+    shells: int = Field(24, ge=2, le=64)
+    face: int = Field(24, ge=1, le=64)
+    rho_min: float = Field(0.25, gt=0.0)
+    rho_max: float = Field(8.0, gt=0.0)
+
+    @model_validator(mode="after")
+    def _order(self):
+        if not self.rho_min < self.rho_max:
+            raise ValueError("rho_min must be below rho_max")
+        return self
+
+
+class CutSettings(_Strict):
+    """The cut renderer's settings (optional): the field grid of movable objects."""
+    field_grid: FieldGridSettings | None = None
+
 
 class SceneFile(_Strict):
     version: Literal[1] = 1
@@ -110,6 +131,7 @@ class SceneFile(_Strict):
     # worker/renderers/gi/options.py), the paint renderer's (e.g. {"visibility": true})
     gi: dict[str, Any] | None = None
     paint: dict[str, Any] | None = None
+    cuts: CutSettings | None = None
 
     ground: Ground | None = Field(None, description="optional shadow-catcher ground plane (precomputed with the cuts)")
 

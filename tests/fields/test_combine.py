@@ -11,6 +11,7 @@ from worker.renderers.cuts.combine import (
     combine_native,
     combine_numpy,
     lookup,
+    skip_table,
     validate,
 )
 from worker.renderers.cuts.grid import cell_corners
@@ -83,6 +84,19 @@ def test_c_and_numpy_agree_for_cells_and_products(bunny_case, tree, hmin):
     assert np.array_equal(got.offsets, ref.offsets) and np.array_equal(got.heights, ref.heights)
     assert np.abs(got.quant.astype(int) - ref.quant.astype(int)).max() <= 1
     assert got.n_nodes > base.sizes().sum()                     # the fields did refine the cuts
+    # delta mode: what the fields take away, base − product, with the untouched parts as few
+    # zero nodes; C and NumPy agree leaf by leaf
+    dg = combine_native(base, ids, cells, weights, pools_c, delta=True)
+    dr = combine_numpy(base, ids, cells, weights, pools_n, delta=True)
+    assert dg.n_nodes < 0.8 * got.n_nodes
+    ds = combine_native(base, ids, cells, weights, pools_c, delta=True, skip=skip_table(base))   # blocks skipped
+    assert all(np.array_equal(getattr(ds, k), getattr(dg, k)) for k in ("offsets", "heights", "quant"))
+    for v in range(len(x)):
+        for d in (dg, dr):
+            assert (1 << d.cut(v)[0].astype(np.int64)).sum() == tree.n_leaves
+        lg, lr = decode_to_leaves(*dg.cut(v)), decode_to_leaves(*dr.cut(v))
+        assert np.abs(lg - lr).max() <= 1.5 / 255
+        np.testing.assert_allclose(lg + decode_to_leaves(*got.cut(v)), decode_to_leaves(*base.cut(v)), atol=1e-6)
 
 
 def test_product_is_the_leaf_level_product(bunny_case, tree):
@@ -136,11 +150,12 @@ def test_culled_occluders_leave_cuts_unchanged(bunny_case, tree):
     assert np.array_equal(out.quant, base.quant)
 
 
-def test_samples_are_kept_while_translating_and_redone_when_rotating(oaktable_case, tree):
-    f = oaktable_case.field
+def test_samples_are_kept_while_translating_and_redone_when_rotating(table_case, tree):
+    f = table_case.field
     g = np.arange(-150, 150, 6.0)
     X, Z = np.meshgrid(g, g)
-    x = np.stack([X.ravel(), np.full(X.size, 0.5), Z.ravel()], 1).astype(np.float32)
+    c = table_case.center
+    x = np.stack([c[0] + X.ravel(), np.full(X.size, 0.5), c[2] + Z.ravel()], 1).astype(np.float32)
     nrm = np.tile(np.float32([0, 1, 0]), (len(x), 1))
     base = build_cuts(np.maximum(nrm[:1] @ tree.leaves.T, 0).astype(np.float32), 1.0)
     ids = np.zeros(len(x), np.int32)
@@ -151,7 +166,7 @@ def test_samples_are_kept_while_translating_and_redone_when_rotating(oaktable_ca
     moved = cb.last_stats
     cb.combine(base, ids, x, nrm, [(f, similarity(rot_y(33), (1.5, 0, 0)))])
     turned = cb.last_stats
-    assert first["samples_rotated"] > 1000 and first["receivers_affected"] == len(x)
+    assert first["samples_rotated"] > 200 and first["receivers_affected"] == len(x)
     assert moved["samples_rotated"] < 0.1 * first["samples_rotated"]          # a 1.5 cm step
     assert turned["samples_rotated"] > 0.9 * first["samples_rotated"]
 
@@ -195,41 +210,59 @@ def floor_points(case, m, n, seed):
 
 
 @pytest.mark.parametrize("moved", ["unmoved", "yaw 35°, translated"])
-def test_interpolated_occlusion_against_ray_tracing(oaktable_case, tree, trace_points, moved):
-    """oakTable, 16 shells × 16² per face (the tests' grid; the default 24 × 24² does better,
+def test_interpolated_occlusion_against_ray_tracing(table_case, tree, trace_points, moved):
+    """table, 8 shells × 8² per face (the tests' grid; the default 24 × 24² does better,
     BENCHMARKS.md). Errors relative to the unoccluded cosine-weighted irradiance at 80 points
     around the table (0.5-6 r, facing it) and 80 on the floor under it: the field blurs
     shadows (L1 over the hemisphere) but keeps their mass (irradiance)."""
     m = similarity() if moved == "unmoved" else similarity(rot_y(35.0), (40.0, 0.0, -25.0))
     stats = {}
-    for name, (x, nrm) in {"around": around_points(oaktable_case, m, 80, 1),
-                           "floor": floor_points(oaktable_case, m, 80, 2)}.items():
-        irr, l1, occ = occlusion_errors(oaktable_case, tree, m, x, nrm, trace_points)
+    for name, (x, nrm) in {"around": around_points(table_case, m, 80, 1),
+                           "floor": floor_points(table_case, m, 80, 2)}.items():
+        irr, l1, occ = occlusion_errors(table_case, tree, m, x, nrm, trace_points)
         keep = occ < 0.9                                         # not inside the table
         stats[name] = (irr[keep].mean(), np.percentile(irr[keep], 95), l1[keep].mean(), occ[keep].mean())
     msg = {k: f"irr mean {v[0]:.4f} p95 {v[1]:.4f}, L1 mean {v[2]:.4f}, occluded {v[3]:.3f}" for k, v in stats.items()}
     print(moved, msg)
     for name, (irr_mean, irr_p95, l1_mean, occ_mean) in stats.items():
-        assert irr_mean < 0.006 and irr_p95 < 0.02, msg              # measured ≤ 0.0039 / 0.014
-        assert l1_mean < 0.3 * occ_mean, msg                         # measured ≤ 0.22 × occluded
+        assert irr_mean < 0.016 and irr_p95 < 0.055, msg             # measured ≤ 0.0107 / 0.037
+        assert l1_mean < 0.6 * occ_mean, msg                         # measured ≤ 0.44 × occluded
 
 
-def test_receivers_ignore_samples_on_the_other_side_of_the_object(oaktable_case, tree, trace_points):
+def test_receivers_ignore_samples_on_the_other_side_of_the_object(table_case, tree, trace_points):
     """Near the table (0.5-1.2 r), some corners of a receiver's cell lie inside a leg or across
     the table top; tracing the segments to them (validate) and dropping the blocked ones
     lowers the error against ray tracing."""
     import copy
 
     m = similarity()
-    x, nrm = around_points(oaktable_case, m, 200, 5)
-    near = np.linalg.norm(x - oaktable_case.center, axis=1) < 1.2 * oaktable_case.radius
+    x, nrm = around_points(table_case, m, 200, 5)
+    near = np.linalg.norm(x - table_case.center, axis=1) < 1.2 * table_case.radius
     x, nrm = x[near][:60], nrm[near][:60]
-    blind = copy.copy(oaktable_case.field)
+    blind = copy.copy(table_case.field)
     blind.tracer = None
-    with_seg = occlusion_errors(oaktable_case, tree, m, x, nrm, trace_points)
-    without = occlusion_errors(oaktable_case, tree, m, x, nrm, trace_points, field=blind)
+    with_seg = occlusion_errors(table_case, tree, m, x, nrm, trace_points)
+    without = occlusion_errors(table_case, tree, m, x, nrm, trace_points, field=blind)
     keep = with_seg[2] < 0.9
     a, b = with_seg[0][keep], without[0][keep]
-    print(f"near the table: irradiance error mean {a.mean():.4f} p95 {np.percentile(a, 95):.4f} with segment tests, "
-          f"{b.mean():.4f} / {np.percentile(b, 95):.4f} without")
-    assert a.mean() < 0.8 * b.mean() and np.percentile(a, 95) < np.percentile(b, 95), (a.mean(), b.mean())
+    changed = a != b                                   # receivers where a corner was dropped
+    msg = (f"near the table: irradiance error mean {a.mean():.4f} p95 {np.percentile(a, 95):.4f} with segment tests, "
+           f"{b.mean():.4f} / {np.percentile(b, 95):.4f} without; {changed.sum()} receivers changed: "
+           f"{a[changed].mean():.4f} against {b[changed].mean():.4f}")
+    print(msg)
+    # on the tests' coarse grid (8 × 8²) the gain is small: measured 0.0528 against 0.0555 on the 9
+    # receivers that changed; at 16 × 16² (BENCHMARKS.md) it halves the mean error near the table
+    assert changed.sum() >= 3 and a[changed].mean() < b[changed].mean(), msg
+    assert a.mean() < b.mean() and np.percentile(a, 95) < np.percentile(b, 95), msg
+    # and every corner dropped lies behind the table from its receiver (checked by a ray)
+    f = table_case.field
+    cells, w0, test = lookup(f, np.eye(4), x, nrm)
+    w1, n_seg = validate(f, np.eye(4), x, cells, w0, test)
+    v, c = np.nonzero((w0 > 0) & (w1 == 0))
+    assert n_seg > 0 and len(v) >= 3
+    corner = f.grid.positions(cell_corners(f.grid, cells[v])[np.arange(len(v)), c])
+    d = corner - x[v]
+    dist = np.linalg.norm(d, axis=1)
+    r = table_case.tracer.scene.run(x[v].astype(np.float32), (d / dist[:, None]).astype(np.float32),
+                                    dists=dist.astype(np.float32), query="OCCLUDED")
+    assert (np.asarray(r) == 0).all(), f"{np.count_nonzero(np.asarray(r) != 0)} of {len(v)} dropped corners are in sight"

@@ -7,6 +7,7 @@ import { toCurve } from "./brdf.js";
 import { orbit } from "./orbit.js";
 import { createLobeVisualiser, createPaintPanel, createSwatchPalette, downloadMeasurements } from "./paint.js";
 import { mountCapturePanel } from "./capture.js";
+import { MoveDrag, fullTransform } from "./move.js";
 
 const $ = (id) => document.getElementById(id);
 const status = (t) => { $("status").textContent = t; };
@@ -86,6 +87,7 @@ async function openScene(id) {
   const objIdx = Math.max(0, scene.spec.objects.findIndex((o) => o.name === state.object));
   setMaterial(state.materials[objIdx]);
   $("shadow").checked = state.shadow ?? scene.spec.ground?.shadow ?? false;
+  showMoveTool(state.movable || []);
   stream = new SessionStream(session, {
     onFrame: (f) => { $("shadow").disabled = f.header.shadow == null; view.push(f); },
     onEvent: onEvent,
@@ -146,12 +148,18 @@ $("paint-export-json").onclick = () => lastPaint && downloadMeasurements(lastPai
 $("paint-export-csv").onclick = () => lastPaint && downloadMeasurements(lastPaint.measured, $("design-name").value || "paint", "csv");
 mountCapturePanel($("capture-panel"), { api, onApply: (assetId) => stream?.send("environment", { asset_id: assetId }) });
 
+let movableNames = [];   // movable objects of the scene (hello), shown when the renderer allows move
+
 function onEvent(ev) {
   if (ev.type === "hello") {
     showRenderer(ev.renderer || "cuts", ev.controls || [], ev.renderers);
     mountPaint(ev.state.object, ev.state.paint?.[ev.state.object] || null);
+    state.transforms = ev.state.transforms || state.transforms;
+    movableNames = ev.state.movable || [];
+    showMoveTool((ev.controls || []).includes("move") ? movableNames : []);
   } else if (ev.type === "renderer") {
     showRenderer(ev.kind, ev.controls);
+    showMoveTool((ev.controls || []).includes("move") ? movableNames : []);
     status(`now drawing with ${RENDERER_NAMES[ev.kind] || ev.kind}`);
   } else if (ev.type === "paint") {
     lastPaint = ev;
@@ -177,6 +185,28 @@ function onEvent(ev) {
   }
 }
 
+// -- moving objects (scene objects with "movable": true) ------------------------------------------
+let movable = [];
+function showMoveTool(names) {
+  movable = names;
+  const on = movable.length > 0;
+  for (const id of ["move-tool", "move-pick", "move-hint"]) $(id).classList.toggle("hidden", !on);
+  const sel = $("move-object");
+  if (on && [...sel.options].map((o) => o.value).join() !== movable.join()) {
+    sel.innerHTML = "";
+    for (const name of movable) sel.append(new Option(name, name));
+  }
+  if (!on && tool() === "move") $("tool-orbit").checked = true;
+}
+let pendingMove = null;
+function sendMove(drag) {
+  // one message per animation frame while dragging; the last one (drag: false) always goes out
+  const name = $("move-object").value;
+  const send = () => { pendingMove = null; stream?.send("move", { object: name, transform: state.transforms[name], drag }); };
+  if (!drag) { pendingMove = null; return send(); }
+  if (!pendingMove) pendingMove = requestAnimationFrame(send);
+}
+
 // -- camera, light, display -----------------------------------------------------------------------
 let dragging = null, strokePts = [];
 const tool = () => document.querySelector("input[name=tool]:checked").value;
@@ -184,9 +214,17 @@ const tool = () => document.querySelector("input[name=tool]:checked").value;
 $("view").addEventListener("pointerdown", (e) => {
   if (!stream) return;
   $("view").setPointerCapture(e.pointerId);
-  const mode = tool() === "brush" ? "brush" : (e.altKey || tool() === "light" ? "light" : "orbit");
+  const mode = tool() === "brush" ? "brush" : tool() === "move" && movable.length ? "move"
+    : (e.altKey || tool() === "light" ? "light" : "orbit");
   dragging = { mode, x: e.clientX, y: e.clientY };
   if (mode === "brush") { strokePts = [view.toFrame(e, state.camera.width, state.camera.height)]; drawStroke(); }
+  if (mode === "move") {
+    const name = $("move-object").value;
+    state.transforms = state.transforms || {};
+    dragging.move = new MoveDrag(state.camera);
+    dragging.turning = e.shiftKey;
+    dragging.move.start(...view.toFrame(e, state.camera.width, state.camera.height), fullTransform(state.transforms[name]));
+  }
 });
 $("view").addEventListener("pointermove", (e) => {
   if (!dragging) return;
@@ -194,6 +232,16 @@ $("view").addEventListener("pointermove", (e) => {
   if (dragging.mode === "brush") {
     strokePts.push(view.toFrame(e, state.camera.width, state.camera.height));
     drawStroke();
+    return;
+  }
+  if (dragging.mode === "move") {
+    const name = $("move-object").value, [px, py] = view.toFrame(e, state.camera.width, state.camera.height);
+    if (e.shiftKey !== dragging.turning) {          // Shift pressed or released mid-drag
+      dragging.turning = e.shiftKey;
+      dragging.move.rebase(px, py, state.transforms[name]);
+    }
+    state.transforms = { ...state.transforms, [name]: dragging.move.to(px, py, dragging.turning) };
+    sendMove(true);
     return;
   }
   dragging.x = e.clientX; dragging.y = e.clientY;
@@ -210,6 +258,7 @@ $("view").addEventListener("pointerup", () => {
   const mode = dragging.mode;
   dragging = null;
   if (mode === "brush") return sendStroke();
+  if (mode === "move") return sendMove(false);
   if (mode === "orbit") stream.send("view", { eye: state.camera.eye, drag: false });
   else stream.send("light", { rotation_deg: state.rotation_deg, drag: false });
 });

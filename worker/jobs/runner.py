@@ -178,7 +178,7 @@ def _render(cache: DataCache, p: dict) -> dict:
     from worker.core.tonemap import tonemap
     from worker.models import parse_material
     from worker.renderers import FrameRequest, Lighting
-    from worker.scene import Camera
+    from worker.scene import Camera, Transform
 
     r = cache.renderer(p["scene"])
     sc = r.scene
@@ -192,8 +192,13 @@ def _render(cache: DataCache, p: dict) -> dict:
     cam = Camera.model_validate(p["camera"]) if p.get("camera") else sc.spec.camera
     rot = env.rotation_deg if p.get("rotation_deg") is None else p["rotation_deg"]
     inten = env.intensity if p.get("intensity") is None else p["intensity"]
+    transforms = {}
+    for name, t in (p.get("transforms") or {}).items():
+        if name not in names:
+            raise JobError(f"transforms: no object {name!r} in the scene (objects: {', '.join(names)})")
+        transforms[name] = Transform.model_validate(t)
     out = r.render(FrameRequest(camera=cam, lighting=Lighting(rot, inten), materials=mats,
-                                shading=p.get("mode", "vertex")))
+                                shading=p.get("mode", "vertex"), transforms=transforms or None))
     img = out.radiance
     if p.get("format") == "exr":
         import tempfile

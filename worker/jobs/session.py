@@ -103,6 +103,12 @@ class SessionRuntime:
         self._full_ms = {k: deque(maxlen=3) for k in ("view", "light", "other")}
         self._last = None                      # (camera, rotation, intensity, dragging, samples) of the last frame
         self._last_full = 0.0                  # time.monotonic() of the last full frame
+        # movable objects (cut fields): the renderer answers the fitter where they now stand;
+        # fit views are valid for the placement they were built in (counted by moves)
+        self._moves = 0
+        self._view_moves: dict[int, int] = {}
+        if hasattr(renderer, "place"):
+            renderer.place(self.state.transforms or None)
         if self.state.renderer != renderer.kind:
             self._switch_renderer(self.state.renderer)
         self._apply_environment()
@@ -146,6 +152,7 @@ class SessionRuntime:
 
     def _ensure_fitter(self) -> Fitter:
         if self.fitter is None:
+            self._view_moves = {}
             try:
                 self.fitter = Fitter(self.renderer, self.state.object, base_material=self.state.base_material,
                                      fit_scale=0.25)
@@ -159,17 +166,21 @@ class SessionRuntime:
     def _view_index(self, camera: Camera, rot: float, inten: float) -> int:
         fx = self._ensure_fitter()
         for i, v in enumerate(fx.views):
-            if v.camera == camera and v.rotation_deg == rot and v.intensity == inten:
+            if v.camera == camera and v.rotation_deg == rot and v.intensity == inten and \
+                    self._view_moves.get(i, 0) == self._moves:
                 return i
-        key = ("view", self.state.epoch, self._view_key(camera, rot, inten))
+        key = ("view", self.state.epoch, self._moves, self._view_key(camera, rot, inten))
         fut = self._pending.pop(key, None)
         if fut is not None and not fut.cancelled():
             view = fut.result()           # prepared while the user orbited (or wait for it)
             if isinstance(view, Exception):
                 raise view
             fx.views.append(view)
+            self._view_moves[len(fx.views) - 1] = self._moves
             return len(fx.views) - 1
-        return fx.add_view(camera, rot, inten)
+        i = fx.add_view(camera, rot, inten)
+        self._view_moves[i] = self._moves
+        return i
 
     def _add_stroke(self, rec: dict) -> StrokeEvent:
         """Add a stored or new stroke record; a stroke that cannot apply is rejected (reported,
@@ -191,6 +202,8 @@ class SessionRuntime:
                 raise FitError(f"this worker cannot switch to the {kind} renderer")
             self.renderers[kind] = self.renderer_for(kind)
         self.renderer = self.renderers[kind]
+        if hasattr(self.renderer, "place"):       # movable objects where the session has them
+            self.renderer.place(self.state.transforms or None)
         self.fitter = None                         # fit rows belong to a renderer
         self._vt = None
         self._pending.clear()
@@ -236,6 +249,12 @@ class SessionRuntime:
         ev: list[dict] = []
         if msg.type in ("view", "light", "move"):
             self._drag = eff.drag
+        if eff.kind == "move":             # views and the vertex transfer were of the old placement
+            if hasattr(self.renderer, "place"):
+                self.renderer.place(self.state.transforms or None)
+            self._moves += 1
+            self._vt = None
+            self._pending.clear()
         if eff.kind == "rebase":
             self.fitter = None             # strokes painted over the old material do not carry over
             self._needs_fit = False
@@ -322,8 +341,9 @@ class SessionRuntime:
             return
         cam, rot, inten = self.state.camera, self.state.rotation_deg, self.state.intensity
         fx = self.fitter
-        if not any(v.camera == cam and v.rotation_deg == rot and v.intensity == inten for v in fx.views):
-            key = ("view", self.state.epoch, self._view_key(cam, rot, inten))
+        if not any(v.camera == cam and v.rotation_deg == rot and v.intensity == inten and
+                   self._view_moves.get(i, 0) == self._moves for i, v in enumerate(fx.views)):
+            key = ("view", self.state.epoch, self._moves, self._view_key(cam, rot, inten))
             if key not in self._pending:
                 for k in [k for k in self._pending if k[0] == "view"]:
                     self._pending[k].cancel()           # only the latest view is worth building
@@ -442,7 +462,9 @@ class SessionRuntime:
             self._last_full = time.monotonic()
             if samples == 1:
                 self._full_ms[change].append((t2 - t0) * 1e3)
-        self._last = (st.camera, st.rotation_deg, st.intensity, self._drag, int(out.info.get("samples", 1)))
+        # the samples asked for: a renderer without anti-aliasing (gi, paint, movable objects)
+        # draws one, and must not be asked again and again for a still frame
+        self._last = (st.camera, st.rotation_deg, st.intensity, self._drag, samples)
         self.frame_no += 1
         h, w = rgb.shape[:2]
         hdr = {"frame": self.frame_no, "ack": ack, "width": w, "height": h, "format": "jpeg",

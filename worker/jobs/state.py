@@ -416,6 +416,10 @@ class EnvironmentMsg(ClientMsg):
         return None
 
 
+def _scale3(s) -> tuple[float, float, float]:
+    return tuple(float(x) for x in s) if isinstance(s, (tuple, list)) else (float(s),) * 3
+
+
 @message
 class MoveMsg(ClientMsg):
     """Place a movable object (cyber-worlds §V: visibility cut fields): its transform as in the
@@ -434,6 +438,11 @@ class MoveMsg(ClientMsg):
             raise StateError(f"move: no object {self.object!r} (objects: {', '.join(st.objects)})")
         if self.object not in st.movable:
             raise StateError(f"move: {self.object!r} is not movable (mark it \"movable\": true in the scene file)")
+        old = st.transforms.get(self.object)
+        a, b = (_scale3(x.scale) for x in (old or self.transform, self.transform))
+        if a != b and (len(set(a)) > 1 or len(set(b)) > 1):
+            # a non-uniform scale is part of a movable object's shape (its precomputed field)
+            raise StateError(f"move: {self.object!r} cannot change a non-uniform scale (it is part of the shape)")
         st.transforms = {**st.transforms, self.object: self.transform}
         return Effect("move", drag=self.drag, data={"object": self.object})
 

@@ -22,7 +22,7 @@ RENDERER_MODULES: dict[str, str] = {
 # checks messages against it and stays free of the renderers' numerical imports); a renderer's
 # class attribute ``controls`` must say the same (checked when it registers)
 RENDERER_CONTROLS: dict[str, frozenset[str]] = {
-    "cuts": frozenset({"camera", "light", "materials", "environment", "ground"}),
+    "cuts": frozenset({"camera", "light", "materials", "environment", "ground", "move"}),
     "gi": frozenset({"materials"}),
     "paint": frozenset({"camera", "light", "materials", "environment"}),
 }

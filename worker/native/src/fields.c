@@ -318,9 +318,28 @@ void glf_cells(int64_t n, const int32_t *corners, const int64_t *p_off, const in
  * Occluder o of vertex v: cslot[v·n_occ + o] (−1: culled) indexes its cell pool (c_off, c_cnt,
  * c_a, c_b, c_v: arrays of n_occ pointers), weights wts[(v·n_occ + o)·8 + c].
  * Output: vertex v at pos[v] in (out_h, out_q), counts[v] nodes (see bump).
+ * b_skip (delta only, may be NULL): the leaf where node g·SKIP of the base cuts' node array starts
+ * within its cut, so runs untouched by any stretch are passed a block at a time.
+ * delta = 1 writes what the occluders take away instead, v_base − v_base · Π_o F_o: a renderer
+ * that knows the radiance of the base cut subtracts the radiance of this cut. Its non-zero nodes
+ * are only those the occluders shade; every run of untouched base nodes becomes 0-valued
+ * maximal aligned nodes (a few, where the base cut has hundreds), so the cut stays short.
  */
+#define SKIP 32
+
+/* [a, b) as maximal aligned 0-valued nodes appended at c; returns the new count. */
+static int64_t zero_run(int64_t a, int64_t b, int H, uint8_t *dh, uint8_t *dq, int64_t c) {
+    while (a < b) {
+        int h = a ? __builtin_ctzll((uint64_t)a) : H;
+        while (a + ((int64_t)1 << h) > b) h--;
+        dh[c] = (uint8_t)h; dq[c] = 0; c++;
+        a += (int64_t)1 << h;
+    }
+    return c;
+}
+
 void glf_combine(int64_t V, const int32_t *cut_of, const int64_t *b_off, const uint8_t *b_h, const uint8_t *b_q,
-                 int H, int n_occ, const int32_t *cslot, const float *wts, const int64_t *const *c_off,
+                 const int32_t *b_skip, int H, int n_occ, int delta, const int32_t *cslot, const float *wts, const int64_t *const *c_off,
                  const int32_t *const *c_cnt, const int32_t *const *c_a, const int32_t *const *c_b,
                  const uint8_t *const *c_v, int64_t cap, uint8_t *out_h, uint8_t *out_q, int64_t *pos, int32_t *counts,
                  int64_t *used) {
@@ -356,23 +375,38 @@ void glf_combine(int64_t V, const int32_t *cut_of, const int64_t *b_off, const u
             double F = 1.0;                   /* exactly 1 outside every busy stretch */
             int64_t bo = b_off[cut_of[v]], bn = b_off[cut_of[v] + 1] - bo;
             const uint8_t *bh = b_h + bo, *bq = b_q + bo;
-            int64_t c = 0, x = 0;
+            int64_t c = 0, x = 0, z = -1;     /* delta: start of the pending run of zeros (−1: none) */
             for (int64_t k = 0; k < bn; k++) {
+                if (b_skip && F == 1.0 && ((bo + k) & (SKIP - 1)) == 0) {
+                    /* delta: whole blocks of SKIP base nodes before the next event add zeros only */
+                    int64_t g = (bo + k) / SKIP + 1;
+                    while (k + SKIP < bn && b_skip[g] <= next) {
+                        if (z < 0) z = x;
+                        x = b_skip[g]; k += SKIP; g++;
+                    }
+                }
                 int h0 = bh[k];
                 int64_t e = x + ((int64_t)1 << h0);
                 int qb = bq[k];
-                if (qb == 0 || (e <= next && F == 1.0)) {   /* dark, or untouched: the base node as is */
-                    dh[c] = (uint8_t)h0; dq[c] = (uint8_t)qb; c++; x = e;
+                /* dark, or untouched: the base node as is (bitwise |, &: one well-predicted branch
+                 * where dark and lit nodes alternate) */
+                if ((qb == 0) | ((e <= next) & (F == 1.0))) {
+                    if (delta) { if (z < 0) z = x; }
+                    else { dh[c] = (uint8_t)h0; dq[c] = (uint8_t)qb; c++; }
+                    x = e;
                     continue;
                 }
+                if (z >= 0) { c = zero_run(z, x, H, dh, dq, c); z = -1; }
                 while (x < e) {
                     int64_t b = e < next ? e : next;
                     long q = lrint(qb * F);
-                    uint8_t qq = (uint8_t)(q < 0 ? 0 : (q > 255 ? 255 : q));
+                    q = q < 0 ? 0 : (q > 255 ? 255 : q);
+                    uint8_t qq = (uint8_t)(delta ? qb - q : q);
                     while (x < b) {          /* [x, b) as maximal aligned nodes */
                         int h = x ? __builtin_ctzll((uint64_t)x) : H;
+                        int hb = 63 - __builtin_clzll((uint64_t)(b - x));     /* largest 2^h ≤ b − x */
+                        if (h > hb) h = hb;
                         if (h > h0) h = h0;
-                        while (x + ((int64_t)1 << h) > b) h--;
                         dh[c] = (uint8_t)h; dq[c] = qq; c++;
                         x += (int64_t)1 << h;
                     }
@@ -390,6 +424,13 @@ void glf_combine(int64_t V, const int32_t *cut_of, const int64_t *b_off, const u
                                 for (int q8 = 0; q8 < 8; q8++) s += ww[q8] * vv[q8];
                                 f[j] = s; nxt[j] = cb[j][p];
                             } else if (p < len[j] && x >= cb[j][p]) {           /* past it */
+                                /* past several (x jumped over dark base nodes): the first stretch
+                                 * ending after x, by bisection (stretches are sorted, disjoint) */
+                                if (p + 1 < len[j] && cb[j][p + 1] <= x) {
+                                    int64_t lo = p + 1, hi = len[j];
+                                    while (lo < hi) { int64_t mid = (lo + hi) >> 1; if (cb[j][mid] <= x) lo = mid + 1; else hi = mid; }
+                                    p = lo - 1;
+                                }
                                 ptr[j] = ++p; f[j] = 1.0; nxt[j] = p < len[j] ? ca[j][p] : FAR;
                             } else { f[j] = 1.0; nxt[j] = p < len[j] ? ca[j][p] : FAR; }  /* before it */
                         }
@@ -398,6 +439,7 @@ void glf_combine(int64_t V, const int32_t *cut_of, const int64_t *b_off, const u
                     }
                 }
             }
+            if (z >= 0) c = zero_run(z, x, H, dh, dq, c);
             counts[v] = (int32_t)c;
             int64_t p = bump(used, c);
             if (p + c <= cap) { memcpy(out_h + p, dh, c); memcpy(out_q + p, dq, c); pos[v] = p; }

@@ -26,7 +26,8 @@ rotate = bind("glf_rotate", None, n=i64, ids=i32p, f_off=i64p, f_hp=u8p, f_bits=
               counts=i32p, used=i64p)
 cells = bind("glf_cells", None, n=i64, corners=i32p, p_off=i64p, p_cnt=i32p, p_s=i32p, p_h=u8p, p_q=u8p, H=i32,
              cap=i64, out_a=i32p, out_b=i32p, out_v=u8p, pos=i64p, counts=i32p, used=i64p)
-combine = bind("glf_combine", None, V=i64, cut_of=i32p, b_off=i64p, b_h=u8p, b_q=u8p, H=i32, n_occ=i32,
+combine = bind("glf_combine", None, V=i64, cut_of=i32p, b_off=i64p, b_h=u8p, b_q=u8p, b_skip=voidp, H=i32, n_occ=i32,
+               delta=i32,
                cslot=i32p, wts=f32p, c_off=vpp, c_cnt=vpp, c_a=vpp, c_b=vpp, c_v=vpp, cap=i64, out_h=u8p,
                out_q=u8p, pos=i64p, counts=i32p, used=i64p)
 _gather = bind("glf_gather", None, n=i64, pos=i64p, counts=i32p, src=voidp, esize=i64, dst_off=i64p, dst=voidp)

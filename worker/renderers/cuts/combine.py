@@ -311,7 +311,7 @@ def cells_numpy(corner_nodes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 # --- the product -------------------------------------------------------------------------------
 
 def combine_numpy(base: CutSet, cut_of: np.ndarray, cells: np.ndarray, weights: np.ndarray,
-                  pools: list[RotatedSamples]) -> CutSet:
+                  pools: list[RotatedSamples], delta: bool = False) -> CutSet:
     """Reference of glf_combine, from the rotated corner samples directly (not the merged
     cells): the result's node bounds are the base cut's, plus the first and end leaf of every
     non-free node of every corner sample, except inside base nodes of value 0; each stretch
@@ -320,7 +320,10 @@ def combine_numpy(base: CutSet, cut_of: np.ndarray, cells: np.ndarray, weights: 
     else 1 (v_oc = 255 outside non-free nodes).
 
     base : CutSet; cut_of (V,) its cut per vertex. cells (V, O) int32 cell per occluder (−1:
-    culled), weights (V, O, 8) float32. Returns V cuts.
+    culled), weights (V, O, 8) float32. Returns V cuts. delta: what the occluders take away
+    instead, v_base − round(v_base · Π_o F_o), 0 outside the occluders' stretches, with runs of
+    zeros as maximal aligned nodes (glf_combine's delta mode; the C kernel merges only runs of
+    untouched base nodes, so the two agree leaf by leaf, not node by node).
     """
     H = base.height
     n = 1 << H
@@ -359,8 +362,12 @@ def combine_numpy(base: CutSet, cut_of: np.ndarray, cells: np.ndarray, weights: 
                         s += w[c] * vals[c]
                     F *= s
             qq = int(np.clip(np.rint(bq[k] * F), 0, 255))
+            if delta:
+                qq = int(bq[k]) - qq
             for _, hh in _dyadic(int(x0), int(x1), H):
                 out_h.append(hh); out_q.append(qq)
+        if delta:
+            out_h, out_q = _merge_zero_runs(out_h, out_q, H)
         hs.append(np.array(out_h, np.uint8)); qs.append(np.array(out_q, np.uint8)); counts.append(len(out_h))
     off = np.zeros(V + 1, np.int64)
     np.cumsum(counts, out=off[1:])
@@ -368,10 +375,42 @@ def combine_numpy(base: CutSet, cut_of: np.ndarray, cells: np.ndarray, weights: 
                   np.concatenate(qs) if qs else np.zeros(0, np.uint8), H)
 
 
+def _merge_zero_runs(hs, qs, H):
+    """A cut with every run of 0-valued nodes rewritten as maximal aligned nodes."""
+    out_h, out_q, x, z = [], [], 0, None
+    for h, q in zip(hs, qs):
+        if q == 0:
+            z = x if z is None else z
+        else:
+            if z is not None:
+                out_h += [hh for _, hh in _dyadic(z, x, H)]; out_q += [0] * (len(out_h) - len(out_q))
+                z = None
+            out_h.append(h); out_q.append(q)
+        x += 1 << int(h)
+    if z is not None:
+        out_h += [hh for _, hh in _dyadic(z, x, H)]; out_q += [0] * (len(out_h) - len(out_q))
+    return out_h, out_q
+
+
+SKIP = 32          # glf_combine's skip blocks (fields.c SKIP)
+
+
+def skip_table(cs: CutSet) -> np.ndarray:
+    """(⌈M / SKIP⌉ + 1,) int32: the leaf where node g·SKIP of the cut set's node array starts
+    within its own cut (glf_combine's b_skip, for the delta mode)."""
+    span = np.left_shift(np.int64(1), cs.heights.astype(np.int64))
+    start = np.cumsum(span) - span
+    first = np.repeat(start[cs.offsets[:-1]], cs.sizes())
+    local = (start - first).astype(np.int32)
+    return np.concatenate([local[::SKIP], [0]]).astype(np.int32)
+
+
 def combine_native(base: CutSet, cut_of: np.ndarray, cells: np.ndarray, weights: np.ndarray,
-                   pools: list[RotatedSamples], cap_hint: int | None = None) -> CutSet:
+                   pools: list[RotatedSamples], cap_hint: int | None = None, delta: bool = False,
+                   skip: np.ndarray | None = None) -> CutSet:
     """glf_combine (same arguments as combine_numpy; the pools' cells must be kept
-    (ensure_cells); cap_hint: expected total output nodes)."""
+    (ensure_cells); cap_hint: expected total output nodes; skip: ``skip_table(base)``, which
+    lets the delta mode pass untouched base nodes a block at a time)."""
     c = _native.c
     V, O = cells.shape
     cut_of = c(cut_of, np.int32)
@@ -384,7 +423,7 @@ def combine_native(base: CutSet, cut_of: np.ndarray, cells: np.ndarray, weights:
 
     def run(cap, b, pos, counts, used):
         _native.combine(V, cut_of, c(base.offsets, np.int64), c(base.heights, np.uint8), c(base.quant, np.uint8),
-                        base.height, O, cslot, weights, P([p.off for p in cps]), P([p.cnt for p in cps]),
+                        skip.ctypes.data if (skip is not None and delta) else None, base.height, O, int(bool(delta)), cslot, weights, P([p.off for p in cps]), P([p.cnt for p in cps]),
                         P([p.a for p in cps]), P([p.b for p in cps]), P([p.v for p in cps]),
                         cap, b["h"], b["q"], pos, counts, used)
     cap = int(cap_hint or int(1.5 * base.sizes()[cut_of].sum()) + 1024)
@@ -422,7 +461,7 @@ class Combiner:
         self.max_pools = max_pools
         self.pool_bytes = pool_bytes
         self._pools: OrderedDict = OrderedDict()
-        self._cap = None
+        self._caps: dict[str, int] = {}
         self.last_stats: dict = {}
 
     def pool(self, field: Field, q: np.ndarray) -> RotatedSamples:
@@ -437,13 +476,37 @@ class Combiner:
             self._pools.popitem(last=False)
         return p
 
+    def stencils(self, positions: np.ndarray, normals: np.ndarray, occluders) -> tuple[np.ndarray, np.ndarray, int]:
+        """The trilinear stencils of K receivers in each occluder's field, culled (§V.B) and with
+        the corners they cannot see dropped (``lookup`` then ``validate``).
+
+        positions, normals : (K, 3) float32 in the receiver frame; occluders : list of (Field,
+        receiver_from_local (4, 4)). Returns (cells (K, O) int32, −1 where culled; weights
+        (K, O, 8) float32; segments traced). A receiver with every cell −1 keeps its own cut.
+        """
+        K, O = len(positions), len(occluders)
+        cells = np.full((K, O), -1, np.int32)
+        weights = np.zeros((K, O, 8), np.float32)
+        segments = 0
+        for o, (fld, m) in enumerate(occluders):
+            lfr = np.linalg.inv(np.asarray(m, np.float64))
+            cells[:, o], w, test = lookup(fld, lfr, positions, normals, self.native)
+            weights[:, o], n_seg = validate(fld, lfr, positions, cells[:, o], w, test)
+            segments += n_seg
+        return cells, weights, segments
+
     def combine(self, base: CutSet, cut_ids: np.ndarray, positions: np.ndarray, normals: np.ndarray,
-                occluders) -> CutSet:
+                occluders, delta: bool = False, stencils=None, tag: str = "", skip: np.ndarray | None = None) -> CutSet:
         """Cuts of K receiver vertices with the occluders multiplied in (cyber-worlds eq. 4).
 
         base : CutSet of the receivers' own cuts (over their frame's leaves); cut_ids (K,) int
             the cut of each receiver in it. positions, normals : (K, 3) float32, receiver frame.
         occluders : list of (Field, receiver_from_local (4, 4) similarity).
+        delta : return what the occluders take away, v_base − v_base · Π F (glf_combine's delta
+            mode), for a caller that already has the radiance of the base cuts.
+        stencils : (cells, weights) from ``stencils`` for these receivers (else computed here).
+        skip : ``skip_table(base)`` for the delta mode (faster; the same result).
+        tag : names the call site, whose output size sizes the next call's buffer.
         Returns a CutSet of K cuts over the receiver frame's leaves (cut k for receiver k),
         ready for glk_shade_points with cut_of = arange(K). ``last_stats`` says what it cost.
         """
@@ -451,18 +514,15 @@ class Combiner:
         native = self.native
         cut_ids = np.asarray(cut_ids, np.int32)
         K = len(cut_ids)
-        O = len(occluders)
-        cells = np.full((K, O), -1, np.int32)
-        weights = np.zeros((K, O, 8), np.float32)
-        pools, rot, merged, segments = [], 0, 0, 0
+        segments = 0
+        if stencils is None:
+            cells, weights, segments = self.stencils(positions, normals, occluders)
+        else:
+            cells, weights = stencils
+        pools, rot, merged = [], 0, 0
         t_rot = 0.0
         for o, (fld, m) in enumerate(occluders):
-            m = np.asarray(m, np.float64)
-            q, _ = rotation_part(m)
-            lfr = np.linalg.inv(m)
-            cells[:, o], w, test = lookup(fld, lfr, positions, normals, native)
-            weights[:, o], n_seg = validate(fld, lfr, positions, cells[:, o], w, test)
-            segments += n_seg
+            q, _ = rotation_part(np.asarray(m, np.float64))
             pool = self.pool(fld, q)
             t1 = time.perf_counter()
             before = pool.samples.n
@@ -472,15 +532,16 @@ class Combiner:
             pools.append(pool)
         t2 = time.perf_counter()
         if native:
-            out = combine_native(base, cut_ids, cells, weights, pools, self._cap)
-            self._cap = int(1.2 * out.n_nodes) + 1024
+            est = int(1.5 * base.sizes()[cut_ids].sum()) + 1024
+            out = combine_native(base, cut_ids, cells, weights, pools, max(est, self._caps.get(tag, 0)), delta, skip)
+            self._caps[tag] = int(1.2 * out.n_nodes) + 1024
         else:
-            out = combine_numpy(base, cut_ids, cells, weights, pools)
+            out = combine_numpy(base, cut_ids, cells, weights, pools, delta)
         t3 = time.perf_counter()
         self.last_stats = {"ms_lookup": 1e3 * (t2 - t0 - t_rot), "ms_rotate_and_cells": 1e3 * t_rot,
                            "ms_product": 1e3 * (t3 - t2), "ms_total": 1e3 * (t3 - t0),
                            "samples_rotated": rot, "cells_merged": merged, "segments_traced": segments, "receivers": K,
-                           "receivers_affected": int((cells >= 0).any(axis=1).sum()) if O else 0,
+                           "receivers_affected": int((cells >= 0).any(axis=1).sum()) if len(occluders) else 0,
                            "mean_cut_in": float(base.sizes()[cut_ids].mean()) if K else 0.0,
                            "mean_cut_out": float(out.sizes().mean()) if K else 0.0}
         return out

@@ -74,6 +74,8 @@ Rotation, the options measured (BENCHMARKS.md "Cut fields", per frame at 10K rec
 from __future__ import annotations
 
 import copy
+import threading
+from collections import OrderedDict
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -148,12 +150,43 @@ def split_transform(transform) -> tuple[tuple[float, float, float] | None, np.nd
 def object_shape(scene, index: int, transform=None) -> ObjectShape:
     """The object's mesh in its local frame (re-read from its file, so the content key does not
     depend on where it stands) and world_from_local for ``transform`` (default: the scene's)."""
-    from ...scene import Transform, load_mesh
-
     obj = scene.spec.objects[index]
     shape_scale, m = split_transform(transform or obj.transform)
-    mesh = load_mesh(scene.resolve(obj.mesh), Transform(scale=shape_scale) if shape_scale else None)
+    mesh = _local_mesh(scene.resolve(obj.mesh), shape_scale)
     return ObjectShape(obj.name, mesh.vertices, mesh.faces, mesh.normals, m, shape_scale)
+
+
+_MESHES: OrderedDict = OrderedDict()       # (path, mtime, size, shape scale) -> Mesh, a few kept
+_MESHES_LOCK = threading.Lock()
+
+
+def _local_mesh(path, shape_scale):
+    """A mesh file in its own coordinates (times a non-uniform shape scale), read once while the
+    file is unchanged: parts are listed often (ensure, load, the CLI's progress bar), and a
+    21K-vertex OBJ takes about a second to parse."""
+    from pathlib import Path
+
+    from ...scene import Transform, load_mesh
+
+    p = Path(path)
+    try:
+        st = p.stat()
+        key = (str(p.resolve()), st.st_mtime_ns, st.st_size, shape_scale)
+    except OSError:
+        key = None
+    with _MESHES_LOCK:
+        if key is not None and key in _MESHES:
+            _MESHES.move_to_end(key)
+            return _MESHES[key]
+    mesh = load_mesh(p, Transform(scale=shape_scale) if shape_scale else None)
+    for a in (mesh.vertices, mesh.faces, mesh.normals):
+        a.setflags(write=False)                     # shared: nobody may edit it in place
+    if key is not None:
+        with _MESHES_LOCK:
+            _MESHES[key] = mesh
+            while len(_MESHES) > 16:
+                _MESHES.popitem(last=False)
+    return mesh
 
 
 def receiver_from_local(world_from_receiver: np.ndarray, world_from_local: np.ndarray) -> np.ndarray:

@@ -3,6 +3,7 @@
     glint field trace MESH [--scale S] [--shells K] [--face N] [--rho-min A] [--rho-max B]
                            [--out DIR] [--threads T] [--json]
     glint field bench MESH [--receivers N] [--frames F] [--hmin H] [--out DIR] [--json]
+    glint bench move SCENE --object NAME [--frames N] [--cuts DIR] [--json]
 
 ``trace`` stores the field content-keyed under DIR/fields (default $GLINT_DATA_DIR) and prints
 seconds, rays traced, rays per second and sizes (raw, compressed, index-encoded).
@@ -11,6 +12,8 @@ seconds, rays traced, rays per second and sizes (raw, compressed, index-encoded)
 slides 2 % of its radius per frame, then while it turns 3° per frame; medians of F frames each,
 wall and process CPU time (on a loaded machine, CPU / threads is the better guess of quiet wall
 time).
+``bench move`` renders a scene while one of its movable objects slides, then turns, at full
+quality and at the drag level of detail (cut renderer, vertex shading, camera and light fixed).
 """
 from __future__ import annotations
 
@@ -22,6 +25,7 @@ from pathlib import Path
 
 
 def add_commands(sub) -> None:
+    _add_bench_move(sub)
     p = sub.add_parser("field", help="visibility cut fields of movable objects (trace, bench)")
     fs = p.add_subparsers(dest="what", required=True)
 
@@ -161,4 +165,113 @@ def cmd_bench(a) -> int:
             o = out[name]
             print(f"{name}: {o['ms_per_frame']:.1f} ms/frame (cpu {o['cpu_ms_per_frame']:.1f} ms) for {out['receivers']} "
                   f"receivers, {o['samples_rotated']:.0f} samples rotated, cut {o['mean_cut_in']:.0f} → {o['mean_cut_out']:.0f}")
+    return 0
+
+
+# --- glint bench move ---------------------------------------------------------------------------
+
+def _add_bench_move(sub) -> None:
+    """``glint bench move`` under the ``bench`` command of worker/cli.py (its subparsers)."""
+    import argparse
+
+    from ...core.cuts import DEFAULT_TAU
+
+    bench = sub.choices.get("bench")
+    if bench is None:
+        return
+    bsub = next(a for a in bench._actions if isinstance(a, argparse._SubParsersAction))
+    b = bsub.add_parser("move", help="frame time while a movable object slides and turns (visibility cut fields)")
+    b.add_argument("scene")
+    b.add_argument("--object", required=True, help="a movable object of the scene")
+    b.add_argument("--frames", type=int, default=30, help="frames per measured gesture (default 30)")
+    b.add_argument("--cuts", help="cut cache folder (default: the data directory)")
+    b.add_argument("--tau", type=float, default=DEFAULT_TAU)
+    b.add_argument("--json", action="store_true")
+    b.set_defaults(fn=cmd_bench_move)
+
+
+def move_path(transform, radius: float, k: int, turning: bool):
+    """The object's transform at frame k of a gesture: it slides back and forth along x by 5% of
+    its bounding radius per frame (a drag at about 1 m/s at 30 fps for a chair), and, when
+    turning, also turns 3° per frame about +Y."""
+    from ...scene import Transform
+
+    phase = k % 40
+    dx = 0.05 * radius * (phase if phase < 20 else 40 - phase)
+    t = tuple(float(x) for x in transform.translate)
+    r = tuple(float(x) for x in transform.rotate_deg)
+    return Transform(scale=transform.scale, translate=(t[0] + dx, t[1], t[2]),
+                     rotate_deg=(r[0], r[1] + (3.0 * k if turning else 0.0), r[2]))
+
+
+def cmd_bench_move(a) -> int:
+    """Median frame time (render + tone mapping) of a movable object's gestures, at full quality
+    and at the drag level of detail, after warm-up frames at the object's place (primary hits of
+    the static geometry, the static radiance, the first rotated samples: what the frame before
+    a drag already paid)."""
+    import numpy as np
+
+    from ... import cli, native
+    from ...core.tonemap import tonemap
+    from ...errors import GlintError
+    from ...renderers import FrameRequest, Lighting
+
+    scene = cli._load(a.scene)
+    names = [o.name for o in scene.spec.objects]
+    if a.object not in names:
+        raise GlintError(f"--object: no object {a.object!r} (objects: {', '.join(names)})")
+    obj = scene.spec.objects[names.index(a.object)]
+    if not obj.movable:
+        raise GlintError(f"--object: {a.object!r} is not movable (mark it \"movable\": true in the scene file)")
+    r, ens = cli.open_renderer(scene, a.cuts, a.json, cli.scene_options(scene, a.tau))
+    if a.frames < 1:
+        raise GlintError("--frames: give at least 1")
+    from .fields import object_shape
+
+    sh = object_shape(scene, names.index(a.object))
+    from .field import bounding_sphere
+
+    _, rad = bounding_sphere(sh.vertices)
+    rad *= float(np.cbrt(np.linalg.det(sh.world_from_local[:3, :3])))
+    spec = scene.spec
+    light = Lighting(spec.environment.rotation_deg, spec.environment.intensity)
+
+    def frame(tr, lod):
+        t0 = time.perf_counter()
+        out = r.render(FrameRequest(camera=spec.camera, lighting=light, materials=scene.materials, lod=lod,
+                                    transforms={a.object: tr}))
+        tonemap(out.radiance)
+        return time.perf_counter() - t0, out
+
+    res = {"scene": a.scene, "object": a.object, "frames": a.frames, "width": spec.camera.width,
+           "height": spec.camera.height, "vertices": len(scene.mesh.vertices), "native": native.available(),
+           "threads": native.max_threads(), "precomputed_parts": ens["computed"]}
+    for lod in ("full", "drag"):
+        for _ in range(2):
+            frame(obj.transform, lod)
+        for gesture, turning in (("slide", False), ("turn", True)):
+            times, stats, parts = [], [], []
+            for k in range(1, a.frames + 1):
+                dt, out = frame(move_path(obj.transform, rad, k, turning), lod)
+                times.append(dt)
+                stats.append(out.info.get("moving", {}))
+                parts.append(out.timings)
+            ms = float(np.median(times) * 1e3)
+            row = {"ms_per_frame": ms, "fps": 1e3 / ms, "p95_ms": float(np.percentile(times, 95) * 1e3),
+                   "width": out.info["width"], "height": out.info["height"], "hmin": out.info.get("hmin"),
+                   "stages_ms": {k: float(np.median([p.get(k, 0.0) for p in parts])) for k in parts[0]},
+                   **{k: float(np.median([s_.get(k, 0) for s_ in stats])) for k in stats[0]}}
+            res[f"{lod}_{gesture}"] = row
+        sfx = "" if lod == "full" else "_drag"
+        res[f"ms_per_frame{sfx}"] = res[f"{lod}_slide"]["ms_per_frame"]
+        res[f"fps{sfx}"] = res[f"{lod}_slide"]["fps"]
+        res[f"ms_per_frame_turn{sfx}"] = res[f"{lod}_turn"]["ms_per_frame"]
+        res[f"fps_turn{sfx}"] = res[f"{lod}_turn"]["fps"]
+    res["width_drag"], res["height_drag"] = res["drag_slide"]["width"], res["drag_slide"]["height"]
+    if a.json:
+        print(json.dumps(res))
+    else:
+        for k in ("full_slide", "full_turn", "drag_slide", "drag_turn"):
+            o = res[k]
+            print(f"{k}: {o['ms_per_frame']:.1f} ms/frame ({o['fps']:.1f} fps) at {o['width']}×{o['height']}")
     return 0

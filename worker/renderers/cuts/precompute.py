@@ -34,10 +34,14 @@ BATCH = 16          # vertices per tracing batch (2^15 rays each)
 class CutData:
     """What the cut renderer draws from: the per-vertex cut set of the whole scene, and what
     every renderer of the scene shares once it is built (the Embree scene, the drag-time cuts,
-    the leaf lighting of each map), so that many sessions on one scene cost one copy."""
+    the leaf lighting of each map), so that many sessions on one scene cost one copy.
+
+    A scene with movable objects (moving.py) has ``moving`` (MovingData: static cuts, self cuts,
+    fields), and ``cuts`` holds its static vertices' cuts only."""
     cuts: CutSet
     tau: float = DEFAULT_TAU
     ground: object = None          # ground.GroundData when the scene has a shadow-catcher ground
+    moving: object = None
 
     def __post_init__(self):
         self._lock = threading.Lock()
@@ -160,11 +164,17 @@ def storage_stats(cs: CutSet, blob_bytes: int) -> dict:
 
 class CutPrecomputation(Precomputation):
     """The cut set of the whole scene (options: ``tau``; ``ground``: False skips, True forces the
-    ground-shadow part, which scenes with a ``ground`` field have by default)."""
+    ground-shadow part, which scenes with a ``ground`` field have by default). A scene with
+    movable objects has other parts instead (moving.py: static cuts, self cuts, fields; options
+    also ``field_grid``), and no ground shadow yet: the ground's cuts would change as objects move."""
 
     kind = "cuts"
 
     def parts(self, scene, options) -> list[Part]:
+        from .moving import movable_names, moving_parts
+
+        if movable_names(scene):
+            return moving_parts(scene, options)
         tau = float(options.get("tau", DEFAULT_TAU))
         m = scene.mesh
         key = geometry_key(m.vertices, m.faces, m.normals, tau, get_tree().height)
@@ -180,6 +190,10 @@ class CutPrecomputation(Precomputation):
         return parts
 
     def chunks(self, scene, part, options, n):
+        if "kind" in part.meta:
+            from .moving import moving_chunks
+
+            return moving_chunks(scene, part, n, BATCH)
         if "ground" in part.meta:
             return [None]
         nv = len(scene.mesh.vertices)
@@ -188,6 +202,10 @@ class CutPrecomputation(Precomputation):
         return [(s, min(s + step, nv)) for s in range(0, nv, step)] or [(0, 0)]
 
     def compute(self, scene, part, options, chunk=None, progress=None, threads=2):
+        if "kind" in part.meta:
+            from .moving import compute_moving
+
+            return compute_moving(scene, part, options, chunk, progress, threads)
         m = scene.mesh
         if "ground" in part.meta:
             from .ground import precompute_ground
@@ -201,6 +219,10 @@ class CutPrecomputation(Precomputation):
         return {"cuts": cs, "rays": rays, "seconds": secs}
 
     def assemble(self, scene, part, options, results):
+        if "kind" in part.meta:
+            from .moving import assemble_moving
+
+            return assemble_moving(part, results)
         cs = CutSet.concat([r["cuts"] for r in results])
         blob = cutmod.encode(cs)
         secs = sum(r["seconds"] for r in results)
@@ -214,11 +236,19 @@ class CutPrecomputation(Precomputation):
         return blob, stats
 
     def describe(self, scene, part, blob):
+        if "kind" in part.meta:
+            from .moving import describe_moving
+
+            return describe_moving(part, blob)
         if "ground" in part.meta:
             return {"ground_points": part.meta["ground"].n ** 2, "ground_bytes": len(blob)}
         return {"tau": part.meta["tau"], **storage_stats(cutmod.decode(blob), len(blob))}
 
     def load(self, scene, blobs, options):
+        from .moving import load_moving, movable_names
+
+        if movable_names(scene):
+            return load_moving(scene, blobs, options)
         part, *rest = self.parts(scene, options)
         cs = cutmod.decode(blobs[part.key])
         if cs.n_vertices != len(scene.mesh.vertices):

@@ -123,7 +123,8 @@ class CutRenderer(Renderer):
     """
 
     kind = "cuts"
-    controls = frozenset({"camera", "light", "materials", "environment", "ground"})
+    controls = frozenset({"camera", "light", "materials", "environment", "ground", "move"})
+    _moving = None          # MovingFrames (moving.py) of a scene with movable objects
 
     def __init__(self, scene, data: CutData, kernels=None):
         super().__init__(scene, data, kernels)
@@ -143,6 +144,11 @@ class CutRenderer(Renderer):
         self._mats_key = None
         self._mats: MaterialTable | None = None
         self._lock = threading.RLock()      # the session thread and its background builder
+        self._moving = None                 # frames of a scene with movable objects (moving.py)
+        if data.moving is not None:
+            from .moving import MovingFrames
+
+            self._moving = MovingFrames(self, data.moving)
 
     # -- caches -----------------------------------------------------------------------------------
     def set_environment(self, envmap: np.ndarray) -> None:
@@ -153,7 +159,15 @@ class CutRenderer(Renderer):
             self._light_key = None
 
     def view(self, camera, samples: int = 1) -> View:
-        """Primary hits of a camera with S samples per pixel (cached for the last few)."""
+        """Primary hits of a camera with S samples per pixel (cached for the last few). With
+        movable objects: one sample, the objects where the last frame had them."""
+        if self._moving is not None:
+            with self._lock:
+                mv = self._moving.view(camera, self._moving.W)
+            v = View(camera, mv.tri, mv.uv, mv.dirs, mv.visible)
+            obj = np.where(mv.tri >= 0, self.scene.object_of_face[np.maximum(mv.tri, 0)], -1).astype(np.int32)
+            v.obj = obj.reshape(camera.height, camera.width)
+            return v
         with self._lock:
             for v in self._views:
                 if v.samples == samples and v.camera == camera:
@@ -266,13 +280,17 @@ class CutRenderer(Renderer):
     def coarse_cuts(self) -> cutmod.CutSet:
         """The drag-time cut set (cuts coarsened to DRAG_TAU), built once per scene (≈0.1 s
         for 21K vertices in C)."""
+        if self._moving is not None:
+            self._moving.level("drag")              # the movable objects' drag-time cuts too
         return self.data.coarse(DRAG_TAU, self.k)
 
     # -- frames -----------------------------------------------------------------------------------
     def render(self, req: FrameRequest) -> Rendered:
+        if self._moving is not None:
+            return self._render_moving(req)
         if req.transforms and any(self.scene.spec.objects[self._index(n)].transform != t
                                   for n, t in req.transforms.items()):
-            raise Unsupported("moving objects needs their visibility cut fields (not wired yet)")
+            raise Unsupported("this scene has no movable objects (mark them \"movable\": true in the scene file)")
         t = {}
         t0 = time.perf_counter()
         camera = req.camera
@@ -333,6 +351,48 @@ class CutRenderer(Renderer):
     def _index(self, name: str) -> int:
         return [o.name for o in self.scene.spec.objects].index(name)
 
+    @property
+    def cuts(self) -> cutmod.CutSet:
+        """The cut of every scene vertex (cut v for vertex v). With movable objects: as they
+        stand in the last frame (moving.py MovingFrames.cuts; a moved object's own cuts are over
+        its frame's leaves, see ``_frame_of``)."""
+        if self._moving is not None:
+            with self._lock:
+                return self._moving.cuts()
+        return self._cuts
+
+    @cuts.setter
+    def cuts(self, cs: cutmod.CutSet) -> None:
+        self._cuts = cs
+
+    def place(self, transforms) -> None:
+        """Where movable objects stand for the fitter's questions until the next frame (a
+        session restoring its strokes places them first); no-op without movable objects."""
+        if self._moving is not None:
+            with self._lock:
+                self._moving.place(transforms)
+
+    def _geometry(self):
+        """(vertices, normals) (V, 3) float32 of the scene as it stands (world)."""
+        if self._moving is not None:
+            with self._lock:
+                return self._moving.geometry()
+        return self.scene.mesh.vertices, self.scene.mesh.normals
+
+    def _frame_of(self, object_index: int):
+        """world_from_frame (3, 3) of an object's cuts when it is not the world's (a movable
+        object's own cuts), else None."""
+        return None if self._moving is None else self._moving.frame(object_index)
+
+    def _frame_light(self, q, lighting: Lighting):
+        with self._lock:
+            return self._moving.frame_light(q, lighting)
+
+    def _render_moving(self, req: FrameRequest) -> Rendered:
+        """A frame of a scene with movable objects, placed by req.transforms (moving.py)."""
+        with self._lock:
+            return self._moving.render(req)
+
     def object_mask(self, camera) -> np.ndarray:
         """(H, W) int32 object index per pixel, −1 background."""
         return self.view(camera).obj
@@ -340,12 +400,13 @@ class CutRenderer(Renderer):
     # -- what the fitter asks ------------------------------------------------------------------
     def _pixel_samples(self, v: View, camera, pix: np.ndarray) -> Samples:
         mesh = self.scene.mesh
+        vx, vn = self._geometry()
         f = mesh.faces[v.tri[pix]]
         u, w2 = v.uv[pix, 0:1], v.uv[pix, 1:2]
         bary = np.concatenate([1 - u - w2, u, w2], axis=1).astype(np.float32)
-        nrm = (bary[:, :, None] * mesh.normals[f]).sum(1)
+        nrm = (bary[:, :, None] * vn[f]).sum(1)
         nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
-        pos = (bary[:, :, None] * mesh.vertices[f]).sum(1)
+        pos = (bary[:, :, None] * vx[f]).sum(1)
         wo = np.asarray(camera.eye, np.float32) - pos
         wo /= np.linalg.norm(wo, axis=1, keepdims=True)
         return Samples(pix, pos.astype(np.float32), nrm.astype(np.float32), wo.astype(np.float32),
@@ -355,9 +416,13 @@ class CutRenderer(Renderer):
         """The object's pixels in a view at the camera's resolution, each with its own normal and
         view direction and its triangle's three cuts blended by barycentric weight
         (inverse-brdf-modeling §4.1)."""
-        o, d = camera_rays(camera.eye, camera.target, camera.up, camera.fov_y_deg, camera.width, camera.height,
-                           kernels=self.k)
-        tri, uv = self._first_hit(o, d)
+        if self._moving is not None:
+            with self._lock:
+                tri, uv, d = self._moving.hits(camera)
+        else:
+            o, d = camera_rays(camera.eye, camera.target, camera.up, camera.fov_y_deg, camera.width, camera.height,
+                               kernels=self.k)
+            tri, uv = self._first_hit(o, d)
         obj_of = np.where(tri >= 0, self.scene.object_of_face[np.maximum(tri, 0)], -1)
         pix = np.nonzero(obj_of == object_index)[0]
         return self._pixel_samples(View(camera, tri, uv, d, np.zeros(0, np.int32)), camera, pix)
@@ -366,16 +431,16 @@ class CutRenderer(Renderer):
         """The object's vertices the camera sees (vertex-mode shading points): with samples S > 1,
         those of the one-sample and the S-sample views, so that radiance known for them
         (``FrameRequest.vertex_radiance``) covers anti-aliased frames too."""
-        mesh = self.scene.mesh
+        vx, vn = self._geometry()
         vis = self.view(camera).visible
         if samples > 1:
             vis = np.union1d(vis, self.view(camera, samples).visible).astype(np.int32)
         ids = vis[self.scene.object_of_vertex[vis] == object_index].astype(np.int32)
-        wo = np.asarray(camera.eye, np.float32) - mesh.vertices[ids]
+        wo = np.asarray(camera.eye, np.float32) - vx[ids]
         wo /= np.linalg.norm(wo, axis=1, keepdims=True)
         bary = np.zeros((len(ids), 3), np.float32)
         bary[:, 0] = 1.0
-        return Samples(ids, mesh.vertices[ids], mesh.normals[ids], wo.astype(np.float32),
+        return Samples(ids, vx[ids], vn[ids], wo.astype(np.float32),
                        np.repeat(ids[:, None], 3, axis=1), bary)
 
     def transfer(self, samples: Samples, basis, lighting: Lighting):
@@ -383,17 +448,28 @@ class CutRenderer(Renderer):
         (T (3, N, J) float32, E (N, 3) float32)."""
         from ...fit.transfer import transfer
 
-        node_l, node_w = self.light(lighting)
-        return transfer(samples.normals, samples.wo, samples.verts, samples.bary, self.cuts, node_l, node_w,
+        nrm, wo, (node_l, node_w) = self._in_frame(samples, lighting)
+        return transfer(nrm, wo, samples.verts, samples.bary, self.cuts, node_l, node_w,
                         self.tree, basis, self.k)
+
+    def _in_frame(self, s: Samples, lighting: Lighting):
+        """(normals, wo, node lighting) of samples of one object in the frame of its cuts: the
+        world's, or a moved object's own (normals and view directions turned by R^T, the light
+        turned into the frame)."""
+        q = self._frame_of(int(self.scene.object_of_vertex[s.verts[0, 0]])) if len(s) else None
+        if q is None:
+            return s.normals, s.wo, self.light(lighting)
+        return ((s.normals @ q).astype(np.float32), (s.wo @ q).astype(np.float32), self._frame_light(q, lighting))
 
     def shade_samples(self, samples: Samples, material, object_index: int, lighting: Lighting) -> np.ndarray:
         """(N, 3) float64 radiance of the samples under a material, shaded like pixel mode."""
         with self._lock:
-            node_l, node_w = self.light(lighting)
-            node8 = self._node8
+            nrm, wo, (node_l, node_w) = self._in_frame(samples, lighting)
+            # the packed node records belong to the world frame's tables only
+            node8 = self._node8 if self._node_light is not None and node_l is self._node_light[0] else None
         mats = MaterialTable([material.pack()])
-        return self._shade(samples, self.cuts, node_l, node_w, mats, None, node8).astype(np.float64)
+        s = Samples(samples.pix, samples.positions, nrm, wo, samples.verts, samples.bary)
+        return self._shade(s, self.cuts, node_l, node_w, mats, None, node8).astype(np.float64)
 
     def _shade(self, s: Samples, cuts, node_l, node_w, mats, mat_of_vertex, node8=None) -> np.ndarray:
         n = len(s)
