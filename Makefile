@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install build serve test bench clean
+.PHONY: install build browser postgres serve test bench bench-ray clean
 
 $(STAMP): pyproject.toml setup.py $(wildcard worker/native/src/*.c worker/native/src/*.h)
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -23,8 +23,16 @@ build: install
 serve: install
 	$(VENV)/bin/glint serve $(SERVE_ARGS)
 
-test: install
-	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -ra
+# Debian's chromium for the browser tests (installed when missing, as on a fresh machine)
+browser:
+	./scripts/ensure-chromium
+
+# Debian's postgresql for the service tests on PostgreSQL (tests/pg.py; installed when missing)
+postgres:
+	./scripts/ensure-postgresql
+
+test: install browser postgres
+	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -ra $(PYTEST_ARGS)
 
 bench: install
 	$(VENV)/bin/glint bench render bench/oakChair.json --frames 40 --json

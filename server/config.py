@@ -1,11 +1,12 @@
 """Service settings: embedded defaults that run on a fresh machine, overridable by environment
-variables (GLINT_<NAME>) or by the ``glint serve`` flags."""
+variables (GLINT_<NAME>) or by the ``glint serve`` flags. Read once, in the server; workers get
+what they need from it explicitly (``worker_settings``)."""
 from __future__ import annotations
 
 import os
 from pathlib import Path
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, field_validator
 
 
 def _default_data_dir() -> Path:
@@ -19,24 +20,63 @@ class Settings(BaseModel):
     port: int = 8000
     workers: int = Field(default_factory=lambda: os.cpu_count() or 1, ge=1, le=64)
     worker_threads: int = Field(0, ge=0, description="OpenMP threads per worker; 0 = cores / workers")
+    kernels: str | None = Field(None, description="native, numpy, or unset (native when built)")
     allow_anonymous_loopback: bool = True
+    # DNS rebinding: requests must name one of these hosts (any port); the bind host is added
+    allowed_hosts: list[str] = Field(default_factory=lambda: ["127.0.0.1", "localhost", "::1"])
+    # browser origins allowed to change state and open streams (besides the allowed hosts')
+    allowed_origins: list[str] = Field(default_factory=list)
+    # proxies whose X-Forwarded-For / X-Forwarded-Proto are believed (none by default)
+    trusted_proxies: list[str] = Field(default_factory=list)
     max_mesh_bytes: int = 256 * 1024 * 1024
     max_envmap_bytes: int = 256 * 1024 * 1024
     max_image_bytes: int = 64 * 1024 * 1024
     max_envmap_pixels: int = 8192 * 4096
+    max_capture_bytes: int = Field(512 * 1024 * 1024, description="a capture zip (photos and manifest)")
+    max_capture_files: int = Field(64, ge=2, description="files in a capture zip")
     max_mesh_faces: int = 8_000_000
+    inspect_seconds: float = Field(300.0, gt=0, description="time limit for reading one upload")
+    max_sessions: int = Field(64, ge=1, description="open streams in total")
+    max_sessions_per_client: int = Field(8, ge=1, description="open streams per client (token or address)")
+    session_idle_seconds: float = Field(900.0, gt=0, description="a stream with no message for this long is closed")
+    # beyond one machine (issue 17): "local" worker processes, or a Ray cluster (server/ray_pool.py)
+    backend: str = Field("local", pattern="^(local|ray)$", description="worker backend: local or ray")
+    ray_address: str | None = Field(None, description="Ray cluster to join (host:port of its GCS); unset: start one in-process")
+    ray_node_ip: str | None = Field(None, description="this process's address as the Ray cluster sees it (e.g. 127.0.0.2 on loopback)")
+    ray_chunks_per_cpu: float = Field(2.0, gt=0, description="precomputation chunks per cluster CPU (load balance vs overhead)")
+    # operations
+    log_format: str = Field("text", pattern="^(text|json)$", description="log lines as text or one JSON object per line")
+    shutdown_grace_seconds: float = Field(0.0, ge=0, description="on SIGTERM, how long running precomputations may finish before they are failed")
     demo: bool = True
+    demo_scene: Path | None = Field(None, description="scene file of the demo (default: the fetched oak chair)")
     web_dir: Path = Field(default_factory=lambda: Path(__file__).resolve().parent.parent / "web")
+
+    @field_validator("allowed_hosts", "allowed_origins", "trusted_proxies", mode="before")
+    @classmethod
+    def _split(cls, v):
+        if isinstance(v, str):
+            return [x.strip() for x in v.split(",") if x.strip()]
+        return v
 
     @property
     def db_url(self) -> str:
         return self.database_url or f"sqlite:///{self.data_dir / 'glint.db'}"
 
+    def threads_per_worker(self) -> int:
+        return self.worker_threads or max(1, (os.cpu_count() or 1) // self.workers)
+
+    def worker_settings(self, slot: int):
+        """What worker ``slot`` needs, passed to it explicitly (workers read no environment)."""
+        from worker.jobs.runner import WorkerSettings
+
+        return WorkerSettings(blob_root=str(self.data_dir / "blobs"), tmp_dir=str(self.data_dir / "tmp" / f"worker-{slot}"),
+                              threads=self.threads_per_worker(), kernels=self.kernels)
+
     @classmethod
     def from_env(cls, **overrides) -> "Settings":
         """Defaults ← GLINT_* environment variables ← explicit overrides (None ignored)."""
         vals = {}
-        for name, field in cls.model_fields.items():
+        for name in cls.model_fields:
             env = os.environ.get(f"GLINT_{name.upper()}")
             if env is not None:
                 vals[name] = env

@@ -10,7 +10,7 @@ import datetime as dt
 import secrets
 import uuid
 
-from sqlalchemy import (JSON, Boolean, DateTime, Float, ForeignKey, Integer, String, UniqueConstraint,
+from sqlalchemy import (JSON, Boolean, DateTime, Float, ForeignKey, Integer, String, UniqueConstraint, false,
                         create_engine, event, select)
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, sessionmaker
 
@@ -54,9 +54,13 @@ class Precomputation(Base):
     __tablename__ = "precomputations"
     id: Mapped[str] = mapped_column(String(32), primary_key=True, default=new_id)
     scene_id: Mapped[str] = mapped_column(ForeignKey("scenes.id"), index=True)
+    kind: Mapped[str] = mapped_column(String(16), default="cuts", server_default="cuts")   # the renderer
     status: Mapped[str] = mapped_column(String(16), default="queued")   # queued running done failed
     progress: Mapped[float] = mapped_column(Float, default=0.0)
     message: Mapped[str] = mapped_column(String(1000), default="")
+    # content key -> blob sha256 of each part (worker/renderers/base.py); release 0.3 stored
+    # the one cut blob in cuts_sha256 (the worker adopts it under its key on first use)
+    parts: Mapped[dict | None] = mapped_column(JSON, nullable=True)
     cuts_sha256: Mapped[str | None] = mapped_column(String(64), nullable=True)
     stats: Mapped[dict] = mapped_column(JSON, default=dict)
     created: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now)
@@ -89,8 +93,11 @@ class Session(Base):
     id: Mapped[str] = mapped_column(String(32), primary_key=True, default=new_id)
     scene_id: Mapped[str] = mapped_column(ForeignKey("scenes.id"), index=True)
     token_sha256: Mapped[str] = mapped_column(String(64))
-    state: Mapped[dict] = mapped_column(JSON, default=dict)   # camera, light, materials, object, …
+    state: Mapped[dict] = mapped_column(JSON, default=dict)   # worker/jobs/state.py SessionState
     closed: Mapped[bool] = mapped_column(Boolean, default=False)
+    # who opened it (API token id, or the client address of anonymous and viewer sessions), for limits
+    client: Mapped[str] = mapped_column(String(64), default="", server_default="")
+    last_active: Mapped[dt.datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)
     created: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now)
     updated: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now, onupdate=now)
 
@@ -104,7 +111,37 @@ class StrokeRow(Base):
     body: Mapped[dict] = mapped_column(JSON)                  # the stroke, with its view's camera
     undone: Mapped[bool] = mapped_column(Boolean, default=False)
     dropped: Mapped[bool] = mapped_column(Boolean, default=False)   # left on the redo stack when a new stroke came
+    # the worker could not apply it (e.g. the object is off screen): never replayed
+    rejected: Mapped[bool] = mapped_column(Boolean, default=False, server_default=false())
     created: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now)
+
+
+class SessionSave(Base):
+    """A session's save, once stored: (session, seq) is unique, so a save re-run after a worker
+    restart stores one version, and its client still gets ``saved``."""
+    __tablename__ = "session_saves"
+    __table_args__ = (UniqueConstraint("session_id", "seq"),)
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    session_id: Mapped[str] = mapped_column(ForeignKey("sessions.id"), index=True)
+    seq: Mapped[int] = mapped_column(Integer)
+    design_id: Mapped[str] = mapped_column(ForeignKey("materials.id"))
+    version: Mapped[int] = mapped_column(Integer)
+    created: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now)
+
+
+class Capture(Base):
+    """A lighting capture: the uploaded zip (a blob) processed by a job into an envmap asset."""
+    __tablename__ = "captures"
+    id: Mapped[str] = mapped_column(String(32), primary_key=True, default=new_id)
+    status: Mapped[str] = mapped_column(String(16), default="queued")    # queued running done failed
+    progress: Mapped[float] = mapped_column(Float, default=0.0)
+    message: Mapped[str] = mapped_column(String(1000), default="")
+    zip_sha256: Mapped[str] = mapped_column(String(64))
+    asset_id: Mapped[str | None] = mapped_column(ForeignKey("assets.id"), nullable=True)
+    preview_sha256: Mapped[str | None] = mapped_column(String(64), nullable=True)
+    stats: Mapped[dict] = mapped_column(JSON, default=dict)
+    created: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now)
+    updated: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now, onupdate=now)
 
 
 class Publication(Base):
@@ -128,12 +165,14 @@ class ApiToken(Base):
     created: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now)
 
 
-def make_sessionmaker(url: str):
-    """Engine and session factory; creates the tables. SQLite gets WAL and a busy timeout so the
-    server's threads and the CLI can share the file."""
+def make_engine(url: str):
+    """SQLAlchemy engine. SQLite gets WAL and a busy timeout so the server's threads and the CLI
+    can share the file; PostgreSQL a pool that checks connections before use."""
     kw = {}
     if url.startswith("sqlite"):
         kw["connect_args"] = {"check_same_thread": False, "timeout": 30}
+    else:
+        kw["pool_pre_ping"] = True
     engine = create_engine(url, **kw)
     if url.startswith("sqlite"):
         @event.listens_for(engine, "connect")
@@ -143,7 +182,17 @@ def make_sessionmaker(url: str):
             cur.execute("PRAGMA synchronous=NORMAL")
             cur.execute("PRAGMA foreign_keys=ON")
             cur.close()
-    Base.metadata.create_all(engine)
+    return engine
+
+
+def make_sessionmaker(url: str, upgrade: bool = True):
+    """Session factory on an up-to-date schema: Alembic migrations (server/migrations) run first,
+    so a database made by an earlier release is upgraded in place (``glint db upgrade``)."""
+    engine = make_engine(url)
+    if upgrade:
+        from .migrate import upgrade as _upgrade
+
+        _upgrade(engine)
     return sessionmaker(engine, expire_on_commit=False)
 
 

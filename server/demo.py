@@ -34,7 +34,7 @@ def _create_demo(st) -> str:
         sc = s.scalars(select(Scene).where(Scene.name == DEMO_NAME).order_by(Scene.created.desc())).first()
         if sc is not None:
             return sc.id
-    path = demo_scene(st.settings.data_dir / "assets")
+    path = Path(st.settings.demo_scene) if st.settings.demo_scene else demo_scene(st.settings.data_dir / "assets")
     spec = json.loads(path.read_text())
     root = path.parent
     spec["environment"]["map"] = _register(st, root / spec["environment"]["map"], "envmap")
@@ -51,11 +51,15 @@ def _create_demo(st) -> str:
 
 
 async def ensure_demo(st) -> None:
-    """Create the demo scene if missing and precompute it unless done (progress in the log)."""
+    """Create the demo scene if missing and precompute it unless done. Progress goes to the log
+    and to ``st.demo`` (``GET /v1/status``), which the studio polls until the scene is ready."""
     from .routes.scenes import run_precompute
 
+    st.demo = {"state": "fetching", "scene_id": None, "progress": 0.0,
+               "message": "fetching the demo assets (first start only)"}
     try:
         sid = await run_in_threadpool(_create_demo, st)
+        st.demo.update(scene_id=sid)
 
         def pending():
             with st.db() as s, s.begin():
@@ -66,11 +70,16 @@ async def ensure_demo(st) -> None:
                 s.flush()
                 return p.id
         pid = await run_in_threadpool(pending)
-        if pid is None:
-            log.info("demo scene %s is ready: open http://%s:%d/", sid, st.settings.host, st.settings.port)
-            return
-        log.info("precomputing the demo scene %s (first start only; progress follows)", sid)
-        await run_precompute(st, pid)
+        if pid is not None:
+            log.info("precomputing the demo scene %s (first start only; progress follows)", sid)
+            st.demo.update(state="precomputing", message="precomputing the demo scene's visibility (first start only)")
+
+            def progress(f, msg):
+                st.demo.update(progress=float(f), message=f"precomputing the demo scene: {msg} vertices")
+            if not await run_precompute(st, pid, on_progress=progress):
+                raise RuntimeError("its precomputation failed (see the log)")
+        st.demo.update(state="ready", progress=1.0, message="ready")
         log.info("demo scene %s is ready: open http://%s:%d/", sid, st.settings.host, st.settings.port)
     except Exception as e:   # the service stays up without its demo
+        st.demo.update(state="failed", message=f"could not prepare the demo scene: {e}")
         log.error("could not prepare the demo scene: %s", e)

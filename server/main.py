@@ -1,28 +1,57 @@
 """The FastAPI application: ``create_app(settings)`` builds it (nothing happens at import).
 
-On start it opens the database and blob store, starts the worker pool and, with ``demo`` on,
-makes sure the demo scene exists and is precomputed (progress in the log). Errors are JSON
-``{"detail": …}`` with a 4xx status for bad input; an unexpected error is a 500 with a short
-message (the trace goes to the log, never to the client).
+On start it upgrades the database (migrations), opens the blob store, starts the worker pool
+and, with ``demo`` on, makes sure the demo scene exists and is precomputed (progress at
+``/v1/status`` for the studio, and in the log). Errors are JSON ``{"detail": …}`` with a 4xx
+status for bad input; an unexpected error is a 500 with a short message (the trace goes to the
+log, never to the client).
+
+Every request must name this server in ``Host`` (DNS rebinding), and requests that change state
+from a browser must come from one of its origins; secrets in URLs never reach the access log.
 """
 from __future__ import annotations
 
 import asyncio
+import datetime as dt
 import logging
+import re
 from contextlib import asynccontextmanager
 from pathlib import Path
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import HTMLResponse, JSONResponse
+from fastapi.responses import HTMLResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 
 from .config import Settings
-from .routes import assets, materials, publications, renders, scenes, sessions
+from .deps import Client, check_host, check_origin
+from .logs import RequestContext
+from .metrics import CONTENT_TYPE, Metrics
+from .routes import assets, captures, materials, publications, renders, scenes, sessions
 from .state import AppState
 
 log = logging.getLogger("glint")
-VERSION = "0.3.0"
+VERSION = "0.4.0"
+SAFE_METHODS = {"GET", "HEAD", "OPTIONS"}
+
+
+class RedactSecrets(logging.Filter):
+    """Access-log lines never carry a token (``?token=…`` on a stream URL, for old clients)."""
+    _pat = re.compile(r"(token=)[^&\s\"']+", re.I)
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.args:
+            record.args = tuple(self._pat.sub(r"\1[redacted]", a) if isinstance(a, str) else a for a in record.args)
+        if isinstance(record.msg, str):
+            record.msg = self._pat.sub(r"\1[redacted]", record.msg)
+        return True
+
+
+def install_log_redaction() -> None:
+    for name in ("uvicorn.access", "uvicorn.error", "glint"):
+        lg = logging.getLogger(name)
+        if not any(isinstance(f, RedactSecrets) for f in lg.filters):
+            lg.addFilter(RedactSecrets())
 
 
 def _validation_message(exc: RequestValidationError) -> str:
@@ -35,34 +64,48 @@ def _validation_message(exc: RequestValidationError) -> str:
 
 def create_app(settings: Settings | None = None, pool=None) -> FastAPI:
     settings = settings or Settings.from_env()
+    install_log_redaction()
+    metrics = Metrics(lambda: getattr(app.state, "glint", None),
+                      {"version": VERSION, "backend": settings.backend, "database": settings.db_url.split(":")[0].split("+")[0]})
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
         st = AppState(settings, pool)
         app.state.glint = st
+        st.metrics = metrics
+        st.pool.run_job = metrics.wrap_job(st.pool.run_job)
         st.pool.start()
         who = "anonymous access is allowed from loopback only; other clients need an API token" \
             if settings.allow_anonymous_loopback else "every client needs an API token (glint token create)"
         log.info("Glint %s: data in %s, database %s, %d worker(s); %s", VERSION, settings.data_dir,
                  settings.db_url.split("://")[0], settings.workers, who)
-        demo_task = None
+        tasks = [asyncio.create_task(_janitor(st))]
         if settings.demo:
             from .demo import ensure_demo
 
-            demo_task = asyncio.create_task(ensure_demo(st))
+            tasks.append(asyncio.create_task(ensure_demo(st)))
         try:
             yield
         finally:
-            if demo_task is not None:
-                demo_task.cancel()
-            for t in list(st.precompute_tasks.values()):
-                t.cancel()
-            st.pool.stop()
+            await _shutdown(st, tasks)
 
     app = FastAPI(title="Glint", version=VERSION, lifespan=lifespan,
                   description="Design materials (BRDFs) under real-world lighting: assets, scenes, "
                               "precomputed visibility cuts, renders, paint-to-BRDF fits, versioned "
                               "materials and interactive sessions streamed over WebSockets.")
+
+    @app.middleware("http")
+    async def _guard(request: Request, call_next):
+        if not check_host(settings, request.headers):
+            return JSONResponse({"detail": "unknown Host: this server answers to "
+                                           f"{', '.join(sorted(settings.allowed_hosts))} (GLINT_ALLOWED_HOSTS)"},
+                                status_code=421)
+        if request.method not in SAFE_METHODS and not check_origin(settings, request.headers):
+            return JSONResponse({"detail": "cross-origin request refused (GLINT_ALLOWED_ORIGINS)"}, status_code=403)
+        return await call_next(request)
+
+    # outermost: a request id for every request and stream, its access line and its metrics
+    app.add_middleware(RequestContext, observe=metrics.http)
 
     @app.exception_handler(RequestValidationError)
     async def _bad_request(request: Request, exc: RequestValidationError):
@@ -76,11 +119,32 @@ def create_app(settings: Settings | None = None, pool=None) -> FastAPI:
     @app.get("/healthz", tags=["health"])
     async def healthz(request: Request):
         st = request.app.state.glint
-        alive = [w.proc.is_alive() for w in getattr(st.pool, "workers", [])]
-        return {"status": "ok" if all(alive) else "degraded", "version": VERSION, "workers": len(alive),
-                "workers_alive": sum(alive), "worker_restarts": getattr(st.pool, "restarts", 0)}
+        h = st.pool.health()
+        ok = h.get("workers_alive", 0) == h.get("workers", 0)
+        return {"status": "ok" if ok else "degraded", "version": VERSION, **h, "streams": len(st.streams)}
 
-    for r in (assets, scenes, renders, materials, publications, sessions):
+    @app.get("/metrics", include_in_schema=False)
+    async def prometheus_metrics(_: Client):
+        """Prometheus metrics (text exposition format): sessions, frames, latencies, jobs, workers
+        (server/metrics.py lists them). Anonymous from loopback, else an API token."""
+        return Response(metrics.render(), media_type=CONTENT_TYPE)
+
+    @app.get("/v1/status", tags=["health"])
+    async def status(request: Request):
+        """What the studio shows before a scene is ready: the demo scene's preparation
+        ({"state": "off" | "fetching" | "precomputing" | "ready" | "failed", "scene_id",
+        "progress", "message"})."""
+        st = request.app.state.glint
+        return {"version": VERSION, "demo": st.demo}
+
+    @app.get("/v1/models", tags=["materials"])
+    async def list_models():
+        """Every BRDF model the server knows: its controls, defaults and JSON schema."""
+        from worker.models import describe
+
+        return describe()
+
+    for r in (assets, scenes, renders, materials, publications, sessions, captures):
         app.include_router(r.router)
 
     web = Path(settings.web_dir)
@@ -101,3 +165,37 @@ def create_app(settings: Settings | None = None, pool=None) -> FastAPI:
     async def viewer(pub_id: str):
         return page("viewer.html")
     return app
+
+
+async def _shutdown(st, tasks: list) -> None:
+    """Graceful stop (SIGTERM): running precomputations get ``shutdown_grace_seconds`` to finish,
+    then are cancelled, and each one's cancellation is awaited so that it is recorded as failed
+    with a message before the workers stop (nothing is left "running" in the database)."""
+    running = [t for t in st.precompute_tasks.values() if not t.done()]
+    grace = st.settings.shutdown_grace_seconds
+    if running and grace > 0:
+        log.info("stopping: waiting up to %.0f s for %d precomputation(s)", grace, len(running))
+        await asyncio.wait(running, timeout=grace)
+    pending = [t for t in tasks + list(st.precompute_tasks.values()) if not t.done()]
+    for t in pending:
+        t.cancel()
+    if pending:
+        await asyncio.wait(pending, timeout=15)
+    n = sum(1 for t in running if t.cancelled() or (t.done() and t.exception() is not None))
+    if n:
+        log.warning("stopping: %d precomputation(s) failed as cancelled; start them again after the restart", n)
+    st.pool.stop()
+
+
+async def _janitor(st, every: float = 60.0) -> None:
+    """Close editing sessions left without a stream for a day (their rows say so)."""
+    from fastapi.concurrency import run_in_threadpool
+
+    while True:
+        try:
+            n = await run_in_threadpool(sessions.expire_idle, st, dt.timedelta(days=1))
+            if n:
+                log.info("closed %d idle session(s)", n)
+        except Exception as e:
+            log.warning("session janitor: %s", e)
+        await asyncio.sleep(every)

@@ -8,7 +8,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from worker.fit.brush import Stroke
 from worker.fit.files import ViewSpec
-from worker.scene import Camera, Color, Material
+from worker.scene import Camera, Color, Material, SceneFile, Transform
 
 
 class Strict(BaseModel):
@@ -28,6 +28,7 @@ class AssetOut(BaseModel):
 class PrecomputationOut(BaseModel):
     id: str
     scene_id: str
+    kind: str = "cuts"
     status: Literal["queued", "running", "done", "failed"]
     progress: float
     message: str
@@ -39,7 +40,7 @@ class PrecomputationOut(BaseModel):
 class SceneOut(BaseModel):
     id: str
     name: str
-    spec: dict
+    spec: SceneFile
     created: dt.datetime
     precomputation: PrecomputationOut | None = None
 
@@ -50,6 +51,8 @@ class RenderRequest(Strict):
     rotation_deg: float | None = None
     intensity: float | None = Field(None, ge=0.0)
     materials: dict[str, Material] = Field(default_factory=dict, description="per object name")
+    transforms: dict[str, Transform] = Field(default_factory=dict, description="per object name: where the scene's "
+                                             "movable objects stand (\"movable\": true; nothing is precomputed again)")
     mode: Literal["vertex", "pixel"] = "vertex"
     format: Literal["png", "exr"] = "png"
     exposure: float = Field(0.0, ge=-20, le=20)
@@ -64,7 +67,7 @@ class FitRequest(Strict):
     target_asset: str | None = Field(None, description="an uploaded image asset (linear .npy/.exr/.hdr, sRGB .png)")
     mask_asset: str | None = None
     constrained: bool = True
-    unpainted_weight: float = Field(1.0, ge=0.0)
+    unpainted_weight: float = Field(0.25, ge=0.0, description="weight of unpainted pixels (painted: 1); the default is worker/fit/brush.py DEFAULT_UNPAINTED_WEIGHT")
     albedo: Color | None = None
     fresnel_f0: float | None = Field(None, ge=0.0, le=1.0)
     fit_scale: float | None = Field(None, gt=0.0, le=1.0)
@@ -123,3 +126,4 @@ class SessionOut(BaseModel):
     state: dict[str, Any]
     strokes: list[dict] = Field(default_factory=list)
     worker_pid: int | None = None
+    closed: bool = False

@@ -1,15 +1,17 @@
 """What the routes share: settings, the database, the blob store, the worker pool, and the
-payloads the workers need (a scene with its files and cuts; a session with its strokes)."""
+payloads the workers need (a scene with its files and precomputed parts; a session with its
+state and strokes)."""
 from __future__ import annotations
 
 import logging
 
 from sqlalchemy import select
 
-from .blobs import BlobStore
+from worker.blobs import BlobStore
+
 from .config import Settings
-from .db import Asset, Precomputation, Scene, Session, StrokeRow, make_sessionmaker
-from .workers import LocalWorkerPool, WorkerPool
+from .db import Asset, Capture, Precomputation, Scene, Session, StrokeRow, make_sessionmaker
+from .workers import WorkerPool, make_pool
 
 log = logging.getLogger("glint")
 
@@ -28,21 +30,25 @@ class AppState:
         settings.data_dir.mkdir(parents=True, exist_ok=True)
         self.db = make_sessionmaker(settings.db_url)
         self.blobs = BlobStore(settings.data_dir / "blobs")
-        self.pool = pool or LocalWorkerPool(settings.workers, str(self.blobs.root), restore=self.session_payload,
-                                            threads=settings.worker_threads)
+        self.pool = pool or make_pool(settings, restore=self.session_payload)
         self.precompute_tasks: dict[str, object] = {}
+        self.streams: dict[str, str] = {}        # open streams: session id -> client
+        self.demo: dict = {"state": "off"}       # the demo scene's preparation, for the studio
         self._fail_interrupted()
 
     def _fail_interrupted(self) -> None:
         """Jobs of an earlier server process cannot finish: say so instead of showing them
-        running forever (a new request starts them again)."""
+        running forever (a new request starts them again; parts already stored are reused)."""
         with self.db() as s, s.begin():
             for p in s.scalars(select(Precomputation).where(Precomputation.status.in_(("queued", "running")))):
                 p.status = "failed"
-                p.message = "interrupted by a server restart; start the precomputation again"
+                p.message = "interrupted by a server restart; start the precomputation again (finished parts are kept)"
+            for c in s.scalars(select(Capture).where(Capture.status.in_(("queued", "running")))):
+                c.status = "failed"
+                c.message = "interrupted by a server restart; upload the capture again"
 
     # -- payloads -------------------------------------------------------------------------------
-    def scene_payload(self, s, scene_id: str, need_cuts: bool = True) -> dict:
+    def scene_payload(self, s, scene_id: str, need_parts: bool = True) -> dict:
         sc = s.get(Scene, scene_id)
         if sc is None:
             raise NotFound(f"no scene {scene_id!r}")
@@ -53,26 +59,37 @@ class AppState:
             if a is None:
                 raise NotFound(f"scene {scene_id!r} refers to a missing asset {r!r}")
             files[r] = {"sha256": a.sha256, "filename": a.filename}
-        pre = self.latest_precomputation(s, scene_id, done=True)
-        if need_cuts and pre is None:
+        kind = sc.spec.get("renderer", "cuts")
+        pre = self.latest_precomputation(s, scene_id, done=True, kind=kind)
+        if need_parts and pre is None:
             raise Conflict(f"scene {scene_id!r} has no finished precomputation: POST /v1/scenes/{scene_id}/precompute first")
-        return {"scene_id": sc.id, "spec": sc.spec, "files": files, "cuts_sha256": pre.cuts_sha256 if pre else None}
+        parts = None
+        if pre is not None:
+            parts = pre.parts or ({"legacy-cuts": pre.cuts_sha256} if pre.cuts_sha256 else None)
+        # a renderer's options are the scene file's field of its name (e.g. "gi", "paint")
+        return {"scene_id": sc.id, "spec": sc.spec, "files": files, "renderer": kind,
+                "options": dict(sc.spec.get(kind) or {}), "parts": parts}
 
     @staticmethod
-    def latest_precomputation(s, scene_id: str, done: bool = False) -> Precomputation | None:
+    def latest_precomputation(s, scene_id: str, done: bool = False, kind: str | None = None) -> Precomputation | None:
         q = select(Precomputation).where(Precomputation.scene_id == scene_id)
         if done:
             q = q.where(Precomputation.status == "done")
+        if kind is not None:
+            q = q.where(Precomputation.kind == kind)
         return s.scalars(q.order_by(Precomputation.created.desc()).limit(1)).first()
 
     def session_payload(self, sid: str) -> dict:
-        """Everything a worker needs to (re)build a session: scene, state, strokes."""
+        """Everything a worker needs to (re)build a session: scene, state, strokes (those of the
+        current epoch that are neither dropped from the redo stack nor rejected)."""
         with self.db() as s:
             row = s.get(Session, sid)
             if row is None:
                 raise NotFound(f"no session {sid!r}")
             st = dict(row.state or {})
-            strokes = s.scalars(select(StrokeRow).where(StrokeRow.session_id == sid, StrokeRow.epoch == st.get("epoch", 0),
-                                                        StrokeRow.dropped.is_(False)).order_by(StrokeRow.seq)).all()
+            strokes = s.scalars(select(StrokeRow).where(
+                StrokeRow.session_id == sid, StrokeRow.epoch == st.get("epoch", 0), StrokeRow.dropped.is_(False),
+                StrokeRow.rejected.is_(False)).order_by(StrokeRow.seq)).all()
             return {"scene": self.scene_payload(s, row.scene_id), "state": st,
-                    "strokes": [{**r.body, "undone": r.undone} for r in strokes], "ack": int(st.get("last_seq", -1))}
+                    "strokes": [{**r.body, "seq": r.seq, "undone": r.undone} for r in strokes],
+                    "ack": int(st.get("last_seq", -1))}

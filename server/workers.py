@@ -3,10 +3,12 @@
 ``WorkerPool`` is what the routes use: ``run_job`` (precompute, render, fit, with progress),
 ``open_session`` / ``send`` / ``close_session`` and a per-session queue of frames and events.
 ``LocalWorkerPool`` implements it with local processes (multiprocessing, spawn); a Ray-backed
-pool would implement the same methods.
+pool implements the same methods.
 
 A worker that dies is replaced; its sessions are re-opened on the new process from what the
-server persisted (``restore`` callback), and its running jobs fail with a clear error.
+server persisted (``restore`` callback), and its running jobs fail with a clear error. While a
+session is being restored, messages for it are held and sent after its ``open``, so the new
+worker sees them in order; the runtime skips any the restored state already covers.
 """
 from __future__ import annotations
 
@@ -14,9 +16,9 @@ import asyncio
 import itertools
 import logging
 import multiprocessing as mp
-import os
-import queue
+import shutil
 import threading
+from pathlib import Path
 from typing import Callable
 
 log = logging.getLogger("glint.workers")
@@ -49,67 +51,104 @@ class WorkerPool:
     def stop(self) -> None:
         raise NotImplementedError
 
+    def health(self) -> dict:
+        return {}
+
+
+class SessionQueue(asyncio.Queue):
+    """Frames and events for one stream. Frames are latest-wins: when the client reads slower
+    than frames come, older unread frames are dropped (and counted) rather than queued."""
+
+    def __init__(self):
+        super().__init__()
+        self.dropped_frames = 0
+
+    def push(self, kind: str, p) -> None:
+        if kind == "frame":
+            kept = [it for it in list(self._queue) if it[0] != "frame"]
+            self.dropped_frames += len(self._queue) - len(kept)
+            self._queue.clear()
+            self._queue.extend(kept)
+        elif self.qsize() > 512:        # a stalled client: events are bounded too
+            self._queue.popleft()
+        self.put_nowait((kind, p))
+
 
 class _Worker:
-    def __init__(self, wid: int, ctx, blob_root: str, threads: int):
-        from worker.jobs.runner import worker_main
+    """One worker process and its two pipes. Plain pipes rather than multiprocessing queues:
+    queues hold named semaphores, which a killed worker leaves behind (the resource tracker's
+    'leaked semaphore' warnings at every shutdown); a pipe holds nothing but two descriptors."""
 
-        self.wid = wid
-        self.inq = ctx.Queue()
-        self.outq = ctx.Queue()
-        env = {"OPENBLAS_NUM_THREADS": "1", "OMP_WAIT_POLICY": "PASSIVE"}
-        if threads:
-            env["GLINT_THREADS"] = str(threads)
-        old = {k: os.environ.get(k) for k in env}
-        os.environ.update(env)           # inherited by the spawned interpreter
-        try:
-            self.proc = ctx.Process(target=worker_main, args=(wid, self.inq, self.outq, blob_root),
-                                    name=f"glint-worker-{wid}", daemon=True)
-            self.proc.start()
-        finally:
-            for k, v in old.items():
-                if v is None:
-                    os.environ.pop(k, None)
-                else:
-                    os.environ[k] = v
+    def __init__(self, slot: int, ctx, settings):
+        from worker.jobs.runner import PipeOut, worker_main
+
+        self.slot = slot
+        self.settings = settings
+        req_r, req_w = ctx.Pipe(duplex=False)
+        rep_r, rep_w = ctx.Pipe(duplex=False)
+        self.proc = ctx.Process(target=worker_main, args=(slot, req_r, rep_w, settings),
+                                name=f"glint-worker-{slot}", daemon=True)
+        self.proc.start()
+        req_r.close()                   # the child's ends: closed here so EOF means it is gone
+        rep_w.close()
+        self.inq = PipeOut(req_w)
+        self.replies = rep_r
         self.sessions: set[str] = set()
         self.jobs: set[str] = set()
 
+    def close_queues(self) -> None:
+        for c in (self.inq, self.replies):
+            try:
+                c.close()
+            except Exception:
+                pass
+
 
 class LocalWorkerPool(WorkerPool):
-    """``n`` local worker processes. ``restore(sid)`` returns the open payload of a session
-    from the database (used after a worker dies)."""
+    """``n`` local worker processes.
 
-    def __init__(self, n: int, blob_root: str, restore: Callable[[str], dict] | None = None, threads: int = 0):
+    settings : a factory slot -> worker.jobs.runner.WorkerSettings (each worker gets its own
+        scratch folder). restore : sid -> the open payload of a session from the database
+        (used after a worker dies).
+    """
+
+    def __init__(self, n: int, settings: Callable[[int], object], restore: Callable[[str], dict] | None = None):
         self.n = n
-        self.blob_root = str(blob_root)
+        self.make_settings = settings
         self.restore = restore
-        self.threads = threads
         self.ctx = mp.get_context("spawn")
         self.workers: list[_Worker] = []
         self.loop: asyncio.AbstractEventLoop | None = None
-        self.session_queues: dict[str, asyncio.Queue] = {}
+        self.session_queues: dict[str, SessionQueue] = {}
         self.owner: dict[str, _Worker] = {}
+        self.held: dict[str, list[dict]] = {}          # sessions being restored: their messages wait
         self.futures: dict[str, tuple[asyncio.Future, Callable | None]] = {}
         self._ids = itertools.count()
         self._lock = threading.Lock()
         self._stopping = False
         self.restarts = 0
+        self._threads: list[threading.Thread] = []
 
     # -- lifecycle ------------------------------------------------------------------------------
     def start(self) -> None:
         self.loop = asyncio.get_running_loop()
         for i in range(self.n):
             self._spawn(i)
-        threading.Thread(target=self._monitor, daemon=True, name="glint-pool-monitor").start()
+        t = threading.Thread(target=self._monitor, daemon=True, name="glint-pool-monitor")
+        t.start()
+        self._threads.append(t)
 
     def _spawn(self, slot: int) -> _Worker:
-        w = _Worker(slot, self.ctx, self.blob_root, self.threads)
+        settings = self.make_settings(slot)
+        shutil.rmtree(settings.tmp_dir, ignore_errors=True)      # what a dead worker left behind
+        w = _Worker(slot, self.ctx, settings)
         if slot < len(self.workers):
             self.workers[slot] = w
         else:
             self.workers.append(w)
-        threading.Thread(target=self._reader, args=(w,), daemon=True, name=f"glint-pool-reader-{slot}").start()
+        t = threading.Thread(target=self._reader, args=(w,), daemon=True, name=f"glint-pool-reader-{slot}")
+        t.start()
+        self._threads.append(t)
         return w
 
     def stop(self) -> None:
@@ -120,16 +159,27 @@ class LocalWorkerPool(WorkerPool):
             except Exception:
                 pass
         for w in self.workers:
-            w.proc.join(timeout=3)
+            w.proc.join(timeout=5)
             if w.proc.is_alive():
                 w.proc.kill()
-            for q in (w.inq, w.outq):
-                q.close()
-                q.cancel_join_thread()
+                w.proc.join(timeout=2)
+        for t in self._threads:
+            t.join(timeout=2)
+        for w in self.workers:
+            w.close_queues()
+            shutil.rmtree(w.settings.tmp_dir, ignore_errors=True)
+
+    def health(self) -> dict:
+        alive = [w.proc.is_alive() for w in self.workers]
+        return {"workers": len(alive), "workers_alive": sum(alive), "worker_restarts": self.restarts,
+                "sessions": len(self.owner)}
 
     # -- routing --------------------------------------------------------------------------------
     def _least_loaded(self) -> _Worker:
-        return min(self.workers, key=lambda w: (len(w.sessions) + len(w.jobs), w.wid))
+        # a worker found dead is skipped (the monitor is replacing it); if all are, any will do:
+        # the monitor fails its jobs and restores its sessions within a moment
+        alive = [w for w in self.workers if w.proc.is_alive()] or self.workers
+        return min(alive, key=lambda w: (len(w.sessions) + 2 * len(w.jobs), w.slot))
 
     async def run_job(self, job: dict, on_progress=None) -> dict:
         jid = f"j{next(self._ids)}"
@@ -146,11 +196,11 @@ class LocalWorkerPool(WorkerPool):
                 w.jobs.discard(jid)
                 self.futures.pop(jid, None)
 
-    def open_session(self, sid: str, payload: dict) -> asyncio.Queue:
+    def open_session(self, sid: str, payload: dict) -> SessionQueue:
         with self._lock:
             q = self.session_queues.get(sid)
             if q is None:
-                q = self.session_queues[sid] = asyncio.Queue(maxsize=256)
+                q = self.session_queues[sid] = SessionQueue()
             w = self.owner.get(sid)
             if w is None:
                 w = self._least_loaded()
@@ -160,7 +210,11 @@ class LocalWorkerPool(WorkerPool):
         return q
 
     def send(self, sid: str, msg: dict) -> None:
-        w = self.owner.get(sid)
+        with self._lock:
+            if sid in self.held:
+                self.held[sid].append(msg)
+                return
+            w = self.owner.get(sid)
         if w is None:
             raise KeyError(sid)
         w.inq.put(("msg", sid, msg))
@@ -169,6 +223,7 @@ class LocalWorkerPool(WorkerPool):
         with self._lock:
             w = self.owner.pop(sid, None)
             self.session_queues.pop(sid, None)
+            self.held.pop(sid, None)
             if w is not None:
                 w.sessions.discard(sid)
         if w is not None:
@@ -182,15 +237,17 @@ class LocalWorkerPool(WorkerPool):
     def _reader(self, w: _Worker) -> None:
         while True:
             try:
-                item = w.outq.get(timeout=0.5)
-            except queue.Empty:
-                if not w.proc.is_alive() or self._stopping:
-                    if w.outq.empty():
+                if not w.replies.poll(0.5):
+                    if not w.proc.is_alive() or self._stopping:
                         return
-                continue
-            except (EOFError, OSError):
+                    continue
+                item = w.replies.recv()
+            except (EOFError, OSError, ValueError, TypeError):
                 return
-            self.loop.call_soon_threadsafe(self._dispatch, item)
+            try:
+                self.loop.call_soon_threadsafe(self._dispatch, item)
+            except RuntimeError:        # the event loop is closed: the server is stopping
+                return
 
     def _dispatch(self, item) -> None:
         kind, key, p = item
@@ -208,15 +265,11 @@ class LocalWorkerPool(WorkerPool):
                     log.error("job failed in a worker:\n%s", p["trace"])
                 fut.set_exception(JobFailed(p["message"], p.get("status", 500)))
             return
-        q = self.session_queues.get(key)
-        if q is None:
+        if kind == "closed":
             return
-        if q.full():            # a stalled client: drop its oldest item rather than grow
-            try:
-                q.get_nowait()
-            except asyncio.QueueEmpty:
-                pass
-        q.put_nowait((kind, p))
+        q = self.session_queues.get(key)
+        if q is not None:
+            q.push(kind, p)
 
     # -- failure --------------------------------------------------------------------------------
     def _monitor(self) -> None:
@@ -236,21 +289,44 @@ class LocalWorkerPool(WorkerPool):
                     for sid in moved:
                         self.owner[sid] = nw
                         nw.sessions.add(sid)
+                        self.held[sid] = []       # hold its messages until it is open again
+                w.close_queues()
                 for jid in lost_jobs:
                     fut, _ = self.futures.get(jid, (None, None))
                     if fut is not None:
                         self.loop.call_soon_threadsafe(
                             lambda f=fut: f.done() or f.set_exception(JobFailed("the worker running this job died; retry it", 503)))
                 for sid in moved:
-                    try:
-                        payload = self.restore(sid) if self.restore else None
-                    except Exception as e:  # the session cannot come back: tell its client
-                        log.error("cannot restore session %s: %s", sid, e)
-                        payload = None
-                    if payload is None:
-                        self.loop.call_soon_threadsafe(self._dispatch, ("event", sid, {
-                            "type": "error", "fatal": True, "message": "the session could not be restored"}))
-                        continue
-                    nw.inq.put(("open", sid, payload))
-                    self.loop.call_soon_threadsafe(self._dispatch, ("event", sid, {
-                        "type": "note", "message": "the worker restarted; the session was restored"}))
+                    self._restore(sid, nw)
+
+    def _restore(self, sid: str, nw: _Worker) -> None:
+        try:
+            payload = self.restore(sid) if self.restore else None
+        except Exception as e:  # the session cannot come back: tell its client
+            log.error("cannot restore session %s: %s", sid, e)
+            payload = None
+        with self._lock:
+            held = self.held.pop(sid, [])
+            if payload is not None and self.owner.get(sid) is nw:
+                nw.inq.put(("open", sid, payload))
+                for m in held:
+                    nw.inq.put(("msg", sid, m))
+        if payload is None:
+            self.loop.call_soon_threadsafe(self._dispatch, ("event", sid, {
+                "type": "error", "fatal": True, "message": "the session could not be restored"}))
+            return
+        self.loop.call_soon_threadsafe(self._dispatch, ("event", sid, {
+            "type": "note", "message": "the worker restarted; the session was restored"}))
+
+
+def make_pool(settings, restore: Callable[[str], dict] | None = None) -> WorkerPool:
+    """The pool ``settings.backend`` names: local processes (default) or a Ray cluster."""
+    if settings.backend == "ray":
+        from .ray_pool import RayWorkerPool
+
+        def host_settings(slot: int):
+            return settings.worker_settings(slot).model_copy(update={
+                "tmp_dir": str(settings.data_dir / "tmp" / f"ray-{slot}"), "threads": settings.worker_threads})
+        return RayWorkerPool(settings.workers, host_settings, restore=restore, address=settings.ray_address,
+                             node_ip=settings.ray_node_ip, chunks_per_cpu=settings.ray_chunks_per_cpu)
+    return LocalWorkerPool(settings.workers, settings.worker_settings, restore=restore)

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import httpx
 import pytest
+from helpers import GlintServer, free_port, open_renderer  # noqa: F401
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
@@ -41,51 +42,70 @@ def artifacts() -> Path:
 
 
 @pytest.fixture(scope="session")
-def bunny(shared_assets, cache_dir):
-    """(LoadedScene, CutSet) of tests/scenes/bunny.json, cuts cached."""
-    from worker.engine import load_or_precompute
+def bunny_renderer(shared_assets, cache_dir):
+    """The cut renderer of tests/scenes/bunny.json (cuts cached)."""
     from worker.scene import load_scene
 
-    scene = load_scene(ROOT / "tests" / "scenes" / "bunny.json")
-    cuts, _, _ = load_or_precompute(scene, cache_dir)
-    return scene, cuts
-
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    return open_renderer(load_scene(ROOT / "tests" / "scenes" / "bunny.json"))
 
 
 @pytest.fixture(scope="session")
-def server(tmp_path_factory):
-    data = tmp_path_factory.mktemp("glint-data")
-    port = free_port()
-    env = {**os.environ, "GLINT_MAX_MESH_BYTES": str(8 * 1024 * 1024), "PYTHONUNBUFFERED": "1"}
-    log = open(data / "server.log", "w")
-    proc = subprocess.Popen([sys.executable, "-m", "worker.cli", "serve", "--port", str(port), "--data-dir", str(data),
-                             "--workers", "2", "--no-demo"], cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
-    base = f"http://127.0.0.1:{port}"
-    for _ in range(300):
-        try:
-            if httpx.get(base + "/healthz", timeout=1).status_code == 200:
-                break
-        except httpx.HTTPError:
-            pass
-        if proc.poll() is not None:
-            raise RuntimeError("server exited: " + (data / "server.log").read_text()[-3000:])
-        time.sleep(0.2)
-    else:
-        proc.kill()
-        raise RuntimeError("server did not start: " + (data / "server.log").read_text()[-3000:])
-    yield {"base": base, "port": port, "data": data, "proc": proc}
-    proc.terminate()
-    try:
-        proc.wait(timeout=15)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-    log.close()
+def bunny(bunny_renderer):
+    """(LoadedScene, CutSet) of tests/scenes/bunny.json, cuts cached."""
+    return bunny_renderer.scene, bunny_renderer.cuts
+
+
+
+# The service tests that also run against PostgreSQL (issue 17): sessions, strokes, saves and
+# material versions, i.e. what depends on the database's transactions and locks. Everything else
+# that uses ``server`` runs on SQLite only, so the suite does not double. A new test opts in with
+# @pytest.mark.both_databases.
+POSTGRES_TOO = {
+    "test_service.py::test_session_stroke_save_and_crash_recovery",
+    "test_service.py::test_rest_render_fit_and_material_versions",
+    "test_security.py::test_archived_designs_refuse_session_saves_and_fresnel_zero_means_zero",
+}
+
+
+def pytest_configure(config):
+    config.addinivalue_line("markers", "both_databases: run this service test on SQLite and on PostgreSQL")
+
+
+def pytest_generate_tests(metafunc):
+    """Every test that needs ``database`` (through ``server``) gets it as a parameter: sqlite, and
+    postgresql too for the tests named above or marked both_databases."""
+    if "database" not in metafunc.fixturenames:
+        return
+    name = f"{Path(metafunc.definition.fspath).name}::{metafunc.definition.originalname}"
+    both = name in POSTGRES_TOO or metafunc.definition.get_closest_marker("both_databases") is not None
+    metafunc.parametrize("database", ["sqlite", "postgresql"] if both else ["sqlite"], indirect=True, scope="session")
+
+
+@pytest.fixture(scope="session")
+def postgres():
+    """A PostgreSQL server in a temporary folder, started on first use (tests/pg.py)."""
+    from pg import PostgresServer
+
+    pg = PostgresServer()
+    yield pg
+    pg.stop()
+
+
+@pytest.fixture(scope="session")
+def database(request):
+    """The server's database: "sqlite" (its data folder, the default) or "postgresql" (a fresh
+    database on the test PostgreSQL server). Returns (name, environment for GlintServer)."""
+    if request.param == "postgresql":
+        return "postgresql", {"GLINT_DATABASE_URL": request.getfixturevalue("postgres").new_database()}
+    return "sqlite", {}
+
+
+@pytest.fixture(scope="session")
+def server(tmp_path_factory, database):
+    name, env = database
+    srv = GlintServer(tmp_path_factory.mktemp(f"glint-data-{name}"), env=env)
+    yield {**srv.as_dict(), "database": name}
+    srv.stop()
 
 
 @pytest.fixture(scope="session")

@@ -12,7 +12,7 @@ def test_bad_fields_are_named():
         parse_scene({"version": 1, "environment": {"map": "x.exr"}, "camera": {"eye": [0, 0], "target": [0, 0, 0]},
                      "objects": [{"name": "a", "mesh": "m.obj", "material": {"model": "ggx", "alpha": -1}}]})
     msg = str(e.value)
-    assert "camera.eye" in msg and "objects.0.material.ggx.alpha" in msg
+    assert "camera.eye" in msg and "objects.0.material.alpha" in msg
     with pytest.raises(SceneError, match="unique"):
         parse_scene({"environment": {"map": "x"}, "camera": {"eye": [0, 0, 1], "target": [0, 0, 0]},
                      "objects": [{"name": "a", "mesh": "m"}, {"name": "a", "mesh": "m"}]})
@@ -75,3 +75,84 @@ def test_lobes_diffuse_is_albedo_and_old_files_load():
     assert old.albedo == (0.2, 0.3, 0.4)
     assert "albedo" in old.model_dump() and "diffuse" not in old.model_dump()
     assert Lobes(exponents=[10], gloss=[0.1], directional_diffuse=[(0, 0, 0)], albedo=(0.5, 0.5, 0.5)).albedo == (0.5, 0.5, 0.5)
+
+
+# --- meshes of every supported kind, with and without normals (written here, not shipped) ---------
+_TV = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]], np.float64)
+_TF = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 4], [1, 4, 3], [2, 3, 4]], np.int64)
+# deliberately not what any normal estimator would give, so file normals are recognisable
+_TN = np.array([[0, 0, 1], [0, 1, 0], [1, 0, 0], [0.6, 0.8, 0], [0, 0.6, -0.8]], np.float64)
+
+
+def _ply(path, normals: bool, binary: bool):
+    m = trimesh.Trimesh(_TV, _TF, vertex_normals=_TN if normals else None, process=False)
+    path.write_bytes(m.export(file_type="ply", encoding="binary" if binary else "ascii", vertex_normal=normals))
+
+
+def _obj(path, normals: bool):
+    lines = [f"v {x} {y} {z}" for x, y, z in _TV]
+    if normals:
+        lines += [f"vn {x} {y} {z}" for x, y, z in _TN]
+        lines += ["f " + " ".join(f"{i + 1}//{i + 1}" for i in f) for f in _TF]
+    else:
+        lines += ["f " + " ".join(str(i + 1) for i in f) for f in _TF]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def _gltf(path, normals: bool, rotate_y_deg: float = 0.0):
+    m = trimesh.Trimesh(_TV, _TF, vertex_normals=_TN if normals else None, process=False)
+    s = trimesh.Scene()
+    s.add_geometry(m, transform=trimesh.transformations.rotation_matrix(np.radians(rotate_y_deg), [0, 1, 0]))
+    if path.suffix == ".glb":
+        path.write_bytes(s.export(file_type="glb", include_normals=normals))
+    else:
+        files = s.export(file_type="gltf", include_normals=normals)   # {name: bytes}, buffers beside
+        for name, data in files.items():
+            (path.parent / ("x.gltf" if name.endswith(".gltf") else name)).write_bytes(data)
+
+
+@pytest.mark.parametrize("kind", ["ply-ascii", "ply-binary", "obj", "glb", "gltf", "stl"])
+@pytest.mark.parametrize("with_normals", [True, False])
+def test_every_mesh_format_with_and_without_normals(tmp_path, kind, with_normals):
+    """File normals are used (normalised, copied: trimesh's arrays are read-only) when the file
+    has them; otherwise area-weighted face normals (DESIGN.md §2). A glTF node rotation applies
+    to positions and normals alike."""
+    from worker.scene import area_weighted_normals
+
+    if kind == "stl" and with_normals:
+        pytest.skip("STL stores face normals only")
+    ext = {"ply-ascii": "ply", "ply-binary": "ply"}.get(kind, kind)
+    path = tmp_path / f"x.{ext}"
+    rot = 90.0 if kind in ("glb", "gltf") else 0.0
+    if kind.startswith("ply"):
+        _ply(path, with_normals, kind.endswith("binary"))
+    elif kind == "obj":
+        _obj(path, with_normals)
+    elif kind in ("glb", "gltf"):
+        _gltf(path, with_normals, rot)
+    else:
+        path.write_bytes(trimesh.Trimesh(_TV, _TF, process=False).export(file_type="stl"))
+    m = load_mesh(path)
+    R = trimesh.transformations.rotation_matrix(np.radians(rot), [0, 1, 0])[:3, :3]
+    assert np.all(np.isfinite(m.normals)) and np.allclose(np.linalg.norm(m.normals, axis=1), 1.0, atol=1e-5)
+    if kind == "stl":       # STL repeats vertices per face: compare per position
+        assert len(m.faces) == len(_TF)
+        return
+    assert np.allclose(m.vertices, _TV @ R.T, atol=1e-5), f"{kind}: positions"
+    if with_normals:
+        want = (_TN / np.linalg.norm(_TN, axis=1, keepdims=True)) @ R.T
+    else:
+        want = area_weighted_normals(_TV, _TF) @ R.T
+    assert np.allclose(m.normals, want, atol=1e-4), f"{kind}: normals\n{m.normals}\nwant\n{want}"
+
+
+def test_file_normals_of_zero_length_fall_back(tmp_path):
+    """A file normal of zero length (an exporter's placeholder) gets the area-weighted normal."""
+    from worker.scene import area_weighted_normals
+
+    n = _TN.copy()
+    n[2] = 0.0
+    path = tmp_path / "z.ply"
+    path.write_bytes(trimesh.Trimesh(_TV, _TF, vertex_normals=n, process=False).export(file_type="ply", vertex_normal=True))
+    m = load_mesh(path)
+    assert np.allclose(m.normals[2], area_weighted_normals(_TV, _TF)[2], atol=1e-5)

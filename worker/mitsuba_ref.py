@@ -1,4 +1,5 @@
-"""The same scene in Mitsuba 3 (``scalar_rgb``, ``direct`` integrator): an independent reference.
+"""The same scene in Mitsuba 3 (``scalar_rgb``, ``direct`` integrator, or ``path`` with a
+``max_depth`` for global illumination): an independent reference.
 
 Conventions match DESIGN.md §2 by construction: ``envmap`` with to_world = rotate(+Y, angle),
 ``perspective`` with fov_axis y and look_at(eye, target, up), meshes written as PLY with our
@@ -6,6 +7,7 @@ vertex normals so both renderers shade the same surface. Materials: ``lambert`` 
 ``ggx`` → ``roughconductor`` (distribution ggx, material none, specular_reflectance), with a
 diffuse part added through ``blendbsdf`` ((1 − w)·diffuse(a/(1 − w)) + w·conductor(s/w) = a + s,
 with w = max s / (max s + max a) so both scaled reflectances stay within Mitsuba's [0, 1]).
+``two_sided`` wraps every BSDF in ``twosided`` (the GI renderer shades both sides of a surface).
 Requires the optional dependency ``mitsuba`` (``pip install glint-studio[mitsuba]``).
 """
 from __future__ import annotations
@@ -36,8 +38,11 @@ def _bsdf(m):
     raise NotImplementedError(f"no Mitsuba equivalent wired for {type(m).__name__}")
 
 
-def render_mitsuba(scene: LoadedScene, spp: int = 256, seed: int = 0, rotation_deg: float | None = None) -> np.ndarray:
-    """(H, W, 3) float32 linear radiance rendered by Mitsuba 3 for the loaded scene."""
+def render_mitsuba(scene: LoadedScene, spp: int = 256, seed: int = 0, rotation_deg: float | None = None,
+                   integrator: str = "direct", max_depth: int | None = None, two_sided: bool = False) -> np.ndarray:
+    """(H, W, 3) float32 linear radiance rendered by Mitsuba 3 for the loaded scene.
+
+    integrator "path" with max_depth = bounces + 1 renders up to that many bounces."""
     import mitsuba as mi
     import trimesh
 
@@ -48,7 +53,7 @@ def render_mitsuba(scene: LoadedScene, spp: int = 256, seed: int = 0, rotation_d
     rot = env.rotation_deg if rotation_deg is None else rotation_deg
     with tempfile.TemporaryDirectory() as tmp:
         d = {"type": "scene",
-             "integrator": {"type": "direct"},
+             "integrator": {"type": integrator, **({"max_depth": int(max_depth)} if max_depth is not None else {})},
              "sensor": {"type": "perspective", "fov": cam.fov_y_deg, "fov_axis": "y",
                         "to_world": mi.ScalarTransform4f().look_at(origin=list(cam.eye), target=list(cam.target), up=list(cam.up)),
                         "sampler": {"type": "independent", "sample_count": spp, "seed": seed},
@@ -66,7 +71,10 @@ def render_mitsuba(scene: LoadedScene, spp: int = 256, seed: int = 0, rotation_d
             tm = trimesh.Trimesh(mesh.vertices[used], remap[faces], vertex_normals=mesh.normals[used], process=False)
             path = Path(tmp) / f"obj{i}.ply"
             path.write_bytes(trimesh.exchange.ply.export_ply(tm, include_attributes=False, vertex_normal=True))
-            d[f"obj{i}"] = {"type": "ply", "filename": str(path), "face_normals": False, "bsdf": _bsdf(o.material)}
+            bsdf = _bsdf(o.material)
+            if two_sided:
+                bsdf = {"type": "twosided", "bsdf": bsdf}
+            d[f"obj{i}"] = {"type": "ply", "filename": str(path), "face_normals": False, "bsdf": bsdf}
         sc = mi.load_dict(d)
         img = mi.render(sc)
     return np.asarray(img, dtype=np.float32)[..., :3]

@@ -6,16 +6,15 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated, Literal, Union
+from typing import Any, Literal
 
 import numpy as np
-from pydantic import AliasChoices, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from .envmap import load_envmap
 from .errors import GlintError
-
-Vec3 = tuple[float, float, float]
-Color = Annotated[tuple[float, float, float], Field(description="linear RGB")]
+from .models import (GGX, SRBF, BlinnPhong, BRDFModel, Color, Curve, Lambert, Lobes, Material,  # noqa: F401
+                     Vec3, parse_material)
 
 
 class SceneError(GlintError):
@@ -24,99 +23,6 @@ class SceneError(GlintError):
 
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid")
-
-
-class Lambert(_Strict):
-    model: Literal["lambert"] = "lambert"
-    albedo: Color = (0.5, 0.5, 0.5)
-
-
-class GGX(_Strict):
-    """albedo/π + specular·D·G/(4 cosθi cosθo); Mitsuba roughconductor, material none."""
-    model: Literal["ggx"] = "ggx"
-    alpha: float = Field(0.25, gt=0.0, le=2.0)
-    specular: Color = (1.0, 1.0, 1.0)
-    albedo: Color = (0.0, 0.0, 0.0)
-
-
-class BlinnPhong(_Strict):
-    """albedo/π + specular·(e+8)/(8π)·cos^e θh (normalised Blinn-Phong)."""
-    model: Literal["blinn-phong"] = "blinn-phong"
-    exponent: float = Field(50.0, ge=0.0, le=1e5)
-    specular: Color = (0.04, 0.04, 0.04)
-    albedo: Color = (0.5, 0.5, 0.5)
-
-
-class SRBF(_Strict):
-    """Distribution-based BRDF (inverse-brdf-modeling eq. 11-12).
-
-    albedo/π + p(h)·s(ωi, ωo), with p(h) = Σ_j c_j exp(λ_j (h·ξ_j − 1)) per RGB channel, h in
-    the local frame (z = normal), and the static function s chosen by ``static``:
-
-    * ``paper`` (the default, and what files without the field mean):
-      F(ωi·h)/(cosθi + cosθo − cosθi cosθo), eq. 11 (Ashikhmin's distribution-based BRDF);
-    * ``smith``: F(ωi·h)·G1(ωi)G1(ωo)/(4 cosθi cosθo), the microfacet form with separable Smith
-      shadowing of a GGX surface of roughness ``static_alpha``; p = D makes it a microfacet BRDF
-      (p = specular·D_GGX(α) with α = static_alpha is exactly the ``ggx`` model).
-
-    F is Schlick's approximation with F0 = fresnel_f0. λ_j is ``bandwidths[j]`` when given (a
-    multi-scale basis), else ``bandwidth`` for every centre.
-    """
-    model: Literal["srbf"] = "srbf"
-    centers: list[Vec3] = Field(min_length=1, description="SRBF centres ξ_j, unit vectors, local frame")
-    bandwidth: float = Field(gt=0.0, description="λ (of every centre unless bandwidths is given)")
-    coefficients: list[Color] = Field(min_length=1, description="c_j per RGB channel, ≥ 0 when physical")
-    fresnel_f0: float = Field(1.0, ge=0.0, le=1.0)
-    albedo: Color = (0.0, 0.0, 0.0)
-    bandwidths: list[Annotated[float, Field(gt=0.0)]] | None = Field(
-        None, description="λ_j per centre (multi-scale basis); overrides bandwidth")
-    static: Literal["paper", "smith"] = Field("paper", description="static function s(ωi, ωo), see the class doc")
-    static_alpha: float = Field(0.1, gt=0.0, le=1.0, description="GGX roughness of the smith static's shadowing")
-
-    @field_validator("coefficients")
-    @classmethod
-    def _same_length(cls, v, info):
-        c = info.data.get("centers")
-        if c is not None and len(c) != len(v):
-            raise ValueError(f"{len(v)} coefficient rows for {len(c)} centres")
-        return v
-
-    @field_validator("bandwidths")
-    @classmethod
-    def _one_per_centre(cls, v, info):
-        c = info.data.get("centers")
-        if v is not None and c is not None and len(c) != len(v):
-            raise ValueError(f"{len(v)} bandwidths for {len(c)} centres")
-        return v
-
-    def lambdas(self) -> list[float]:
-        """λ_j of every centre."""
-        return list(self.bandwidths) if self.bandwidths is not None else [self.bandwidth] * len(self.centers)
-
-
-class Lobes(_Strict):
-    """Cosine lobes with fixed exponents (cacad-cosine-lobes eq. 1-3), in reciprocal form:
-    albedo/π + Σ_i (gloss_i + dd_i) (E_i+2)/(2π) max(0, r·ωo)^E_i, r = reflect(ωi, n).
-    gloss weights are achromatic (first-surface), directional-diffuse weights are RGB.
-    ``albedo`` is the diffuse weight (named like every model's; files may still say ``diffuse``)."""
-    model_config = ConfigDict(extra="forbid", populate_by_name=True)
-    model: Literal["lobes"] = "lobes"
-    exponents: list[float] = Field(min_length=1, max_length=16)
-    gloss: list[float]
-    directional_diffuse: list[Color]
-    albedo: Color = Field((0.3, 0.3, 0.3), validation_alias=AliasChoices("albedo", "diffuse"))
-
-
-class Curve(_Strict):
-    """Quotient model over a 1D half-angle curve (box basis over θh ∈ [0, π/2]):
-    albedo/π + p(θh)·F(ωi·h)/(cosθi + cosθo − cosθi cosθo), p piecewise constant."""
-    model: Literal["curve"] = "curve"
-    values: list[Color] = Field(min_length=1, max_length=1024)
-    fresnel_f0: float = Field(1.0, ge=0.0, le=1.0)
-    albedo: Color = (0.0, 0.0, 0.0)
-
-
-Material = Annotated[Union[Lambert, GGX, BlinnPhong, SRBF, Lobes, Curve], Field(discriminator="model")]
 
 
 class Transform(_Strict):
@@ -172,15 +78,71 @@ class Camera(_Strict):
 class SceneObject(_Strict):
     name: str = Field(min_length=1)
     mesh: str
-    transform: Transform = Transform()
-    material: Material = Lambert()
+    transform: Transform = Field(default_factory=Transform)
+    material: Material = Field(default_factory=Lambert)
+    # GI renderer (polynomial-gi §5.3): false bakes this material into the precomputation
+    editable: bool = True
+    # cut renderer (cyber-worlds §V): true precomputes a visibility cut field for the object, so
+    # it can be moved without precomputing again
+    movable: bool = False
+
+
+class Ground(_Strict):
+    """An invisible shadow-catcher ground plane under the objects (issue 16): it darkens the
+    background where the objects occlude the environment from it, by the ratio of occluded to
+    open-sky irradiance (worker/renderers/cuts/ground.py). ``shadow`` is the default a renderer
+    option (and the studio and viewer toggle) can override; ``intensity`` k blends the darkening
+    (1 − k(1 − ratio), as model-viewer's shadow-intensity); ``height`` is the plane's world y
+    (default: the scene's lowest vertex)."""
+    shadow: bool = True
+    intensity: float = Field(1.0, ge=0.0, le=1.0)
+    height: float | None = None
+
+class FieldGridSettings(_Strict):
+    """Sampling of the visibility cut fields of a scene with movable objects (cyber-worlds §V;
+    worker/renderers/cuts/grid.py GridSpec, whose defaults BENCHMARKS.md justifies): ``shells``
+    concentric spheres, ``face`` cube-face cells per side, radii from ``rho_min`` to ``rho_max``
+    bounding radii. Coarser grids trace faster and blur shadows of moved objects more."""
+    shells: int = Field(24, ge=2, le=64)
+    face: int = Field(24, ge=1, le=64)
+    rho_min: float = Field(0.25, gt=0.0)
+    rho_max: float = Field(8.0, gt=0.0)
+
+    @model_validator(mode="after")
+    def _order(self):
+        if not self.rho_min < self.rho_max:
+            raise ValueError("rho_min must be below rho_max")
+        return self
+
+
+class CutSettings(_Strict):
+    """The cut renderer's settings (optional): the field grid of movable objects."""
+    field_grid: FieldGridSettings | None = None
 
 
 class SceneFile(_Strict):
     version: Literal[1] = 1
+    renderer: str = Field("cuts", description="how the scene is drawn: cuts (direct light, default), "
+                                              "or another registered renderer (worker/renderers)")
     environment: Environment
     camera: Camera
     objects: list[SceneObject] = Field(min_length=1)
+    # a renderer's settings, under its name: the GI renderer's (validated by
+    # worker/renderers/gi/options.py), the paint renderer's (e.g. {"visibility": true})
+    gi: dict[str, Any] | None = None
+    paint: dict[str, Any] | None = None
+    cuts: CutSettings | None = None
+
+    ground: Ground | None = Field(None, description="optional shadow-catcher ground plane (precomputed with the cuts)")
+
+    @field_validator("renderer")
+    @classmethod
+    def _known_renderer(cls, v):
+        from .renderers import kinds
+
+        if v not in kinds():
+            raise ValueError(f"unknown renderer {v!r} (known: {', '.join(kinds())})")
+        return v
 
     @field_validator("objects")
     @classmethod
@@ -233,11 +195,55 @@ def area_weighted_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray
     return n
 
 
+def normals_in_file(path: Path) -> bool:
+    """Whether a mesh file stores vertex normals: PLY ``property … nx``, OBJ ``vn`` lines, glTF
+    ``NORMAL`` attributes. Read from the file itself because trimesh computes normals on demand
+    and exposes no public flag for "came from the file"."""
+    import json
+    import mmap
+    import re
+    import struct
+
+    suf = path.suffix.lower()
+    with open(path, "rb") as f:
+        if suf == ".ply":
+            head = f.read(65536)
+            head = head[: head.find(b"end_header")] if b"end_header" in head else head
+            return re.search(rb"^property\s+\S+\s+nx\s*$", head, re.M) is not None
+        if suf == ".obj":
+            if path.stat().st_size == 0:
+                return False
+            with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+                return re.search(rb"(?:^|\n)[ \t]*vn[ \t]", mm) is not None
+        if suf in (".glb", ".gltf"):
+            data = f.read()
+            try:
+                if suf == ".glb":
+                    n = struct.unpack_from("<I", data, 12)[0]
+                    doc = json.loads(data[20:20 + n])
+                else:
+                    doc = json.loads(data)
+            except (struct.error, ValueError):
+                return False
+            return any("NORMAL" in (pr.get("attributes") or {})
+                       for m in doc.get("meshes", []) for pr in m.get("primitives", []))
+    return False
+
+
+def _unit_or(n: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    """Normalise rows of n (V, 3); rows of zero or non-finite length take the fallback's."""
+    n = np.array(n, dtype=np.float64)            # a writable copy: trimesh's arrays are read-only
+    ln = np.linalg.norm(n, axis=1, keepdims=True)
+    ok = np.isfinite(ln) & (ln > 1e-12)
+    return np.where(ok, n / np.where(ok, ln, 1.0), fallback)
+
+
 def load_mesh(path: str | Path, transform: Transform | None = None) -> Mesh:
     """Load OBJ (all groups), PLY, GLB/GLTF or STL through trimesh, apply the transform.
 
     Vertex normals come from the file when present (OBJ `vn`, PLY nx/ny/nz, glTF NORMAL),
-    otherwise they are area-weighted face normals (DESIGN.md §2).
+    otherwise they are area-weighted face normals (DESIGN.md §2). A glTF scene's node
+    transforms apply to positions and (inverse-transposed) to its normals.
     """
     import trimesh
 
@@ -246,34 +252,37 @@ def load_mesh(path: str | Path, transform: Transform | None = None) -> Mesh:
         raise SceneError(f"{path}: mesh file not found")
     try:
         loaded = trimesh.load(str(path), process=False, skip_materials=True)
+        has_n = normals_in_file(path)
     except Exception as e:
         raise SceneError(f"{path}: not a readable mesh ({type(e).__name__}: {e})") from None
-    geoms = list(loaded.dump()) if isinstance(loaded, trimesh.Scene) else [loaded]
-    geoms = [g for g in geoms if isinstance(g, trimesh.Trimesh) and len(g.faces)]
-    if not geoms:
+    if isinstance(loaded, trimesh.Scene):
+        # walk the graph rather than Scene.dump(): dump copies geometry without the file's normals
+        placed = [(loaded.geometry[name], np.asarray(T, np.float64))
+                  for T, name in (loaded.graph[node] for node in loaded.graph.nodes_geometry)]
+    else:
+        placed = [(loaded, np.eye(4))]
+    placed = [(g, T) for g, T in placed if isinstance(g, trimesh.Trimesh) and len(g.faces)]
+    if not placed:
         raise SceneError(f"{path}: contains no triangles")
     verts, faces, normals, base = [], [], [], 0
-    for g in geoms:
+    for g, T in placed:
         v = np.asarray(g.vertices, dtype=np.float64)
         f = np.asarray(g.faces, dtype=np.int64)
-        # trimesh keeps file normals in its cache; only then are they "present"
-        file_n = g._cache.cache.get("vertex_normals") if hasattr(g, "_cache") else None
-        if file_n is not None and np.shape(file_n) == v.shape:
-            n = np.asarray(file_n, dtype=np.float64)
-            n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
-        else:
-            n = area_weighted_normals(v, f)
+        if len(f) and (f.min() < 0 or f.max() >= len(v)):
+            raise SceneError(f"{path}: face indices out of range")
+        aw = area_weighted_normals(v, f)
+        n = _unit_or(g.vertex_normals, aw) if has_n and len(g.vertex_normals) == len(v) else aw
+        if not np.allclose(T, np.eye(4)):
+            v = v @ T[:3, :3].T + T[:3, 3]
+            n = _unit_or(n @ np.linalg.inv(T[:3, :3]), area_weighted_normals(v, f))
         verts.append(v); faces.append(f + base); normals.append(n); base += len(v)
     v = np.concatenate(verts); f = np.concatenate(faces); n = np.concatenate(normals)
     if not np.isfinite(v).all():
         raise SceneError(f"{path}: vertex coordinates contain NaN or infinity")
-    if f.min() < 0 or f.max() >= len(v):
-        raise SceneError(f"{path}: face indices out of range")
     if transform is not None:
         m = transform.matrix()
         v = v @ m[:3, :3].T + m[:3, 3]
-        n = n @ np.linalg.inv(m[:3, :3])  # inverse transpose for normals
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+        n = _unit_or(n @ np.linalg.inv(m[:3, :3]), area_weighted_normals(v, f))  # inverse transpose
     return Mesh(v, f, n)
 
 

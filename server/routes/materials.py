@@ -3,7 +3,7 @@ deleting archives the design (its versions stay readable)."""
 from __future__ import annotations
 
 from fastapi import APIRouter, HTTPException, Query
-from sqlalchemy import select
+from sqlalchemy import select, update
 
 from ..db import MaterialDesign, MaterialVersion, latest_version
 from ..deps import DB, Client
@@ -25,6 +25,11 @@ def _design(db, material_id: str) -> MaterialDesign:
 
 
 def add_version(db, d: MaterialDesign, body: dict, note: str = "") -> MaterialVersion:
+    # lock the design until commit, so that concurrent saves (sessions, REST) number their versions
+    # one after the other: a no-op UPDATE takes the row lock on PostgreSQL and the write lock on
+    # SQLite, whose driver runs the reads before a transaction's first write outside it
+    db.execute(update(MaterialDesign).where(MaterialDesign.id == d.id).values(archived=MaterialDesign.archived)
+               .execution_options(synchronize_session=False))
     cur = latest_version(db, d.id)
     v = MaterialVersion(design_id=d.id, version=(cur.version + 1) if cur else 1, body=body, note=note)
     db.add(v)

@@ -4,12 +4,14 @@ viewer session is read-only: it can turn the object, switch variants and presets
 else, so a shopper cannot change a saved design."""
 from __future__ import annotations
 
-from fastapi import APIRouter, HTTPException
+from fastapi import APIRouter, HTTPException, Request
 from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy import select
 
 from ..db import Asset, MaterialDesign, MaterialVersion, Publication, Scene, Session, latest_version, new_secret, token_hash
-from ..deps import DB, Client, State
+from worker.jobs.state import EnvironmentMsg, VariantMsg, apply, new_state
+
+from ..deps import DB, Client, State, client_key
 from ..schemas import SessionOut
 from ..state import Conflict, NotFound
 
@@ -95,7 +97,7 @@ def get_publication(pub_id: str, db: DB):
 
 
 @router.post("/{pub_id}/sessions", response_model=SessionOut, status_code=201)
-def open_viewer(pub_id: str, st: State, db: DB):
+def open_viewer(pub_id: str, request: Request, st: State, db: DB):
     """A read-only session showing variant 0 under environment preset 0 (public)."""
     p = db.get(Publication, pub_id)
     if p is None:
@@ -105,19 +107,19 @@ def open_viewer(pub_id: str, st: State, db: DB):
     except (Conflict, NotFound) as e:
         raise HTTPException(409, str(e)) from None
     sc = db.get(Scene, p.scene_id)
-    names = [o["name"] for o in sc.spec["objects"]]
-    mats = [o["material"] for o in sc.spec["objects"]]
-    mats[names.index(p.object)] = p.variants[0]["material"]
     envs = []
     for e in p.environments:
         a = db.get(Asset, e["asset_id"])
         envs.append({"label": e["label"], "sha256": a.sha256, "filename": a.filename, "rotation_deg": e["rotation_deg"]})
+    variants = [{"label": v["label"], "material": v["material"]} for v in p.variants]
+    state = new_state(sc.spec, p.object, readonly=True, publication=p.id, variants=variants, environments=envs,
+                      quality=80)
+    state, _ = apply(state, VariantMsg(seq=0, index=0))
+    state, _ = apply(state, EnvironmentMsg(seq=0, index=0))
+    state.last_seq = -1
     token = new_secret()
-    row = Session(scene_id=sc.id, token_sha256=token_hash(token), state={
-        "object": p.object, "camera": sc.spec["camera"], "rotation_deg": p.environments[0]["rotation_deg"],
-        "intensity": sc.spec["environment"]["intensity"], "materials": mats, "base_material": mats[names.index(p.object)],
-        "epoch": 0, "last_seq": -1, "readonly": True, "publication": p.id, "variant": 0,
-        "environments": envs, "environment_index": 0, "quality": 80})
+    row = Session(scene_id=sc.id, token_sha256=token_hash(token), state=state.model_dump(mode="json"),
+                  client=client_key("anonymous", request))
     db.add(row)
     db.commit()
     return SessionOut(id=row.id, token=token, scene_id=sc.id, stream=f"/v1/sessions/{row.id}/stream", state=row.state)

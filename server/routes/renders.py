@@ -30,8 +30,13 @@ async def run(st, job: dict) -> dict:
         raise HTTPException(e.status if 400 <= e.status < 600 else 500, str(e)) from None
 
 
-@router.post("/v1/renders", responses={200: {"content": {"image/png": {}, "image/x-exr": {}}}},
-             response_class=Response)
+BINARY = {"schema": {"type": "string", "format": "binary"}}
+
+
+@router.post("/v1/renders", response_class=Response,
+             responses={200: {"description": "the image: PNG (tone-mapped sRGB), or with format exr an OpenEXR "
+                                             "file of linear radiance (Content-Type image/x-exr)",
+                              "content": {"image/png": BINARY, "image/x-exr": BINARY}}})
 async def render(req: RenderRequest, st: State, _: Client):
     """Render the scene (PNG, tone-mapped; or linear EXR with ``format: exr``)."""
     scene = await run_in_threadpool(payload_or_http, st, req.scene_id)

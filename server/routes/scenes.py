@@ -9,10 +9,11 @@ from fastapi import APIRouter, Body, HTTPException, Query
 from fastapi.concurrency import run_in_threadpool
 from sqlalchemy import select
 
+from worker.scene import SceneFile
+
 from ..db import Asset, Precomputation, Scene
 from ..deps import DB, Client, State
 from ..schemas import PrecomputationOut, SceneOut
-from ..workers import JobFailed
 
 router = APIRouter(tags=["scenes"])
 log = logging.getLogger("glint")
@@ -21,7 +22,7 @@ log = logging.getLogger("glint")
 def pre_out(p: Precomputation | None) -> PrecomputationOut | None:
     if p is None:
         return None
-    return PrecomputationOut(id=p.id, scene_id=p.scene_id, status=p.status, progress=p.progress, message=p.message,
+    return PrecomputationOut(id=p.id, scene_id=p.scene_id, kind=p.kind or "cuts", status=p.status, progress=p.progress, message=p.message,
                              stats=p.stats or {}, created=p.created, updated=p.updated)
 
 
@@ -30,14 +31,17 @@ def scene_out(st, s, sc: Scene) -> SceneOut:
                     precomputation=pre_out(st.latest_precomputation(s, sc.id)))
 
 
-def validate_scene(s, body: dict) -> dict:
+def validate_scene(s, body) -> dict:
     """Scene file v1 with asset ids: the schema, then every referenced asset and its kind."""
-    from worker.scene import SceneError, parse_scene
+    from worker.scene import SceneError, SceneFile, parse_scene
 
-    try:
-        spec = parse_scene(body, "scene")
-    except SceneError as e:
-        raise HTTPException(422, str(e)) from None
+    if isinstance(body, SceneFile):
+        spec = body
+    else:
+        try:
+            spec = parse_scene(body, "scene")
+        except SceneError as e:
+            raise HTTPException(422, str(e)) from None
     refs = [("environment.map", spec.environment.map, "envmap")]
     refs += [(f"objects[{i}].mesh", o.mesh, "mesh") for i, o in enumerate(spec.objects)]
     for where, ref, kind in refs:
@@ -53,7 +57,8 @@ def validate_scene(s, body: dict) -> dict:
 
 
 @router.post("/v1/scenes", response_model=SceneOut, status_code=201)
-def create_scene(st: State, db: DB, _: Client, body: dict = Body(..., description="scene file v1 (DESIGN.md §3) with asset ids"),
+def create_scene(st: State, db: DB, _: Client,
+                 body: SceneFile = Body(..., description="scene file v1 (DESIGN.md §3) whose mesh and map fields are asset ids"),
                  name: str = Query("", max_length=200)):
     spec = validate_scene(db, body)
     sc = Scene(name=name, spec=spec)
@@ -75,8 +80,9 @@ def get_scene(scene_id: str, st: State, db: DB, _: Client):
     return scene_out(st, db, sc)
 
 
-async def run_precompute(st, pre_id: str) -> None:
-    """Background task: the precompute job in a worker, progress written to the database."""
+async def run_precompute(st, pre_id: str, on_progress=None) -> bool:
+    """Background task: the precompute job in a worker, progress written to the database.
+    Returns whether it finished."""
     def update(**kw):
         with st.db() as s, s.begin():
             p = s.get(Precomputation, pre_id)
@@ -86,6 +92,8 @@ async def run_precompute(st, pre_id: str) -> None:
     last = [0.0, 0.0]
 
     def progress(f, msg):
+        if on_progress is not None:
+            on_progress(f, msg)
         if f - last[0] >= 0.02 or f >= 1.0:
             last[0] = f
             update(progress=float(f), message=msg, status="running")
@@ -96,15 +104,20 @@ async def run_precompute(st, pre_id: str) -> None:
     try:
         with st.db() as s:
             sid = s.get(Precomputation, pre_id).scene_id
-            payload = st.scene_payload(s, sid, need_cuts=False)
-        await run_in_threadpool(update, status="running", message="tracing visibility")
+            payload = st.scene_payload(s, sid, need_parts=False)
+        await run_in_threadpool(update, status="running", message="starting")
         res = await st.pool.run_job({"type": "precompute", "scene": payload}, on_progress=progress)
-        await run_in_threadpool(update, status="done", progress=1.0, message="done", cuts_sha256=res["cuts_sha256"],
-                                stats=res["stats"])
+        await run_in_threadpool(update, status="done", progress=1.0, message="done", kind=res["kind"],
+                                parts=res["parts"], stats=res["stats"])
         log.info("precomputation %s done: %s", pre_id, res["stats"].get("seconds"))
-    except (JobFailed, Exception) as e:
+        return True
+    except asyncio.CancelledError:
+        await run_in_threadpool(update, status="failed", message="cancelled: the server stopped; start it again")
+        raise
+    except Exception as e:
         log.error("precomputation %s failed: %s", pre_id, e)
         await run_in_threadpool(update, status="failed", message=str(e)[:1000])
+        return False
     finally:
         st.precompute_tasks.pop(pre_id, None)
 
@@ -115,11 +128,12 @@ async def start_precompute(scene_id: str, st: State, _: Client):
         with st.db() as s, s.begin():
             if s.get(Scene, scene_id) is None:
                 raise HTTPException(404, f"no scene {scene_id!r}")
-            cur = st.latest_precomputation(s, scene_id)
+            kind = s.get(Scene, scene_id).spec.get("renderer", "cuts")
+            cur = st.latest_precomputation(s, scene_id, kind=kind)
             if cur is not None and cur.status in ("queued", "running", "done") and \
                     (cur.status == "done" or cur.id in st.precompute_tasks):
                 return cur, False
-            p = Precomputation(scene_id=scene_id, status="queued")
+            p = Precomputation(scene_id=scene_id, status="queued", kind=kind)
             s.add(p)
             s.flush()
             return p, True

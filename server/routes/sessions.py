@@ -1,31 +1,39 @@
 """Interactive sessions: created over REST (id and secret token), streamed over a WebSocket
-(DESIGN.md §5). Every client message is validated, persisted, then forwarded to the worker
-holding the session, so a worker crash loses nothing: the pool re-opens the session from here.
+(DESIGN.md §5). Every client message is validated and applied to the stored state by the same
+``apply`` the worker renders with (worker/jobs/state.py), persisted, then forwarded to the
+worker holding the session, so a worker crash loses nothing: the pool re-opens the session from
+here.
+
+The stream's first message authenticates it: ``{"type": "auth", "token": …}`` (a token in the
+URL, ``?token=``, is still accepted but is kept out of the access log). Streams are bounded per
+client and in total, and closed when idle.
 """
 from __future__ import annotations
 
 import asyncio
+import datetime as dt
 import hmac
 import json
 import logging
+import threading
 
-from fastapi import APIRouter, Header, HTTPException, Query, WebSocket, WebSocketDisconnect
+from fastapi import APIRouter, Header, HTTPException, Query, Request, WebSocket, WebSocketDisconnect
 from fastapi.concurrency import run_in_threadpool
 from pydantic import ValidationError
 from sqlalchemy import select
 
-from worker.jobs.protocol import READONLY_TYPES, client_msg
-from worker.jobs.session import encode_frame
-from worker.scene import Camera
+from worker.jobs.state import (EnvPreset, ErrorEvent, HelloEvent, SavedEvent, SessionState, StateError, apply,
+                               client_msg, encode_frame, new_state, restore_state)
 
-from ..db import MaterialDesign, Publication, Scene, Session, StrokeRow, new_secret, token_hash
-from ..deps import DB, Client, State
+from ..db import Asset, MaterialDesign, Scene, Session, SessionSave, StrokeRow, new_secret, now, token_hash
+from ..deps import DB, Client, State, check_host, check_origin, client_key
 from ..schemas import SessionCreate, SessionOut
 from ..state import Conflict, NotFound
 from .materials import add_version
 
 router = APIRouter(prefix="/v1/sessions", tags=["sessions"])
 log = logging.getLogger("glint")
+AUTH_SECONDS = 10.0      # a stream must authenticate within this
 
 
 def _stream_url(sid: str) -> str:
@@ -34,11 +42,12 @@ def _stream_url(sid: str) -> str:
 
 def _strokes(db, row: Session) -> list[dict]:
     rows = db.scalars(select(StrokeRow).where(StrokeRow.session_id == row.id).order_by(StrokeRow.id))
-    return [{"seq": r.seq, "epoch": r.epoch, "undone": r.undone, "dropped": r.dropped, **r.body} for r in rows]
+    return [{"seq": r.seq, "epoch": r.epoch, "undone": r.undone, "dropped": r.dropped, "rejected": r.rejected,
+             **r.body} for r in rows]
 
 
 @router.post("", response_model=SessionOut, status_code=201)
-def create_session(req: SessionCreate, st: State, db: DB, _: Client):
+def create_session(req: SessionCreate, request: Request, st: State, db: DB, client: Client):
     sc = db.get(Scene, req.scene_id)
     if sc is None:
         raise HTTPException(404, f"no scene {req.scene_id!r}")
@@ -48,24 +57,16 @@ def create_session(req: SessionCreate, st: State, db: DB, _: Client):
         raise HTTPException(409, str(e)) from None
     except NotFound as e:
         raise HTTPException(404, str(e)) from None
-    names = [o["name"] for o in sc.spec["objects"]]
-    obj = req.object or names[0]
-    if obj not in names:
-        raise HTTPException(422, f"object: no object {obj!r} (objects: {', '.join(names)})")
-    cam = (req.camera.model_dump(mode="json") if req.camera else sc.spec["camera"])
+    try:
+        state = new_state(sc.spec, req.object, req.camera.model_dump(mode="json") if req.camera else None)
+    except StateError as e:
+        raise HTTPException(422, str(e)) from None
     token = new_secret()
-    row = Session(scene_id=sc.id, token_sha256=token_hash(token), state={
-        "object": obj, "camera": cam, "rotation_deg": sc.spec["environment"]["rotation_deg"],
-        "intensity": sc.spec["environment"]["intensity"], "materials": [o["material"] for o in sc.spec["objects"]],
-        "base_material": sc.spec["objects"][names.index(obj)]["material"], "epoch": 0, "last_seq": -1})
+    row = Session(scene_id=sc.id, token_sha256=token_hash(token), state=state.model_dump(mode="json"),
+                  client=client_key(client, request))
     db.add(row)
     db.commit()
     return SessionOut(id=row.id, token=token, scene_id=sc.id, stream=_stream_url(row.id), state=row.state)
-
-
-def _object_names(s, row: Session) -> list[str]:
-    """Object names of the session's scene, in the order of state["materials"]."""
-    return [o["name"] for o in s.get(Scene, row.scene_id).spec["objects"]]
 
 
 def _authorised(row: Session | None, token: str | None) -> bool:
@@ -73,14 +74,15 @@ def _authorised(row: Session | None, token: str | None) -> bool:
 
 
 @router.get("/{sid}", response_model=SessionOut)
-def get_session(sid: str, st: State, db: DB, x_session_token: str | None = Header(None), token: str | None = Query(None)):
+def get_session(sid: str, st: State, db: DB, x_session_token: str | None = Header(None)):
     row = db.get(Session, sid)
     if row is None:
         raise HTTPException(404, f"no session {sid!r}")
-    if not _authorised(row, x_session_token or token):
-        raise HTTPException(403, "wrong or missing session token (X-Session-Token header or ?token=)")
+    if not _authorised(row, x_session_token):
+        raise HTTPException(403, "wrong or missing session token (X-Session-Token header)")
     return SessionOut(id=row.id, scene_id=row.scene_id, stream=_stream_url(sid), state=row.state,
-                      strokes=_strokes(db, row), worker_pid=st.pool.worker_of(sid) if hasattr(st.pool, "worker_of") else None)
+                      strokes=_strokes(db, row), closed=row.closed,
+                      worker_pid=st.pool.worker_of(sid) if hasattr(st.pool, "worker_of") else None)
 
 
 @router.delete("/{sid}", status_code=204)
@@ -94,177 +96,281 @@ def close_session(sid: str, st: State, db: DB, x_session_token: str | None = Hea
 
 
 # -- persistence of client messages ---------------------------------------------------------------
+_locks: dict[str, threading.Lock] = {}
+_locks_guard = threading.Lock()
+
+
+def _lock(sid: str) -> threading.Lock:
+    """Read-modify-write of a session's state is serialised per session (the client's messages
+    and the worker's events arrive on different threads); the row is also locked FOR UPDATE
+    where the database supports it (PostgreSQL)."""
+    with _locks_guard:
+        lk = _locks.get(sid)
+        if lk is None:
+            if len(_locks) > 10_000:
+                _locks.clear()
+            lk = _locks[sid] = threading.Lock()
+        return lk
+
+
+def _row(s, sid: str) -> Session | None:
+    return s.get(Session, sid, with_for_update=True)
+
+
+def _load_state(s, row: Session) -> SessionState:
+    state, _ = restore_state(row.state, s.get(Scene, row.scene_id).spec)
+    return state
+
+
 def persist(st, sid: str, msg) -> tuple[dict | None, dict | None]:
-    """Record a validated message before the worker sees it. Returns (error event, None) when
-    the message cannot apply (nothing is stored or forwarded), else (None, message to forward)."""
-    with st.db() as s, s.begin():
-        row = s.get(Session, sid)
-        state = dict(row.state)
-        epoch = state.get("epoch", 0)
-        t = msg.type
-        fwd = msg.model_dump(mode="json")
-        if state.get("readonly") and t not in READONLY_TYPES:
-            return {"type": "error", "seq": msg.seq, "message": f"{t}: this is a read-only viewer session"}, None
-        if t in ("variant", "environment") and not state.get("readonly"):
-            return {"type": "error", "seq": msg.seq, "message": f"{t}: only viewer sessions have published {t}s"}, None
-        if t == "variant":
-            pub = s.get(Publication, state["publication"])
-            if not msg.index < len(pub.variants):
-                return {"type": "error", "seq": msg.seq, "message": f"variant: no variant {msg.index}"}, None
-            names = _object_names(s, row)
-            mats = list(state["materials"])
-            mats[names.index(state["object"])] = pub.variants[msg.index]["material"]
-            state.update(materials=mats, variant=msg.index)
-            # the worker gets the published material, never one from the client
-            fwd = {"seq": msg.seq, "type": "material", "material": pub.variants[msg.index]["material"]}
-        elif t == "environment":
-            if not msg.index < len(state.get("environments", [])):
-                return {"type": "error", "seq": msg.seq, "message": f"environment: no preset {msg.index}"}, None
-            state["environment_index"] = msg.index
-            state["rotation_deg"] = state["environments"][msg.index]["rotation_deg"]
-        elif t == "view":
-            upd = {k: v for k, v in msg.model_dump(mode="json").items()
-                   if k in ("eye", "target", "up", "fov_y_deg") and v is not None}
-            try:
-                state["camera"] = Camera.model_validate({**state["camera"], **upd}).model_dump(mode="json")
-            except ValidationError as e:
-                return {"type": "error", "seq": msg.seq, "message": f"view: {e.errors()[0]['msg']}"}, None
-        elif t == "light":
-            if msg.rotation_deg is not None:
-                state["rotation_deg"] = msg.rotation_deg
-            if msg.intensity is not None:
-                state["intensity"] = msg.intensity
-        elif t == "material":
-            names = _object_names(s, row)
-            name = msg.object or state["object"]
-            if name not in names:
-                return {"type": "error", "seq": msg.seq, "message": f"material: no object {name!r}"}, None
-            mats = list(state["materials"])
-            mats[names.index(name)] = msg.material.model_dump(mode="json")
-            state["materials"] = mats
-            if name == state["object"]:
-                state["base_material"] = mats[names.index(name)]
-                state["epoch"] = epoch + 1
-        elif t == "stroke":
+    """Apply a validated message to the stored state and record it before the worker sees it.
+    Returns (error event, None) when it cannot apply (nothing is stored or forwarded), else
+    (None, the message to forward)."""
+    with _lock(sid), st.db() as s, s.begin():
+        row = _row(s, sid)
+        before = _load_state(s, row)
+        if msg.type == "environment" and msg.asset_id is not None:
+            # an uploaded map (e.g. a capture): the stored file goes into the state as a preset
+            a = s.get(Asset, msg.asset_id)
+            if a is None or a.kind != "envmap":
+                return ErrorEvent(seq=msg.seq, message=f"environment: {msg.asset_id!r} is not an uploaded "
+                                                       "environment map").model_dump(), None
+            msg = msg.model_copy(update={"asset_id": None, "preset": EnvPreset(
+                label=a.filename, sha256=a.sha256, filename=a.filename, rotation_deg=0.0)})
+        try:
+            state, eff = apply(before, msg)
+        except StateError as e:
+            return ErrorEvent(seq=msg.seq, message=str(e)).model_dump(), None
+        epoch = before.epoch
+        if eff.kind == "stroke":
+            # a new stroke drops the redo stack
             for r in s.scalars(select(StrokeRow).where(StrokeRow.session_id == sid, StrokeRow.epoch == epoch,
                                                        StrokeRow.undone.is_(True), StrokeRow.dropped.is_(False))):
                 r.dropped = True
-            s.add(StrokeRow(session_id=sid, epoch=epoch, seq=msg.seq, body={
-                "stroke": msg.stroke.model_dump(mode="json"), "camera": state["camera"],
-                "rotation_deg": state["rotation_deg"], "intensity": state["intensity"]}))
-        elif t in ("undo", "redo"):
+            s.add(StrokeRow(session_id=sid, epoch=epoch, seq=msg.seq, body=eff.stroke))
+        elif eff.kind in ("undo", "redo"):
             q = select(StrokeRow).where(StrokeRow.session_id == sid, StrokeRow.epoch == epoch,
-                                        StrokeRow.dropped.is_(False), StrokeRow.undone.is_(t == "redo"))
-            q = q.order_by(StrokeRow.seq.desc() if t == "undo" else StrokeRow.seq.asc())
+                                        StrokeRow.dropped.is_(False), StrokeRow.rejected.is_(False),
+                                        StrokeRow.undone.is_(eff.kind == "redo"))
+            q = q.order_by(StrokeRow.seq.desc() if eff.kind == "undo" else StrokeRow.seq.asc())
             r = s.scalars(q.limit(1)).first()
             if r is not None:
-                r.undone = t == "undo"
-        elif t == "fit":
-            if msg.constrained is not None:
-                state["constrained"] = msg.constrained
-            if msg.unpainted_weight is not None:
-                state["unpainted_weight"] = msg.unpainted_weight
-        elif t == "display":
-            for k in ("exposure", "tone", "quality"):
-                if getattr(msg, k) is not None:
-                    state[k] = getattr(msg, k)
-        state["last_seq"] = max(int(state.get("last_seq", -1)), msg.seq)
-        row.state = state
-    return None, fwd
+                r.undone = eff.kind == "undo"
+        row.state = state.model_dump(mode="json")
+        row.last_active = now()
+    return None, msg.model_dump(mode="json")
 
 
-def on_worker_event(st, sid: str, ev: dict) -> dict:
-    """Events that change what is stored: a fit result updates the session's material, a save
-    creates a material version. Returns the event to send to the client."""
-    if ev.get("type") == "fit" and "material" in ev:
-        with st.db() as s, s.begin():
-            row = s.get(Session, sid)
+def on_worker_event(st, sid: str, ev: dict) -> dict | None:
+    """Events that change what is stored: a fit result updates the session's material, a
+    rejected stroke is never replayed, a save stores a material version (once per seq, even when
+    a restarted worker runs it again). Returns the event for the client (None: nothing)."""
+    t = ev.get("type")
+    if t in ("fit", "paint") and "material" in ev:
+        with _lock(sid), st.db() as s, s.begin():
+            row = _row(s, sid)
             state = dict(row.state)
-            names = _object_names(s, row)
+            names = state.get("objects") or [o["name"] for o in s.get(Scene, row.scene_id).spec["objects"]]
             mats = list(state["materials"])
             mats[names.index(ev["object"])] = ev["material"]
             state["materials"] = mats
+            if t == "paint" and ev["object"] == state.get("object"):
+                state["base_material"] = ev["material"]      # strokes now paint over the paint
             row.state = state
         return ev
-    if ev.get("type") == "save":
+    if t == "stroke" and ev.get("rejected") and ev.get("seq") is not None:
         with st.db() as s, s.begin():
-            row = s.get(Session, sid)
-            d = s.get(MaterialDesign, ev["material_id"]) if ev.get("material_id") else None
-            if ev.get("material_id") and d is None:
-                return {"type": "error", "seq": ev.get("seq"), "message": f"save: no material {ev['material_id']!r}"}
-            if d is None:
-                d = MaterialDesign(name=ev.get("name") or f"{ev['object']} design", scene_id=row.scene_id, object=ev["object"])
-                s.add(d)
-                s.flush()
-            v = add_version(s, d, ev["material"], note=f"saved from session {sid}")
-            s.flush()
-            return {"type": "saved", "seq": ev.get("seq"), "material_id": d.id, "version": v.version, "name": d.name}
+            for r in s.scalars(select(StrokeRow).where(StrokeRow.session_id == sid, StrokeRow.seq == ev["seq"])):
+                r.rejected = True
+        return ev
+    if t == "save":
+        return _store_save(st, sid, ev)
     return ev
 
 
+def _store_save(st, sid: str, ev: dict) -> dict:
+    seq = ev.get("seq")
+    with _lock(sid), st.db() as s, s.begin():
+        row = _row(s, sid)
+        state = dict(row.state)
+        pending = [p for p in state.get("pending_saves", []) if p.get("seq") != seq]
+        done = s.scalars(select(SessionSave).where(SessionSave.session_id == sid, SessionSave.seq == seq)).first()
+        if done is not None:                       # stored before the worker restarted
+            d = s.get(MaterialDesign, done.design_id)
+            state["pending_saves"] = pending
+            row.state = state
+            return SavedEvent(seq=seq, material_id=d.id, version=done.version, name=d.name).model_dump()
+        d = s.get(MaterialDesign, ev["material_id"]) if ev.get("material_id") else None
+        err = None
+        if ev.get("material_id") and d is None:
+            err = f"save: no material {ev['material_id']!r}"
+        elif d is not None and d.archived:
+            err = f"save: material {d.id!r} is archived (409): restore it or save under a new name"
+        if err:
+            state["pending_saves"] = pending
+            row.state = state
+            return ErrorEvent(seq=seq, message=err, code=409 if d is not None else 404).model_dump()
+        if d is None:
+            d = MaterialDesign(name=ev.get("name") or f"{ev['object']} design", scene_id=row.scene_id, object=ev["object"])
+            s.add(d)
+            s.flush()
+        v = add_version(s, d, ev["material"], note=f"saved from session {sid}")
+        s.flush()
+        s.add(SessionSave(session_id=sid, seq=seq, design_id=d.id, version=v.version))
+        state["pending_saves"] = pending
+        row.state = state
+        return SavedEvent(seq=seq, material_id=d.id, version=v.version, name=d.name).model_dump()
+
+
 # -- the stream ---------------------------------------------------------------------------------
+async def _fail(ws: WebSocket, code: int, message: str, http: int) -> None:
+    await ws.send_text(json.dumps(ErrorEvent(message=message, fatal=True, code=http).model_dump()))
+    await ws.close(code=code)
+
+
+async def _authenticate(ws: WebSocket, token: str | None) -> str | None:
+    """The session token: from the first message ({"type": "auth", "token": …}), else ?token=."""
+    if token:
+        return token
+    try:
+        raw = json.loads(await asyncio.wait_for(ws.receive_text(), AUTH_SECONDS))
+    except (asyncio.TimeoutError, json.JSONDecodeError, WebSocketDisconnect, KeyError):
+        return None
+    if isinstance(raw, dict) and raw.get("type") == "auth" and isinstance(raw.get("token"), str):
+        return raw["token"]
+    return None
+
+
 @router.websocket("/{sid}/stream")
 async def stream(ws: WebSocket, sid: str, token: str | None = Query(None)):
     st = ws.app.state.glint
+    if not (check_host(st.settings, ws.headers) and check_origin(st.settings, ws.headers)):
+        await ws.close(code=4403)          # a page from another origin cannot drive a session
+        return
     await ws.accept()
+    token = await _authenticate(ws, token)
     row = await run_in_threadpool(lambda: _get(st, sid))
     if row is None or row.closed:
-        await ws.send_text(json.dumps({"type": "error", "fatal": True, "code": 404, "message": f"no open session {sid!r}"}))
-        await ws.close(code=4404)
-        return
+        return await _fail(ws, 4404, f"no open session {sid!r}", 404)
     if not _authorised(row, token):
-        await ws.send_text(json.dumps({"type": "error", "fatal": True, "code": 403, "message": "wrong or missing session token"}))
-        await ws.close(code=4403)
-        return
+        return await _fail(ws, 4403, "wrong or missing session token (send {\"type\": \"auth\", \"token\": …} first)", 403)
+    cfg = st.settings
+    others = [c for k, c in st.streams.items() if k != sid]
+    if len(others) >= cfg.max_sessions:
+        return await _fail(ws, 4503, f"the server is at its limit of {cfg.max_sessions} open sessions; try again later", 503)
+    if sum(c == row.client for c in others) >= cfg.max_sessions_per_client:
+        return await _fail(ws, 4429, f"this client already has {cfg.max_sessions_per_client} open sessions; "
+                                     "close one first", 429)
     try:
         payload = await run_in_threadpool(st.session_payload, sid)
     except (Conflict, NotFound) as e:
-        await ws.send_text(json.dumps({"type": "error", "fatal": True, "code": 409, "message": str(e)}))
-        await ws.close(code=4409)
-        return
+        return await _fail(ws, 4409, str(e), 409)
     st.pool.close_session(sid)      # one stream per session: a reconnect starts from the stored state
+    st.streams[sid] = row.client
     q = st.pool.open_session(sid, payload)
-    await ws.send_text(json.dumps({"type": "hello", "session": sid, "state": payload["state"],
-                                   "strokes": len([s for s in payload["strokes"] if not s["undone"]])}))
+    state, notes = restore_state(payload["state"], payload["scene"]["spec"])
+    await ws.send_text(json.dumps(HelloEvent(
+        session=sid, state=state.model_dump(mode="json"), renderer=state.renderer,
+        strokes=len([s for s in payload["strokes"] if not s["undone"]]),
+        renderers=state.renderers, controls=sorted(_controls(state.renderer, state.readonly))).model_dump()))
 
     async def pump():
         while True:
             kind, p = await q.get()
             if kind == "frame":
-                await ws.send_bytes(encode_frame(*p))
+                hdr, img = p
+                st.metrics.frame(sid, hdr)
+                if q.dropped_frames:
+                    hdr = {**hdr, "dropped_frames": q.dropped_frames}
+                await ws.send_bytes(encode_frame(hdr, img))
             else:
-                ev = await run_in_threadpool(on_worker_event, st, sid, p)
-                await ws.send_text(json.dumps(ev))
+                try:
+                    ev = await run_in_threadpool(on_worker_event, st, sid, p)
+                except Exception as e:       # storing it failed: say so, and keep streaming
+                    log.exception("session %s: storing a %s event failed", sid, p.get("type"))
+                    ev = ErrorEvent(seq=p.get("seq"), message=f"the server could not store the {p.get('type')} "
+                                                              f"({type(e).__name__}); try again").model_dump()
+                if ev is not None:
+                    await ws.send_text(json.dumps(ev))
 
     sender = asyncio.create_task(pump())
     try:
         while True:
-            text = await ws.receive_text()
+            try:
+                text = await asyncio.wait_for(ws.receive_text(), cfg.session_idle_seconds)
+            except asyncio.TimeoutError:
+                await _fail(ws, 4408, f"closed after {cfg.session_idle_seconds:.0f} s without input; reconnect to go on", 408)
+                break
             try:
                 raw = json.loads(text)
             except json.JSONDecodeError as e:
-                await ws.send_text(json.dumps({"type": "error", "message": f"not JSON: {e.msg}"}))
+                await ws.send_text(json.dumps(ErrorEvent(message=f"not JSON: {e.msg}").model_dump()))
+                continue
+            if isinstance(raw, dict) and raw.get("type") == "auth":
                 continue
             try:
                 msg = client_msg.validate_python(raw)
+                if getattr(msg, "preset", None) is not None:
+                    raise StateError("environment: send asset_id (an uploaded map) or index, not preset")
+            except StateError as e:
+                await ws.send_text(json.dumps(ErrorEvent(seq=msg.seq, message=str(e)).model_dump()))
+                continue
             except ValidationError as e:
                 err = e.errors()[0]
                 seq = raw.get("seq") if isinstance(raw, dict) else None
-                await ws.send_text(json.dumps({"type": "error", "seq": seq,
-                                               "message": f"{'.'.join(str(x) for x in err['loc'])}: {err['msg']}"}))
+                await ws.send_text(json.dumps(ErrorEvent(
+                    seq=seq if isinstance(seq, int) else None,
+                    message=f"{'.'.join(str(x) for x in err['loc'])}: {err['msg']}").model_dump()))
                 continue
             err, fwd = await run_in_threadpool(persist, st, sid, msg)
             if err is not None:
                 await ws.send_text(json.dumps(err))
                 continue
             st.pool.send(sid, fwd)
+            st.metrics.message(sid, fwd)
     except WebSocketDisconnect:
         pass
     except RuntimeError as e:   # sending on a socket the client already closed
         log.info("session %s stream ended: %s", sid, e)
     finally:
         sender.cancel()
+        st.streams.pop(sid, None)
         st.pool.close_session(sid)
+        st.metrics.session_ended(sid)
+        await run_in_threadpool(_ended, st, sid)
+
+
+def _controls(kind: str, readonly: bool) -> set[str]:
+    from worker.renderers import controls
+
+    c = set(controls(kind))
+    return c - {"materials"} if readonly else c
+
+
+def _ended(st, sid: str) -> None:
+    """A stream ended: viewer sessions are over (a shopper gets a new one); editing sessions
+    stay open to reconnect to, until closed or expired (``expire_idle``)."""
+    with _lock(sid), st.db() as s, s.begin():
+        row = _row(s, sid)
+        if row is not None:
+            row.last_active = now()
+            if (row.state or {}).get("readonly"):
+                row.closed = True
+
+
+def expire_idle(st, older_than: dt.timedelta) -> int:
+    """Close editing sessions without a stream and without activity for ``older_than``."""
+    cutoff = now() - older_than
+    n = 0
+    with st.db() as s, s.begin():
+        for row in s.scalars(select(Session).where(Session.closed.is_(False))):
+            last = row.last_active or row.updated or row.created
+            if last is not None and last.tzinfo is None:
+                last = last.replace(tzinfo=dt.timezone.utc)
+            if row.id not in st.streams and last is not None and last < cutoff:
+                row.closed = True
+                n += 1
+    return n
 
 
 def _get(st, sid):

@@ -37,7 +37,10 @@ def test_numpy_and_c_agree_and_error_is_bounded(tau):
             seg = slice(s, s + (1 << int(hh)))
             err = np.abs(v[i, seg] - v[i, seg].mean()).sum()
             assert err <= tau + 1e-9
-        assert np.abs(rec - v[i]).max() <= 1.0  # sanity
+        # the whole cut: L1 error ≤ τ per node plus the 8-bit quantisation of every leaf
+        total = np.abs(rec - v[i]).sum()
+        bound = tau * len(h) + 0.5 / 255 * len(rec)
+        assert total <= bound, f"cut {i}: L1 error {total:.2f} over the bound {bound:.2f} ({len(h)} nodes)"
 
 
 def test_encode_roundtrip_and_height_encoding_is_smaller():

@@ -2,8 +2,10 @@
 import numpy as np
 import trimesh
 
+from helpers import open_renderer
+
 from worker.core.lighting import pixel_directions
-from worker.engine import Engine, load_or_precompute
+from worker.renderers import FrameRequest, Lighting
 from worker.scene import LoadedScene, parse_scene
 
 
@@ -20,12 +22,11 @@ def test_white_furnace_sphere(tmp_path, cache_dir):
     env = np.ones((64, 128, 3), np.float32)
     cam = {"eye": [0, 0, 4], "target": [0, 0, 0], "fov_y_deg": 40, "width": 64, "height": 48}
     s = _scene(tmp_path, sph, env, {"model": "lambert", "albedo": [1, 1, 1]}, cam)
-    cs, _, _ = load_or_precompute(s, cache_dir)
-    for native in (True, False):
-        eng = Engine(s, cs, use_native=native)
+    for k in ("native", "numpy"):
+        r = open_renderer(s, k)
         for mode in ("vertex", "pixel"):
-            img = eng.render(mode=mode)
-            obj = eng.object_mask() >= 0
+            out = r.render(FrameRequest(camera=s.spec.camera, materials=s.materials, shading=mode))
+            img, obj = out.radiance, out.object_id >= 0
             # tolerance: 8-bit cut values and Voronoi leaf areas, measured ≤ 0.6%
             np.testing.assert_allclose(img[obj], 1.0, atol=0.01)
             np.testing.assert_allclose(img[~obj], 1.0, atol=1e-5)   # background shows the map
@@ -40,13 +41,13 @@ def test_unoccluded_plane_under_a_real_map(tmp_path, cache_dir, shared_assets):
     plane = trimesh.Trimesh([[-1, 0, -1], [1, 0, -1], [1, 0, 1], [-1, 0, 1]], [[0, 2, 1], [0, 3, 2]], process=False)
     cam = {"eye": [0, 3, 0.01], "target": [0, 0, 0], "fov_y_deg": 20, "width": 32, "height": 32}
     s = _scene(tmp_path, plane, env, {"model": "lambert", "albedo": [1, 1, 1]}, cam)
-    cs, _, _ = load_or_precompute(s, cache_dir)
+    r = open_renderer(s)
     d, sr = pixel_directions(*env.shape[:2], 4)
     big = np.repeat(np.repeat(env, 4, 0), 4, 1)
     e = (big * (sr[:, None, None] * np.maximum(d[..., 1], 0)[..., None])).sum((0, 1))
     for rot in (0.0, 120.0):
-        img = Engine(s, cs).render(rotation_deg=rot)
-        obj = Engine(s, cs).object_mask() >= 0
+        out = r.render(FrameRequest(camera=s.spec.camera, lighting=Lighting(rot, 1.0), materials=s.materials))
+        img, obj = out.radiance, out.object_id >= 0
         ed = (np.roll(big, -int(rot / 360 * big.shape[1]), axis=1) * (sr[:, None, None] * np.maximum(d[..., 1], 0)[..., None])).sum((0, 1))
         got = img[obj].mean(0)
         # 1.5%: leaf-resolution cosine on a map whose window light sits near the horizon
@@ -54,18 +55,24 @@ def test_unoccluded_plane_under_a_real_map(tmp_path, cache_dir, shared_assets):
     assert e.min() > 0
 
 
-def test_only_what_changed_is_recomputed(bunny):
-    scene, cuts = bunny
-    eng = Engine(scene, cuts)
-    eng.render()
-    view, prefix = eng._view, eng._node_light
-    eng.render(rotation_deg=45.0)                 # light change: same hit buffer
-    assert eng._view is view and eng._node_light is not prefix
+def test_only_what_changed_is_recomputed(bunny_renderer):
+    """A BRDF or light change reuses the hit buffer; a view change reuses the lighting."""
+    from worker.renderers.cuts import CutRenderer
     from worker.scene import GGX
-    eng.set_materials([GGX()])
-    p2 = eng._node_light
-    eng.render(rotation_deg=45.0)                 # BRDF change: same hit buffer and lighting
-    assert eng._view is view and eng._node_light is p2
-    cam = scene.spec.camera.model_copy(update={"eye": (0.5, 0.6, 3.0)})
-    eng.render(camera=cam, rotation_deg=45.0)     # view change: same lighting and cuts
-    assert eng._view is not view and eng._node_light is p2
+
+    r0 = bunny_renderer
+    r = CutRenderer(r0.scene, r0.data)          # a session's own renderer, sharing the scene's data
+    r2 = CutRenderer(r0.scene, r0.data)
+    assert r.tracer is r0.tracer is r2.tracer and r.lighting is r2.lighting
+    cam = r.scene.spec.camera
+    req = FrameRequest(camera=cam, materials=r.scene.materials)
+    r.render(req)
+    view, light = r._view, r._node_light
+    r.render(FrameRequest(camera=cam, lighting=Lighting(45.0), materials=r.scene.materials))
+    assert r._view is view and r._node_light is not light          # light change: same hit buffer
+    light = r._node_light
+    r.render(FrameRequest(camera=cam, lighting=Lighting(45.0), materials=[GGX()]))
+    assert r._view is view and r._node_light is light              # BRDF change: same hits and light
+    cam2 = cam.model_copy(update={"eye": (0.5, 0.6, 3.0)})
+    r.render(FrameRequest(camera=cam2, lighting=Lighting(45.0), materials=[GGX()]))
+    assert r._view is not view and r._node_light is light          # view change: same lighting

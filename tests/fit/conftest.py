@@ -3,24 +3,20 @@ import copy
 import numpy as np
 import pytest
 
-from worker.engine import Engine
 from worker.scene import Lambert
 
 DULL = Lambert(albedo=(0.4, 0.4, 0.4))
 
 
 @pytest.fixture(scope="module")
-def bunny_view(bunny):
-    """(Engine, FitView): the bunny's view at 160×120 fit pixels (the issue's default fit size),
+def bunny_view(bunny_renderer):
+    """(renderer, FitView): the bunny's view at 160×120 fit pixels (the issue's default fit size),
     transfer built once per module."""
     from worker.fit.fitter import Fitter
 
-    scene, cuts = bunny
-    eng = Engine(scene, cuts)
-    eng.set_materials([DULL])
-    fx = Fitter(eng, "bunny", fit_scale=1.0)
+    fx = Fitter(bunny_renderer, "bunny", base_material=DULL, fit_scale=1.0)
     fx.add_view()
-    return eng, fx.views[0]
+    return bunny_renderer, fx.views[0]
 
 
 @pytest.fixture
@@ -28,9 +24,8 @@ def fitter(bunny_view):
     """A fresh Fitter on the dull (Lambert 0.4) bunny, sharing the module's transfer matrix."""
     from worker.fit.fitter import Fitter
 
-    eng, view = bunny_view
-    eng.set_materials([DULL])
-    fx = Fitter(eng, "bunny", fit_scale=1.0)
+    r, view = bunny_view
+    fx = Fitter(r, "bunny", base_material=DULL, fit_scale=1.0)
     v = copy.copy(view)
     v.base = view.base.copy()
     fx.views.append(v)

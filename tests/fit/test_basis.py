@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from worker.fit import kernels
+from worker import native
 from worker.fit.basis import (G_CUTOFF, XCUT, bandwidth_from_sigma, cube_cell, default_basis, directional_albedo,
                               energy_rows_at, energy_rows_numpy, hemisphere_centers, multiscale_centers,
                               outgoing_directions, paper_basis)
@@ -52,11 +52,15 @@ def test_energy_rows_are_directional_albedos():
         np.testing.assert_allclose(g[pick] @ c, ref, rtol=3e-3)
 
 
-@pytest.mark.skipif(not kernels.available(), reason="C kernels not built")
-def test_energy_rows_c_kernel_matches_numpy():
-    b = default_basis(static_alpha=0.2)
+@pytest.mark.skipif(not native.available(), reason="C kernels not built")
+@pytest.mark.parametrize("static", ["paper", "smith"])
+def test_energy_rows_c_kernel_matches_numpy(static):
+    from worker.native.kernels import kernels
+
+    b = default_basis(static=static, static_alpha=0.2)
     wo = outgoing_directions()[::7]
-    np.testing.assert_allclose(energy_rows_at(b, wo), energy_rows_numpy(b, wo), rtol=1e-10, atol=1e-14)
+    got = energy_rows_at(b, wo, kernels=kernels("native"))
+    np.testing.assert_allclose(got, energy_rows_numpy(b, wo), rtol=1e-10, atol=1e-14)
 
 
 def test_kernel_candidate_lists_are_conservative():

@@ -9,6 +9,7 @@ from worker.core import render as R
 from worker.core.directions import get_tree
 from worker.core.lighting import LeafLighting, node_lighting
 from worker.fit.basis import default_basis, paper_basis
+from worker.native.kernels import kernels
 from worker.scene import GGX, SRBF
 
 
@@ -113,7 +114,14 @@ def test_table_kernel_agrees_with_numpy(bunny, static):
     wo = eye - scene.mesh.vertices[vi]
     wo /= np.linalg.norm(wo, axis=1, keepdims=True)
     mat_of = np.zeros(len(vi), np.int32)
-    a = R.shade_points(scene.mesh.normals[vi], wo, vi, mat_of, cuts, nl, nw, tree, mats, use_native=True)
     c = R.shade_points_numpy(scene.mesh.normals[vi], wo, vi, mat_of, cuts, nl, nw, tree, mats)
-    assert a.max() > 0
-    np.testing.assert_allclose(a, c, rtol=2e-4, atol=1e-6 * c.max())
+    assert c.max() > 0
+    k = kernels("native")
+    best = k.simd(-1)
+    try:
+        for mode in sorted({0, best}):          # the scalar path and the AVX2 one (when the CPU has it)
+            assert k.simd(mode) == mode
+            a = R.shade_points(scene.mesh.normals[vi], wo, vi, mat_of, cuts, nl, nw, tree, mats, k)
+            np.testing.assert_allclose(a, c, rtol=2e-4, atol=1e-6 * c.max(), err_msg=f"simd={mode}")
+    finally:
+        k.simd(1)

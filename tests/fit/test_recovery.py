@@ -19,8 +19,9 @@ SPP = 256
 
 @pytest.fixture(scope="module")
 def bunny_env(shared_assets, cache_dir):
-    """(LoadedScene, CutSet) of the test bunny under an environment map, by name."""
-    from worker.engine import load_or_precompute
+    """The cut renderer of the test bunny under an environment map, by name (cuts cached)."""
+    from helpers import open_renderer
+
     from worker.envmap import load_envmap
     from worker.scene import LoadedScene, load_scene
 
@@ -31,15 +32,13 @@ def bunny_env(shared_assets, cache_dir):
             sc = load_scene(Path(__file__).resolve().parents[1] / "scenes" / "bunny.json")
             spec = sc.spec.model_copy(deep=True)
             spec.environment.map = str(shared_assets / "env" / env)
-            sc = LoadedScene(spec, sc.root, envmap=load_envmap(shared_assets / "env" / env))
-            out[env] = (sc, load_or_precompute(sc, cache_dir)[0])
+            out[env] = open_renderer(LoadedScene(spec, sc.root, envmap=load_envmap(shared_assets / "env" / env)))
         return out[env]
     return get
 
 
 def _run(bunny_env, cache_dir, env, alpha, specular, albedo, **kw):
-    sc, cuts = bunny_env(env)
-    r = recover(sc, cuts, Case("bunny", env, alpha, specular, albedo), fit_scale=1.0, spp=SPP,
+    r = recover(bunny_env(env), Case("bunny", env, alpha, specular, albedo), fit_scale=1.0, spp=SPP,
                 cache_dir=cache_dir / "mitsuba", **kw)
     print(f"{env} α={alpha} s={specular} ρd={albedo}: fit {r['rel_rmse']:.4f} (vertex {r['rel_rmse_vertex']:.4f}), "
           f"Glint's GGX {r['ggx_floor']:.4f}, noise {r['noise']:.4f}, residual {r['residual_rel']:.4f}, "

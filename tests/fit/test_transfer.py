@@ -4,16 +4,18 @@ import pytest
 
 from worker import native
 from worker.fit.transfer import transfer, transfer_numpy
+from worker.native.kernels import kernels
+from worker.renderers import Lighting
 
 
 @pytest.mark.skipif(not native.available(), reason="C kernels not built")
 def test_c_kernel_matches_numpy(bunny_view, fitter):
-    eng, view = bunny_view
-    g = view.geo
+    r, view = bunny_view
+    g = view.samples
     sel = np.arange(0, view.n, 53)
-    node_l, node_w = eng.node_light(20.0, 1.4)       # a different light from the view's
-    args = (g["normals"][sel], g["wo"][sel], g["verts"][sel], g["bary"][sel], eng.cuts, node_l, node_w, eng.tree, fitter.basis)
-    Tc, Ec = transfer(*args, use_native=True)
+    node_l, node_w = r.light(Lighting(20.0, 1.4))       # a different light from the view's
+    args = (g.normals[sel], g.wo[sel], g.verts[sel], g.bary[sel], r.cuts, node_l, node_w, r.tree, fitter.basis)
+    Tc, Ec = transfer(*args, kernels("native"))
     Tn, En = transfer_numpy(*args)
     assert Tc.shape == Tn.shape == (3, len(sel), fitter.basis.J)
     # float32 centres and the tabulated G in C against float64 exp in NumPy

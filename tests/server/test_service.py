@@ -15,26 +15,9 @@ import pytest
 import websockets
 from PIL import Image
 
-from worker.jobs.session import decode_frame
+from helpers import connect, next_frame
 
 ROOT = Path(__file__).resolve().parents[2]
-
-
-def ws_url(server, path, token):
-    return f"ws://127.0.0.1:{server['port']}{path}?token={token}"
-
-
-async def next_frame(ws, min_ack=-1, events=None, timeout=60):
-    """Receive until a binary frame whose ack ≥ min_ack; JSON events are collected."""
-    deadline = time.monotonic() + timeout
-    while True:
-        x = await asyncio.wait_for(ws.recv(), timeout=max(0.1, deadline - time.monotonic()))
-        if isinstance(x, bytes):
-            hdr, img = decode_frame(x)
-            if hdr["ack"] >= min_ack:
-                return hdr, np.asarray(Image.open(io.BytesIO(img)).convert("RGB"), np.float64)
-        elif events is not None:
-            events.append(json.loads(x))
 
 
 def test_session_stroke_save_and_crash_recovery(server, client, bunny_scene, artifacts):
@@ -45,7 +28,7 @@ def test_session_stroke_save_and_crash_recovery(server, client, bunny_scene, art
     stroke = {"points": [[62, 62], [88, 64]], "color": [4.0, 4.0, 4.0], "diameter": 10, "kappa": 0.05}
 
     async def part1():
-        async with websockets.connect(ws_url(server, ses["stream"], token), max_size=None) as ws:
+        async with connect(server, ses["stream"], token) as ws:
             hello = json.loads(await ws.recv())
             assert hello["type"] == "hello"
             hdr0, img0 = await next_frame(ws)
@@ -76,7 +59,7 @@ def test_session_stroke_save_and_crash_recovery(server, client, bunny_scene, art
     assert m["material"]["model"] == "srbf" and m["name"] == "painted bunny"
 
     async def part2():
-        async with websockets.connect(ws_url(server, ses["stream"], token), max_size=None) as ws:
+        async with connect(server, ses["stream"], token) as ws:
             await ws.recv()                                          # hello
             await next_frame(ws)
             info = client.get(f"/v1/sessions/{sid}", headers={"X-Session-Token": token}).json()
@@ -106,7 +89,7 @@ def test_stream_errors_keep_the_session_alive(server, client, bunny_scene):
     ses = client.post("/v1/sessions", json={"scene_id": bunny_scene}).json()
 
     async def go():
-        async with websockets.connect(ws_url(server, ses["stream"], ses["token"]), max_size=None) as ws:
+        async with connect(server, ses["stream"], ses["token"]) as ws:
             await ws.recv()
             await next_frame(ws)
             for bad in ("not json", json.dumps([1, 2]), json.dumps({"seq": 5, "type": "view", "eye": "up"}),
@@ -120,7 +103,7 @@ def test_stream_errors_keep_the_session_alive(server, client, bunny_scene):
             assert hdr["ack"] == 8
         # unknown session and wrong token
         for path, token, code in (("/v1/sessions/nosuch/stream", "x", 4404), (ses["stream"], "wrong", 4403)):
-            async with websockets.connect(ws_url(server, path, token)) as ws:
+            async with connect(server, path, token) as ws:
                 ev = json.loads(await ws.recv())
                 assert ev["type"] == "error" and ev["code"] in (403, 404)
                 with pytest.raises(websockets.ConnectionClosed) as e:
@@ -170,7 +153,7 @@ def test_rest_render_fit_and_material_versions(client, bunny_scene):
 def _raw_post(port, path, headers: dict, body: bytes):
     """Send a request by hand (for truncated bodies) and return the status line or ''."""
     s = socket.create_connection(("127.0.0.1", port), timeout=10)
-    head = f"POST {path} HTTP/1.1\r\nHost: x\r\n" + "".join(f"{k}: {v}\r\n" for k, v in headers.items()) + "\r\n"
+    head = f"POST {path} HTTP/1.1\r\nHost: 127.0.0.1\r\n" + "".join(f"{k}: {v}\r\n" for k, v in headers.items()) + "\r\n"
     s.sendall(head.encode() + body)
     s.shutdown(socket.SHUT_WR)
     try:

@@ -1,53 +1,172 @@
-"""The worker-side session, without a server: replay after a crash and the per-vertex transfer
-that makes stroke frames cheap."""
+"""The worker-side session, without a server: replay after a crash, strokes that cannot apply,
+messages already in a restored state, saves re-run after a crash, the per-vertex transfer that
+makes stroke frames cheap, and the bound on a fit's size."""
 import numpy as np
+import pytest
 
-from worker.jobs.session import SessionRuntime, brdf_curve, decode_frame, encode_frame
+from worker.jobs.session import SessionRuntime, brdf_curve
+from worker.jobs.state import apply, client_msg, decode_frame, encode_frame, new_state
+from worker.renderers import FrameRequest, Lighting
+from worker.renderers.cuts import CutRenderer
 from worker.scene import GGX, Lambert
 
 STROKE = {"points": [[62, 62], [88, 64]], "color": [4.0, 4.0, 4.0], "diameter": 10, "kappa": 0.05}
 
 
-def _runtime(bunny, strokes=()):
-    scene, cuts = bunny
-    return SessionRuntime(scene, cuts, {"materials": [Lambert(albedo=(0.4, 0.4, 0.4)).model_dump()]}, list(strokes))
+def _stored(scene, **state):
+    st = new_state(scene.spec, materials=[Lambert(albedo=(0.4, 0.4, 0.4)).model_dump()],
+                   base_material=Lambert(albedo=(0.4, 0.4, 0.4)).model_dump(), **state)
+    return st.model_dump(mode="json")
 
 
-def test_stroke_frame_uses_the_vertex_transfer(bunny):
-    rt = _runtime(bunny)
-    rt.apply({"seq": 1, "type": "stroke", "stroke": STROKE})
+def _runtime(bunny_renderer, strokes=(), **state):
+    r = bunny_renderer
+    return SessionRuntime(r.scene, CutRenderer(r.scene, r.data), {"state": _stored(r.scene, **state),
+                                                                  "strokes": list(strokes)})
+
+
+def test_stroke_frame_uses_the_vertex_transfer(bunny_renderer):
+    rt = _runtime(bunny_renderer)
+    ev = rt.handle({"seq": 1, "type": "stroke", "stroke": STROKE})
+    assert ev[0]["type"] == "stroke" and not ev[0]["rejected"]
     ev = rt.fit_if_needed()
     assert ev[0]["type"] == "fit" and ev[0]["stats"]["painted"] > 0
     ov = rt._override()
     assert ov is not None
-    fast = rt.engine.render(rt.camera, rt.rotation, rt.intensity, vertex_override=ov)
-    slow = rt.engine.render(rt.camera, rt.rotation, rt.intensity)
-    obj = rt.engine.object_mask(rt.camera) == 0
-    rel = np.sqrt(((fast - slow)[obj] ** 2).mean()) / np.sqrt((slow[obj] ** 2).mean())
+    st = rt.state
+    req = dict(camera=st.camera, lighting=Lighting(st.rotation_deg, st.intensity), materials=st.materials)
+    fast = rt.renderer.render(FrameRequest(**req, vertex_radiance=ov))
+    slow = rt.renderer.render(FrameRequest(**req))
+    obj = slow.object_id == 0
+    a, b = fast.radiance, slow.radiance
+    rel = np.sqrt(((a - b)[obj] ** 2).mean()) / np.sqrt((b[obj] ** 2).mean())
     assert rel < 0.02, rel          # exact SRBF sum against the renderer's p(h) table
-    # a view change invalidates it (the renderer shades again)
-    rt.apply({"seq": 2, "type": "view", "eye": [0.5, 0.6, 3.1]})
-    assert rt._override() is None
+    # a view change invalidates it: the next override is built for the new view
+    rt.handle({"seq": 2, "type": "view", "eye": [0.5, 0.6, 3.1]})
+    _, ids, _, _ = rt._vertex_transfer()
+    assert rt._vt[0][0] == rt.state.camera.model_dump_json()
 
 
-def test_replay_rebuilds_the_same_design(bunny):
-    rt = _runtime(bunny)
-    rt.apply({"seq": 1, "type": "stroke", "stroke": STROKE})
-    rt.apply({"seq": 2, "type": "light", "rotation_deg": 40})
-    rt.apply({"seq": 3, "type": "stroke", "stroke": {**STROKE, "points": [[50, 80], [70, 82]], "color": [-1, -1, -1]}})
-    rt.apply({"seq": 4, "type": "undo"})
+def test_replay_rebuilds_the_same_design(bunny_renderer):
+    rt = _runtime(bunny_renderer)
+    rt.handle({"seq": 1, "type": "stroke", "stroke": STROKE})
+    rt.handle({"seq": 2, "type": "light", "rotation_deg": 40})
+    second = {**STROKE, "points": [[50, 80], [70, 82]], "color": [-1, -1, -1]}
+    rt.handle({"seq": 3, "type": "stroke", "stroke": second})
+    rt.handle({"seq": 4, "type": "undo"})
     rt.fit_if_needed()
     a = np.asarray(rt.materials[0].coefficients)
     # what the server persists: each stroke with the view and light it was painted in, and its flag
-    cam = rt.camera.model_dump()
-    recs = [{"stroke": STROKE, "camera": cam, "rotation_deg": 0.0, "intensity": 1.0, "undone": False},
-            {"stroke": {**STROKE, "points": [[50, 80], [70, 82]], "color": [-1, -1, -1]}, "camera": cam,
-             "rotation_deg": 40.0, "intensity": 1.0, "undone": True}]
-    again = _runtime(bunny, recs)
-    again.rotation = 40.0
+    cam = rt.state.camera.model_dump()
+    recs = [{"seq": 1, "stroke": STROKE, "camera": cam, "rotation_deg": 0.0, "intensity": 1.0, "undone": False},
+            {"seq": 3, "stroke": second, "camera": cam, "rotation_deg": 40.0, "intensity": 1.0, "undone": True}]
+    again = _runtime(bunny_renderer, recs, rotation_deg=40.0, last_seq=4)
     again.fit_if_needed()
     np.testing.assert_allclose(np.asarray(again.materials[0].coefficients), a, rtol=1e-6, atol=1e-9)
+    # the undone stroke is on the redo stack, not active
     assert again.fitter.history.can_redo and len(again.fitter.history) == 1
+    again.handle({"seq": 5, "type": "redo"})
+    assert len(again.fitter.history) == 2
+
+
+def test_a_stroke_that_cannot_apply_is_rejected_and_the_session_reopens(bunny_renderer):
+    """Issue 9: one bad stroke must not break a session for good. A stroke painted while the
+    object is off screen is rejected (reported with its seq, so the server stops replaying it);
+    a stored one that fails on replay is rejected too, and the session still opens."""
+    rt = _runtime(bunny_renderer)
+    rt.handle({"seq": 1, "type": "view", "eye": [0, 0, -3], "target": [0, 0, -6]})      # looking away
+    ev = rt.handle({"seq": 2, "type": "stroke", "stroke": STROKE})
+    assert ev[0]["rejected"] and ev[0]["seq"] == 2 and "covers no pixel" in ev[0]["notes"][0], ev
+    hdr, jpeg = rt.frame(2)                    # the session goes on
+    assert hdr["ack"] == 2 and jpeg[:2] == b"\xff\xd8"
+    # the same stroke stored and replayed on a new worker: rejected again, never fatal
+    away = rt.state.camera.model_dump()
+    recs = [{"seq": 2, "stroke": STROKE, "camera": away, "rotation_deg": 0.0, "intensity": 1.0, "undone": False}]
+    again = _runtime(bunny_renderer, recs, last_seq=2)
+    evs = again.take_events()
+    assert any(e["type"] == "stroke" and e["rejected"] and e["seq"] == 2 for e in evs), evs
+    assert again.frame(2)[0]["ack"] == 2
+
+
+def test_a_stored_material_over_todays_limits_does_not_block_restores(bunny_renderer):
+    """Issue 9: a persisted oversize material must not make restores fail forever."""
+    r = bunny_renderer
+    stored = _stored(r.scene)
+    n = 5000                                    # over srbf's 4,096 centres
+    stored["materials"] = [{"model": "srbf", "centers": [[0, 0, 1]] * n, "bandwidth": 80.0,
+                            "coefficients": [[0.1, 0.1, 0.1]] * n}]
+    rt = SessionRuntime(r.scene, CutRenderer(r.scene, r.data), {"state": stored, "strokes": []})
+    notes = [e["message"] for e in rt.take_events() if e["type"] == "note"]
+    assert any("not valid any more" in m for m in notes), notes
+    assert rt.materials[0].model == "lambert"
+    assert rt.frame(0)[1][:2] == b"\xff\xd8"
+
+
+def test_messages_already_in_the_restored_state_are_skipped(bunny_renderer):
+    """Issue 9's restore race: a stroke persisted before the restore read the state arrives
+    again as a message; it must not be applied twice."""
+    rec = {"seq": 7, "stroke": STROKE, "camera": None, "rotation_deg": 0.0, "intensity": 1.0, "undone": False}
+    r = bunny_renderer
+    rec["camera"] = r.scene.spec.camera.model_dump()
+    rt = _runtime(r, [rec], last_seq=7)
+    assert len(rt.fitter.history) == 1
+    assert rt.handle({"seq": 7, "type": "stroke", "stroke": STROKE}) == []
+    assert len(rt.fitter.history) == 1
+    rt.handle({"seq": 8, "type": "stroke", "stroke": STROKE})
+    assert len(rt.fitter.history) == 2
+
+
+def test_a_pending_save_is_run_again_after_a_restore(bunny_renderer):
+    """Issue 9: a save in flight when the worker died is in the stored state; the new worker
+    asks the server to store it (the server's unique (session, seq) stores it once)."""
+    rt = _runtime(bunny_renderer, pending_saves=[{"seq": 3, "name": "shiny"}], last_seq=3)
+    evs = rt.take_events()
+    saves = [e for e in evs if e["type"] == "save"]
+    assert len(saves) == 1 and saves[0]["seq"] == 3 and saves[0]["name"] == "shiny"
+    assert saves[0]["material"]["model"] == "lambert"
+    assert not [e for e in rt.take_events() if e["type"] == "save"]       # once
+
+
+def test_one_apply_for_server_and_worker():
+    """The state the server stores and the one the worker renders come from the same apply."""
+    from worker.scene import parse_scene
+
+    spec = parse_scene({"environment": {"map": "m"}, "camera": {"eye": [0, 0, 3], "target": [0, 0, 0]},
+                        "objects": [{"name": "a", "mesh": "x"}, {"name": "b", "mesh": "y"}]})
+    st = new_state(spec)
+    msgs = [{"seq": 1, "type": "view", "eye": [1, 0, 3]}, {"seq": 2, "type": "light", "rotation_deg": 30},
+            {"seq": 3, "type": "material", "object": "b", "material": GGX(alpha=0.1).model_dump()},
+            {"seq": 4, "type": "material", "material": GGX(alpha=0.3).model_dump()},
+            {"seq": 5, "type": "display", "exposure": 1.0}, {"seq": 6, "type": "save", "name": "x"}]
+    effects = []
+    for m in msgs:
+        st, eff = apply(st, client_msg.validate_python(m))
+        effects.append(eff.kind)
+    assert st.camera.eye == (1, 0, 3) and st.rotation_deg == 30 and st.materials[1].alpha == 0.1
+    assert st.base_material.alpha == 0.3 and st.epoch == 1 and st.exposure == 1.0 and st.last_seq == 6
+    assert effects == [None, None, None, "rebase", None, "save"] and st.pending_saves[0].name == "x"
+    ro = st.model_copy(update={"readonly": True})
+    with pytest.raises(ValueError, match="read-only"):
+        apply(ro, client_msg.validate_python({"seq": 7, "type": "stroke", "stroke": STROKE}))
+
+
+def test_a_fit_is_bounded_in_rows(bunny_renderer):
+    """Issue 9: every view a stroke is painted in adds rows; past max_rows the fit keeps every
+    s-th unpainted row (weighted s), so its cost stays bounded and it still matches the full fit."""
+    from worker.fit.fitter import Fitter
+
+    r = bunny_renderer
+    dull = Lambert(albedo=(0.4, 0.4, 0.4))
+    full = Fitter(r, "bunny", base_material=dull, fit_scale=1.0, max_rows=10**9)
+    capped = Fitter(r, "bunny", base_material=dull, fit_scale=1.0, max_rows=2000)
+    for fx in (full, capped):
+        fx.add_view()
+        fx.add_stroke({"points": [[62, 62], [88, 64]], "color": [4, 4, 4], "diameter": 10})
+    assert full.row_stride() == 1 and capped.row_stride() == -(-full.views[0].n // 2000)
+    a, b = full.fit(), capped.fit()
+    pa, pb = full.predicted(a.solve.coefficients), capped.predicted(b.solve.coefficients)
+    rel = np.sqrt(((pa - pb) ** 2).mean()) / np.sqrt((pa ** 2).mean())
+    assert rel < 0.02, f"capped fit differs from the full one by {rel:.4f}"
 
 
 def test_frame_encoding_and_curves():
@@ -57,3 +176,38 @@ def test_frame_encoding_and_curves():
     c = brdf_curve(GGX(alpha=0.2, specular=(0.5, 0.5, 0.5)))
     v = np.asarray(c["values"])
     assert len(c["theta_deg"]) == len(v) and v[0, 0] > v[30, 0] > 0     # falls off from the peak
+
+
+def test_stream_schema_is_current():
+    """stream-schema.json (client messages, events, frame header) is generated from the models the
+    server validates with (glint schema --out stream-schema.json)."""
+    import json
+    from pathlib import Path
+
+    from worker.jobs.state import stream_schema
+
+    path = Path(__file__).resolve().parents[2] / "stream-schema.json"
+    assert json.loads(path.read_text()) == json.loads(json.dumps(stream_schema())), \
+        "stream-schema.json drifted: run `glint schema --out stream-schema.json`"
+
+
+def test_the_api_process_loads_no_numerical_libraries():
+    """Issue 10: the server imports only worker's public modules; Embree, OpenCV and the QP solver
+    stay out of the API process."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from server.main import create_app; create_app(); "
+            "import server.routes.sessions, server.routes.assets; "
+            "print(','.join(m for m in ('embreex', 'cv2', 'daqp', 'trimesh') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "", f"the API process imported {out.stdout.strip()}"
+
+
+def test_worker_never_imports_server():
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2] / "worker"
+    bad = [str(p) for p in root.rglob("*.py") if "from server" in p.read_text() or "import server" in p.read_text()]
+    assert not bad or bad == [str(root / "cli.py")], bad      # the CLI starts the server (glint serve)

@@ -114,6 +114,7 @@ def test_studio_and_viewer(server, bunny_scene, browser, artifacts):
 
     # 4. dragging a point of the curve editor changes the material and the frame
     pts = json.loads(page.locator("#curve").get_attribute("data-points"))
+    page.locator("#curve").scroll_into_view_if_needed()              # the side panel is taller than the window
     box = page.locator("#curve").bounding_box()
     px, py = pts[1]
     n = frame_no(page)
@@ -194,7 +195,8 @@ def test_viewer_on_a_phone_and_read_only(server, bunny_scene, client, browser, a
     from websockets.sync.client import connect      # (Playwright's sync API owns this thread's event loop)
 
     ses = client.post(f"/v1/publications/{pid}/sessions").json()
-    with connect(f"ws://127.0.0.1:{server['port']}{ses['stream']}?token={ses['token']}", max_size=None) as ws:
+    with connect(f"ws://127.0.0.1:{server['port']}{ses['stream']}", max_size=None) as ws:
+        ws.send(json.dumps({"type": "auth", "token": ses["token"]}))
         ws.recv(timeout=30)
         for msg in ({"seq": 1, "type": "stroke", "stroke": {"points": [[80, 60]]}},
                     {"seq": 2, "type": "material", "material": {"model": "lambert"}},
@@ -208,3 +210,79 @@ def test_viewer_on_a_phone_and_read_only(server, bunny_scene, client, browser, a
                     break
     # the published design is unchanged
     assert client.get(f"/v1/materials/{m['id']}").json()["version"] == 1
+
+
+def test_studio_follows_the_demo_precomputation(browser, tmp_path, artifacts):
+    """Issue 9: someone who opens the studio while the demo scene still precomputes sees its
+    progress, and the demo opens by itself when it is ready (no reload). The demo here is the
+    bunny (GLINT_DEMO_SCENE), precomputed by a fresh server."""
+    from helpers import ROOT, GlintServer
+
+    srv = GlintServer(tmp_path / "data", workers=1, demo=True,
+                      env={"GLINT_DEMO_SCENE": str(ROOT / "tests" / "scenes" / "bunny.json")})
+    try:
+        page = browser.new_page(viewport={"width": 1280, "height": 860})
+        errors = []
+        page.on("pageerror", lambda e: errors.append(str(e)))
+        page.goto(srv.base + "/")
+        # the studio shows the preparation while it runs (it takes seconds: the bunny's 2.8K vertices)
+        page.wait_for_function("() => /demo/.test(document.getElementById('status').textContent)"
+                               " && !document.getElementById('progress').classList.contains('hidden')", timeout=60_000)
+        seen = page.locator("#status").inner_text()
+        page.screenshot(path=str(artifacts / "web-0-demo-progress.png"))
+        assert "demo" in seen and "opens by itself" in seen, seen
+        # then the scene opens without a reload and frames arrive
+        wait_new_frame(page, 0, timeout=240_000)
+        settle(page)
+        assert grid(page).std() > 5, "the demo frame is blank"
+        assert page.locator("#progress").evaluate("e => e.classList.contains('hidden')")
+        assert not errors, errors
+        page.close()
+    finally:
+        srv.stop()
+
+
+def test_studio_paint_designer_and_lighting_capture(server, bunny_scene, browser, artifacts, tmp_path, shared_assets):
+    """The paint panel fits lobes on every slider change and the frame follows; a capture chosen
+    as photos is uploaded, stitched by the service and applied to the scene."""
+    from worker.capture.synth import synthesize
+    from worker.envmap import load_envmap
+
+    synthesize(load_envmap(shared_assets / "env" / "apartment.exr"), tmp_path / "cap", width=360, height=240,
+               brackets=3, seed=2)
+    page = browser.new_page(viewport={"width": 1280, "height": 1400})
+    errors = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(server["base"] + "/")
+    wait_new_frame(page, 0)
+    settle(page)
+    g0 = grid(page)
+    assert "direct light" in page.locator("#renderer-info").inner_text()
+    # the paint designer: a brighter 15° reading makes a lobes material and a new frame
+    page.locator("#paint-details summary").click()
+    n = frame_no(page)
+    page.locator("#paint-panel input[aria-label='level 15°']").fill("1.2")
+    page.wait_for_function("() => document.getElementById('status').textContent.includes('paint: fitted')", timeout=60_000)
+    wait_new_frame(page, n)
+    settle(page)
+    g1 = grid(page)
+    assert page.locator("#model").input_value() == "lobes"
+    assert np.abs(g1 - g0).mean() > 1, "the paint readings did not change the frame"
+    assert "fit" in page.locator(".paint-status").inner_text()
+    page.screenshot(path=str(artifacts / "web-9-paint.png"))
+    # the capture: photos chosen in the panel, stitched by the service, applied to the scene
+    page.locator("#capture-details summary").click()
+    photos = sorted(str(p) for p in (tmp_path / "cap").glob("*.jpg")) + [str(tmp_path / "cap" / "manifest.json")]
+    page.locator("#capture-panel input[type=file]").set_input_files(photos)
+    page.get_by_role("button", name="Upload and stitch").click()
+    apply = page.get_by_role("button", name="Apply to the scene")
+    page.wait_for_function("(b) => !b.disabled", arg=apply.element_handle(), timeout=240_000)
+    n = frame_no(page)
+    apply.click()
+    wait_new_frame(page, n)
+    settle(page)
+    g2 = grid(page)
+    page.screenshot(path=str(artifacts / "web-10-captured-lighting.png"))
+    assert np.abs(g2 - g1).mean() > 1, "the captured lighting did not change the frame"
+    assert not errors, errors
+    page.close()

@@ -43,10 +43,13 @@ export class SessionStream {
 
   connect() {
     const proto = location.protocol === "https:" ? "wss" : "ws";
-    const url = `${proto}://${location.host}${this.session.stream}?token=${encodeURIComponent(this.session.token)}`;
-    this.ws = new WebSocket(url);
+    // the token goes in the first message, never in the URL (URLs end up in logs)
+    this.ws = new WebSocket(`${proto}://${location.host}${this.session.stream}`);
     this.ws.binaryType = "arraybuffer";
-    this.ws.onopen = () => this.onState("connected");
+    this.ws.onopen = () => {
+      this.ws.send(JSON.stringify({ type: "auth", token: this.session.token }));
+      this.onState("connected");
+    };
     this.ws.onclose = (e) => {
       this.onState(e.code >= 4400 ? `closed: ${e.code}` : "disconnected");
       // reconnect after a network drop; the server restores the session from what it stored

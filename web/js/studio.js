@@ -5,6 +5,9 @@ import { FrameView } from "./canvas.js";
 import { CurveEditor, drawLobe } from "./curve.js";
 import { toCurve } from "./brdf.js";
 import { orbit } from "./orbit.js";
+import { createLobeVisualiser, createPaintPanel, createSwatchPalette, downloadMeasurements } from "./paint.js";
+import { mountCapturePanel } from "./capture.js";
+import { MoveDrag, fullTransform } from "./move.js";
 
 const $ = (id) => document.getElementById(id);
 const status = (t) => { $("status").textContent = t; };
@@ -63,7 +66,8 @@ async function upload() {
     const c = lo.map((x, i) => (x + hi[i]) / 2), r = Math.hypot(...hi.map((x, i) => x - lo[i])) / 2;
     const scene = { version: 1, environment: { map: e.id },
       camera: { eye: [c[0], c[1] + 0.4 * r, c[2] + 2.8 * r], target: c, up: [0, 1, 0], fov_y_deg: 40, width: 640, height: 480 },
-      objects: [{ name: mesh.name.replace(/\.[^.]+$/, ""), mesh: m.id, material: { model: "lambert", albedo: [0.6, 0.6, 0.6] } }] };
+      objects: [{ name: mesh.name.replace(/\.[^.]+$/, ""), mesh: m.id, material: { model: "lambert", albedo: [0.6, 0.6, 0.6] } }],
+      ground: { shadow: true } };
     const s = await api(`/v1/scenes?name=${encodeURIComponent(mesh.name)}`, { method: "POST", body: scene });
     await api(`/v1/scenes/${s.id}/precompute`, { method: "POST" });
     await waitPrecompute(s.id);
@@ -82,20 +86,90 @@ async function openScene(id) {
   const scene = await api(`/v1/scenes/${id}`);
   const objIdx = Math.max(0, scene.spec.objects.findIndex((o) => o.name === state.object));
   setMaterial(state.materials[objIdx]);
+  $("shadow").checked = state.shadow ?? scene.spec.ground?.shadow ?? false;
+  showMoveTool(state.movable || []);
   stream = new SessionStream(session, {
-    onFrame: (f) => view.push(f),
+    onFrame: (f) => { $("shadow").disabled = f.header.shadow == null; view.push(f); },
     onEvent: onEvent,
     onState: (s) => status(`${state.object}: ${s}`),
   });
   view.stream = stream;
 }
 
+// the fit's figures, so a designer sees why a stroke is only partly achieved: the share of the
+// requested change the fit reached, the change that spilled onto unpainted pixels, and each
+// channel's specular albedo against that channel's bound
+export function fitSummary(s) {
+  if (!s.strokes) return "no strokes";
+  const parts = [`fit: ${s.strokes} stroke(s), ${s.painted} painted px, solve ${s.ms_solve?.toFixed(1)} ms`];
+  if (s.achieved != null) parts.push(`achieved ${Math.round(100 * s.achieved)}% of the change`);
+  if (s.spill != null) parts.push(`spill ${Math.round(100 * s.spill)}% onto unpainted pixels`);
+  if (!s.constrained) parts.push("unconstrained");
+  else if (s.energy_per_channel && s.energy_bound_per_channel) {
+    parts.push("specular albedo R/G/B " + s.energy_per_channel.map((e, c) =>
+      `${e.toFixed(2)}≤${s.energy_bound_per_channel[c].toFixed(2)}`).join(" "));
+  }
+  return parts.join(", ");
+}
+
+// -- renderers: what this session's renderer lets the designer change -------------------------------
+let controls = new Set(["camera", "light", "materials", "environment"]), renderers = ["cuts"], rendererKind = "cuts";
+const RENDERER_NAMES = { cuts: "direct light (visibility cuts)", gi: "global illumination", paint: "car paint (prefiltered lobes)" };
+function showRenderer(kind, ctl, available) {
+  rendererKind = kind; controls = new Set(ctl); if (available) renderers = available;
+  const fixed = !controls.has("camera");
+  $("renderer-info").textContent = RENDERER_NAMES[kind] || kind;
+  if (fixed) $("renderer-info").textContent += " — view and light are fixed by the precomputation; edit materials";
+  document.querySelectorAll("#tool-orbit, #tool-light").forEach((e) => { e.disabled = fixed; });
+  if (fixed && tool() !== "brush") $("tool-brush").checked = true;
+  const other = renderers.find((k) => k !== kind);
+  const sw = $("renderer-switch");
+  sw.classList.toggle("hidden", !other);
+  if (other) { sw.textContent = `Switch to ${RENDERER_NAMES[other] || other}`; sw.onclick = () => stream?.send("renderer", { kind: other }); }
+}
+
+// -- paint designer and lighting capture ------------------------------------------------------------
+let paintPanel = null, lastPaint = null;
+const lobeView = createLobeVisualiser($("paint-lobe"));
+const palette = createSwatchPalette($("paint-palette"), { onSelect: (d) => paintPanel?.set(d.measurements) });
+function mountPaint(object, initial) {
+  $("paint-panel").innerHTML = "";
+  paintPanel = createPaintPanel($("paint-panel"), { object, initial,
+    // the panel numbers its own messages; the stream gives them the session's seq
+    send: ({ type, seq, ...fields }) => stream?.send("paint", fields) });
+}
+$("paint-keep").onclick = () => {
+  if (!lastPaint) return status("move a paint slider first");
+  const name = $("design-name").value || "paint";
+  palette.add({ name, measurements: lastPaint.measured, material: lastPaint.material });
+  stream?.send("save", { name, material_id: designId });
+};
+$("paint-export-json").onclick = () => lastPaint && downloadMeasurements(lastPaint.measured, $("design-name").value || "paint", "json");
+$("paint-export-csv").onclick = () => lastPaint && downloadMeasurements(lastPaint.measured, $("design-name").value || "paint", "csv");
+mountCapturePanel($("capture-panel"), { api, onApply: (assetId) => stream?.send("environment", { asset_id: assetId }) });
+
+let movableNames = [];   // movable objects of the scene (hello), shown when the renderer allows move
+
 function onEvent(ev) {
-  if (ev.type === "fit") {
+  if (ev.type === "hello") {
+    showRenderer(ev.renderer || "cuts", ev.controls || [], ev.renderers);
+    mountPaint(ev.state.object, ev.state.paint?.[ev.state.object] || null);
+    state.transforms = ev.state.transforms || state.transforms;
+    movableNames = ev.state.movable || [];
+    showMoveTool((ev.controls || []).includes("move") ? movableNames : []);
+  } else if (ev.type === "renderer") {
+    showRenderer(ev.kind, ev.controls);
+    showMoveTool((ev.controls || []).includes("move") ? movableNames : []);
+    status(`now drawing with ${RENDERER_NAMES[ev.kind] || ev.kind}`);
+  } else if (ev.type === "paint") {
+    lastPaint = ev;
     setMaterial(ev.material);
-    const s = ev.stats || {};
-    status(s.strokes ? `fit: ${s.strokes} stroke(s), ${s.painted} painted px, solve ${s.ms_solve?.toFixed(1)} ms` +
-      (s.constrained ? `, specular albedo ${s.energy_max.toFixed(2)} (bound ${s.energy_bound.toFixed(2)})` : ", unconstrained") : "no strokes");
+    paintPanel?.showEvent(ev);
+    lobeView.update(ev.material, 45);
+    status(`paint: fitted in ${ev.ms_fit.toFixed(1)} ms, error ${(100 * ev.error_l1).toFixed(1)}%`);
+  } else if (ev.type === "fit") {
+    setMaterial(ev.material);
+    status(fitSummary(ev.stats || {}));
     if (ev.notes?.length) status(ev.notes.join("; "));
   } else if (ev.type === "stroke" && ev.notes?.length) {
     status(ev.notes.join("; "));
@@ -111,6 +185,28 @@ function onEvent(ev) {
   }
 }
 
+// -- moving objects (scene objects with "movable": true) ------------------------------------------
+let movable = [];
+function showMoveTool(names) {
+  movable = names;
+  const on = movable.length > 0;
+  for (const id of ["move-tool", "move-pick", "move-hint"]) $(id).classList.toggle("hidden", !on);
+  const sel = $("move-object");
+  if (on && [...sel.options].map((o) => o.value).join() !== movable.join()) {
+    sel.innerHTML = "";
+    for (const name of movable) sel.append(new Option(name, name));
+  }
+  if (!on && tool() === "move") $("tool-orbit").checked = true;
+}
+let pendingMove = null;
+function sendMove(drag) {
+  // one message per animation frame while dragging; the last one (drag: false) always goes out
+  const name = $("move-object").value;
+  const send = () => { pendingMove = null; stream?.send("move", { object: name, transform: state.transforms[name], drag }); };
+  if (!drag) { pendingMove = null; return send(); }
+  if (!pendingMove) pendingMove = requestAnimationFrame(send);
+}
+
 // -- camera, light, display -----------------------------------------------------------------------
 let dragging = null, strokePts = [];
 const tool = () => document.querySelector("input[name=tool]:checked").value;
@@ -118,9 +214,17 @@ const tool = () => document.querySelector("input[name=tool]:checked").value;
 $("view").addEventListener("pointerdown", (e) => {
   if (!stream) return;
   $("view").setPointerCapture(e.pointerId);
-  const mode = tool() === "brush" ? "brush" : (e.altKey || tool() === "light" ? "light" : "orbit");
+  const mode = tool() === "brush" ? "brush" : tool() === "move" && movable.length ? "move"
+    : (e.altKey || tool() === "light" ? "light" : "orbit");
   dragging = { mode, x: e.clientX, y: e.clientY };
   if (mode === "brush") { strokePts = [view.toFrame(e, state.camera.width, state.camera.height)]; drawStroke(); }
+  if (mode === "move") {
+    const name = $("move-object").value;
+    state.transforms = state.transforms || {};
+    dragging.move = new MoveDrag(state.camera);
+    dragging.turning = e.shiftKey;
+    dragging.move.start(...view.toFrame(e, state.camera.width, state.camera.height), fullTransform(state.transforms[name]));
+  }
 });
 $("view").addEventListener("pointermove", (e) => {
   if (!dragging) return;
@@ -128,6 +232,16 @@ $("view").addEventListener("pointermove", (e) => {
   if (dragging.mode === "brush") {
     strokePts.push(view.toFrame(e, state.camera.width, state.camera.height));
     drawStroke();
+    return;
+  }
+  if (dragging.mode === "move") {
+    const name = $("move-object").value, [px, py] = view.toFrame(e, state.camera.width, state.camera.height);
+    if (e.shiftKey !== dragging.turning) {          // Shift pressed or released mid-drag
+      dragging.turning = e.shiftKey;
+      dragging.move.rebase(px, py, state.transforms[name]);
+    }
+    state.transforms = { ...state.transforms, [name]: dragging.move.to(px, py, dragging.turning) };
+    sendMove(true);
     return;
   }
   dragging.x = e.clientX; dragging.y = e.clientY;
@@ -144,17 +258,23 @@ $("view").addEventListener("pointerup", () => {
   const mode = dragging.mode;
   dragging = null;
   if (mode === "brush") return sendStroke();
+  if (mode === "move") return sendMove(false);
   if (mode === "orbit") stream.send("view", { eye: state.camera.eye, drag: false });
   else stream.send("light", { rotation_deg: state.rotation_deg, drag: false });
 });
+let wheelEnd = null;
 $("view").addEventListener("wheel", (e) => {
   if (!stream) return;
   e.preventDefault();
   state.camera = orbit(state.camera, 0, 0, Math.exp(e.deltaY * 0.001));
-  stream.send("view", { eye: state.camera.eye });
+  // zooming is a drag: fast frames while the wheel turns, a still (anti-aliased) one after
+  stream.send("view", { eye: state.camera.eye, drag: true });
+  clearTimeout(wheelEnd);
+  wheelEnd = setTimeout(() => stream?.send("view", { eye: state.camera.eye, drag: false }), 150);
 }, { passive: false });
 $("exposure").addEventListener("input", () => stream?.send("display", { exposure: +$("exposure").value }));
 $("tone").addEventListener("change", () => stream?.send("display", { tone: $("tone").value }));
+$("shadow").addEventListener("change", () => stream?.send("display", { shadow: $("shadow").checked }));
 
 // -- brush -------------------------------------------------------------------------------------------
 function drawStroke() {
@@ -188,16 +308,22 @@ $("constrained").onchange = sendFit;
 $("unpainted-weight").onchange = sendFit;
 
 // -- material panel ----------------------------------------------------------------------------------
-const PARAMS = {
-  lambert: [["albedo", "color"]],
-  ggx: [["alpha", "range", 0.02, 1, 0.01], ["specular", "color"], ["albedo", "color"]],
-  "blinn-phong": [["exponent", "range", 1, 2000, 1], ["specular", "color"], ["albedo", "color"]],
-  curve: [["albedo", "color"], ["fresnel_f0", "range", 0, 1, 0.01]],
-  srbf: [["albedo", "color"], ["fresnel_f0", "range", 0, 1, 0.01]],
-};
+// the models, their controls and defaults come from the server (GET /v1/models): a model added
+// on the server appears here without a change to the studio
+let MODELS = {};
+async function loadModels() {
+  const list = await api("/v1/models");
+  MODELS = Object.fromEntries(list.map((m) => [m.model, m]));
+  const sel = $("model");
+  sel.innerHTML = "";
+  for (const m of list) {
+    // a curve starts from the current BRDF; other models without defaults come from elsewhere (strokes, paint)
+    const o = new Option(m.creatable || m.model === "curve" ? m.label : `${m.label} (not editable here)`, m.model);
+    o.disabled = !(m.creatable || m.model === "curve");
+    sel.append(o);
+  }
+}
 const toHex = (rgb) => "#" + rgb.map((c) => Math.round(255 * Math.min(1, Math.max(0, c <= 0.0031308 ? 12.92 * c : 1.055 * c ** (1 / 2.4) - 0.055))).toString(16).padStart(2, "0")).join("");
-const DEFAULTS = { lambert: { albedo: [0.5, 0.5, 0.5] }, ggx: { alpha: 0.25, specular: [0.5, 0.5, 0.5], albedo: [0.2, 0.2, 0.2] },
-  "blinn-phong": { exponent: 100, specular: [0.3, 0.3, 0.3], albedo: [0.3, 0.3, 0.3] } };
 
 const curveEditor = new CurveEditor($("curve"), (m) => { setMaterial(m, false); queueMaterial(); });
 let pendingMaterial = false;
@@ -218,7 +344,7 @@ function setMaterial(m, rebuild = true) {
 function buildParams() {
   const box = $("params");
   box.innerHTML = "";
-  for (const [key, kind, lo, hi, step] of PARAMS[material.model] || []) {
+  for (const { name: key, kind, min: lo, max: hi, step } of (MODELS[material.model] || {}).controls || []) {
     const label = document.createElement("label");
     label.textContent = key;
     const input = document.createElement("input");
@@ -239,7 +365,7 @@ $("model").addEventListener("change", () => {
   const model = $("model").value;
   // a curve starts from the current BRDF's half-angle distribution, so the look carries over
   if (model === "curve") setMaterial(toCurve(material));
-  else setMaterial({ model, ...(DEFAULTS[model] || {}) });
+  else setMaterial(structuredClone(MODELS[model].default));
   queueMaterial();
 });
 $("lobe-angle").addEventListener("input", () => drawLobe($("lobe"), material, +$("lobe-angle").value));
@@ -277,14 +403,31 @@ $("open-scene").onclick = () => $("scene-select").value && openScene($("scene-se
 $("upload").onclick = upload;
 
 // -- start -----------------------------------------------------------------------------------------------
+// On a first start the demo scene is still being fetched and precomputed: show its progress and
+// open it by itself when it is ready (no reload).
+async function waitDemo() {
+  const bar = $("progress");
+  for (;;) {
+    const { demo } = await api("/v1/status");
+    if (!["fetching", "precomputing"].includes(demo.state)) { bar.classList.add("hidden"); return demo; }
+    bar.classList.remove("hidden");
+    bar.value = demo.progress || 0;
+    status(`${demo.message} (${Math.round(100 * (demo.progress || 0))}%) — the demo opens by itself when it is ready`);
+    await new Promise((r) => setTimeout(r, 700));
+  }
+}
+
 (async () => {
   try {
+    await loadModels();
     for (;;) {
       const { scenes, ready } = await listScenes();
       if (ready) { await openScene(ready.id); break; }
+      const demo = await waitDemo();
+      if (demo.state === "ready") continue;
       const pending = scenes.find((s) => s.precomputation && ["queued", "running"].includes(s.precomputation.status));
       if (pending) { await waitPrecompute(pending.id); continue; }
-      status("no scene yet: upload a mesh and an HDRI");
+      status(demo.state === "failed" ? `${demo.message}; upload a mesh and an HDRI instead` : "no scene yet: upload a mesh and an HDRI");
       break;
     }
   } catch (err) { status(`error: ${err.message}`); }

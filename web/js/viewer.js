@@ -17,7 +17,14 @@ async function start() {
   document.title = `${pub.name} · Glint viewer`;
   const session = await api(`/v1/publications/${pubId}/sessions`, { method: "POST" });
   state = session.state;
-  stream = new SessionStream(session, { onFrame: (f) => view.push(f), onEvent: (e) => {
+  stream = new SessionStream(session, { onFrame: (f) => {
+    // the toggle shows for scenes with a ground; it starts as the frames are drawn
+    if (f.header.shadow != null && $("shadow-toggle").classList.contains("hidden")) {
+      $("shadow-toggle").classList.remove("hidden");
+      $("shadow").checked = f.header.shadow;
+    }
+    view.push(f);
+  }, onEvent: (e) => {
     if (e.type === "error") $("readout").textContent = e.message;
   } });
   view.stream = stream;
@@ -50,6 +57,8 @@ $("view").addEventListener("pointermove", (e) => {
   stream.send("view", { eye: state.camera.eye, drag: true });
 });
 $("view").addEventListener("pointerup", () => { drag = null; stream?.send("view", { eye: state.camera.eye, drag: false }); });
+
+$("shadow").onchange = () => stream?.send("display", { shadow: $("shadow").checked });
 
 $("screenshot").onclick = () => {
   $("view").toBlob((blob) => {

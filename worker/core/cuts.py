@@ -17,9 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import native
-
 QMAX = 255.0
+DEFAULT_TAU = 1.0   # cut error threshold in leaf units (build_cuts_numpy): the precomputed level
 
 
 @dataclass
@@ -95,21 +94,11 @@ def build_cuts_numpy(values: np.ndarray, tau: float) -> CutSet:
     return CutSet(offsets, hs, quant, hmax)
 
 
-def build_cuts(values: np.ndarray, tau: float, use_native: bool = True) -> CutSet:
-    """Cuts for a batch of vertices; the C kernel when built, else the NumPy reference."""
-    if not (use_native and native.available()):
-        return build_cuts_numpy(values, tau)
-    values = native.c(values, np.float32)
-    b, n = values.shape
-    hmax = int(np.log2(n))
-    heights = np.empty((b, n), np.uint8)
-    quant = np.empty((b, n), np.uint8)
-    counts = np.empty(b, np.int32)
-    native.lib.glk_build_cuts(values, b, hmax, float(tau), heights, quant, counts)
-    mask = np.arange(n)[None, :] < counts[:, None]
-    offsets = np.zeros(b + 1, np.int64)
-    np.cumsum(counts, out=offsets[1:])
-    return CutSet(offsets, heights[mask], quant[mask], hmax)
+def build_cuts(values: np.ndarray, tau: float, kernels=None) -> CutSet:
+    """Cuts for a batch of vertices (see build_cuts_numpy); kernels: the backend."""
+    from ..native.kernels import kernels as _kernels
+
+    return (kernels or _kernels()).build_cuts(values, tau)
 
 
 def decode_to_leaves(heights: np.ndarray, values: np.ndarray, height: int = 15) -> np.ndarray:
@@ -117,8 +106,16 @@ def decode_to_leaves(heights: np.ndarray, values: np.ndarray, height: int = 15) 
     return np.repeat(np.asarray(values, np.float32), 1 << np.asarray(heights, np.int64))
 
 
-def coarsen(cs: CutSet, tau: float, use_native: bool = True) -> CutSet:
-    """A coarser cut set for interaction (level of detail while the user drags).
+def coarsen(cs: CutSet, tau: float, kernels=None) -> CutSet:
+    """A coarser cut set for interaction (level of detail while the user drags); see
+    coarsen_numpy. kernels: the backend."""
+    from ..native.kernels import kernels as _kernels
+
+    return (kernels or _kernels()).coarsen(cs, tau)
+
+
+def coarsen_numpy(cs: CutSet, tau: float) -> CutSet:
+    """A coarser cut set for interaction (NumPy reference of glk_coarsen).
 
     Adjacent sibling nodes of a vertex's cut are merged into their parent, repeatedly, while the
     parent's error from its children's means, sqrt(n · Σ_i n_i (m_i − m)²) in leaf units, stays
@@ -128,19 +125,6 @@ def coarsen(cs: CutSet, tau: float, use_native: bool = True) -> CutSet:
     like its input; values are the children's mean (exact up to quantisation).
     The C kernel ``glk_coarsen`` does the same with a per-vertex stack (same merges).
     """
-    from .. import native
-
-    if use_native and native.available():
-        V = cs.n_vertices
-        oh = np.empty_like(cs.heights)
-        oq = np.empty_like(cs.quant)
-        counts = np.empty(V, np.int32)
-        native.lib.glk_coarsen(V, native.c(cs.offsets, np.int64), native.c(cs.heights, np.uint8),
-                               native.c(cs.quant, np.uint8), float(tau), oh, oq, counts)
-        off = np.zeros(V + 1, np.int64)
-        off[1:] = np.cumsum(counts)
-        keep = np.concatenate([np.arange(a, a + n) for a, n in zip(cs.offsets[:-1], counts)]) if V else np.zeros(0, np.int64)
-        return CutSet(off, oh[keep], oq[keep], cs.height)
     V = cs.n_vertices
     vert = np.repeat(np.arange(V), cs.sizes())
     h = cs.heights.astype(np.int64)
@@ -248,6 +232,12 @@ def decode(blob: bytes) -> CutSet:
     offsets = np.zeros(nv + 1, np.int64)
     np.cumsum(counts, out=offsets[1:])
     return CutSet(offsets, heights[:nn].copy(), quant, hmax)
+
+
+def height_encoded_bytes(cs: CutSet) -> int:
+    """Size of the height encoding before deflation: a uint16 count per vertex, 4-bit heights
+    packed two per byte, 8-bit values (the like-for-like partner of index_encoded_bytes)."""
+    return len(MAGIC) + 2 * cs.n_vertices + (cs.n_nodes + 1) // 2 + cs.n_nodes
 
 
 def index_encoded_bytes(cs: CutSet, deflate: bool = False) -> int:

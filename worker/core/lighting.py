@@ -14,6 +14,11 @@ Besides l_k, each leaf stores the luminance-weighted sum of its sub-pixel direct
 light change both are summed up the tree (node_lighting), so any cluster's radiance and its
 light-weighted centroid direction are one lookup. Rendering evaluates the BRDF at that centroid,
 so a sun inside a wide cluster is seen at the sun's direction, not at the cluster's centre.
+
+``light_tables`` gives both per-node tables and the shading kernel's packed form for one
+lighting through the kernel backend: ``light_tables_numpy`` (leaf_radiance + node_lighting) is
+the reference of the C kernel ``glk_light_tables`` (worker/native/src/lighting.c), which reads
+the rotated map in place and makes the four sparse products one pass.
 """
 from __future__ import annotations
 
@@ -111,6 +116,21 @@ class LeafLighting:
         h, w, _ = self.map.shape
         self._mats = _assignment(h, w, tree)
 
+    def csr(self):
+        """The assignment as one CSR pattern with four weights per entry, for the C kernel:
+        (indptr (N+1,) int64, pixel row, pixel column (nnz,) int32, weights (nnz, 4) float64 sr
+        and sr × direction x, y, z). Built once per LeafLighting."""
+        if getattr(self, "_csr", None) is None:
+            w_sr, wx, wy, wz = self._mats
+            for m in (wx, wy, wz):     # built from the same (leaf, pixel) pairs: one pattern
+                if not (np.array_equal(m.indptr, w_sr.indptr) and np.array_equal(m.indices, w_sr.indices)):
+                    raise AssertionError("leaf assignment matrices differ in pattern")
+            w = self.map.shape[1]
+            self._csr = (w_sr.indptr.astype(np.int64), (w_sr.indices // w).astype(np.int32),
+                         (w_sr.indices % w).astype(np.int32),
+                         np.ascontiguousarray(np.stack([w_sr.data, wx.data, wy.data, wz.data], 1), np.float64))
+        return self._csr
+
     def leaf_radiance(self, rotation_deg: float = 0.0, intensity: float = 1.0):
         """Returns (l (N, 3) float64 radiance×sr per leaf, ld (N, 3) float64 luminance-weighted
         direction sums per leaf, in units of luminance×sr)."""
@@ -143,3 +163,27 @@ def node_lighting(l: np.ndarray, ld: np.ndarray, tree: DirectionTree):
     use = (dl > 1e-3 * lum) & (dl > 1e-300)
     node_w = np.where(use[:, None], d / np.where(use, dl, 1.0)[:, None], tree.node_dir)
     return node_l.astype(np.float32), node_w.astype(np.float32)
+
+
+def pack_nodes(node_l: np.ndarray, node_w: np.ndarray) -> np.ndarray:
+    """The shading kernel's node records: (2N-1, 8) float32 rows (l_r, l_g, l_b, ω_x, ω_y,
+    ω_z, 0, 0), so one record is gathered per cluster (worker/native/src/shade.c)."""
+    out = np.zeros((len(node_l), 8), np.float32)
+    out[:, 0:3] = node_l
+    out[:, 3:6] = node_w
+    return out
+
+
+def light_tables_numpy(lighting: LeafLighting, rotation_deg: float, intensity: float, tree: DirectionTree):
+    """Reference of glk_light_tables: (node_l, node_w (2N-1, 3) float32 as node_lighting,
+    node8 (2N-1, 8) float32 as pack_nodes) for one rotation (degrees about +Y) and intensity."""
+    node_l, node_w = node_lighting(*lighting.leaf_radiance(rotation_deg, intensity), tree)
+    return node_l, node_w, pack_nodes(node_l, node_w)
+
+
+def light_tables(lighting: LeafLighting, rotation_deg: float, intensity: float, tree: DirectionTree,
+                 kernels=None):
+    """(node_l, node_w, node8) of light_tables_numpy, through the kernel backend."""
+    from ..native.kernels import kernels as _kernels
+
+    return (kernels or _kernels()).light_tables(lighting, rotation_deg, intensity, tree)

@@ -9,7 +9,9 @@ point's cut. Two shading modes:
   view direction and blends them by barycentric weight (equal to interpolating the cuts, the
   integral being linear in visibility). Sharper glossy highlights on coarse meshes.
 
-``shade_points_numpy`` is the reference of the C kernel ``glk_shade_points``.
+``shade_points_numpy`` is the reference of the C kernel ``glk_shade_points`` (and likewise
+``interpolate_numpy``, ``env_lookup_numpy``); the public functions take the kernel backend
+(worker/native/kernels.py), defaulting to the process's.
 """
 from __future__ import annotations
 
@@ -17,7 +19,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from .. import native
+from ..native import model_id
+from ..native.kernels import kernels as _kernels
 from .brdf import PackedBRDF, eval_packed, onb
 from .cuts import CutSet
 from .directions import DirectionTree
@@ -25,12 +28,15 @@ from .directions import DirectionTree
 # --- camera -----------------------------------------------------------------------------------
 
 
-def camera_rays(eye, target, up, fov_y_deg: float, width: int, height: int):
+def camera_rays(eye, target, up, fov_y_deg: float, width: int, height: int, samples: int = 1, kernels=None):
     """Primary rays through pixel centres, DESIGN.md §2 (pixel (0, 0) top-left, image right =
-    normalize(cross(forward, up))). Returns (origins (H*W, 3), dirs (H*W, 3)) float32.
+    normalize(cross(forward, up))). Returns (origins (H*W*S, 3), dirs (H*W*S, 3)) float32; with
+    samples S > 1, the S rays of pixel p are rows p·S … p·S + S − 1, through the sub-pixel
+    positions of ``sample_offsets(S)``.
 
-    The unit directions in the camera frame depend only on the field of view and the image size
-    (cached); a view change rotates them into the world with one 3×3 product."""
+    The unit directions in the camera frame depend only on the field of view, the image size and
+    the samples (cached); a view change rotates them into the world with one 3×3 product
+    (``rotate_dirs_numpy``, the reference of the C kernel glk_rotate_dirs)."""
     eye = np.asarray(eye, np.float64)
     fwd = np.asarray(target, np.float64) - eye
     fwd /= np.linalg.norm(fwd)
@@ -38,18 +44,48 @@ def camera_rays(eye, target, up, fov_y_deg: float, width: int, height: int):
     right /= np.linalg.norm(right)
     true_up = np.cross(right, fwd)
     basis = np.stack([right, true_up, fwd]).astype(np.float32)       # rows: camera axes in world
-    d = _camera_space_dirs(float(fov_y_deg), int(width), int(height)) @ basis
+    d = (kernels or _kernels()).rotate_dirs(_camera_space_dirs(float(fov_y_deg), int(width), int(height),
+                                                                int(samples)), basis)
     return np.broadcast_to(eye.astype(np.float32), d.shape).copy(), d
 
 
+def rotate_dirs_numpy(dirs, basis) -> np.ndarray:
+    """(P, 3) float32 directions dirs (P, 3) in a frame whose axes are the rows of basis (3, 3),
+    in the world: dirs @ basis."""
+    return (np.asarray(dirs, np.float32) @ np.asarray(basis, np.float32)).astype(np.float32)
+
+
+def sample_offsets(samples: int) -> np.ndarray:
+    """(S, 2) float64 sub-pixel offsets (x right, y down, in pixels from the pixel centre) of the
+    anti-aliasing patterns: 1 the centre; 2 a diagonal pair; 4 the rotated grid (RGSS); k² a
+    k × k grid. Every pattern is symmetric about the centre, so the mean of a linear function
+    over the samples is its value at the centre: inside a triangle, vertex-mode shading with
+    S samples equals one sample, and only edges change."""
+    s = int(samples)
+    if s == 1:
+        return np.zeros((1, 2))
+    if s == 2:
+        return np.array([[-0.25, -0.25], [0.25, 0.25]])
+    if s == 4:
+        return np.array([[-0.125, -0.375], [0.375, -0.125], [0.125, 0.375], [-0.375, 0.125]])
+    k = int(round(np.sqrt(s)))
+    if k * k != s or k < 1:
+        raise ValueError(f"samples: {s} per pixel is not supported (1, 2, 4, 9, 16 or another square)")
+    g = (np.arange(k) + 0.5) / k - 0.5
+    return np.stack(np.meshgrid(g, g, indexing="xy"), -1).reshape(-1, 2)
+
+
 @lru_cache(maxsize=8)
-def _camera_space_dirs(fov_y_deg: float, width: int, height: int) -> np.ndarray:
-    """(H*W, 3) float32 unit directions in the camera frame (x right, y up, z forward)."""
+def _camera_space_dirs(fov_y_deg: float, width: int, height: int, samples: int = 1) -> np.ndarray:
+    """(H*W*S, 3) float32 unit directions in the camera frame (x right, y up, z forward)."""
     t = np.tan(np.radians(fov_y_deg) / 2.0)
     aspect = width / height
-    xs = (2.0 * (np.arange(width) + 0.5) / width - 1.0) * t * aspect
-    ys = (1.0 - 2.0 * (np.arange(height) + 0.5) / height) * t
-    d = np.stack(np.broadcast_arrays(xs[None, :], ys[:, None], np.ones((1, 1))), axis=-1).reshape(-1, 3)
+    off = sample_offsets(samples)                                      # (S, 2)
+    px = (np.arange(width)[None, :, None] + 0.5 + off[None, None, :, 0])    # (1, W, S)
+    py = (np.arange(height)[:, None, None] + 0.5 + off[None, None, :, 1])   # (H, 1, S)
+    xs = (2.0 * px / width - 1.0) * t * aspect
+    ys = (1.0 - 2.0 * py / height) * t
+    d = np.stack(np.broadcast_arrays(xs, ys, np.ones((1, 1, 1))), axis=-1).reshape(-1, 3)
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     d = d.astype(np.float32)
     d.setflags(write=False)
@@ -60,13 +96,14 @@ def _camera_space_dirs(fov_y_deg: float, width: int, height: int) -> np.ndarray:
 
 
 class MaterialTable:
-    """Packed materials in the kernel's arrays: kind (M,) int32, params (M, 72) float32,
+    """Packed materials in the kernel's arrays: kind (M,) int32 (the library's branch id,
+    −1 for a model without a C branch: shaded by its NumPy reference), params (M, 72) float32,
     refine, extent (M,) float32 radians (PackedBRDF), tables (concatenated float32),
     table_off (M,) int64 (-1: none)."""
 
     def __init__(self, packed: list[PackedBRDF]):
         self.packed = packed
-        self.kind = np.array([p.kind for p in packed], np.int32)
+        self.kind = np.array([model_id(p.kernel) for p in packed], np.int32)
         self.params = np.stack([p.params for p in packed]).astype(np.float32)
         self.refine = np.array([min(p.refine_radius, 1e9) for p in packed], np.float32)
         self.extent = np.array([min(p.extent, 1e9) for p in packed], np.float32)
@@ -179,28 +216,16 @@ def _shade_chunk(n, wo, cut_of, mat_of, cuts, node_l, node_w, tree, mats):
 
 
 def shade_points(normals, wo, cut_of, mat_of, cuts: CutSet, node_l, node_w, tree: DirectionTree,
-                 mats: MaterialTable, use_native: bool = True) -> np.ndarray:
-    """(P, 3) float32 radiance at points; the C kernel when built (see shade_points_numpy)."""
-    if not (use_native and native.available()):
-        return shade_points_numpy(normals, wo, cut_of, mat_of, cuts, node_l, node_w, tree, mats)
-    c = native.c
-    p = len(normals)
-    out = np.empty((p, 3), np.float32)
-    native.lib.glk_shade_points(
-        p, c(normals, np.float32), c(wo, np.float32), c(cut_of, np.int32), c(mat_of, np.int32),
-        c(cuts.offsets, np.int64), c(cuts.heights, np.uint8), c(cuts.quant, np.uint8),
-        c(node_l, np.float32), c(node_w, np.float32), tree.node_dir, tree.node_radius,
-        c(tree.level_offset, np.int64), tree.height, mats.kind, mats.params, mats.refine, mats.extent,
-        mats.tables, mats.table_off, out)
-    return out
+                 mats: MaterialTable, kernels=None, node8=None) -> np.ndarray:
+    """(P, 3) float32 radiance at points (see shade_points_numpy); kernels: the backend;
+    node8: the packed node records of (node_l, node_w) (lighting.light_tables), if at hand."""
+    return (kernels or _kernels()).shade_points(normals, wo, cut_of, mat_of, cuts, node_l, node_w, tree, mats,
+                                                node8=node8)
 
 
-def interpolate(tri, uv, faces, vert_rgb, out, use_native: bool = True):
-    """Barycentric interpolation of per-vertex (V, 3) radiance into out (P, 3) where tri ≥ 0."""
-    if use_native and native.available():
-        native.lib.glk_interpolate(len(tri), native.c(tri, np.int32), native.c(uv, np.float32),
-                                   native.c(faces, np.int32), native.c(vert_rgb, np.float32), out)
-        return out
+def interpolate_numpy(tri, uv, faces, vert_rgb, out):
+    """Barycentric interpolation of per-vertex (V, 3) radiance into out (P, 3) where tri ≥ 0
+    (NumPy reference of glk_interpolate)."""
     hit = tri >= 0
     f = faces[tri[hit]]
     u, v = uv[hit, 0:1], uv[hit, 1:2]
@@ -208,18 +233,16 @@ def interpolate(tri, uv, faces, vert_rgb, out, use_native: bool = True):
     return out
 
 
-def env_lookup(dirs, envmap, rotation_deg: float, intensity: float, mask=None, out=None,
-               use_native: bool = True) -> np.ndarray:
-    """Bilinear lookup of the (rotated, scaled) environment along world directions (P, 3)."""
+def interpolate(tri, uv, faces, vert_rgb, out, kernels=None):
+    """Barycentric interpolation of per-vertex (V, 3) radiance into out (P, 3) where tri ≥ 0."""
+    return (kernels or _kernels()).interpolate(tri, uv, faces, vert_rgb, out)
+
+
+def env_lookup_numpy(dirs, envmap, rotation_deg: float, intensity: float, mask=None, out=None) -> np.ndarray:
+    """Bilinear lookup of the (rotated, scaled) environment along world directions (P, 3)
+    (NumPy reference of glk_env_lookup); only where mask (P,) is set, into out (P, 3)."""
     if out is None:
         out = np.zeros((len(dirs), 3), np.float32)
-    if use_native and native.available():
-        m = native.c(mask, np.uint8) if mask is not None else None
-        native.lib.glk_env_lookup(len(dirs), native.c(dirs, np.float32),
-                                  m.ctypes.data if m is not None else None,
-                                  native.c(envmap, np.float32), envmap.shape[0], envmap.shape[1],
-                                  float(np.radians(rotation_deg)), float(intensity), out)
-        return out
     sel = np.ones(len(dirs), bool) if mask is None else mask.astype(bool)
     d = dirs[sel].astype(np.float64)
     hm, wm, _ = envmap.shape
@@ -234,3 +257,90 @@ def env_lookup(dirs, envmap, rotation_deg: float, intensity: float, mask=None, o
     b = envmap[y1, x0] * (1 - ax) + envmap[y1, x1] * ax
     out[sel] = (intensity * (a * (1 - ay) + b * ay)).astype(np.float32)
     return out
+
+
+def env_lookup(dirs, envmap, rotation_deg: float, intensity: float, mask=None, out=None,
+               kernels=None) -> np.ndarray:
+    """Bilinear lookup of the (rotated, scaled) environment along world directions (P, 3)."""
+    return (kernels or _kernels()).env_lookup(dirs, envmap, rotation_deg, intensity, mask, out)
+
+
+# --- frame assembly ---------------------------------------------------------------------------
+
+
+def env_coords(dirs, kernels=None) -> np.ndarray:
+    """(P, 2) float32 equirectangular coordinates (u in [0, 1), v = acos(y)/π) of world
+    directions (P, 3) with the environment unrotated (DESIGN.md §2): once per view, so that a
+    light change costs a lookup (``background``)."""
+    return (kernels or _kernels()).env_coords(dirs)
+
+
+def env_coords_numpy(dirs) -> np.ndarray:
+    """NumPy reference of glk_env_coords (see env_coords)."""
+    d = np.asarray(dirs, np.float64)
+    u = np.mod(np.arctan2(d[:, 0], -d[:, 2]) / (2 * np.pi), 1.0)
+    v = np.arccos(np.clip(d[:, 1], -1, 1)) / np.pi
+    return np.stack([u, v], 1).astype(np.float32)
+
+
+def background_numpy(sample, dirs, uv0, envmap, rotation_deg: float, intensity: float, out, shadow=None,
+                     eye=None):
+    """NumPy reference of glk_background: out[sample] = the (rotated, scaled) environment along
+    dirs (n, 3), bilinear at the view's coordinates uv0 (n, 2) (env_coords), times the ground
+    shadow factor where a ray from eye (3,) goes down through the shadow plane.
+
+    shadow : None, or (grid (G, G, 3) float32 factor, (x0, z0, step, y)) with grid node (i, j)
+        at (x0 + i·step, y, z0 + j·step); bilinear, 1 outside the grid.
+    out : (P·S, 3) float32, written at rows ``sample`` (n,) int64."""
+    hm, wm, _ = envmap.shape
+    u = np.mod(uv0[:, 0].astype(np.float64) + rotation_deg / 360.0, 1.0)
+    v = uv0[:, 1].astype(np.float64)
+    fx, fy = u * wm - 0.5, v * hm - 0.5
+    x0, y0 = np.floor(fx).astype(np.int64), np.floor(fy).astype(np.int64)
+    ax, ay = (fx - x0)[:, None], (fy - y0)[:, None]
+    x1 = (x0 + 1) % wm; x0 = x0 % wm
+    y1 = np.clip(y0 + 1, 0, hm - 1); y0 = np.clip(y0, 0, hm - 1)
+    a = envmap[y0, x0] * (1 - ax) + envmap[y0, x1] * ax
+    b = envmap[y1, x0] * (1 - ax) + envmap[y1, x1] * ax
+    val = intensity * (a * (1 - ay) + b * ay)
+    if shadow is not None:
+        grid, (gx0, gz0, step, gy) = shadow
+        g = grid.shape[0]
+        d = np.asarray(dirs, np.float64)
+        e = np.asarray(eye, np.float64)
+        fac = np.ones((len(d), 3))
+        down = (d[:, 1] < 0) & (e[1] > gy)
+        t = np.where(down, (gy - e[1]) / np.where(down, d[:, 1], -1.0), 0.0)
+        gx = (e[0] + t * d[:, 0] - gx0) / step
+        gz = (e[2] + t * d[:, 2] - gz0) / step
+        inside = down & (gx >= 0) & (gz >= 0) & (gx <= g - 1) & (gz <= g - 1)
+        i0 = np.minimum(gx[inside].astype(np.int64), g - 2)
+        j0 = np.minimum(gz[inside].astype(np.int64), g - 2)
+        fa, fb = (gx[inside] - i0)[:, None], (gz[inside] - j0)[:, None]
+        gr = grid.astype(np.float64)
+        fac[inside] = ((gr[i0, j0] * (1 - fb) + gr[i0, j0 + 1] * fb) * (1 - fa)
+                       + (gr[i0 + 1, j0] * (1 - fb) + gr[i0 + 1, j0 + 1] * fb) * fa)
+        val = val * fac
+    out[sample] = val.astype(np.float32)
+    return out
+
+
+def background(sample, dirs, uv0, envmap, rotation_deg: float, intensity: float, out, shadow=None, eye=None,
+               kernels=None):
+    """The background samples of a frame (see background_numpy), through the kernel backend."""
+    return (kernels or _kernels()).background(sample, dirs, uv0, envmap, rotation_deg, intensity, out, shadow, eye)
+
+
+def resolve_numpy(tri, uv, faces, vert_rgb, bg, samples: int, out):
+    """NumPy reference of glk_resolve: out (P, 3) = per pixel, the mean over its S samples (rows
+    p·S + s of tri (P·S,), uv (P·S, 2), bg (P·S, 3)) of the barycentric interpolation of per-vertex
+    radiance vert_rgb (V, 3) where tri ≥ 0, else of bg."""
+    val = np.array(bg, np.float32, copy=True)
+    interpolate_numpy(tri, uv, faces, vert_rgb, val)
+    out[:] = val.reshape(-1, samples, 3).mean(1)
+    return out
+
+
+def resolve(tri, uv, faces, vert_rgb, bg, samples: int, out, kernels=None):
+    """Per-pixel mean of the samples' interpolated radiance or background (see resolve_numpy)."""
+    return (kernels or _kernels()).resolve(tri, uv, faces, vert_rgb, bg, samples, out)

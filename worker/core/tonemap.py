@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import native
-
 CURVES = {"linear": 0, "aces": 1, "neutral": 2}
 
 
@@ -37,12 +35,10 @@ def tonemap_numpy(rgb: np.ndarray, exposure: float = 0.0, curve: str = "neutral"
     return np.clip(np.rint(c * 255.0), 0, 255).astype(np.uint8)
 
 
-def tonemap(rgb: np.ndarray, exposure: float = 0.0, curve: str = "neutral", use_native: bool = True) -> np.ndarray:
+def tonemap(rgb: np.ndarray, exposure: float = 0.0, curve: str = "neutral", kernels=None) -> np.ndarray:
+    """(…, 3) float linear radiance -> (…, 3) uint8 sRGB; kernels: the backend."""
     if curve not in CURVES:
         raise ValueError(f"unknown tone curve {curve!r}; choose one of {sorted(CURVES)}")
-    if not (use_native and native.available()):
-        return tonemap_numpy(rgb, exposure, curve)
-    src = native.c(rgb, np.float32)
-    out = np.empty(src.shape, np.uint8)
-    native.lib.glk_tonemap(src.size // 3, src, float(exposure), CURVES[curve], out)
-    return out
+    from ..native.kernels import kernels as _kernels
+
+    return (kernels or _kernels()).tonemap(rgb, exposure, curve)

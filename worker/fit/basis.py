@@ -261,7 +261,7 @@ G_TABLE = 4096
 
 def cube_cell(d: np.ndarray) -> np.ndarray:
     """Cube-map cell (…,) int of directions d (…, 3): face·C² + iu·C + iv, faces +x −x +y −y +z −z,
-    (u, v) the other two coordinates over the major one, as glk_transfer computes it."""
+    (u, v) the other two coordinates over the major one, as glk_fit_transfer computes it."""
     x, y, z = d[..., 0], d[..., 1], d[..., 2]
     ax, ay, az = np.abs(x), np.abs(y), np.abs(z)
     zf = (az >= ax) & (az >= ay)
@@ -328,7 +328,7 @@ ROW_NT, ROW_NPHI = 32, 64
 
 
 @lru_cache(maxsize=4)
-def _polar_nodes(nt: int, nphi: int):
+def polar_nodes(nt: int, nphi: int):
     """Nodes t/tcut on [0, 1] and weights for ∫_0^tcut e^−t K dt = tcut Σ w e^{−t} K: nt
     Gauss-Legendre nodes on the core [0, 12/36] of the range (all but 6e-6 of the mass) and
     nt/3 on the tail; and the nphi azimuths."""
@@ -341,21 +341,12 @@ def _polar_nodes(nt: int, nphi: int):
 
 
 def energy_rows_at(basis: SRBFBasis, wo: np.ndarray, nt: int = ROW_NT, nphi: int = ROW_NPHI,
-                   use_native: bool = True) -> np.ndarray:
-    """g_j(ωo) (K, J) float64 (``energy_rows_numpy``); the C kernel glk_energy_rows when built."""
-    from . import kernels
-    from ..core.brdf import STATICS
+                   kernels=None) -> np.ndarray:
+    """g_j(ωo) (K, J) float64 (``energy_rows_numpy``, its NumPy reference); kernels: the backend
+    (worker/native/kernels.py: the C kernel glk_energy_rows in native/src/fit.c when built)."""
+    from ..native.kernels import kernels as _kernels
 
-    if not (use_native and kernels.available()):
-        return energy_rows_numpy(basis, wo, nt, nphi)
-    wo = np.ascontiguousarray(np.atleast_2d(np.asarray(wo, np.float64)))
-    tn, tw, _ = _polar_nodes(nt, nphi)
-    out = np.empty((len(wo), basis.J))
-    kernels.lib.glk_energy_rows(len(wo), wo, basis.J, np.ascontiguousarray(basis.centers),
-                                np.ascontiguousarray(basis.bandwidths), float(ROW_TMAX), STATICS[basis.static],
-                                float(basis.static_alpha), float(basis.fresnel_f0), len(tn),
-                                np.ascontiguousarray(tn), np.ascontiguousarray(tw), nphi, out)
-    return out
+    return (kernels or _kernels()).energy_rows(basis, wo, nt, nphi)
 
 
 def energy_rows_numpy(basis: SRBFBasis, wo: np.ndarray, nt: int = ROW_NT, nphi: int = ROW_NPHI) -> np.ndarray:
@@ -369,7 +360,7 @@ def energy_rows_numpy(basis: SRBFBasis, wo: np.ndarray, nt: int = ROW_NT, nphi: 
     and the trapezoid rule in φ (nphi, spectrally accurate for a periodic integrand). Every
     basis function gets the same relative resolution, whatever its width."""
     wo = np.atleast_2d(np.asarray(wo, np.float64))
-    tn, tw, ph = _polar_nodes(nt, nphi)
+    tn, tw, ph = polar_nodes(nt, nphi)
     out = np.zeros((len(wo), basis.J))
     co = wo[:, 2:3]
     for lam in np.unique(basis.bandwidths):
@@ -468,7 +459,7 @@ def energy_maximum(basis: SRBFBasis, coefficients: np.ndarray, n_check: int = 2)
 def static_alpha_for(material) -> float:
     """The shadowing roughness of the smith static for fits that start from ``material``: a
     GGX's own α (its Smith G is then exact), an smith srbf's static_alpha, else the default."""
-    from ..scene import GGX, SRBF
+    from ..models import GGX, SRBF
 
     if isinstance(material, GGX):
         return float(np.clip(material.alpha, 0.02, 1.0))

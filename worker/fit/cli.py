@@ -59,8 +59,10 @@ def add_commands(sub) -> None:
     s.set_defaults(fn=cmd_bench_strokes)
 
 
-def _scene_and_cuts(path, env, cuts_dir, tau, quiet):
-    from ..cli import _cuts
+def _renderer_for(path, env, cuts_dir, tau, quiet):
+    """The cut renderer of a scene file, under another environment map when ``env`` is given
+    (the cuts are geometry only: one precomputation serves every map)."""
+    from ..cli import open_renderer
     from ..envmap import load_envmap
     from ..scene import LoadedScene, load_scene
 
@@ -69,8 +71,8 @@ def _scene_and_cuts(path, env, cuts_dir, tau, quiet):
         spec = sc.spec.model_copy(deep=True)
         spec.environment.map = str(Path(env).resolve())
         sc = LoadedScene(spec, sc.root, envmap=load_envmap(env))
-    cs, _, _ = _cuts(sc, Path(cuts_dir) if cuts_dir else None, quiet, tau)
-    return sc, cs
+    r, _ = open_renderer(sc, cuts_dir, quiet, {"tau": tau}, kind="cuts")
+    return r
 
 
 def cmd_bench_recovery(a) -> int:
@@ -81,7 +83,6 @@ def cmd_bench_recovery(a) -> int:
     from tqdm import tqdm
 
     from ..core.tonemap import tonemap
-    from ..engine import Engine
     from .basis import default_basis, paper_basis
     from .recovery import ALPHAS, FINISHES, Case, public, recover
 
@@ -96,12 +97,11 @@ def cmd_bench_recovery(a) -> int:
     for s, e, al, sp, alb in cases:
         if (s, e) not in loaded:
             loaded.clear()
-            sc, cs = _scene_and_cuts(s, e, a.cuts, a.tau, True)
-            loaded[(s, e)] = (sc, cs, Engine(sc, cs))
-        sc, cs, eng = loaded[(s, e)]
+            loaded[(s, e)] = _renderer_for(s, e, a.cuts, a.tau, True)
+        rnd = loaded[(s, e)]
         basis = paper_basis() if a.static == "paper" else default_basis()
         case = Case(Path(s).stem, Path(e).name, al, sp, tuple(alb))
-        r = recover(sc, cs, case, basis=basis, fit_scale=a.fit_scale, spp=a.spp, cache_dir=cache, engine=eng,
+        r = recover(rnd, case, basis=basis, fit_scale=a.fit_scale, spp=a.spp, cache_dir=cache,
                     auto_static=a.static == "smith" and not a.no_auto_static)
         if a.images:
             out = Path(a.images)
@@ -158,21 +158,20 @@ def standard_strokes(fx, view: int = 0):
 
 
 def cmd_bench_strokes(a) -> int:
-    from ..engine import Engine
     from .fitter import Fitter
 
     res = []
     for s in a.scenes:
-        sc, cs = _scene_and_cuts(s, None, a.cuts, a.tau, a.json)
-        eng = Engine(sc, cs)
+        rnd = _renderer_for(s, None, a.cuts, a.tau, a.json)
+        sc = rnd.scene
         name = sc.spec.objects[0].name
-        fx = Fitter(eng, name, fit_scale=a.fit_scale)
+        fx = Fitter(rnd, name, fit_scale=a.fit_scale)
         fx.add_view()
         for label, st in standard_strokes(fx):
             fx.history.clear()
             fx.add_stroke(st)
-            for w in a.weights:
-              for fa in {"no": (False,), "yes": (True,), "both": (False, True)}[a.fit_albedo]:
+            albedo_modes = {"no": (False,), "yes": (True,), "both": (False, True)}[a.fit_albedo]
+            for w, fa in ((w, fa) for w in a.weights for fa in albedo_modes):
                 fx._last = None
                 out = fx.fit(unpainted_weight=w, fit_albedo=fa)
                 res.append({"scene": Path(s).stem, "object": name, "base": sc.spec.objects[0].material.model,

@@ -14,20 +14,15 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from ..core.render import camera_rays, shade_points
-from ..engine import Engine
 from ..errors import GlintError
-from ..scene import SRBF, Camera, Lobes, Material
+from ..renderers.base import Lighting
+from ..scene import SRBF, Camera, Material
 from .basis import DEFAULT_NL, SRBFBasis, default_basis, equivalent_roughness, static_alpha_for
-from .brush import Stroke, StrokeHistory, apply_stroke, stroke_effect, stroke_notes, stroke_weights
+from .brush import (DEFAULT_UNPAINTED_WEIGHT, Stroke, StrokeHistory, apply_stroke, stroke_effect, stroke_notes,
+                    stroke_weights)
 from .solve import FitRows, SolveResult, gram, solve
-from .transfer import transfer
 
-# painted pixels weigh 1, unpainted ones this much (BENCHMARKS.md "Strokes"): with a typical
-# stroke covering ~15% of the object, it balances the two sets roughly evenly, and the
-# standard strokes get at least half of what the physics allows them in 4 of 5 cases (1, the
-# paper's uniform weighting, got it in 1 of 5: strokes looked ineffective)
-DEFAULT_UNPAINTED_WEIGHT = 0.25
+MAX_FIT_ROWS = 4000     # the paper's largest N; see Fitter.row_stride
 DEFAULT_FIT_ALBEDO = False
 
 
@@ -48,6 +43,7 @@ class FitView:
     size : (w, h) fit resolution. pix : (N,) flat fit-pixel indices of object pixels.
     xy : (N, 2) their centres in view-image pixels. T : (3, N, J) float32, E : (N, 3) float32
     (transfer.py). base : (N, 3) float64 radiance B' with the base material. gram : (3, J, J).
+    samples : the renderer's Samples of those pixels (to re-shade the base when it changes).
     """
     camera: Camera
     rotation_deg: float
@@ -60,8 +56,12 @@ class FitView:
     base: np.ndarray
     gram: np.ndarray
     seconds_transfer: float
-    # geometry of the fit pixels, kept to re-shade the base when the base material changes
-    geo: dict = field(repr=False, default_factory=dict)
+    samples: object = field(repr=False, default=None)
+    cache: dict = field(repr=False, default_factory=dict)
+
+    @property
+    def lighting(self) -> Lighting:
+        return Lighting(self.rotation_deg, self.intensity)
 
     @property
     def n(self) -> int:
@@ -94,38 +94,53 @@ class FitOutcome:
         return [float(x) for x in self.solve.energy]
 
     @property
+    def energy_per_channel(self) -> list[float]:
+        """``energy`` under the name the session's fit event gives it."""
+        return self.energy
+
+    @property
     def energy_bound(self) -> list[float]:
         return [float(x) for x in self.solve.energy_bound]
 
 
 class Fitter:
-    """Fits an ``srbf`` material for one object of an ``Engine``.
+    """Fits an ``srbf`` material for one object of a scene, through a renderer that answers the
+    fitter's questions (renderers/cuts ``CutRenderer``: ``surface_samples``, ``transfer``,
+    ``shade_samples``, ``object_mask``).
 
     Parameters
     ----------
-    engine : the scene's Engine (its current materials give the base appearance).
+    renderer : the scene's renderer.
     object_name : the edited object.
-    basis : SRBF basis (default: J = 147, σ = π/40, F0 from ``fresnel_f0``).
+    base_material : what strokes paint over (default: the object's material in the scene file).
+    basis : SRBF basis (default: basis.default_basis, the paper's 147 centres of σ = π/40 plus
+        finer levels near the normal, the smith static with the base material's roughness
+        (basis.static_alpha_for), F0 from ``fresnel_f0``).
     fit_scale : fit resolution as a fraction of the view resolution (0.25: 640×480 → 160×120).
-    albedo : diffuse albedo ρ_d (3,); default: the object's current material's.
+    albedo : diffuse albedo ρ_d (3,); default: the base material's.
+    max_rows : the most unpainted rows a fit holds over all its views (``row_stride``).
     """
 
-    def __init__(self, engine: Engine, object_name: str, basis: SRBFBasis | None = None,
-                 fit_scale: float = 0.25, albedo=None, fresnel_f0: float = 1.0, use_native: bool = True):
-        names = [o.name for o in engine.scene.spec.objects]
+    def __init__(self, renderer, object_name: str, base_material: Material | None = None,
+                 basis: SRBFBasis | None = None, fit_scale: float = 0.25, albedo=None, fresnel_f0: float = 1.0,
+                 max_rows: int = MAX_FIT_ROWS):
+        scene = renderer.scene
+        names = [o.name for o in scene.spec.objects]
         if object_name not in names:
             raise FitError(f"no object named {object_name!r} (objects: {', '.join(names)})")
         if not 0.0 < fit_scale <= 1.0:
             raise FitError(f"fit_scale must be in (0, 1], got {fit_scale}")
-        self.engine = engine
+        if not hasattr(renderer, "transfer"):
+            raise FitError(f"the {renderer.kind} renderer cannot fit materials to strokes")
+        self.renderer = renderer
         self.object_name = object_name
         self.obj = names.index(object_name)
-        self.base_material: Material = engine.materials[self.obj]
+        self.base_material: Material = base_material or scene.materials[self.obj]
         # the smith static's roughness follows the material the design starts from
         self.basis = basis or default_basis(fresnel_f0=fresnel_f0, static_alpha=static_alpha_for(self.base_material))
         self.basis.energy_rows()        # once per basis, not on the first fit
         self.fit_scale = fit_scale
-        self.use_native = use_native
+        self.max_rows = int(max_rows)
         self.albedo = np.asarray(albedo_of(self.base_material) if albedo is None else albedo, np.float64)
         if self.albedo.shape != (3,) or np.any(self.albedo < 0) or np.any(self.albedo > 1):
             raise FitError(f"diffuse albedo must be 3 values in [0, 1], got {self.albedo.tolist()}")
@@ -140,10 +155,17 @@ class Fitter:
     def add_view(self, camera: Camera | None = None, rotation_deg: float | None = None,
                  intensity: float | None = None) -> int:
         """Save a view (default: the scene's camera and lighting); returns its index."""
-        env = self.engine.scene.spec.environment
-        camera = camera or self.engine.scene.spec.camera
-        rot = env.rotation_deg if rotation_deg is None else float(rotation_deg)
-        inten = env.intensity if intensity is None else float(intensity)
+        self.views.append(self.build_view(camera, rotation_deg, intensity))
+        return len(self.views) - 1
+
+    def build_view(self, camera: Camera | None = None, rotation_deg: float | None = None,
+                   intensity: float | None = None) -> FitView:
+        """A view's fit rows (transfer, Gram, base rendering) without saving it: safe to run
+        on a background thread while the fitter is in use."""
+        spec = self.renderer.scene.spec
+        camera = camera or spec.camera
+        rot = spec.environment.rotation_deg if rotation_deg is None else float(rotation_deg)
+        inten = spec.environment.intensity if intensity is None else float(intensity)
         t0 = time.perf_counter()
         fw, fh = self.fit_size(camera)
         # fit pixels sit on view-pixel centres (every 1/fit_scale-th view pixel), so a target
@@ -151,53 +173,28 @@ class Fitter:
         # pixels wide is not blurred in the target while the transfer samples it at a point
         cols = np.minimum(((np.arange(fw) + 0.5) * camera.width / fw).astype(np.int64), camera.width - 1)
         rows = np.minimum(((np.arange(fh) + 0.5) * camera.height / fh).astype(np.int64), camera.height - 1)
-        o, d = camera_rays(camera.eye, camera.target, camera.up, camera.fov_y_deg, camera.width, camera.height)
         sel = (rows[:, None] * camera.width + cols[None, :]).reshape(-1)
-        tri, uv, _ = self.engine.tracer.first_hit(o[sel], d[sel])
-        mesh = self.engine.scene.mesh
-        obj_of = np.where(tri >= 0, self.engine.scene.object_of_face[np.maximum(tri, 0)], -1)
-        pix = np.nonzero(obj_of == self.obj)[0]
-        if len(pix) == 0:
+        smp = self.renderer.surface_samples(camera, self.obj, pixels=sel)     # smp.pix: fit-grid indices
+        if len(smp) == 0:
             raise FitError(f"object {self.object_name!r} covers no pixel of this view at the fit "
                            f"resolution {fw}×{fh}; move the camera closer or raise fit_scale")
-        f = mesh.faces[tri[pix]]
-        u, v = uv[pix, 0:1], uv[pix, 1:2]
-        bary = np.concatenate([1 - u - v, u, v], axis=1).astype(np.float32)
-        nrm = (bary[:, :, None] * mesh.normals[f]).sum(1)
-        nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
-        pos = (bary[:, :, None] * mesh.vertices[f]).sum(1)
-        wo = np.asarray(camera.eye, np.float32) - pos
-        wo /= np.linalg.norm(wo, axis=1, keepdims=True)
-        node_l, node_w = self.engine.node_light(rot, inten)
-        T, E = transfer(nrm.astype(np.float32), wo.astype(np.float32), f.astype(np.int32), bary,
-                        self.engine.cuts, node_l, node_w, self.engine.tree, self.basis, self.use_native)
+        lighting = Lighting(rot, inten)
+        T, E = self.renderer.transfer(smp, self.basis, lighting)
         gr = gram(T)
         secs = time.perf_counter() - t0
+        pix = smp.pix
         xy = np.stack([cols[pix % fw] + 0.5, rows[pix // fw] + 0.5], axis=1).astype(np.float64)
-        geo = {"normals": nrm.astype(np.float32), "wo": wo.astype(np.float32), "verts": f.astype(np.int32),
-               "bary": bary}
-        view = FitView(camera, rot, inten, (fw, fh), pix, xy, T, E, np.zeros((len(pix), 3)), gr, secs, geo)
+        view = FitView(camera, rot, inten, (fw, fh), pix, xy, T, E, np.zeros((len(pix), 3)), gr, secs, smp)
         view.base = self._shade_base(view)
-        self.views.append(view)
-        return len(self.views) - 1
+        return view
 
     def _shade_base(self, view: FitView) -> np.ndarray:
         """B' (N, 3): the base material at the view's fit pixels, shaded like the renderer's
         pixel mode (each corner's cut with the pixel's normal, blended by barycentric weight)."""
-        g = view.geo
-        n = len(view.pix)
-        node_l, node_w = self.engine.node_light(view.rotation_deg, view.intensity)
-        mat_of = np.full(3 * n, self.obj, np.int32)
-        rad = shade_points(np.repeat(g["normals"], 3, 0), np.repeat(g["wo"], 3, 0), g["verts"].reshape(-1),
-                           mat_of, self.engine.cuts, node_l, node_w, self.engine.tree, self.engine.mats,
-                           self.use_native).reshape(n, 3, 3)
-        return (g["bary"][:, :, None] * rad).sum(1).astype(np.float64)
+        return self.renderer.shade_samples(view.samples, self.base_material, self.obj, view.lighting)
 
     def set_base_material(self, material: Material, albedo=None) -> None:
         """Strokes now paint over this material's appearance (bases are re-shaded)."""
-        mats = list(self.engine.materials)
-        mats[self.obj] = material
-        self.engine.set_materials(mats)
         self.base_material = material
         self.albedo = np.asarray(albedo_of(material) if albedo is None else albedo, np.float64)
         for v in self.views:
@@ -255,10 +252,19 @@ class Fitter:
             targets, notes = self.targets()
         rows = []
         painted = 0
+        stride = self.row_stride()
         for v, (tgt, pmask) in zip(self.views, targets):
-            w = np.where(pmask, 1.0, unpainted_weight)
             painted += int(pmask.sum())
-            rows.append(FitRows(v.T, v.E, tgt, w, v.gram))
+            if stride == 1:
+                rows.append(FitRows(v.T, v.E, tgt, np.where(pmask, 1.0, unpainted_weight), v.gram))
+                continue
+            # every stride-th row stands for the unpainted rows around it; painted rows count once
+            sub = np.arange(0, v.n, stride)
+            w = np.where(pmask[sub], 1.0, unpainted_weight * stride)
+            rows.append(FitRows(v.T[:, sub], v.E[sub], tgt[sub], w, self._sub_gram(v, stride)))
+            extra = np.nonzero(pmask & (np.arange(v.n) % stride != 0))[0]
+            if len(extra):
+                rows.append(FitRows(v.T[:, extra], v.E[extra], tgt[extra], np.ones(len(extra))))
         if not any(np.any(r.weight > 0) for r in rows):
             raise FitError("nothing to fit: no painted pixel and unpainted_weight is 0")
         prior = self._prior()
@@ -275,6 +281,21 @@ class Fitter:
             notes = notes + stroke_notes(achieved, res, res.albedo)
         return FitOutcome(mat, res, sum(v.n for v in self.views), painted, notes,
                           sum(v.seconds_transfer for v in self.views), achieved, spill)
+
+    def row_stride(self) -> int:
+        """The bound on a fit's size (issue 9): a fit holds at most ``max_rows`` unpainted rows
+        over all its views, plus the painted ones. Beyond that, every view keeps every s-th row
+        (s the same for all views), weighted s times, so each view still pulls with the weight of
+        all its pixels and the solve's cost stays that of ``max_rows`` rows."""
+        total = sum(v.n for v in self.views)
+        return max(1, -(-total // self.max_rows))
+
+    def _sub_gram(self, v: FitView, stride: int) -> np.ndarray:
+        key = ("gram", stride)
+        if key not in v.cache:
+            v.cache.clear()
+            v.cache[key] = gram(v.T[:, ::stride])
+        return v.cache[key]
 
     def _prior(self) -> np.ndarray | None:
         """c₀ of the proximal term: the base material's coefficients when it is an SRBF over
@@ -301,7 +322,7 @@ class Fitter:
             raise FitError(f"target is {tw}×{th} but the view is {v.camera.width}×{v.camera.height}: "
                            "the aspect ratios differ")
         cam = v.camera.model_copy(update={"width": tw, "height": th})
-        objmask = (self.engine.object_mask(cam) == self.obj).astype(np.float32)
+        objmask = (self.renderer.object_mask(cam) == self.obj).astype(np.float32)
         if mask is not None:
             m = np.asarray(mask)
             if m.shape[:2] != (th, tw):

@@ -61,11 +61,23 @@ def rel_rmse(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
     return float(np.sqrt((d ** 2).mean()) / max(np.sqrt((b[mask].astype(np.float64) ** 2).mean()), 1e-30))
 
 
-def interior_mask(engine, object_index: int = 0) -> np.ndarray:
-    """(H, W) bool: the object's pixels whose 4-neighbours are the object's too."""
+def interior_mask(renderer, object_index: int = 0) -> np.ndarray:
+    """(H, W) bool: the object's pixels (in the scene camera's view) whose 4-neighbours are the
+    object's too."""
     from scipy.ndimage import binary_erosion
 
-    return binary_erosion(engine.object_mask() == object_index, iterations=1)
+    return binary_erosion(renderer.object_mask(renderer.scene.spec.camera) == object_index, iterations=1)
+
+
+def _render(renderer, materials, shading: str) -> np.ndarray:
+    """(H, W, 3) float32 radiance of the scene camera's view under the scene's lighting."""
+    from ..renderers.base import FrameRequest, Lighting
+
+    spec = renderer.scene.spec
+    env = spec.environment
+    req = FrameRequest(camera=spec.camera, lighting=Lighting(env.rotation_deg, env.intensity),
+                       materials=list(materials), shading=shading)
+    return renderer.render(req).radiance
 
 
 def _scene_key(scene: LoadedScene) -> str:
@@ -118,14 +130,15 @@ def noise_of_mean(imgs: np.ndarray, mask: np.ndarray) -> float:
     return float(np.sqrt(var.mean() / s) / max(np.sqrt((m[mask].astype(np.float64) ** 2).mean()), 1e-30))
 
 
-def recover(scene: LoadedScene, cuts, case: Case, *, basis: SRBFBasis | None = None, fit_scale: float = 1.0,
+def recover(renderer, case: Case, *, basis: SRBFBasis | None = None, fit_scale: float = 1.0,
             spp: int = 128, seeds=(1, 2), cache_dir: Path | None = None, object_index: int = 0,
-            renders: bool = True, engine=None, auto_static: bool = True) -> dict:
-    """Run one case; returns its figures (see the module doc). ``scene`` is loaded with the
-    case's environment map; its object ``object_index`` gets the case's material."""
-    from ..engine import Engine
+            renders: bool = True, auto_static: bool = True) -> dict:
+    """Run one case; returns its figures (see the module doc). ``renderer`` is the cut renderer
+    of the scene loaded with the case's environment map; its object ``object_index`` gets the
+    case's material."""
     from .fitter import Fitter
 
+    scene = renderer.scene
     spec = scene.spec.model_copy(deep=True)
     spec.objects[object_index].material = case.material
     target_scene = copy.copy(scene)
@@ -133,13 +146,10 @@ def recover(scene: LoadedScene, cuts, case: Case, *, basis: SRBFBasis | None = N
     t0 = time.perf_counter()
     target, imgs = mitsuba_target(target_scene, spp, seeds, cache_dir)
     t_target = time.perf_counter() - t0
-    eng = engine if engine is not None else Engine(scene, cuts)
     mats = list(scene.materials)
-    mats[object_index] = Lambert(albedo=case.albedo)
-    eng.set_materials(mats)
-    mask = interior_mask(eng, object_index)
-    fx = Fitter(eng, spec.objects[object_index].name, basis=basis or default_basis(), fit_scale=fit_scale,
-                albedo=case.albedo)
+    mask = interior_mask(renderer, object_index)
+    fx = Fitter(renderer, spec.objects[object_index].name, base_material=Lambert(albedo=case.albedo),
+                basis=basis or default_basis(), fit_scale=fit_scale, albedo=case.albedo)
     fx.add_view()
     out = fx.fit_targets([target], auto_static=auto_static)
     s = out.solve
@@ -155,19 +165,15 @@ def recover(scene: LoadedScene, cuts, case: Case, *, basis: SRBFBasis | None = N
            "noise": noise_of_mean(imgs, mask), "seconds_target": t_target, "mask_pixels": int(mask.sum())}
     if renders:
         mats[object_index] = out.material
-        eng.set_materials(mats)
-        fit_px = eng.render(mode="pixel")
-        fit_vx = eng.render(mode="vertex")
+        fit_px = _render(renderer, mats, "pixel")
+        fit_vx = _render(renderer, mats, "vertex")
         mats[object_index] = case.material
-        eng.set_materials(mats)
-        ggx_px = eng.render(mode="pixel")
-        ggx_vx = eng.render(mode="vertex")
+        ggx_px = _render(renderer, mats, "pixel")
+        ggx_vx = _render(renderer, mats, "vertex")
         res.update({"rel_rmse": rel_rmse(fit_px, target, mask), "rel_rmse_vertex": rel_rmse(fit_vx, target, mask),
                     "ggx_floor": rel_rmse(ggx_px, target, mask), "ggx_floor_vertex": rel_rmse(ggx_vx, target, mask),
                     "fit_vs_glint_ggx": rel_rmse(fit_px, ggx_px, mask)})
         res["_images"] = {"target": target, "fit": fit_px, "ggx": ggx_px}
-    mats[object_index] = scene.materials[object_index]
-    eng.set_materials(mats)
     return res
 
 

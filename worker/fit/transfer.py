@@ -17,13 +17,11 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from .. import native
-from ..core.brdf import STATICS, onb
+from ..core.brdf import onb
 from ..core.cuts import CutSet
 from ..core.directions import DirectionTree
 from ..core.render import cluster_directions
-from . import kernels
-from .basis import CUBE_CELLS, XCUT, SRBFBasis
+from .basis import SRBFBasis
 
 
 def _local(v, t, b, n):
@@ -129,33 +127,9 @@ def _transfer_chunk(n, wo, verts, bary, cuts, node_l, node_w, tree, basis, pairs
 
 
 def transfer(normals, wo, verts, bary, cuts: CutSet, node_l, node_w, tree: DirectionTree,
-             basis: SRBFBasis, use_native: bool = True):
-    """Transfer matrix (T (3, P, J), E (P, 3)) float32; the C kernel when built (see transfer_numpy)."""
-    if not (use_native and kernels.available()):
-        return transfer_numpy(normals, wo, verts, bary, cuts, node_l, node_w, tree, basis)
-    c = native.c
-    P, J = len(normals), basis.J
-    T = np.empty((3, P, J), np.float32)
-    E = np.empty((P, 3), np.float32)
-    pairs = np.asarray(basis.refinement(), np.float64).reshape(-1, 2)
-    cell_off, cell_idx, cell_cand, gtab = basis.kernel_tables()
-    kernels.lib.glk_fit_transfer(
-        P, c(normals, np.float32), c(wo, np.float32), c(verts, np.int32), c(bary, np.float32),
-        c(cuts.offsets, np.int64), c(cuts.heights, np.uint8), c(cuts.quant, np.uint8),
-        c(node_l, np.float32), c(node_w, np.float32), tree.node_dir, tree.node_radius, _node_cs(tree),
-        c(tree.level_offset, np.int64), tree.height,
-        len(pairs), c(pairs[:, 0], np.float64), c(pairs[:, 1], np.float64),
-        J, float(XCUT), STATICS[basis.static], float(basis.static_alpha), float(basis.fresnel_f0),
-        CUBE_CELLS, cell_off, cell_idx, cell_cand, gtab, len(gtab), T, E)
-    return T, E
+             basis: SRBFBasis, kernels=None):
+    """Transfer matrix (T (3, P, J), E (P, 3)) float32 (see transfer_numpy); kernels: the backend
+    (worker/native/kernels.py; the C kernel is glk_fit_transfer in native/src/fit.c)."""
+    from ..native.kernels import kernels as _kernels
 
-
-_CS: dict = {}
-
-
-def _node_cs(tree: DirectionTree) -> np.ndarray:
-    """(2N−1, 2) float32 (cos R, sin R) of every tree node's radius (for the kernel's walk)."""
-    if id(tree) not in _CS:
-        r = tree.node_radius.astype(np.float64)
-        _CS[id(tree)] = (tree, np.ascontiguousarray(np.stack([np.cos(r), np.sin(r)], 1), np.float32))
-    return _CS[id(tree)][1]
+    return (kernels or _kernels()).transfer(normals, wo, verts, bary, cuts, node_l, node_w, tree, basis)

@@ -1,8 +1,8 @@
-"""The worker process: runs jobs (precompute, render, fit) on a job thread and interactive
-sessions on its main loop, talking to the server through two multiprocessing queues.
+"""The worker process: jobs (precompute, render, fit) on a job thread, and every
+interactive session on a thread of its own, talking to the server through two pipes.
 
 Requests (server → worker):
-    ("job", job_id, {"type": "precompute" | "render" | "fit", "scene": {...}, ...})
+    ("job", job_id, {"type": "precompute" | "render" | "fit", ...})
     ("open", session_id, {"scene": {...}, "state": {...}, "strokes": [...], "ack": int})
     ("msg", session_id, {client message})
     ("close", session_id, None)
@@ -11,21 +11,55 @@ Replies (worker → server):
     ("progress", job_id, {"progress": 0..1, "message": str})
     ("result", job_id, {...}) / ("error", job_id, {"message": str, "status": int})
     ("frame", session_id, (header, jpeg bytes)) / ("event", session_id, {...})
+    ("closed", session_id, None)   (the session's thread has ended and released what it held)
 
-Latest wins: the loop drains every queued request before working, applies all of a session's
-messages, fits at most once and renders one frame whose ``ack`` is the newest ``seq`` applied;
-intermediate views are never rendered.
+Latest wins, per session: a session's thread drains every message queued for it, applies them
+in order, fits at most once and renders one frame whose ``ack`` is the newest ``seq`` applied;
+intermediate views are never rendered (the header counts them as ``skipped``). Sessions do not
+wait for each other: one session's fit does not stall another's frames.
+
+The worker reads no environment variables: everything comes in ``WorkerSettings``.
 """
 from __future__ import annotations
 
-import io
 import os
 import queue
-import tempfile
+import shutil
 import threading
 import traceback
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from pathlib import Path
+
+from pydantic import BaseModel
+
+
+class WorkerSettings(BaseModel):
+    """What a worker process needs to know, passed explicitly by the pool.
+
+    blob_root : the blob store. tmp_dir : this worker's scratch folder (removed on exit).
+    threads : OpenMP threads per kernel call (0: one per core). kernels : "native", "numpy"
+    or None (native when built). scenes : loaded scenes kept (LRU)."""
+    blob_root: str
+    tmp_dir: str
+    threads: int = 0
+    kernels: str | None = None
+    scenes: int = 4
+
+
+class PipeOut:
+    """The writing end of a pipe, shared by threads (the server's event loop and monitor; the
+    worker's job and session threads): one send at a time."""
+
+    def __init__(self, conn):
+        self.conn = conn
+        self.lock = threading.Lock()
+
+    def put(self, item) -> None:
+        with self.lock:
+            self.conn.send(item)
+
+    def close(self) -> None:
+        self.conn.close()
 
 
 class JobError(Exception):
@@ -36,95 +70,142 @@ class JobError(Exception):
         self.status = status
 
 
-class SceneCache:
-    """Loaded scenes and cuts of this worker, by scene id and cuts hash (a few, LRU)."""
+class DataCache:
+    """Loaded scenes and their renderers' data in this worker, shared by its jobs and sessions
+    (a few, least recently used first out), and decoded environment maps."""
 
-    def __init__(self, blob_root: str, size: int = 4):
-        from server.blobs import BlobStore
+    def __init__(self, settings: WorkerSettings):
+        from worker.blobs import BlobStore, PartStore
 
-        self.blobs = BlobStore(blob_root)
-        self.tmp = Path(tempfile.mkdtemp(prefix="glint-worker-"))
-        self.size = size
+        self.settings = settings
+        self.blobs = BlobStore(settings.blob_root)
+        self.parts = PartStore(self.blobs)
+        self.tmp = Path(settings.tmp_dir)
+        self.tmp.mkdir(parents=True, exist_ok=True)
         self._scenes: OrderedDict = OrderedDict()
-        self._lock = threading.RLock()    # the job thread and the session loop share the cache
-        self._maps: dict = {}
+        self._data: OrderedDict = OrderedDict()
+        self._maps: OrderedDict = OrderedDict()
+        self._lock = threading.RLock()
+
+    def linked(self, f: dict) -> Path:
+        """A verified blob under a name with its original extension (readers dispatch on it)."""
+        src = self.blobs.verified_path(f["sha256"])
+        link = self.tmp / (f["sha256"] + Path(f["filename"]).suffix.lower())
+        if not link.exists():
+            try:
+                os.symlink(src, link)
+            except FileExistsError:
+                pass
+        return link
 
     def scene(self, p: dict):
-        with self._lock:
-            return self._scene(p)
-
-    def _scene(self, p: dict):
         from worker.scene import LoadedScene, SceneError, parse_scene
 
-        key = p["scene_id"]
-        if key in self._scenes:
-            self._scenes.move_to_end(key)
-            return self._scenes[key][0]
+        with self._lock:
+            key = p["scene_id"]
+            if key in self._scenes:
+                self._scenes.move_to_end(key)
+                return self._scenes[key]
 
-        def resolve(ref: str) -> Path:
-            f = p["files"].get(ref)
-            if f is None:
-                raise SceneError(f"{ref!r} is not an uploaded asset")
-            return _linked(self, f)
+            def resolve(ref: str) -> Path:
+                f = p["files"].get(ref)
+                if f is None:
+                    raise SceneError(f"{ref!r} is not an uploaded asset")
+                return self.linked(f)
 
-        sc = LoadedScene(parse_scene(p["spec"]), self.tmp, resolver=resolve)
-        self._scenes[key] = [sc, {}]
-        while len(self._scenes) > self.size:
-            self._scenes.popitem(last=False)
-        return sc
+            sc = LoadedScene(parse_scene(p["spec"]), self.tmp, resolver=resolve)
+            self._scenes[key] = sc
+            while len(self._scenes) > self.settings.scenes:
+                self._scenes.popitem(last=False)
+            return sc
 
-    def envmap(self, f: dict):
-        """An environment map blob (verified), decoded once."""
+    def renderer(self, p: dict, kind: str | None = None):
+        """A new renderer for a scene payload (cheap: the heavy data is shared)."""
+        from worker.native.kernels import kernels
+        from worker.renderers import get, load
+
+        if not p.get("parts"):
+            raise JobError("the scene has no finished precomputation; start one first", 409)
+        own = p.get("renderer") or "cuts"
+        kind = kind or own
+        options = (p.get("options") or {}) if kind == own else {}
+        cls, pre = get(kind)
+        sc = self.scene(p)
+        if "legacy-cuts" in p["parts"] and kind == "cuts":
+            # release 0.3 stored the cut blob without a key: adopt it under its content key
+            (part,) = pre.parts(sc, options)
+            if self.parts.sha(part.key) is None:
+                self.parts.adopt(part.key, p["parts"]["legacy-cuts"])
+            p = {**p, "parts": {part.key: p["parts"]["legacy-cuts"]}}
+        with self._lock:
+            key = (p["scene_id"], kind, tuple(sorted(p["parts"].items())))
+            data = self._data.get(key)
+            if data is None:
+                data = load(pre, sc, self.parts, options)
+                self._data[key] = data
+                while len(self._data) > self.settings.scenes:
+                    self._data.popitem(last=False)
+            else:
+                self._data.move_to_end(key)
+        return cls(sc, data, kernels=kernels(self.settings.kernels))
+
+    def envmap(self, f):
+        """An environment map blob (verified), decoded once (a few kept)."""
         from worker.envmap import load_envmap
 
+        sha = f["sha256"] if isinstance(f, dict) else f.sha256
+        name = f["filename"] if isinstance(f, dict) else f.filename
         with self._lock:
-            key = ("env", f["sha256"])
-            if key not in self._maps:
-                if len(self._maps) > 8:
-                    self._maps.clear()
-                self._maps[key] = load_envmap(_linked(self, f))
-            return self._maps[key]
+            if sha not in self._maps:
+                if len(self._maps) >= 4:
+                    self._maps.popitem(last=False)
+                self._maps[sha] = load_envmap(self.linked({"sha256": sha, "filename": name}))
+            return self._maps[sha]
 
-    def cuts(self, p: dict):
-        from worker.core import cuts as cutmod
-
-        sha = p.get("cuts_sha256")
-        if not sha:
-            raise JobError("the scene has no finished precomputation; start one first", 409)
-        with self._lock:
-            self._scene(p)
-            store = self._scenes[p["scene_id"]][1]
-            if sha not in store:
-                store.clear()
-                store[sha] = cutmod.decode(self.blobs.get(sha))
-            return store[sha]
+    def close(self) -> None:
+        shutil.rmtree(self.tmp, ignore_errors=True)
 
 
-def _render(cache: SceneCache, p: dict) -> dict:
+# -- jobs ---------------------------------------------------------------------------------------------
+
+
+def _render(cache: DataCache, p: dict) -> dict:
+    import io
+
     import numpy as np
     from PIL import Image
-    from pydantic import TypeAdapter
 
     from worker.core.tonemap import tonemap
-    from worker.engine import Engine
-    from worker.scene import Camera, Material
+    from worker.models import parse_material
+    from worker.renderers import FrameRequest, Lighting
+    from worker.scene import Camera, Transform
 
-    sc = cache.scene(p["scene"])
-    eng = Engine(sc, cache.cuts(p["scene"]))
+    r = cache.renderer(p["scene"])
+    sc = r.scene
     names = [o.name for o in sc.spec.objects]
     mats = list(sc.materials)
-    ta = TypeAdapter(Material)
     for name, m in (p.get("materials") or {}).items():
         if name not in names:
             raise JobError(f"materials: no object {name!r} in the scene (objects: {', '.join(names)})")
-        mats[names.index(name)] = ta.validate_python(m)
-    eng.set_materials(mats)
-    cam = Camera.model_validate(p["camera"]) if p.get("camera") else None
-    img = eng.render(cam, p.get("rotation_deg"), p.get("intensity"), mode=p.get("mode", "vertex"))
+        mats[names.index(name)] = parse_material(m)
+    env = sc.spec.environment
+    cam = Camera.model_validate(p["camera"]) if p.get("camera") else sc.spec.camera
+    rot = env.rotation_deg if p.get("rotation_deg") is None else p["rotation_deg"]
+    inten = env.intensity if p.get("intensity") is None else p["intensity"]
+    transforms = {}
+    for name, t in (p.get("transforms") or {}).items():
+        if name not in names:
+            raise JobError(f"transforms: no object {name!r} in the scene (objects: {', '.join(names)})")
+        transforms[name] = Transform.model_validate(t)
+    out = r.render(FrameRequest(camera=cam, lighting=Lighting(rot, inten), materials=mats,
+                                shading=p.get("mode", "vertex"), transforms=transforms or None))
+    img = out.radiance
     if p.get("format") == "exr":
+        import tempfile
+
         from worker.envmap import save_exr
 
-        with tempfile.TemporaryDirectory() as d:
+        with tempfile.TemporaryDirectory(dir=cache.tmp) as d:
             path = Path(d) / "r.exr"
             save_exr(path, img.astype(np.float32))
             return {"bytes": path.read_bytes(), "media_type": "image/x-exr"}
@@ -133,21 +214,20 @@ def _render(cache: SceneCache, p: dict) -> dict:
     return {"bytes": buf.getvalue(), "media_type": "image/png"}
 
 
-def _fit(cache: SceneCache, p: dict) -> dict:
+def _fit(cache: DataCache, p: dict) -> dict:
     import json
 
     import numpy as np
 
-    from worker.engine import Engine
     from worker.fit.basis import default_basis
     from worker.fit.files import ViewSpec, load_mask, load_target
-    from worker.fit.fitter import Fitter
+    from worker.fit.fitter import DEFAULT_UNPAINTED_WEIGHT, Fitter
 
-    sc = cache.scene(p["scene"])
-    eng = Engine(sc, cache.cuts(p["scene"]))
+    r = cache.renderer(p["scene"])
     req = p["request"]
-    basis = default_basis(fresnel_f0=req.get("fresnel_f0") or 1.0)
-    fx = Fitter(eng, req["object"], basis=basis, fit_scale=req.get("fit_scale") or 0.25, albedo=req.get("albedo"))
+    f0 = req.get("fresnel_f0")
+    basis = default_basis(fresnel_f0=1.0 if f0 is None else f0)     # 0 means 0 (issue 9)
+    fx = Fitter(r, req["object"], basis=basis, fit_scale=req.get("fit_scale") or 0.25, albedo=req.get("albedo"))
     notes = []
     if req.get("strokes"):
         for v in req.get("views") or [{}]:
@@ -155,12 +235,12 @@ def _fit(cache: SceneCache, p: dict) -> dict:
             fx.add_view(v.camera, v.rotation_deg, v.intensity)
         for s in req["strokes"]:
             notes += fx.add_stroke(s)
-        out = fx.fit(constrained=req.get("constrained", True), unpainted_weight=req.get("unpainted_weight", 1.0))
+        out = fx.fit(constrained=req.get("constrained", True),
+                     unpainted_weight=req.get("unpainted_weight", DEFAULT_UNPAINTED_WEIGHT))
     else:
         fx.add_view()
-        t = p["target"]
-        target = load_target(_linked(cache, t))
-        mask = load_mask(_linked(cache, p["mask"])) if p.get("mask") else None
+        target = load_target(cache.linked(p["target"]))
+        mask = load_mask(cache.linked(p["mask"])) if p.get("mask") else None
         out = fx.fit_targets([target], [mask], constrained=req.get("constrained", True))
     s = out.solve
     return {"material": json.loads(out.material.model_dump_json()),
@@ -171,139 +251,225 @@ def _fit(cache: SceneCache, p: dict) -> dict:
                       "notes": list(dict.fromkeys(notes + out.notes))}}
 
 
-def _linked(cache: SceneCache, f: dict) -> Path:
-    """A verified blob under a name with its original extension (readers dispatch on it)."""
-    src = cache.blobs.verified_path(f["sha256"])
-    link = cache.tmp / (f["sha256"] + Path(f["filename"]).suffix.lower())
-    if not link.exists():
-        os.symlink(src, link)
-    return link
+def _precompute(cache: DataCache, p: dict, progress) -> dict:
+    """Ensure a scene's precomputation in the blob store (parts already there are reused)."""
+    from worker.renderers import get
 
-
-def _precompute(cache: SceneCache, p: dict, progress) -> dict:
-    from worker.core import cuts as cutmod
-    from worker.engine import storage_stats
-    from worker.precompute import DEFAULT_TAU, precompute_cuts
-
-    m = cache.scene(p["scene"]).mesh
-    n = len(m.vertices)
+    kind = p["scene"].get("renderer") or "cuts"
+    sc = cache.scene(p["scene"])
+    options = p["scene"].get("options") or {}
+    # the scene's renderer, and the cut renderer for every scene (a GI scene's way back to direct
+    # light and a free camera; the paint renderer's self-shadowing)
+    kinds = [kind] + (["cuts"] if kind != "cuts" else [])
+    pres = [get(k)[1] for k in kinds]
+    total = max(1, sum(x.work for pre in pres for x in pre.parts(sc, options if pre.kind == kind else {})))
     done = [0, -1.0]
 
     def tick(k):
         done[0] += k
-        f = done[0] / n
-        if f - done[1] >= 0.01 or done[0] >= n:
+        f = min(1.0, done[0] / total)
+        if f - done[1] >= 0.01 or done[0] >= total:
             done[1] = f
-            progress(f, f"{done[0]}/{n} vertices")
+            progress(f, f"{done[0]}/{total}")
 
-    cs, st = precompute_cuts(m.vertices, m.faces, m.normals, tau=p.get("tau", DEFAULT_TAU), progress=tick,
-                             threads=int(os.environ.get("GLINT_THREADS", "0") or 2))
-    blob = cutmod.encode(cs)
-    sha = cache.blobs.put(blob)
-    stats = {"seconds": st.seconds, "rays_traced": st.rays, "tau": p.get("tau", DEFAULT_TAU),
-             "samples_per_second": st.vertices * st.directions / max(st.seconds, 1e-9),
-             **storage_stats(cs, len(blob), cache.blobs.path(sha))}
-    stats.pop("path", None)
-    return {"cuts_sha256": sha, "stats": stats}
+    from worker.renderers import ensure
+
+    manifest, flat, seconds, computed = {}, {}, 0.0, 0
+    for pre in pres:
+        stats = ensure(pre, sc, cache.parts, options if pre.kind == kind else {}, tick,
+                       threads=cache.settings.threads or os.cpu_count() or 2)
+        manifest.update({k: cache.parts.sha(k) for k in stats["parts"]})
+        for info in stats["parts"].values():
+            if pre.kind == kind:          # the scene renderer's figures are the job's headline
+                flat.update({k: v for k, v in info.items() if k not in ("label",)})
+        seconds += stats["seconds"]
+        computed += stats["computed"]
+    return {"kind": kind, "parts": manifest, "stats": {**flat, "seconds": seconds, "computed": computed,
+                                                       "renderers": kinds}}
 
 
-def worker_main(wid: int, inq, outq, blob_root: str) -> None:
-    """Entry point of a worker process (multiprocessing, spawn)."""
-    from worker import native  # noqa: F401  (loads the kernels, honours GLINT_THREADS)
-    from worker.fit.fitter import FitError
-    from worker.jobs.session import SessionRuntime
-    from worker.scene import SceneError
+def _capture(cache: DataCache, p: dict, progress) -> dict:
+    """A lighting capture (worker/capture): the uploaded zip extracted in this worker's scratch
+    folder (paths checked, sizes capped), processed, and the map and its preview stored as blobs."""
+    import shutil
+    import tempfile
 
-    cache = SceneCache(blob_root)
+    from worker.capture.job import extract_capture_zip, run_capture
+
+    work = Path(tempfile.mkdtemp(prefix="capture-", dir=cache.tmp))
+    try:
+        manifest = extract_capture_zip(cache.blobs.verified_path(p["zip_sha256"]), work, p.get("max_files", 64),
+                                       p.get("max_total_bytes", 2 * 1024 ** 3))
+        exr, png, stats = run_capture(manifest, progress, root=work)
+        return {"exr_sha256": cache.blobs.put(exr), "exr_bytes": len(exr), "preview_sha256": cache.blobs.put(png),
+                "stats": stats}
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+JOBS = {"render": _render, "fit": _fit}
+PROGRESS_JOBS = {"precompute": _precompute, "capture": _capture}
+
+
+# -- sessions -----------------------------------------------------------------------------------------
+
+
+class SessionThread(threading.Thread):
+    """One session's thread: its own inbox, latest wins."""
+
+    def __init__(self, sid: str, payload: dict, cache: DataCache, outq):
+        super().__init__(daemon=True, name=f"glint-session-{sid}")
+        self.sid = sid
+        self.payload = payload
+        self.cache = cache
+        self.outq = outq
+        self.inbox: deque = deque()
+        self.cv = threading.Condition()
+        self.stopping = False
+
+    def post(self, msg: dict) -> None:
+        with self.cv:
+            self.inbox.append(msg)
+            self.cv.notify()
+
+    def stop(self) -> None:
+        with self.cv:
+            self.stopping = True
+            self.cv.notify()
+
+    def _event(self, e: dict) -> None:
+        self.outq.put(("event", self.sid, e))
+
+    def run(self) -> None:
+        from worker.jobs.session import SessionRuntime, error_event
+
+        rt = None
+        try:
+            p = self.payload
+            renderer = self.cache.renderer(p["scene"], (p.get("state") or {}).get("renderer"))
+            rt = SessionRuntime(renderer.scene, renderer, p, env_loader=self.cache.envmap,
+                                renderer_for=lambda kind: self.cache.renderer(p["scene"], kind))
+            ack = int(p.get("ack", -1))
+            for e in rt.take_events():
+                self._event(e)
+            self.outq.put(("frame", self.sid, rt.frame(ack)))
+            while True:
+                with self.cv:
+                    while not self.inbox and not self.stopping:
+                        self.cv.wait()
+                    if self.stopping:
+                        return
+                    msgs = list(self.inbox)
+                    self.inbox.clear()
+                for m in msgs:
+                    try:
+                        for e in rt.handle(m):
+                            self._event(e)
+                    except Exception as ex:
+                        self._event(error_event(ex, m.get("seq")))
+                    ack = max(ack, int(m.get("seq", -1)))
+                try:
+                    for e in rt.fit_if_needed() + rt.take_events():
+                        self._event(e)
+                except Exception as ex:
+                    self._event(error_event(ex, ack) | {"message": f"fit failed: {error_event(ex)['message']}"})
+                try:
+                    self.outq.put(("frame", self.sid, rt.frame(ack, skipped=len(msgs) - 1)))
+                except Exception as ex:
+                    self._event(error_event(ex, ack) | {"message": f"render failed: {error_event(ex)['message']}"})
+                with self.cv:
+                    idle = not self.inbox
+                if idle:
+                    rt.prefetch()
+        except Exception as ex:
+            self._event({**error_event(ex), "fatal": True,
+                         "message": f"cannot open the session: {error_event(ex)['message']}"})
+            if not isinstance(ex, (ValueError, KeyError)):
+                traceback.print_exc()
+        finally:
+            del rt
+            self.outq.put(("closed", self.sid, None))
+
+
+def worker_main(wid: int, requests, replies, settings: WorkerSettings) -> None:
+    """Entry point of a worker process (multiprocessing, spawn): requests and replies are the
+    two pipe ends (multiprocessing.connection.Connection)."""
+    outq = PipeOut(replies)
+    # before NumPy loads: BLAS must not spawn threads beside the OpenMP kernels (DESIGN.md §7)
+    os.environ["OPENBLAS_NUM_THREADS"] = "1"
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    from worker import native
+
+    native.set_threads(settings.threads)
+    cache = DataCache(settings)
     jobs: queue.Queue = queue.Queue()
 
     def job_loop():
+        from worker.errors import GlintError
+
         while True:
             item = jobs.get()
             if item is None:
                 return
-            _, jid, p = item
+            jid, p = item
             try:
                 kind = p["type"]
-                if kind == "precompute":
-                    res = _precompute(cache, p, lambda f, msg: outq.put(("progress", jid, {"progress": f, "message": msg})))
-                elif kind == "render":
-                    res = _render(cache, p)
-                elif kind == "fit":
-                    res = _fit(cache, p)
+                if kind in PROGRESS_JOBS:
+                    res = PROGRESS_JOBS[kind](cache, p, lambda f, msg: outq.put(
+                        ("progress", jid, {"progress": f, "message": msg})))
+                elif kind in JOBS:
+                    res = JOBS[kind](cache, p)
                 else:
                     raise JobError(f"unknown job type {kind!r}", 400)
                 outq.put(("result", jid, res))
             except JobError as e:
                 outq.put(("error", jid, {"message": str(e), "status": e.status}))
-            except (SceneError, FitError, ValueError) as e:
+            except GlintError as e:
+                outq.put(("error", jid, {"message": str(e), "status": e.status}))
+            except ValueError as e:
                 outq.put(("error", jid, {"message": str(e), "status": 422}))
             except Exception as e:  # a bug: keep the worker alive, report it
                 outq.put(("error", jid, {"message": f"internal error: {type(e).__name__}: {e}", "status": 500,
                                          "trace": traceback.format_exc()}))
 
-    threading.Thread(target=job_loop, daemon=True, name="glint-jobs").start()
-    sessions: dict = {}
-    while True:
-        batch = [inq.get()]
+    jt = threading.Thread(target=job_loop, daemon=True, name="glint-jobs")
+    jt.start()
+    sessions: dict[str, SessionThread] = {}
+    try:
         while True:
             try:
-                batch.append(inq.get_nowait())
-            except queue.Empty:
+                kind, key, p = requests.recv()
+            except (EOFError, OSError):         # the server is gone
                 break
-        pending: OrderedDict = OrderedDict()
-        for kind, key, p in batch:
             if kind == "stop":
-                jobs.put(None)
-                return
+                break
             if kind == "job":
-                jobs.put((kind, key, p))
+                jobs.put((key, p))
             elif kind == "open":
-                try:
-                    sc = cache.scene(p["scene"])
-                    cuts = cache.cuts(p["scene"])
-                    sessions[key] = SessionRuntime(sc, cuts, p.get("state") or {}, p.get("strokes") or [],
-                                                   env_loader=cache.envmap)
-                    pending.setdefault(key, [])
-                    pending[key].append({"_ack": int(p.get("ack", -1))})
-                except Exception as e:
-                    outq.put(("event", key, {"type": "error", "fatal": True, "message": f"cannot open the session: {e}"}))
+                old = sessions.pop(key, None)
+                if old is not None:
+                    old.stop()
+                t = sessions[key] = SessionThread(key, p, cache, outq)
+                t.start()
             elif kind == "close":
-                sessions.pop(key, None)
-                pending.pop(key, None)
+                t = sessions.pop(key, None)
+                if t is not None:
+                    t.stop()
             elif kind == "msg":
-                pending.setdefault(key, []).append(p)
-        for sid, msgs in pending.items():
-            rt = sessions.get(sid)
-            if rt is None:
-                outq.put(("event", sid, {"type": "error", "fatal": True, "message": "session is not open on this worker"}))
-                continue
-            ack = -1
-            for m in msgs:
-                if "_ack" in m:
-                    ack = max(ack, m["_ack"])
-                    continue
-                try:
-                    for e in rt.apply(m):
-                        outq.put(("event", sid, e))
-                except Exception as e:
-                    outq.put(("event", sid, {"type": "error", "seq": m.get("seq"), "message": _msg(e)}))
-                ack = max(ack, int(m.get("seq", -1)))
-            try:
-                for e in rt.fit_if_needed():
-                    outq.put(("event", sid, e))
-            except Exception as e:
-                outq.put(("event", sid, {"type": "error", "seq": ack, "message": f"fit failed: {_msg(e)}"}))
-            try:
-                outq.put(("frame", sid, rt.frame(ack)))
-            except Exception as e:
-                outq.put(("event", sid, {"type": "error", "seq": ack, "message": f"render failed: {_msg(e)}"}))
-
-
-def _msg(e: Exception) -> str:
-    from pydantic import ValidationError
-
-    if isinstance(e, ValidationError):
-        err = e.errors()[0]
-        return f"{'.'.join(str(x) for x in err['loc'])}: {err['msg']}"
-    return str(e)
+                t = sessions.get(key)
+                if t is None:
+                    outq.put(("event", key, {"type": "error", "fatal": True,
+                                             "message": "session is not open on this worker"}))
+                else:
+                    t.post(p)
+            for k in [k for k, t in sessions.items() if not t.is_alive()]:
+                sessions.pop(k)
+    finally:
+        jobs.put(None)
+        for t in sessions.values():
+            t.stop()
+        for t in sessions.values():
+            t.join(timeout=2)
+        jt.join(timeout=2)
+        cache.close()
+        outq.close()

@@ -1,47 +1,56 @@
-"""One interactive design session inside a worker process: the scene's engine, the paint-to-BRDF
-fitter of the edited object, and the state the client steers (camera, light, materials, display).
+"""One interactive design session inside a worker process: its state (jobs/state.py), the
+scene's renderer, and the paint-to-BRDF fitter of the edited object.
 
-The state is rebuilt exactly from what the server persisted (state + stroke list), so a worker
-that dies loses nothing: ``SessionRuntime(payload)`` on a new worker gives the same frames.
+The runtime is rebuilt exactly from what the server stored (state + stroke rows), so a worker
+that dies loses nothing: ``SessionRuntime(...)`` on a new worker gives the same frames. It never
+fails to open because of what was stored: a stroke that cannot apply is reported as rejected
+(the server stops replaying it), a stored value that no longer validates falls back with a note.
+
+Messages go through ``state.apply`` (the same function the server persisted them with); the
+runtime then carries out the effect. A message whose seq the restored state already covers is
+skipped (it was persisted before the restore read the state).
+
+Cost per message is bounded: a fit holds at most Fitter.max_rows rows (fit/fitter.py), and what a
+stroke in a new view needs (the view's transfer rows, the per-vertex transfer of the edited
+object) is built in the background while the user is still orbiting (``prefetch``), so the
+first stroke after a camera or light change does not pay for it on the frame path.
 """
 from __future__ import annotations
 
 import io
 import json
-from contextlib import contextmanager
+import statistics
 import threading
 import time
+from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 from PIL import Image
 
 from ..core.tonemap import tonemap
-from ..engine import Engine
+from ..errors import GlintError
 from ..fit.brush import Stroke
 from ..fit.fitter import FitError, Fitter
-from ..scene import Camera, Material, SRBF
-from .protocol import client_msg
+from ..models import SRBF
+from ..renderers.base import FrameRequest, Lighting
+from ..scene import Camera
+from .state import (ErrorEvent, FitEvent, NoteEvent, RendererEvent, SaveRequest, StateError, StrokeEvent, apply,
+                    client_msg, restore_state)
 
 CURVE_SAMPLES = 91
-DRAG_TAU = 16.0     # level of detail while dragging: cuts coarsened to τ = 16 (measured: 0.4% image change on the demo chair)
-_coarse_lock = threading.Lock()
-
-
-def coarse_cuts(cuts):
-    """The drag-time cut set of ``cuts`` (cuts.coarsen at DRAG_TAU), built once per cut set
-    (about 0.1 s for 21K vertices in C) and kept on it."""
-    with _coarse_lock:
-        if getattr(cuts, "_coarse", None) is None:
-            from ..core.cuts import coarsen
-            cuts._coarse = coarsen(cuts, DRAG_TAU)
-        return cuts._coarse
+FRAME_BUDGET_MS = 33.0     # a frame while the user drags: 30 fps
+STILL_SAMPLES = 4          # anti-aliasing samples per pixel of a still frame
+REPROBE_S = 2.0            # while at the drag level of detail, try a full frame this often
+# one background builder per worker process: views are prepared one at a time, at low priority
+_builder = ThreadPoolExecutor(max_workers=1, thread_name_prefix="glint-prefetch")
 
 
 def brdf_curve(material, n: int = CURVE_SAMPLES) -> dict:
     """The 1D half-angle distribution to plot: p(θh) averaged over φh for srbf, the curve's
     values for curve, and f(θh) in the plane of incidence at normal viewing otherwise.
     Returns {"theta_deg": [...], "values": [[r, g, b], ...], "quantity": str}."""
-    from ..core.brdf import evaluate, srbf_p
+    from ..core.brdf import evaluate, srbf_material_p
 
     th = np.linspace(0.0, 90.0, n)
     t = np.radians(th)
@@ -49,9 +58,7 @@ def brdf_curve(material, n: int = CURVE_SAMPLES) -> dict:
         ph = np.linspace(0, 2 * np.pi, 48, endpoint=False)
         T, P = np.meshgrid(t, ph, indexing="ij")
         h = np.stack([np.sin(T) * np.cos(P), np.sin(T) * np.sin(P), np.cos(T)], -1)
-        c = np.asarray(material.centers, np.float64)
-        c /= np.linalg.norm(c, axis=1, keepdims=True)
-        vals = srbf_p(h, c, material.bandwidth, np.asarray(material.coefficients)).mean(axis=1)
+        vals = srbf_material_p(material, h).mean(axis=1)       # every centre with its own λ
         q = "p(θh), mean over φh"
     else:
         # ωo = normal, ωi at 2θh in the x-z plane, so θh is the half angle
@@ -62,170 +69,238 @@ def brdf_curve(material, n: int = CURVE_SAMPLES) -> dict:
     return {"theta_deg": th.round(3).tolist(), "values": np.asarray(vals, np.float64).round(6).tolist(), "quantity": q}
 
 
-class SessionRuntime:
-    """scene : LoadedScene, cuts : CutSet, state : the session state the server stores (camera,
-    light, materials, edited object, display, fit options, environment presets), strokes :
-    [{"stroke": {...}, "camera": {...}, "rotation_deg": r, "intensity": i, "undone": bool}, ...]
-    in painting order (server/routes/sessions.py persist)."""
+def _dump(m) -> dict:
+    return json.loads(m.model_dump_json())
 
-    def __init__(self, scene, cuts, state: dict, strokes: list[dict], env_loader=None):
+
+class SessionRuntime:
+    """scene : LoadedScene; renderer : its Renderer; stored : {"state": dict, "strokes": [{"seq",
+    "stroke", "camera", "rotation_deg", "intensity", "undone"}, …]} in painting order, rejected
+    strokes left out (server/state.py session_payload); env_loader : EnvPreset -> (H, W, 3) map."""
+
+    def __init__(self, scene, renderer, stored: dict, env_loader=None, renderer_for=None):
         self.scene = scene
-        self.env_loader = env_loader      # file info -> (H, W, 3) map, for environment presets
-        self.environments = state.get("environments") or []
-        self.env_index = 0
-        self.engine = Engine(scene, cuts)
-        spec = scene.spec
-        names = [o.name for o in spec.objects]
-        self.names = names
-        self.object = state.get("object") or names[0]
-        if self.object not in names:
-            raise FitError(f"no object {self.object!r} in the scene")
-        self.camera = Camera.model_validate(state.get("camera") or spec.camera.model_dump())
-        self.rotation = float(state.get("rotation_deg", spec.environment.rotation_deg))
-        self.intensity = float(state.get("intensity", spec.environment.intensity))
-        mats = state.get("materials")
-        from pydantic import TypeAdapter
-        ta = TypeAdapter(Material)
-        self.materials = [ta.validate_python(m) for m in mats] if mats else list(scene.materials)
-        base = state.get("base_material")
-        self.base = ta.validate_python(base) if base else self.materials[names.index(self.object)]
-        self.exposure = float(state.get("exposure", 0.0))
-        self.tone = state.get("tone", "neutral")
-        self.quality = int(state.get("quality", 85))
-        self.constrained = bool(state.get("constrained", True))
-        self.unpainted_weight = float(state.get("unpainted_weight", 1.0))
+        self.env_loader = env_loader
+        self.renderer_for = renderer_for          # kind -> a renderer of this scene (another kind)
+        self.state, notes = restore_state(stored.get("state") or {}, scene.spec)
+        self.renderers = {renderer.kind: renderer}
+        self.renderer = renderer
+        self.events: list[dict] = [NoteEvent(message=n).model_dump() for n in notes]
         self.frame_no = 0
         self.fitter: Fitter | None = None
-        self.engine.set_materials(self.materials)
-        if self.environments:
-            self._set_environment(int(state.get("environment_index", 0)))
         self._needs_fit = False
         self._drag = False
-        # pay the basis's one-time costs (energy rows, solver import) at open, not on the first stroke
-        from ..fit.basis import default_basis
-        from ..fit import solve  # noqa: F401
-        default_basis().energy_rows()
-        coarse_cuts(cuts)                 # the drag-time level of detail
-        # replay the persisted strokes (undone ones form the redo stack, most recent last)
-        active = [s for s in strokes if not s.get("undone")]
-        undone = [s for s in strokes if s.get("undone")]
-        for s in active:
-            self._add_stroke(s)
-        for s in undone:
-            self._add_stroke(s)
-        for _ in undone:
-            self.fitter.undo()
-        if strokes:
-            self._needs_fit = True
-        self.last_fit: dict | None = None
+        self._skipped = 0
         self._fitted = None       # the material the fitter produced last (identity)
         self._vt = None           # per-vertex transfer of the edited object: (key, ids, T, E)
+        self._pending: dict = {}  # prefetch futures by what they build
+        self._env_key = None
+        # frame cost history for the level of detail: ms of full one-sample frames by what
+        # changed since the frame before ("view": camera, "light": lighting, "other")
+        self.frame_budget_ms = FRAME_BUDGET_MS
+        self._full_ms = {k: deque(maxlen=3) for k in ("view", "light", "other")}
+        self._last = None                      # (camera, rotation, intensity, dragging, samples) of the last frame
+        self._last_full = 0.0                  # time.monotonic() of the last full frame
+        # movable objects (cut fields): the renderer answers the fitter where they now stand;
+        # fit views are valid for the placement they were built in (counted by moves)
+        self._moves = 0
+        self._view_moves: dict[int, int] = {}
+        if hasattr(renderer, "place"):
+            renderer.place(self.state.transforms or None)
+        if self.state.renderer != renderer.kind:
+            self._switch_renderer(self.state.renderer)
+        self._apply_environment()
+        # pay the basis's one-time costs (energy rows, solver import) at open, not on the first stroke
+        if not self.state.readonly:
+            from ..fit import solve  # noqa: F401
+            from ..fit.basis import default_basis, static_alpha_for
+            default_basis(static_alpha=static_alpha_for(self.state.base_material)).energy_rows()
+        if hasattr(renderer, "coarse_cuts"):
+            renderer.coarse_cuts()           # the drag-time level of detail
+        # replay the stored strokes (undone ones form the redo stack, most recent undone last)
+        strokes = stored.get("strokes") or []
+        active = [s for s in strokes if not s.get("undone")]
+        undone = [s for s in strokes if s.get("undone")]
+        kept_undone = 0
+        for s in active + undone:
+            ev = self._add_stroke(s)
+            if ev.rejected:
+                self.events.append(ev.model_dump())
+            elif s.get("undone"):
+                kept_undone += 1
+        for _ in range(kept_undone):
+            self.fitter.undo()
+        self._needs_fit = bool(self.fitter is not None and len(self.fitter.history))
+        # saves the server has not stored yet (the worker died before they were): run again
+        self._resave = list(self.state.pending_saves)
 
-    # -- state changes ---------------------------------------------------------------------
-    @contextmanager
-    def _base_shading(self):
-        """The engine shades the edited object with the base material (what strokes paint
-        over) inside the block, with the current materials after it."""
-        mats = list(self.materials)
-        mats[self.names.index(self.object)] = self.base
-        self.engine.set_materials(mats)
-        try:
-            yield
-        finally:
-            self.engine.set_materials(self.materials)
+    # -- the edited object ----------------------------------------------------------------------
+    @property
+    def names(self) -> list[str]:
+        return self.state.objects
 
-    def _ensure_fitter(self):
+    @property
+    def materials(self) -> list:
+        return self.state.materials
+
+    def _set_material(self, i: int, m) -> None:
+        mats = list(self.state.materials)
+        mats[i] = m
+        self.state.materials = mats
+
+    def _ensure_fitter(self) -> Fitter:
         if self.fitter is None:
-            with self._base_shading():
-                self.fitter = Fitter(self.engine, self.object, fit_scale=0.25)
+            self._view_moves = {}
+            try:
+                self.fitter = Fitter(self.renderer, self.state.object, base_material=self.state.base_material,
+                                     fit_scale=0.25)
+            except FitError as e:
+                raise FitError(f"strokes cannot apply: {e}") from None
         return self.fitter
+
+    def _view_key(self, camera, rot, inten):
+        return (camera.model_dump_json(), float(rot), float(inten))
 
     def _view_index(self, camera: Camera, rot: float, inten: float) -> int:
         fx = self._ensure_fitter()
         for i, v in enumerate(fx.views):
-            if v.camera == camera and v.rotation_deg == rot and v.intensity == inten:
+            if v.camera == camera and v.rotation_deg == rot and v.intensity == inten and \
+                    self._view_moves.get(i, 0) == self._moves:
                 return i
-        with self._base_shading():
-            return fx.add_view(camera, rot, inten)
+        key = ("view", self.state.epoch, self._moves, self._view_key(camera, rot, inten))
+        fut = self._pending.pop(key, None)
+        if fut is not None and not fut.cancelled():
+            view = fut.result()           # prepared while the user orbited (or wait for it)
+            if isinstance(view, Exception):
+                raise view
+            fx.views.append(view)
+            self._view_moves[len(fx.views) - 1] = self._moves
+            return len(fx.views) - 1
+        i = fx.add_view(camera, rot, inten)
+        self._view_moves[i] = self._moves
+        return i
 
-    def _add_stroke(self, rec: dict) -> list[str]:
-        cam = Camera.model_validate(rec["camera"])
-        i = self._view_index(cam, float(rec["rotation_deg"]), float(rec["intensity"]))
-        st = Stroke.model_validate({**rec["stroke"], "view": i})
-        return self.fitter.add_stroke(st)
+    def _add_stroke(self, rec: dict) -> StrokeEvent:
+        """Add a stored or new stroke record; a stroke that cannot apply is rejected (reported,
+        not raised: the session goes on, and the server stops replaying it)."""
+        seq = rec.get("seq")
+        try:
+            cam = Camera.model_validate(rec["camera"])
+            i = self._view_index(cam, float(rec["rotation_deg"]), float(rec["intensity"]))
+            st = Stroke.model_validate({**rec["stroke"], "view": i})
+            notes = self.fitter.add_stroke(st)
+            return StrokeEvent(seq=seq, strokes=len(self.fitter.history), notes=notes)
+        except (GlintError, ValueError, KeyError, TypeError) as e:
+            n = len(self.fitter.history) if self.fitter is not None else 0
+            return StrokeEvent(seq=seq, strokes=n, rejected=True, notes=[f"stroke rejected: {_msg(e)}"])
 
-    def _set_environment(self, index: int) -> None:
-        if not 0 <= index < len(self.environments) or self.env_loader is None:
-            raise FitError(f"no environment preset {index} (there are {len(self.environments)})")
-        env = self.environments[index]
-        self.engine.set_envmap(self.env_loader(env))
-        self.rotation = float(env.get("rotation_deg", self.rotation))
-        self.env_index = index
+    def _switch_renderer(self, kind: str) -> None:
+        if kind not in self.renderers:
+            if self.renderer_for is None:
+                raise FitError(f"this worker cannot switch to the {kind} renderer")
+            self.renderers[kind] = self.renderer_for(kind)
+        self.renderer = self.renderers[kind]
+        if hasattr(self.renderer, "place"):       # movable objects where the session has them
+            self.renderer.place(self.state.transforms or None)
+        self.fitter = None                         # fit rows belong to a renderer
+        self._vt = None
+        self._pending.clear()
+        self._env_key = ("switched",)            # the new renderer gets the session's map
+
+    def _paint(self, name: str, seq) -> list[dict]:
+        """The lobes material for the stored readings of an object (worker/paint/session.py)."""
+        from ..paint.session import apply_paint
+
+        mat, ev = apply_paint({**self.state.paint[name], "object": name, "seq": seq})
+        i = self.state.objects.index(name)
+        self._set_material(i, mat)
+        if name == self.state.object:
+            self.state.base_material = mat
+            self.fitter = None
+        return [ev]
+
+    def _apply_environment(self) -> None:
+        i = self.state.environment_index
+        key = None if i is None else (i, self.state.environments[i].sha256)
+        if key == self._env_key:
+            return
+        if not self.state.allows("environment"):
+            self._env_key = key                   # a fixed-light renderer keeps its precomputed map
+            return
+        if i is not None:
+            if self.env_loader is None:
+                raise FitError("environment presets need a worker that can load them")
+            self.renderer.set_environment(self.env_loader(self.state.environments[i]))
+        else:
+            self.renderer.set_environment(self.scene.envmap)
+        self._env_key = key
         self._vt = None
 
-    def stroke_record(self, stroke: Stroke) -> dict:
-        """What the server persists for a stroke: the stroke and the view it was painted in."""
-        return {"stroke": stroke.model_dump(), "camera": self.camera.model_dump(),
-                "rotation_deg": self.rotation, "intensity": self.intensity}
-
-    def apply(self, msg: dict) -> list[dict]:
-        """Apply one client message; returns JSON events for the client."""
-        m = client_msg.validate_python(msg)
-        ev = []
-        t = m.type
-        if t == "view":
-            upd = {k: getattr(m, k) for k in ("eye", "target", "up", "fov_y_deg") if getattr(m, k) is not None}
-            self.camera = Camera.model_validate({**self.camera.model_dump(), **upd})
-            self._drag = m.drag
-        elif t == "light":
-            if m.rotation_deg is not None:
-                self.rotation = float(m.rotation_deg)
-            if m.intensity is not None:
-                self.intensity = float(m.intensity)
-            self._drag = m.drag
-        elif t == "material":
-            name = m.object or self.object
-            if name not in self.names:
-                raise FitError(f"no object {name!r} in the scene")
-            self.materials[self.names.index(name)] = m.material
-            self.engine.set_materials(self.materials)
-            if name == self.object:
-                # strokes painted over the old material do not carry over to a new base
-                self.base = m.material
-                self.fitter = None
-                self._needs_fit = False
-            ev.append({"type": "curve", "seq": m.seq, "object": name, "curve": brdf_curve(m.material)})
-        elif t == "stroke":
-            notes = self._add_stroke(self.stroke_record(m.stroke))
-            self._needs_fit = True
-            ev.append({"type": "stroke", "seq": m.seq, "strokes": len(self.fitter.history), "notes": notes})
-        elif t in ("undo", "redo"):
-            if self.fitter is not None and (self.fitter.undo() if t == "undo" else self.fitter.redo()) is not None:
+    # -- messages -----------------------------------------------------------------------------------
+    def handle(self, raw: dict) -> list[dict]:
+        """Apply one client message (a dict as the client sent it); returns events."""
+        msg = client_msg.validate_python(raw)
+        if msg.seq <= self.state.last_seq:
+            return []                      # already in the restored state
+        before = self.state
+        self.state, eff = apply(before, msg)
+        ev: list[dict] = []
+        if msg.type in ("view", "light", "move"):
+            self._drag = eff.drag
+        if eff.kind == "move":             # views and the vertex transfer were of the old placement
+            if hasattr(self.renderer, "place"):
+                self.renderer.place(self.state.transforms or None)
+            self._moves += 1
+            self._vt = None
+            self._pending.clear()
+        if eff.kind == "rebase":
+            self.fitter = None             # strokes painted over the old material do not carry over
+            self._needs_fit = False
+            self._pending.clear()
+        if msg.type == "material":
+            name = msg.object or self.state.object
+            ev.append({"type": "curve", "seq": msg.seq, "object": name, "curve": brdf_curve(msg.material)})
+        elif eff.kind == "stroke":
+            se = self._add_stroke({**eff.stroke, "seq": msg.seq})
+            if not se.rejected:
+                self._needs_fit = True
+            ev.append(se.model_dump())
+        elif eff.kind in ("undo", "redo"):
+            fx = self.fitter
+            if fx is not None and (fx.undo() if eff.kind == "undo" else fx.redo()) is not None:
                 self._needs_fit = True
             else:
-                ev.append({"type": "note", "seq": m.seq, "message": f"nothing to {t}"})
-        elif t == "fit":
-            if m.constrained is not None:
-                self.constrained = m.constrained
-            if m.unpainted_weight is not None:
-                self.unpainted_weight = m.unpainted_weight
+                ev.append(NoteEvent(seq=msg.seq, message=f"nothing to {eff.kind}").model_dump())
+        elif eff.kind == "refit":
             self._needs_fit = True
-        elif t == "environment":
-            self._set_environment(m.index)
-        elif t == "variant":
-            raise FitError("variants are chosen by the server (viewer sessions only)")
-        elif t == "display":
-            if m.exposure is not None:
-                self.exposure = m.exposure
-            if m.tone is not None:
-                self.tone = m.tone
-            if m.quality is not None:
-                self.quality = m.quality
-        elif t == "save":
+        elif eff.kind == "save":
             ev += self.fit_if_needed()
-            mat = self.materials[self.names.index(self.object)]
-            ev.append({"type": "save", "seq": m.seq, "object": self.object, "name": m.name,
-                       "material_id": m.material_id, "material": json.loads(mat.model_dump_json())})
+            ev.append(self._save_request(eff.save))
+        elif eff.kind == "renderer":
+            from ..renderers import controls
+
+            self._switch_renderer(self.state.renderer)
+            self._apply_environment()
+            ev.append(RendererEvent(seq=msg.seq, kind=self.state.renderer,
+                                    controls=sorted(controls(self.state.renderer))).model_dump())
+        elif eff.kind == "paint":
+            ev += self._paint(eff.data["object"], msg.seq)
+        if self.state.environment_index != before.environment_index:
+            self._apply_environment()
+        return ev
+
+    def _save_request(self, p) -> dict:
+        mat = self.state.material_of(self.state.object)
+        return SaveRequest(seq=p.seq, object=self.state.object, name=p.name, material_id=p.material_id,
+                           material=_dump(mat)).model_dump()
+
+    def take_events(self) -> list[dict]:
+        """Events produced outside a message (restore notes, rejected replays, re-run saves)."""
+        ev, self.events = self.events, []
+        if self._resave:
+            ev += self.fit_if_needed()
+            ev += [self._save_request(p) for p in self._resave]
+            self._resave = []
         return ev
 
     def fit_if_needed(self) -> list[dict]:
@@ -233,94 +308,181 @@ class SessionRuntime:
             return []
         self._needs_fit = False
         fx = self.fitter
-        i = self.names.index(self.object)
+        i = self.state.object_index
         if fx is None or len(fx.history) == 0:
-            self.materials[i] = self.base
-            self.engine.set_materials(self.materials)
-            return [{"type": "fit", "object": self.object, "material": json.loads(self.base.model_dump_json()),
-                     "curve": brdf_curve(self.base), "stats": {"strokes": 0}}]
-        out = fx.fit(constrained=self.constrained, unpainted_weight=self.unpainted_weight)
-        self.materials[i] = out.material
+            self._set_material(i, self.state.base_material)
+            return [FitEvent(object=self.state.object, material=_dump(self.state.base_material),
+                             curve=brdf_curve(self.state.base_material), stats={"strokes": 0}).model_dump()]
+        out = fx.fit(constrained=self.state.constrained, unpainted_weight=self.state.unpainted_weight)
+        self._set_material(i, out.material)
         self._fitted = out.material
-        self.engine.set_materials(self.materials)
-        self._vertex_transfer()
         s = out.solve
+        bound = np.asarray(s.energy_bound, np.float64)
         stats = {"strokes": len(fx.history), "pixels": out.pixels, "painted": out.painted,
+                 "views": len(fx.views), "rows_stride": fx.row_stride(),
                  "ms_solve": s.seconds * 1e3, "ms_transfer": out.seconds_transfer * 1e3,
                  "residual_rel": s.residual_rel, "energy_max": s.energy_max,
-                 "energy_bound": float(s.energy_bound.min()), "constrained": s.constrained}
-        self.last_fit = stats
-        return [{"type": "fit", "object": self.object, "material": json.loads(out.material.model_dump_json()),
-                 "curve": brdf_curve(out.material), "stats": stats, "notes": out.notes}]
+                 "energy_bound": float(bound.min()), "constrained": s.constrained}
+        for k in ("achieved", "spill", "energy_per_channel"):
+            if getattr(out, k, None) is not None:
+                stats[k] = getattr(out, k)
+        stats.setdefault("energy_bound_per_channel", bound.tolist())
+        return [FitEvent(object=self.state.object, material=_dump(out.material), curve=brdf_curve(out.material),
+                         stats=stats, notes=out.notes).model_dump()]
 
-    # -- frames --------------------------------------------------------------------------------
-    def _view_key(self):
-        return (self.camera.model_dump_json(), self.rotation, self.intensity)
+    # -- background work ----------------------------------------------------------------------------
+    def prefetch(self) -> None:
+        """While the user orbits: prepare what a stroke in the current view and light will need
+        (its fit view, the per-vertex transfer of the edited object), on the process's background
+        builder. Only for sessions that paint (a fitter exists in this epoch)."""
+        if self.fitter is None or self._drag or self.state.readonly:
+            return
+        cam, rot, inten = self.state.camera, self.state.rotation_deg, self.state.intensity
+        fx = self.fitter
+        if not any(v.camera == cam and v.rotation_deg == rot and v.intensity == inten and
+                   self._view_moves.get(i, 0) == self._moves for i, v in enumerate(fx.views)):
+            key = ("view", self.state.epoch, self._moves, self._view_key(cam, rot, inten))
+            if key not in self._pending:
+                for k in [k for k in self._pending if k[0] == "view"]:
+                    self._pending[k].cancel()           # only the latest view is worth building
+                    del self._pending[k]
+                self._pending[key] = _builder.submit(self._build_view, fx, cam, rot, inten)
+        vkey = ("vt", self._view_key(cam, rot, inten))
+        if (self._vt is None or self._vt[0] != vkey[1]) and vkey not in self._pending:
+            for k in [k for k in self._pending if k[0] == "vt"]:
+                self._pending[k].cancel()
+                del self._pending[k]
+            self._pending[vkey] = _builder.submit(self._build_vertex_transfer, cam, rot, inten)
+
+    @staticmethod
+    def _build_view(fx: Fitter, cam, rot, inten):
+        try:
+            return fx.build_view(cam, rot, inten)
+        except Exception as e:               # reported when a stroke needs the view
+            return e
+
+    def _build_vertex_transfer(self, cam, rot, inten):
+        """Per-vertex transfer of the edited object's visible vertices for a view and light
+        (inverse-brdf-modeling eq. 22 with the basis): while only the fitted coefficients change
+        (strokes, undo, redo), a frame's shading of that object is one mat-vec."""
+        r = self.renderer
+        smp = r.vertex_samples(cam, self.state.object_index, samples=STILL_SAMPLES)   # stroke frames are still
+        T, E = r.transfer(smp, self.fitter.basis, Lighting(rot, inten))
+        return (self._view_key(cam, rot, inten), smp.pix, T, E)
 
     def _vertex_transfer(self):
-        """Per-vertex transfer of the edited object's visible vertices for the current view and
-        light (inverse-brdf-modeling eq. 22 with the basis): while only the fitted coefficients
-        change (strokes, undo, redo), a frame's shading of that object is one mat-vec."""
-        from ..fit.transfer import transfer
-
-        key = self._view_key()
+        key = self._view_key(self.state.camera, self.state.rotation_deg, self.state.intensity)
         if self._vt is not None and self._vt[0] == key:
             return self._vt
-        eng, fx = self.engine, self.fitter
-        mesh = eng.scene.mesh
-        vis = eng.view(self.camera).visible
-        ids = vis[eng.scene.object_of_vertex[vis] == self.names.index(self.object)]
-        wo = np.asarray(self.camera.eye, np.float32) - mesh.vertices[ids]
-        wo /= np.linalg.norm(wo, axis=1, keepdims=True)
-        node_l, node_w = eng.node_light(self.rotation, self.intensity)
-        verts = np.repeat(ids[:, None], 3, axis=1).astype(np.int32)
-        bary = np.zeros((len(ids), 3), np.float32)
-        bary[:, 0] = 1.0
-        T, E = transfer(mesh.normals[ids].astype(np.float32), wo.astype(np.float32), verts, bary, eng.cuts,
-                        node_l, node_w, eng.tree, fx.basis)
-        self._vt = (key, ids, T, E)
+        fut = self._pending.pop(("vt", key), None)
+        if fut is not None and not fut.cancelled():
+            try:
+                self._vt = fut.result()
+                return self._vt
+            except Exception:
+                pass
+        self._vt = self._build_vertex_transfer(self.state.camera, self.state.rotation_deg, self.state.intensity)
         return self._vt
 
     def _override(self):
-        """Known radiance of the edited object's vertices, when its material is the current fit
-        and the per-vertex transfer matches the view and light."""
-        i = self.names.index(self.object)
-        if self._fitted is None or self.materials[i] is not self._fitted or self._vt is None \
-                or self._vt[0] != self._view_key():
+        """Known radiance of the edited object's vertices when its material is the current fit:
+        {object index: (ids, radiance)} for the renderer, or None."""
+        i = self.state.object_index
+        if self._fitted is None or self.materials[i] is not self._fitted or not hasattr(self.renderer, "vertex_samples"):
             return None
-        _, ids, T, E = self._vt
+        _, ids, T, E = self._vertex_transfer()
         c = np.asarray(self._fitted.coefficients, np.float32)
         rad = np.asarray(self._fitted.albedo, np.float32) * E + np.stack([T[k] @ c[:, k] for k in range(3)], axis=1)
-        return ids, rad.astype(np.float32)
+        return {i: (ids, rad.astype(np.float32))}
 
-    def frame(self, ack: int) -> tuple[dict, bytes]:
+    # -- frames -----------------------------------------------------------------------------------
+    def _change(self) -> str:
+        """What changed since the last frame: "view" (the camera), "light", or "other"."""
+        st, last = self.state, self._last
+        if last is None or last[0] != st.camera:
+            return "view"
+        if (last[1], last[2]) != (st.rotation_deg, st.intensity):
+            return "light"
+        return "other"
+
+    def level_of_detail(self) -> tuple[str, int]:
+        """(lod, samples) of the next frame (issue 16). Outside a drag (the client did not flag its
+        last view or light message ``drag``) frames are full quality, and anti-aliased with
+        STILL_SAMPLES per pixel once the view has settled: the camera is where the last frame
+        had it, or that frame was drawn during a drag (its end); a camera moving without drag
+        flags gets one sample per frame (``needs_still_frame`` asks for the settled one after).
+        While the user drags, frames are full quality (one sample) whenever the measured cost of
+        recent full frames of the same kind of change (camera, light, other) fits the frame
+        budget, and at the drag level of detail otherwise, with a full frame tried again every
+        REPROBE_S (the machine's load changes)."""
+        change = self._change()
+        if not self._drag:
+            settled = change != "view" or self._last is None or self._last[3]
+            return "full", STILL_SAMPLES if settled else 1
+        hist = self._full_ms[change] or self._full_ms["view"]
+        if not hist:
+            return "full", 1                                     # no measurement yet: measure one
+        # the latest measurement can lower the estimate at once (a probe on a quieter machine),
+        # one slow frame among fast ones cannot raise it
+        est = min(statistics.median(hist), hist[-1])
+        if est <= self.frame_budget_ms or time.monotonic() - self._last_full >= REPROBE_S:
+            return "full", 1
+        return "drag", 1
+
+    def needs_still_frame(self) -> bool:
+        """Whether the last frame was a moving one (one sample, or the drag level of detail) and
+        the session is not dragging: when no message is waiting, one more frame (``frame``) is
+        the settled, anti-aliased image of the same state."""
+        return self._last is not None and not self._drag and self._last[4] < STILL_SAMPLES
+
+    def frame(self, ack: int, skipped: int = 0) -> tuple[dict, bytes]:
+        """The current frame: (header (FrameHeader fields), JPEG bytes)."""
         t0 = time.perf_counter()
-        # while the user drags (DESIGN.md §5: lower quality while dragging): a coarser cut set
-        # and half the resolution; the client scales the frame to its canvas
-        lod = coarse_cuts(self.engine.cuts) if self._drag else None
-        cam = self.camera
-        if self._drag and cam.width >= 320:
-            cam = cam.model_copy(update={"width": cam.width // 2, "height": cam.height // 2})
-        img = self.engine.render(cam, self.rotation, self.intensity,
-                                 vertex_override=None if lod is not None else self._override(), cuts=lod)
-        rgb = tonemap(img, self.exposure, self.tone)
+        st = self.state
+        change = self._change()
+        lod, samples = self.level_of_detail()
+        camera, lighting = st.camera, Lighting(st.rotation_deg, st.intensity)
+        if not st.allows("camera"):          # a fixed-view renderer draws its own camera and light
+            camera = self.scene.spec.camera
+            lighting = Lighting(self.scene.spec.environment.rotation_deg, st.intensity)
+        req = FrameRequest(camera=camera, lighting=lighting, materials=st.materials, lod=lod, samples=samples,
+                           ground_shadow=st.shadow, transforms=st.transforms or None,
+                           # the per-vertex transfer is per view: built for still views, not per drag frame
+                           vertex_radiance=None if self._drag else self._override())
+        out = self.renderer.render(req)
+        rgb = tonemap(out.radiance, st.exposure, st.tone)
         t1 = time.perf_counter()
         buf = io.BytesIO()
         # lower quality while the user drags (DESIGN.md §5), full quality when still
-        Image.fromarray(rgb).save(buf, format="JPEG", quality=min(self.quality, 60) if self._drag else self.quality)
+        Image.fromarray(rgb).save(buf, format="JPEG", quality=min(st.quality, 60) if self._drag else st.quality)
+        t2 = time.perf_counter()
+        if lod == "full":
+            self._last_full = time.monotonic()
+            if samples == 1:
+                self._full_ms[change].append((t2 - t0) * 1e3)
+        # the samples asked for: a renderer without anti-aliasing (gi, paint, movable objects)
+        # draws one, and must not be asked again and again for a still frame
+        self._last = (st.camera, st.rotation_deg, st.intensity, self._drag, samples)
         self.frame_no += 1
-        hdr = {"frame": self.frame_no, "ack": ack, "width": cam.width, "height": cam.height,
-               "format": "jpeg", "ms_render": round((t1 - t0) * 1e3, 2), "lod": lod is not None,
-               "ms_encode": round((time.perf_counter() - t1) * 1e3, 2)}
+        h, w = rgb.shape[:2]
+        hdr = {"frame": self.frame_no, "ack": ack, "width": w, "height": h, "format": "jpeg",
+               "ms_render": round((t1 - t0) * 1e3, 2), "lod": lod == "drag", "samples": int(out.info.get("samples", 1)),
+               "shadow": out.info.get("ground_shadow"), "ms_encode": round((t2 - t1) * 1e3, 2), "skipped": skipped}
         return hdr, buf.getvalue()
 
 
-def encode_frame(header: dict, image: bytes) -> bytes:
-    """Binary WebSocket frame: 4-byte big-endian header length | UTF-8 JSON header | image."""
-    h = json.dumps(header, separators=(",", ":")).encode()
-    return len(h).to_bytes(4, "big") + h + image
+def _msg(e: Exception) -> str:
+    from pydantic import ValidationError
+
+    if isinstance(e, ValidationError):
+        err = e.errors()[0]
+        return f"{'.'.join(str(x) for x in err['loc'])}: {err['msg']}"
+    return str(e)
 
 
-def decode_frame(data: bytes) -> tuple[dict, bytes]:
-    n = int.from_bytes(data[:4], "big")
-    return json.loads(data[4:4 + n]), data[4 + n:]
+def error_event(e: Exception, seq=None) -> dict:
+    """An error event for an exception while handling a message: user errors say what was
+    wrong; anything else is a bug, reported as such without a trace."""
+    if isinstance(e, (GlintError, StateError, ValueError)):
+        return ErrorEvent(seq=seq, message=_msg(e)).model_dump()
+    return ErrorEvent(seq=seq, message=f"internal error ({type(e).__name__}): {e}").model_dump()

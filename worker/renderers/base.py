@@ -66,6 +66,9 @@ class FrameRequest:
     vertex_radiance : object index -> (vertex ids (K,) int32, radiance (K, 3) float32), radiance
         already known (e.g. from a per-vertex transfer matrix); renderers that shade vertices
         use it instead of shading those vertices.
+    ground_shadow : draw the shadow-catcher ground's shadow (None: the scene's ``ground.shadow``,
+        off for a scene without ``ground``); renderers without one ignore it.
+    ground_intensity : its strength k in [0, 1] (None: the scene's ``ground.intensity``).
     """
     camera: Any
     lighting: Lighting = Lighting()
@@ -75,6 +78,8 @@ class FrameRequest:
     transforms: Mapping[str, Any] | None = None
     samples: int = 1
     vertex_radiance: Mapping[int, tuple[np.ndarray, np.ndarray]] | None = None
+    ground_shadow: bool | None = None
+    ground_intensity: float | None = None
 
 
 @dataclass
@@ -102,10 +107,9 @@ class Renderer(ABC):
     kind: ClassVar[str]
     controls: ClassVar[frozenset[str]] = frozenset({"camera", "light", "materials", "environment"})
 
-    def __init__(self, scene, data, use_native: bool = True):
+    def __init__(self, scene, data, kernels=None):
         self.scene = scene
         self.data = data
-        self.use_native = use_native
 
     @abstractmethod
     def render(self, req: FrameRequest) -> Rendered:
@@ -184,6 +188,10 @@ class Precomputation(ABC):
     def load(self, scene, blobs: Mapping[str, bytes], options: Mapping[str, Any]) -> Any:
         """The renderer's data from the stored parts (key -> bytes)."""
 
+    def describe(self, scene, part: Part, blob: bytes) -> dict:
+        """Stats of a stored part (sizes, counts), for a precomputation found already done."""
+        return {"bytes": len(blob)}
+
 
 def ensure(pre: Precomputation, scene, store: ArtifactStore, options: Mapping[str, Any] | None = None,
            progress: Progress | None = None, threads: int = 2) -> dict:
@@ -194,8 +202,9 @@ def ensure(pre: Precomputation, scene, store: ArtifactStore, options: Mapping[st
     t0 = time.perf_counter()
     out: dict[str, Any] = {"parts": {}, "computed": 0}
     for part in pre.parts(scene, options):
-        if store.get(part.key) is not None:
-            out["parts"][part.key] = {"label": part.label, "cached": True}
+        blob = store.get(part.key)
+        if blob is not None:
+            out["parts"][part.key] = {"label": part.label, "cached": True, **pre.describe(scene, part, blob)}
             if progress:
                 progress(part.work)
             continue

@@ -32,7 +32,7 @@ static inline double fit_static(int kind, double alpha, double f0, double ci, do
  * Walking one cut node down to the clusters to evaluate, with several refinement pairs (one
  * per basis level): a node of radius R at angle a from the mirror direction r is split when,
  * for any pair l, R > refine_r[l] and a < R + extent[l]; children inherit the parent's
- * visibility. With one pair this is the renderer's walk (glintk.c walk_next). node_cs holds
+ * visibility. With one pair this is the renderer's walk (shade.c refine_node). node_cs holds
  * (cos R, sin R) per tree node and ext_cs (cos e, sin e) per pair.
  */
 typedef struct { int64_t stack[2 * 64]; int sp; } fit_walk;

@@ -12,14 +12,21 @@
 #include <omp.h>
 #endif
 #include "glint_common.h"
+#include "brdf_kernels.h"
 
-#define K_LAMBERT 0
-#define K_GGX 1
-#define K_BLINN 2
-#define K_LOBES 3
-#define K_TABLE 4
-#define N_PARAMS 72
-#define TABLE_N 160
+/* BRDF kernel branches by name (ids and packed layout in brdf_kernels.h; the shading kernel
+ * that evaluates them is in shade.c). */
+static const char *const K_NAMES[K_COUNT] = {"lambert", "ggx", "blinn-phong", "lobes", "table"};
+
+/* id of a BRDF kernel branch by name, −1 when this library has none */
+int glk_model_id(const char *name) {
+    for (int k = 0; k < K_COUNT; k++)
+        if (strcmp(name, K_NAMES[k]) == 0) return k;
+    return -1;
+}
+
+/* the packed layout this library was built with: 0 → N_PARAMS, 1 → TABLE_N */
+int glk_layout(int what) { return what == 0 ? N_PARAMS : (what == 1 ? TABLE_N : -1); }
 
 int glk_max_threads(void) {
 #ifdef _OPENMP
@@ -134,191 +141,6 @@ void glk_coarsen(int64_t V, const int64_t *offsets, const uint8_t *heights, cons
                 out_h[c] = (uint8_t)sh[i]; out_q[c] = (uint8_t)lrint(m * 255.0); c++;
             }
             counts[v] = (int32_t)(c - a);
-        }
-    }
-}
-
-/* ---------------------------------------------------------------------------------------
- * BRDF evaluation in the shared packed form (worker/core/brdf.py eval_packed).
- */
-static inline double ggx_G1(double c, double ch, double a) {
-    if (c * ch <= 0) return 0.0;
-    double c2 = c * c; if (c2 < 1e-20) c2 = 1e-20;
-    double t2 = (1.0 - c2) / c2; if (t2 < 0) t2 = 0;
-    return 2.0 / (1.0 + sqrt(1.0 + a * a * t2));
-}
-
-/* p(h) table in hemi-octahedral coordinates (worker/core/brdf.py octa_uv, table_lookup):
- * bilinear over TABLE_N × TABLE_N samples, the three channels at once. */
-static inline void table_lookup3(const float *tab, v3 hl, double *out) {
-    double s = fabs(hl.x) + fabs(hl.y) + (hl.z > 0 ? hl.z : 0.0);
-    if (s < 1e-30) s = 1e-30;
-    double px = hl.x / s, py = hl.y / s;
-    double fu = (px + py + 1.0) * (0.5 * (TABLE_N - 1)), fv = (px - py + 1.0) * (0.5 * (TABLE_N - 1));
-    fu = fu < 0 ? 0 : (fu > TABLE_N - 1 ? TABLE_N - 1 : fu);
-    fv = fv < 0 ? 0 : (fv > TABLE_N - 1 ? TABLE_N - 1 : fv);
-    int i0 = (int)fu; if (i0 > TABLE_N - 2) i0 = TABLE_N - 2;
-    int j0 = (int)fv; if (j0 > TABLE_N - 2) j0 = TABLE_N - 2;
-    double a = fu - i0, b = fv - j0;
-    const float *r0 = tab + ((int64_t)i0 * TABLE_N + j0) * 3, *r1 = r0 + TABLE_N * 3;
-    for (int c = 0; c < 3; c++) {
-        double t0 = r0[c] * (1 - b) + r0[3 + c] * b;
-        double t1 = r1[c] * (1 - b) + r1[3 + c] * b;
-        out[c] = t0 * (1 - a) + t1 * a;
-    }
-}
-
-/* wi, wo, n, t, b world-space unit vectors; writes f (1/sr) to out[3]. */
-static inline void brdf_eval(int kind, const float *p, const float *tab, v3 wi, v3 wo, v3 n,
-                             v3 t, v3 bt, double gpo, double *out) {
-    double ci = dot(wi, n), co = dot(wo, n);
-    out[0] = out[1] = out[2] = 0.0;
-    if (ci <= 0 || co <= 0) return;
-    out[0] = p[0] * INV_PI; out[1] = p[1] * INV_PI; out[2] = p[2] * INV_PI;
-    if (kind == K_LAMBERT) return;
-    v3 h = nrm(add(wi, wo));
-    double chh = dot(h, n), cd = dot(wi, h);
-    if (kind == K_GGX) {
-        /* D(h)·G1(ωi)·[G1(ωo)/(4 cosθo)] / cosθi; the bracket is per point (gpo) */
-        float a = p[6], a2 = a * a;
-        float c = (float)chh, c2 = c > 0 ? c * c : 0.0f;
-        float den = c2 * (a2 - 1.0f) + 1.0f;
-        float D = c > 0 ? a2 / ((float)PI * den * den) : 0.0f;
-        float fci = (float)ci, ci2 = fci * fci;
-        float t2 = (1.0f - ci2) / ci2;
-        float g1i = (cd > 0) ? 2.0f / (1.0f + sqrtf(1.0f + a2 * (t2 > 0 ? t2 : 0))) : 0.0f;
-        double s = (double)(D * g1i / fci) * gpo;
-        out[0] += s * p[3]; out[1] += s * p[4]; out[2] += s * p[5];
-    } else if (kind == K_BLINN) {
-        double e = p[6];
-        double s = (e + 8.0) / (8.0 * PI) * pow(chh > 0 ? (chh < 1 ? chh : 1) : 0, e);
-        out[0] += s * p[3]; out[1] += s * p[4]; out[2] += s * p[5];
-    } else if (kind == K_LOBES) {
-        double rv = 2.0 * ci * co - dot(wi, wo);
-        rv = rv < 0 ? 0 : (rv > 1 ? 1 : rv);
-        int m = (int)p[3];
-        for (int k = 0; k < m; k++) {
-            double e = p[4 + 4 * k];
-            double s = (e + 2.0) / (2.0 * PI) * pow(rv, e);
-            out[0] += s * p[5 + 4 * k]; out[1] += s * p[6 + 4 * k]; out[2] += s * p[7 + 4 * k];
-        }
-    } else if (kind == K_TABLE) {
-        /* p(h)·s(ωi, ωo); p[3] = F0, p[4] = static (0 paper, 1 smith), p[5] = its α
-         * (worker/core/brdf.py distribution_static) */
-        v3 hl = mk(dot(h, t), dot(h, bt), chh);
-        double m = 1.0 - cd; m = m < 0 ? 0 : (m > 1 ? 1 : m);
-        double m2 = m * m;
-        double F = p[3] + (1.0 - p[3]) * m2 * m2 * m;
-        double s;
-        if (p[4] > 0.5) {
-            double a2 = (double)p[5] * p[5];
-            s = F / ((ci + sqrt(a2 + (1.0 - a2) * ci * ci)) * (co + sqrt(a2 + (1.0 - a2) * co * co)));
-        } else {
-            double den = ci + co - ci * co; if (den < 1e-12) den = 1e-12;
-            s = F / den;
-        }
-        double pt[3];
-        table_lookup3(tab, hl, pt);
-        out[0] += s * pt[0]; out[1] += s * pt[1]; out[2] += s * pt[2];
-    }
-}
-
-/* ---------------------------------------------------------------------------------------
- * Walking one cut node down to the clusters to shade (DESIGN.md §4): a node wider than
- * refine_r whose angle to the mirror direction r is below its radius plus the extent is split;
- * children inherit the parent's visibility. Used by shading and by the transfer functions,
- * so both see the same clusters.
- */
-typedef struct { int64_t stack[2 * 64]; int sp; } cut_walk;
-
-static inline void walk_start(cut_walk *w, int h, int64_t start) {
-    w->sp = 0; w->stack[w->sp++] = h; w->stack[w->sp++] = start;
-}
-
-/* next flat tree-node index to shade, or −1 when the node is exhausted */
-static inline int64_t walk_next(cut_walk *w, const int64_t *level_off, const float *node_dir,
-                                const float *node_radius, v3 r, double refine_r, double extent) {
-    while (w->sp) {
-        int64_t s = w->stack[--w->sp];
-        int h = (int)w->stack[--w->sp];
-        int64_t idx = level_off[h] + (s >> h);
-        if (h > 0 && node_radius[idx] > refine_r) {
-            double R = node_radius[idx];
-            v3 nd = mk(node_dir[3 * idx], node_dir[3 * idx + 1], node_dir[3 * idx + 2]);
-            /* no angle can reach R + extent ≥ π: skip the acos */
-            if (R + extent >= PI || acos(fmax(-1.0, fmin(1.0, dot(nd, r)))) < R + extent) {
-                int64_t half = (int64_t)1 << (h - 1);
-                w->stack[w->sp++] = h - 1; w->stack[w->sp++] = s + half;
-                w->stack[w->sp++] = h - 1; w->stack[w->sp++] = s;
-                continue;
-            }
-        }
-        return idx;
-    }
-    return -1;
-}
-
-/* ---------------------------------------------------------------------------------------
- * Shading at points (cyber-worlds eq. 3, inverse-brdf-modeling eq. 22):
- *   B = Σ_k l_k v_k f_r(ω_k, ω_o)
- * over point p's cut (cut index cut_of[p]). node_l / node_w hold, per tree node and per light
- * change, the radiance l_k and the light-weighted centroid direction ω_k (lighting.node_lighting).
- * Nodes wider than the material's refine radius whose angle to the mirror direction is below
- * their radius plus the material's extent (PackedBRDF) are refined:
- * their children inherit the parent's visibility but have their own light and direction,
- * so glossy highlights stay sharp (DESIGN.md §4).
- */
-void glk_shade_points(
-    int64_t P, const float *normals, const float *wo_dirs, const int32_t *cut_of,
-    const int32_t *mat_of, const int64_t *cut_off, const uint8_t *cut_h, const uint8_t *cut_q,
-    const float *node_l, const float *node_w, const float *node_dir, const float *node_radius,
-    const int64_t *level_off, int H, const int32_t *mat_kind, const float *mat_params,
-    const float *mat_refine, const float *mat_extent, const float *tables, const int64_t *table_off,
-    float *out) {
-#pragma omp parallel
-    {
-        cut_walk walk;
-#pragma omp for schedule(dynamic, 64)
-        for (int64_t p = 0; p < P; p++) {
-            v3 n = mk(normals[3 * p], normals[3 * p + 1], normals[3 * p + 2]);
-            v3 wo = mk(wo_dirs[3 * p], wo_dirs[3 * p + 1], wo_dirs[3 * p + 2]);
-            double acc[3] = {0, 0, 0};
-            double co = dot(n, wo);
-            int mi = mat_of[p];
-            if (co > 0 && cut_of[p] >= 0) {
-                int kind = mat_kind[mi];
-                const float *prm = mat_params + (int64_t)mi * N_PARAMS;
-                const float *tab = table_off[mi] >= 0 ? tables + table_off[mi] : NULL;
-                double refine_r = mat_refine[mi], extent = mat_extent[mi];
-                v3 r = add(scl(n, 2.0 * co), scl(wo, -1.0));
-                v3 t, bt; onb(n, &t, &bt);
-                /* GGX's per-point factor G1(ωo)/(4 cosθo): h·ωo > 0 always holds for h of ωi, ωo
-                 * in the upper hemisphere, so G1(ωo) does not depend on the cluster */
-                double gpo = kind == K_GGX ? ggx_G1(co, 1.0, prm[6]) / (4.0 * co) : 0.0;
-                int64_t c0 = cut_off[cut_of[p]], c1 = cut_off[cut_of[p] + 1];
-                int64_t start = 0;
-                for (int64_t m = c0; m < c1; m++) {
-                    int h0 = cut_h[m];
-                    int64_t s0 = start;
-                    start += (int64_t)1 << h0;
-                    if (cut_q[m] == 0) continue;
-                    double q = cut_q[m] * (1.0 / 255.0);
-                    walk_start(&walk, h0, s0);
-                    for (int64_t idx; (idx = walk_next(&walk, level_off, node_dir, node_radius, r, refine_r, extent)) >= 0;) {
-                        const float *L = node_l + 3 * idx;
-                        if (L[0] <= 0 && L[1] <= 0 && L[2] <= 0) continue;
-                        v3 wi = mk(node_w[3 * idx], node_w[3 * idx + 1], node_w[3 * idx + 2]);
-                        double f[3];
-                        /* a cluster straddling the horizon may have its centroid below it: its
-                         * visibility already carries the cosine, so evaluate f just above */
-                        double ci = dot(wi, n);
-                        if (ci < 1e-3) wi = nrm(add(wi, scl(n, 1e-3 - ci)));
-                        brdf_eval(kind, prm, tab, wi, wo, n, t, bt, gpo, f);
-                        acc[0] += L[0] * q * f[0]; acc[1] += L[1] * q * f[1]; acc[2] += L[2] * q * f[2];
-                    }
-                }
-            }
-            out[3 * p] = (float)acc[0]; out[3 * p + 1] = (float)acc[1]; out[3 * p + 2] = (float)acc[2];
         }
     }
 }

@@ -2,8 +2,16 @@
 
 Writes go to a temporary file in the same folder, are fsynced, then renamed, so a crash never
 leaves a torn blob under a valid name; reads verify the hash, so a damaged blob is an error, not
-a silent wrong answer. Used by the server and, for cuts, by the worker processes (plain files,
-no shared state).
+a silent wrong answer. The server stores uploads here and the workers read and write
+precomputed parts (plain files, no shared state).
+
+Beyond one machine every node must reach the same blobs: a shared directory (NFS and the like)
+works as it is. An S3-compatible store would implement the same five methods (``put``,
+``put_file``, ``get``, ``has``, ``verified_path`` — the last one by downloading to a local cache
+first), since nothing else in Glint touches the folder layout.
+
+``PartStore`` keeps a precomputation's parts (renderers/base.py) in the blob store under their
+content keys: ``<root>/keys/<key>`` holds the sha256 of the part's blob.
 """
 from __future__ import annotations
 
@@ -12,11 +20,14 @@ import os
 import tempfile
 from pathlib import Path
 
-from worker.atomic import atomic_write
+from .atomic import atomic_write
+from .errors import GlintError
 
 
-class BlobError(RuntimeError):
-    pass
+class BlobError(GlintError):
+    """A blob that is missing or damaged on disk (never served)."""
+
+    status = 500
 
 
 class BlobStore:
@@ -32,10 +43,21 @@ class BlobStore:
     def has(self, sha: str) -> bool:
         return self.path(sha).is_file()
 
+    def _intact(self, dest: Path, sha: str) -> bool:
+        """An existing blob under this name whose content still has this hash (a damaged one is
+        replaced by the next put of the same content)."""
+        if not dest.is_file():
+            return False
+        try:
+            self.verified_path(sha)
+            return True
+        except BlobError:
+            return False
+
     def put(self, data: bytes) -> str:
         sha = hashlib.sha256(data).hexdigest()
         dest = self.path(sha)
-        if dest.is_file():
+        if self._intact(dest, sha):
             return sha
         self._write(dest, data)
         return sha
@@ -44,7 +66,7 @@ class BlobStore:
         """Move an already-hashed temporary file into the store (upload streaming)."""
         dest = self.path(sha)
         dest.parent.mkdir(parents=True, exist_ok=True)
-        if dest.is_file():
+        if self._intact(dest, sha):
             Path(src).unlink(missing_ok=True)
             return sha
         with open(src, "rb+") as f:
@@ -83,3 +105,35 @@ class BlobStore:
 
     def _write(self, dest: Path, data: bytes) -> None:
         atomic_write(dest, data)
+
+
+class PartStore:
+    """renderers.base.ArtifactStore over a BlobStore: part bytes are blobs, ``keys/<key>`` names
+    their digest (written atomically after the blob, so a key never points at nothing)."""
+
+    def __init__(self, blobs: BlobStore):
+        self.blobs = blobs
+        self.root = blobs.root / "keys"
+
+    def _key_path(self, key: str) -> Path:
+        if not key or any(c not in "0123456789abcdef" for c in key):
+            raise BlobError(f"not a content key: {key!r}")
+        return self.root / key
+
+    def sha(self, key: str) -> str | None:
+        p = self._key_path(key)
+        return p.read_text().strip() if p.is_file() else None
+
+    def get(self, key: str) -> bytes | None:
+        sha = self.sha(key)
+        return None if sha is None else self.blobs.get(sha)
+
+    def put(self, key: str, data: bytes) -> None:
+        sha = self.blobs.put(data)
+        atomic_write(self._key_path(key), sha.encode())
+
+    def adopt(self, key: str, sha: str) -> None:
+        """Name an existing blob as the part under ``key``."""
+        if not self.blobs.has(sha):
+            raise BlobError(f"blob {sha[:12]}… is missing from the store")
+        atomic_write(self._key_path(key), sha.encode())

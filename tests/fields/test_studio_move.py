@@ -1,0 +1,111 @@
+"""The studio's Move tool in headless Chromium (as tests/web), on the crate scene precomputed by
+the real server: a drag slides the box over the floor under the pointer, Shift-drag turns it,
+``drag: true`` while dragging and a last message without it. Screenshots go to
+test-artifacts/web-move-*.png."""
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+pw = pytest.importorskip("playwright.sync_api")
+
+
+def project(cam, p):
+    """Frame pixel (x, y) of a world point (DESIGN.md §2 camera)."""
+    eye = np.asarray(cam["eye"], float)
+    fwd = np.asarray(cam["target"], float) - eye
+    fwd /= np.linalg.norm(fwd)
+    right = np.cross(fwd, cam.get("up", [0, 1, 0]))
+    right /= np.linalg.norm(right)
+    up = np.cross(right, fwd)
+    rel = np.asarray(p, float) - eye
+    t = np.tan(np.radians(cam["fov_y_deg"]) / 2)
+    x = (rel @ right) / (rel @ fwd) / (t * cam["width"] / cam["height"])
+    y = (rel @ up) / (rel @ fwd) / t
+    return (x + 1) / 2 * cam["width"], (1 - y) / 2 * cam["height"]
+
+
+def frame_no(page):
+    return int(page.evaluate("() => +(document.getElementById('view').dataset.frame || 0)"))
+
+
+def settle(page, quiet_ms=1000, timeout=60_000):
+    waited, last = 0, frame_no(page)
+    while waited < timeout:
+        page.wait_for_timeout(quiet_ms)
+        waited += quiet_ms
+        now = frame_no(page)
+        if now == last:
+            return
+        last = now
+    raise TimeoutError("frames kept coming")
+
+
+def drag(page, x, y, dx, dy, steps=10):
+    page.mouse.move(x, y)
+    page.mouse.down()
+    for k in range(1, steps + 1):
+        page.mouse.move(x + dx * k / steps, y + dy * k / steps)
+        page.wait_for_timeout(40)
+    page.mouse.up()
+
+
+def test_move_tool_slides_and_turns_the_object(server, crate, crate_scene, artifacts):
+    cam = crate.spec["camera"]
+    box = crate.spec["objects"][1]["transform"]["translate"]
+    with pw.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, headless=True,
+                              args=["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage"])
+        try:
+            page = b.new_page(viewport={"width": 1280, "height": 860})
+            errors, sent = [], []
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.on("websocket", lambda ws: ws.on("framesent", lambda m: sent.append(m)))
+            page.goto(server["base"] + "/")
+            page.wait_for_function(f"() => [...document.querySelectorAll('#scene-select option')]"
+                                   f".some(o => o.value === '{crate_scene}' && !o.disabled)", timeout=60_000)
+            page.select_option("#scene-select", crate_scene)
+            page.click("#open-scene")
+            page.wait_for_function("() => !document.getElementById('move-tool').classList.contains('hidden')",
+                                   timeout=60_000)
+            page.wait_for_function("() => +(document.getElementById('view').dataset.frame || 0) > 0", timeout=60_000)
+            settle(page)
+            page.check("#tool-move")
+            assert page.locator("#move-object").input_value() == "box"
+            page.screenshot(path=str(artifacts / "web-move-1-opened.png"))
+            c = page.locator("#view").bounding_box()
+            sx, sy = c["width"] / cam["width"], c["height"] / cam["height"]
+            # grab the box's top and slide it 60 frame pixels to the right
+            px, py = project(cam, [box[0], 30.0, box[2]])
+            n = frame_no(page)
+            drag(page, c["x"] + px * sx, c["y"] + py * sy, 60 * sx, 0)
+            page.wait_for_function(f"() => +document.getElementById('view').dataset.frame > {n}", timeout=60_000)
+            settle(page)
+            page.screenshot(path=str(artifacts / "web-move-2-slid.png"))
+            moves = [json.loads(m) for m in sent if isinstance(m, str) and '"move"' in m]
+            assert moves and moves[-1]["drag"] is False and any(m["drag"] for m in moves[:-1]), moves
+            t = moves[-1]["transform"]
+            # the point grabbed stays under the pointer: the box's new place projects 60 px right
+            # of where it was, on the plane through its origin
+            h = box[1]
+            qx, _ = project(cam, [t["translate"][0], h, t["translate"][2]])
+            p0x, _ = project(cam, [box[0], h, box[2]])
+            assert abs((qx - p0x) - 60) < 6 and t["translate"][1] == h, (t, qx - p0x)
+            assert t["translate"][0] > box[0] + 5 and t["rotate_deg"] == [0, 0, 0]
+            # Shift-drag turns it about +Y, 0.5° per frame pixel
+            sent.clear()
+            n = frame_no(page)
+            page.keyboard.down("Shift")
+            drag(page, c["x"] + qx * sx, c["y"] + py * sy, 40 * sx, 0)
+            page.keyboard.up("Shift")
+            page.wait_for_function(f"() => +document.getElementById('view').dataset.frame > {n}", timeout=60_000)
+            settle(page)
+            page.screenshot(path=str(artifacts / "web-move-3-turned.png"))
+            moves = [json.loads(m) for m in sent if isinstance(m, str) and '"move"' in m]
+            last = moves[-1]["transform"]
+            assert abs(last["rotate_deg"][1] - 20.0) < 2.0 and last["translate"] == t["translate"], last
+            assert not errors, errors
+        finally:
+            b.close()

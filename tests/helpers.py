@@ -1,0 +1,128 @@
+"""Helpers the test modules share (a module, not conftest: conftest names are ambiguous across
+folders)."""
+import asyncio
+import io
+import json
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import httpx
+import numpy as np
+import websockets
+from PIL import Image
+
+from worker.jobs.state import decode_frame, server_event
+
+ROOT = Path(__file__).resolve().parent.parent
+CACHE = ROOT / "tests" / ".cache"
+
+
+def open_renderer(scene, kernels=None, kind=None):
+    """A renderer for a loaded scene, its precomputation cached in tests/.cache (by content key)."""
+    from worker.artifacts import DirStore
+    from worker.native.kernels import kernels as get_kernels
+    from worker.renderers import prepare
+
+    CACHE.mkdir(parents=True, exist_ok=True)
+    kind = kind or scene.spec.renderer
+    r, _ = prepare(scene, DirStore(CACHE, kind), kind, kernels=get_kernels(kernels))
+    return r
+
+
+def render(r, material, shading="pixel", camera=None):
+    """(radiance (H, W, 3), object index (H, W)) of a one-object scene with a material."""
+    from worker.renderers import FrameRequest
+
+    out = r.render(FrameRequest(camera=camera or r.scene.spec.camera, materials=[material], shading=shading))
+    return out.radiance, out.object_id
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class GlintServer:
+    """A real ``glint serve`` in a subprocess on a free loopback port (stop() or use as a context)."""
+
+    def __init__(self, data: Path, workers: int = 2, demo: bool = False, env: dict | None = None, port: int | None = None):
+        self.data = Path(data)
+        self.data.mkdir(parents=True, exist_ok=True)
+        self.port = port or free_port()
+        self.base = f"http://127.0.0.1:{self.port}"
+        full = {**os.environ, "GLINT_MAX_MESH_BYTES": str(8 * 1024 * 1024), "PYTHONUNBUFFERED": "1", **(env or {})}
+        self.log_path = self.data / "server.log"
+        self._log = open(self.log_path, "a")
+        args = [sys.executable, "-m", "worker.cli", "serve", "--port", str(self.port), "--data-dir", str(self.data),
+                "--workers", str(workers)] + ([] if demo else ["--no-demo"])
+        self.proc = subprocess.Popen(args, cwd=ROOT, env=full, stdout=self._log, stderr=subprocess.STDOUT)
+        for _ in range(600):
+            try:
+                if httpx.get(self.base + "/healthz", timeout=1).status_code == 200:
+                    break
+            except httpx.HTTPError:
+                pass
+            if self.proc.poll() is not None:
+                raise RuntimeError("server exited: " + self.log()[-3000:])
+            time.sleep(0.2)
+        else:
+            self.proc.kill()
+            raise RuntimeError("server did not start: " + self.log()[-3000:])
+
+    def log(self) -> str:
+        if not self._log.closed:
+            self._log.flush()
+        return self.log_path.read_text()
+
+    def stop(self, sig=None) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig) if sig else self.proc.terminate()
+            try:
+                self.proc.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        self._log.close()
+        return self.proc.returncode
+
+    def as_dict(self) -> dict:
+        return {"base": self.base, "port": self.port, "data": self.data, "proc": self.proc, "server": self}
+
+
+# -- session streams ----------------------------------------------------------------------------
+class connect:
+    """A session stream that authenticates with its first message (the token never appears in a
+    URL, so never in a log)."""
+
+    def __init__(self, server, path, token, **kw):
+        self.cm = websockets.connect(f"ws://127.0.0.1:{server['port']}{path}", max_size=None, **kw)
+        self.token = token
+
+    async def __aenter__(self):
+        ws = await self.cm.__aenter__()
+        await ws.send(json.dumps({"type": "auth", "token": self.token}))
+        return ws
+
+    async def __aexit__(self, *a):
+        return await self.cm.__aexit__(*a)
+
+
+async def next_frame(ws, min_ack=-1, events=None, timeout=60):
+    """Receive until a binary frame whose ack ≥ min_ack; JSON events are collected."""
+    deadline = time.monotonic() + timeout
+    while True:
+        x = await asyncio.wait_for(ws.recv(), timeout=max(0.1, deadline - time.monotonic()))
+        if isinstance(x, bytes):
+            hdr, img = decode_frame(x)
+            if hdr["ack"] >= min_ack:
+                return hdr, np.asarray(Image.open(io.BytesIO(img)).convert("RGB"), np.float64)
+        else:
+            ev = json.loads(x)
+            server_event.validate_python(ev)          # every event matches the published schema
+            if events is not None:
+                events.append(ev)

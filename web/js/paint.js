@@ -1,0 +1,238 @@
+// The car-paint designer's studio pieces (cacad-cosine-lobes §1.1: BRDF designer, lobe
+// visualiser, colour swatch palette), as self-contained ES modules. The studio wires them:
+//   const panel = createPaintPanel(el, {object: "car", send: (msg) => ws.send(JSON.stringify(msg))});
+//   on the session's "paint" event: panel.showEvent(ev); visualiser.update(ev.material); palette.current = ev;
+// Measurements follow worker/paint/geometry.py: gloss in GU (ASTM D523 20°), aspecular readings
+// as linear RGB reflectance factors (π·f) at 45° illumination (ASTM E2194).
+
+export const ANGLES = ["-15", "15", "25", "45", "75", "110"];
+const LUMA = [0.2126, 0.7152, 0.0722];
+
+const srgbToLinear = (c) => (c <= 0.04045 ? c / 12.92 : ((c + 0.055) / 1.055) ** 2.4);
+const linearToSrgb = (c) => (c <= 0.0031308 ? 12.92 * c : 1.055 * c ** (1 / 2.4) - 0.055);
+const clamp01 = (x) => Math.min(1, Math.max(0, x));
+const luma = (rgb) => rgb[0] * LUMA[0] + rgb[1] * LUMA[1] + rgb[2] * LUMA[2];
+
+function hexToLinear(hex) {
+  const v = parseInt(hex.slice(1), 16);
+  return [(v >> 16) & 255, (v >> 8) & 255, v & 255].map((x) => srgbToLinear(x / 255));
+}
+
+function linearToHex(rgb) {
+  const m = Math.max(...rgb, 1e-9);
+  return "#" + rgb.map((x) => Math.round(255 * linearToSrgb(clamp01(x / m))).toString(16).padStart(2, "0")).join("");
+}
+
+function el(tag, attrs = {}, children = []) {
+  const e = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) {
+    if (k === "style") e.style.cssText = v;
+    else if (k.startsWith("on")) e.addEventListener(k.slice(2), v);
+    else e.setAttribute(k, v);
+  }
+  for (const c of children) e.append(c);
+  return e;
+}
+
+// Paint panel: a gloss slider and, per aspecular angle, a hue (colour input) and a level
+// (luminance reflectance factor, square-root slider 0…4). Every change emits a `paint` message.
+export function createPaintPanel(container, { send, object = "", initial = null, angles = ANGLES } = {}) {
+  let seq = 0;
+  const state = initial
+    ? structuredClone(initial)
+    : { gloss: 85, aspecular: Object.fromEntries(angles.map((a) => [a, [0.1, 0.1, 0.1]])) };
+  const root = el("div", { class: "paint-panel" });
+  const status = el("div", { class: "paint-status" });
+  const gl = el("input", { type: "range", min: "0", max: "100", step: "0.5", value: String(state.gloss), "aria-label": "gloss" });
+  const glv = el("span", {}, [`${state.gloss} GU`]);
+  gl.addEventListener("input", () => { state.gloss = +gl.value; glv.textContent = `${state.gloss} GU`; emit(); });
+  root.append(el("label", { style: "display:block" }, ["Gloss (20°) ", gl, glv]));
+  const rows = {};
+  for (const a of angles) {
+    const rgb = state.aspecular[a] || [0.1, 0.1, 0.1];
+    const hue = el("input", { type: "color", value: linearToHex(rgb), "aria-label": `colour ${a}°` });
+    const level = el("input", { type: "range", min: "0", max: "2", step: "0.001", value: String(Math.sqrt(luma(rgb))), "aria-label": `level ${a}°` });
+    const out = el("span", { class: "paint-value" });
+    const update = () => {
+      const c = hexToLinear(hue.value);
+      const y = (+level.value) ** 2;
+      const l = Math.max(luma(c), 1e-6);
+      state.aspecular[a] = c.map((x) => (x * y) / l);
+      out.textContent = state.aspecular[a].map((x) => x.toFixed(3)).join(" ");
+      emit();
+    };
+    hue.addEventListener("input", update);
+    level.addEventListener("input", update);
+    out.textContent = rgb.map((x) => x.toFixed(3)).join(" ");
+    rows[a] = { hue, level, out };
+    root.append(el("label", { class: "paint-angle", style: "display:block" }, [`${a}° `, hue, level, out]));
+  }
+  root.append(status);
+  container.append(root);
+
+  function message() {
+    return { type: "paint", seq: ++seq, object, gloss: state.gloss, aspecular: structuredClone(state.aspecular) };
+  }
+  function emit() { if (send) send(message()); }
+
+  return {
+    element: root,
+    get state() { return structuredClone(state); },
+    // set the sliders from measurements (e.g. a swatch or a measured material) and emit once
+    set(measurements, { silent = false } = {}) {
+      state.gloss = measurements.gloss;
+      gl.value = String(state.gloss); glv.textContent = `${(+state.gloss).toFixed(1)} GU`;
+      for (const a of angles) {
+        const v = measurements.aspecular[a];
+        if (!v) continue;
+        state.aspecular[a] = [...v];
+        rows[a].hue.value = linearToHex(v);
+        rows[a].level.value = String(Math.sqrt(luma(v)));
+        rows[a].out.textContent = v.map((x) => x.toFixed(3)).join(" ");
+      }
+      if (!silent) emit();
+    },
+    // the session's answer: what the fitted paint measures and how far it is from the request
+    showEvent(ev) {
+      status.textContent = `fit ${ev.ms_fit.toFixed(2)} ms, error ${(100 * ev.error_l1).toFixed(2)}% (max ${(100 * ev.error_max).toFixed(1)}%)` +
+        (ev.flop_index != null ? `, flop index ${ev.flop_index.toFixed(1)}` : "");
+    },
+  };
+}
+
+// BRDF of Glint's lobes model (worker/scene.py Lobes) at local directions wi, wo (z = normal).
+export function evalLobes(m, wi, wo) {
+  if (wi[2] <= 0 || wo[2] <= 0) return [0, 0, 0];
+  const rv = Math.max(0, 2 * wi[2] * wo[2] - (wi[0] * wo[0] + wi[1] * wo[1] + wi[2] * wo[2]));
+  const f = m.albedo.map((a) => a / Math.PI);
+  m.exponents.forEach((e, i) => {
+    const s = ((e + 2) / (2 * Math.PI)) * rv ** e;
+    for (let c = 0; c < 3; c++) f[c] += (m.gloss[i] + m.directional_diffuse[i][c]) * s;
+  });
+  return f;
+}
+
+// Lobe visualiser: polar plot of f(wi, wo) in the plane of incidence for a chosen incidence
+// angle, one curve per channel plus luminance; log radius (decades) so flakes and gloss show.
+export function createLobeVisualiser(canvas, { incidenceDeg = 45, decades = 4 } = {}) {
+  let material = null;
+  const ctx = canvas.getContext("2d");
+  function draw() {
+    const w = canvas.width, h = canvas.height, cx = w / 2, cy = h - 10, R = Math.min(w / 2, h) - 14;
+    ctx.clearRect(0, 0, w, h);
+    ctx.strokeStyle = "#555"; ctx.lineWidth = 1;
+    for (let d = 1; d <= decades; d++) { ctx.beginPath(); ctx.arc(cx, cy, (R * d) / decades, Math.PI, 2 * Math.PI); ctx.stroke(); }
+    ctx.beginPath(); ctx.moveTo(cx - R, cy); ctx.lineTo(cx + R, cy); ctx.stroke();
+    const ti = (incidenceDeg * Math.PI) / 180;
+    ctx.strokeStyle = "#fc3"; ctx.beginPath(); ctx.moveTo(cx, cy); ctx.lineTo(cx - R * Math.sin(ti), cy - R * Math.cos(ti)); ctx.stroke();
+    if (!material) return;
+    const wi = [-Math.sin(ti), 0, Math.cos(ti)];
+    const curves = [[], [], [], []];
+    for (let k = 0; k <= 360; k++) {
+      const t = -Math.PI / 2 + (Math.PI * k) / 360;
+      const f = evalLobes(material, wi, [Math.sin(t), 0, Math.cos(t)]);
+      [...f, luma(f)].forEach((v, c) => curves[c].push([t, v]));
+    }
+    const vmax = Math.max(...curves[3].map((p) => p[1]), 1e-9);
+    const colors = ["#e44", "#4c4", "#48f", "#fff"];
+    curves.forEach((pts, c) => {
+      ctx.strokeStyle = colors[c]; ctx.lineWidth = c === 3 ? 2 : 1; ctx.beginPath();
+      pts.forEach(([t, v], k) => {
+        const r = (R * Math.max(0, decades + Math.log10(Math.max(v, 1e-30) / vmax))) / decades;
+        const x = cx + r * Math.sin(t), y = cy - r * Math.cos(t);
+        k ? ctx.lineTo(x, y) : ctx.moveTo(x, y);
+      });
+      ctx.stroke();
+    });
+  }
+  return {
+    update(m, inc) { material = m; if (inc != null) incidenceDeg = inc; draw(); },
+    setIncidence(deg) { incidenceDeg = deg; draw(); },
+  };
+}
+
+// A swatch: a sphere shaded with the lobes BRDF under a fixed studio light set (key, fill,
+// rim and a sky dome), so saved paints compare side by side without a server round trip.
+export function renderSwatch(canvas, m) {
+  const ctx = canvas.getContext("2d");
+  const n = canvas.width, img = ctx.createImageData(n, n);
+  const lights = [[[-0.5, 0.6, 0.62], 2.5], [[0.7, 0.2, 0.68], 0.8], [[0.1, -0.3, -0.95], 1.2]];
+  for (let y = 0; y < n; y++) for (let x = 0; x < n; x++) {
+    const u = (2 * (x + 0.5)) / n - 1, v = 1 - (2 * (y + 0.5)) / n, r2 = u * u + v * v;
+    const o = 4 * (y * n + x);
+    if (r2 > 1) { img.data[o + 3] = 0; continue; }
+    const N = [u, v, Math.sqrt(1 - r2)];
+    // local frame: z = N, wo = view (0, 0, 1) expressed in it
+    const t = Math.abs(N[0]) < 0.9 ? [1, 0, 0] : [0, 1, 0];
+    const b = [N[1] * t[2] - N[2] * t[1], N[2] * t[0] - N[0] * t[2], N[0] * t[1] - N[1] * t[0]];
+    const bl = Math.hypot(...b); b.forEach((_, i) => (b[i] /= bl));
+    const tt = [b[1] * N[2] - b[2] * N[1], b[2] * N[0] - b[0] * N[2], b[0] * N[1] - b[1] * N[0]];
+    const loc = (d) => [d[0] * tt[0] + d[1] * tt[1] + d[2] * tt[2], d[0] * b[0] + d[1] * b[1] + d[2] * b[2], d[0] * N[0] + d[1] * N[1] + d[2] * N[2]];
+    const wo = loc([0, 0, 1]);
+    const col = m.albedo.map((a) => a * 0.25 * (0.6 + 0.4 * N[1]));      // sky dome, diffuse part
+    for (const [d, e] of lights) {
+      const len = Math.hypot(...d), wi = loc(d.map((x) => x / len));
+      if (wi[2] <= 0) continue;
+      const f = evalLobes(m, wi, wo);
+      for (let c = 0; c < 3; c++) col[c] += f[c] * wi[2] * e;
+    }
+    for (let c = 0; c < 3; c++) img.data[o + c] = Math.round(255 * linearToSrgb(clamp01(col[c] / (1 + col[c]))));
+    img.data[o + 3] = 255;
+  }
+  ctx.putImageData(img, 0, 0);
+}
+
+// Swatch palette: named collections of saved designs ({name, measurements, material}) in
+// localStorage; each shown as a rendered swatch; clicking one calls onSelect(design).
+export function createSwatchPalette(container, { storageKey = "glint.paint.palette", onSelect } = {}) {
+  const load = () => { try { return JSON.parse(localStorage.getItem(storageKey)) || {}; } catch { return {}; } };
+  let collections = load();
+  let active = Object.keys(collections)[0] || "My paints";
+  const root = el("div", { class: "paint-palette" });
+  const pick = el("select", { "aria-label": "collection" });
+  const grid = el("div", { class: "paint-swatches", style: "display:flex;flex-wrap:wrap;gap:6px" });
+  root.append(pick, grid);
+  container.append(root);
+  function save() { localStorage.setItem(storageKey, JSON.stringify(collections)); }
+  function draw() {
+    pick.replaceChildren(...Object.keys({ [active]: 1, ...collections }).map((c) => el("option", c === active ? { selected: "" } : {}, [c])));
+    grid.replaceChildren();
+    for (const d of collections[active] || []) {
+      const cv = el("canvas", { width: "64", height: "64", title: d.name });
+      renderSwatch(cv, d.material);
+      cv.addEventListener("click", () => onSelect && onSelect(d));
+      grid.append(el("figure", { style: "margin:0;text-align:center" }, [cv, el("figcaption", {}, [d.name])]));
+    }
+  }
+  pick.addEventListener("change", () => { active = pick.value; draw(); });
+  draw();
+  return {
+    element: root,
+    get collections() { return structuredClone(collections); },
+    useCollection(name) { active = name; draw(); },
+    add(design) {                       // design: {name, measurements, material} (a paint event)
+      (collections[active] ||= []).push({ name: design.name, measurements: design.measurements, material: design.material });
+      save(); draw();
+    },
+    remove(name) { collections[active] = (collections[active] || []).filter((d) => d.name !== name); save(); draw(); },
+  };
+}
+
+// A design's measurements for paint formulation, as worker.paint.geometry.export_measurements.
+export function exportMeasurements(m, fmt = "json") {
+  const angles = Object.keys(m.aspecular).sort((a, b) => +a - +b);
+  if (fmt === "csv") {
+    const lines = ["geometry,angle_deg,r,g,b,value", `gloss_D523,20,,,,${m.gloss}`];
+    for (const a of angles) lines.push(`aspecular_45,${a},${m.aspecular[a].join(",")},`);
+    return lines.join("\n") + "\n";
+  }
+  return JSON.stringify({ gloss: m.gloss, aspecular: Object.fromEntries(angles.map((a) => [a, m.aspecular[a]])),
+    geometry: { illumination_deg: 45, gloss: "ASTM D523 20°", aspecular: "ASTM E2194 (reflectance factor π·f, linear RGB)" } }, null, 1) + "\n";
+}
+
+export function downloadMeasurements(m, name, fmt = "json") {
+  const blob = new Blob([exportMeasurements(m, fmt)], { type: fmt === "csv" ? "text/csv" : "application/json" });
+  const a = el("a", { href: URL.createObjectURL(blob), download: `${name}.${fmt}` });
+  a.click();
+  URL.revokeObjectURL(a.href);
+}

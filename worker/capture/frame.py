@@ -1,0 +1,172 @@
+"""Automatic removal of the fisheye lens's frame (cyber-worlds §IV and VII: the paper removes
+the reflection of the black frame by hand and asks for an automatic method).
+
+What the frame is: the housing of a clip-on fisheye (its barrel, the clip's arm, the phone's
+edge beyond 180°) seen at the edge of the image circle. These properties hold for every such
+lens, whatever the scene, and together they separate it from the scene:
+
+1. **Fixed to the sensor.** It sits at the same pixels in every bracket and in every shot (the
+   lens turns with the camera), while the scene behind it changes from shot to shot. So a
+   pixel is a candidate only if it is frame-like in *all* shots at once (and it is detected on
+   the merged HDR, the consensus of the brackets).
+2. **Attached to the rim.** It intrudes from outside the field: every region must come within a
+   few pixels of the image circle's rim and lie in the circle's outer half.
+3. **Dark.** Black plastic or metal facing the room: a reflectance of a few % of the
+   irradiance E on a surface facing forward, which the shot itself measures (Σ L cosθ dω). A
+   candidate reads below ``DARK_ALBEDO`` · E/π (margin for clipped lights, which make E low)
+   *and* ``DARK_STOPS`` below the shot's median (so ordinary dark scenery is not taken).
+4. **Low texture.** Its log radiance is smooth: the 5×5 median of the gradient magnitude of
+   log₂ luminance is below ``FLAT_STOPS_PER_PX`` in every shot. The median ignores an edge
+   crossing the window, so a thin band still has flat pixels.
+5. **Occluding.** Where shots overlap, the frame in one shot hides a direction another shot
+   sees: pixels ``OCCLUDED_STOPS`` darker than the other shot's view of the same direction (and
+   flat) are candidates even when not dark by the scene's standards (a dim studio lit by lamps,
+   where the housing is brighter than the median but hides a lamp).
+
+Detection runs at about 512 px across the circle. Rim-attached components of the candidates
+are seeds; they grow (hysteresis) through pixels that are dark in every shot or occluding,
+texture or not, which recovers the frame's thin parts and edges. The mask then grows by two
+working pixels (the anti-aliased edge), by the largest alignment shift (aligned brackets see
+the frame displaced by it) and by one photo pixel.
+
+Where another shot sees the same directions, stitching fills the frame from it (the frame's
+pixels get zero weight and a feathered edge); what no shot sees is inpainted (stitch.py).
+Measured on synthetic frames over eight HDRIs (tests/capture/test_frame.py): every frame pixel
+found except in the dim studio, where what is left changes the light by < 1%; clean captures
+lose nothing except 2% of the circle in one (a dark, flat curtain at the same place in both
+shots, filled from the other shot and by inpainting, which left the renders unchanged).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .fisheye import Lens
+
+DARK_STOPS = 1.5       # below the shot's median log₂ luminance
+DARK_ALBEDO = 0.25     # × E/π facing forward: black housings reflect < 10%; margin for clipped lights
+OCCLUDED_STOPS = 2.0   # darker than another shot's view of the same direction
+FLAT_STOPS_PER_PX = 0.1   # 5×5 median of |∇ log₂ luminance| at the working resolution
+WORK_DIAMETER = 512    # working resolution across the image circle
+LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
+
+
+@dataclass
+class FrameMask:
+    mask: np.ndarray         # (H, W) bool at the photos' resolution: the frame (same for all shots)
+    pixels: int              # pixels of one photo flagged as frame
+    fraction_of_circle: float
+    solid_angle_sr: float    # of one shot's frame pixels
+    regions: int
+
+
+def flatness(ell: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """(H, W) float32 local texture of log₂ luminance: the 5×5 median of the gradient magnitude
+    (stops per pixel). The median ignores an edge crossing the window, so a thin frame still
+    has flat pixels right up to near its border; invalid pixels count as flat (they are masked
+    elsewhere)."""
+    import cv2
+
+    x = np.where(valid, ell, 0.0).astype(np.float32)
+    # the edge of the valid area is not texture: replicate inwards values outwards first
+    if not valid.all():
+        x = cv2.inpaint(x, (~valid).astype(np.uint8), 2, cv2.INPAINT_NS) if valid.any() else x
+    gx = cv2.Sobel(x, cv2.CV_32F, 1, 0, ksize=3) / 8.0
+    gy = cv2.Sobel(x, cv2.CV_32F, 0, 1, ksize=3) / 8.0
+    return cv2.medianBlur(np.sqrt(gx * gx + gy * gy), 5)
+
+
+def _occluded(small: Lens, ells, oks, flats, yaws) -> np.ndarray:
+    """(h, w) bool: pixels where some shot is flat and OCCLUDED_STOPS darker than another shot's
+    view of the same direction (the overlap of the shots: what hides the scene in one shot is
+    seen past in the other). Catches a housing that is not dark by the scene's standards (a
+    dim studio lit by lamps) where it hides something bright."""
+    import cv2
+
+    from .fisheye import yaw_matrix
+
+    hs, ws = ells[0].shape
+    ys, xs = np.mgrid[0:hs, 0:ws].astype(np.float64) + 0.5
+    cam = small.pixel_to_camera(xs, ys)
+    out = np.zeros((hs, ws), bool)
+    edge = small.theta_max - 3.0 / small.focal          # stay off the other shot's own rim
+    for a in range(len(ells)):
+        world = cam @ yaw_matrix(yaws[a]).T
+        for b in range(len(ells)):
+            if b == a:
+                continue
+            px, py, th = small.world_to_pixel(world, yaws[b])
+            inside = th <= edge
+            mx, my = (px - 0.5).astype(np.float32), (py - 0.5).astype(np.float32)
+            lb = cv2.remap(ells[b], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=-1e9)
+            okb = cv2.remap(oks[b].astype(np.float32), mx, my, cv2.INTER_LINEAR, borderValue=0) > 0.99
+            out |= inside & okb & oks[a] & flats[a] & (ells[a] < lb - OCCLUDED_STOPS)
+    return out
+
+
+def detect_frame(radiance: list[np.ndarray], lens: Lens, max_shift: int = 0,
+                 yaws: list[float] | None = None) -> FrameMask:
+    """Find the lens frame in a capture's merged shots.
+
+    radiance : per shot (H, W, 3) float32 linear radiance in the photos' pixel grid (0 outside
+        the image circle).
+    max_shift : the largest bracket alignment shift, pixels.
+    yaws : the shots' yaw angles (degrees), for the overlap test; None skips it.
+    Returns the FrameMask (one mask for all shots: the frame is fixed to the sensor)."""
+    import cv2
+
+    h, w = radiance[0].shape[:2]
+    scale = min(1.0, WORK_DIAMETER / (2.0 * lens.radius))
+    ws, hs = max(8, int(round(w * scale))), max(8, int(round(h * scale)))
+    small = Lens(ws, hs, lens.projection, lens.fov_deg)
+    r = small.pixel_radius() / small.radius
+    circle = r <= 1.0
+    sa = small.pixel_solid_angle()
+    cos_axis = np.clip(np.cos(small.theta_of_radius(small.pixel_radius())), 0.0, None)
+    cand = (r >= 0.5) & circle
+    dark_all = cand.copy()
+    ells, oks, flats = [], [], []
+    for rad in radiance:
+        lum = cv2.resize(rad, (ws, hs), interpolation=cv2.INTER_AREA) @ LUMA
+        ok = circle & (lum > 0)
+        if not ok.any():
+            return FrameMask(np.zeros((h, w), bool), 0, 0.0, 0.0, 0)
+        floor = 1e-6 * float(np.median(lum[ok]))
+        ell = np.log2(np.maximum(lum, floor)).astype(np.float32)
+        med = float(np.median(ell[ok & (r < 0.9)]))
+        e_pi = float((lum * sa * cos_axis)[ok].sum() / np.pi)      # E/π on a surface facing forward
+        dark = ell < min(med - DARK_STOPS, np.log2(DARK_ALBEDO * e_pi))
+        flat = flatness(ell, ok) < FLAT_STOPS_PER_PX
+        cand &= dark & flat & ok
+        dark_all &= dark & ok
+        ells.append(ell); oks.append(ok); flats.append(flat)
+    occl = _occluded(small, ells, oks, flats, yaws) if yaws is not None and len(radiance) > 1 else np.zeros_like(cand)
+    cand = cv2.morphologyEx((cand | occl).astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(cand, connectivity=8)
+    # "touches the rim": within 7 working pixels of it (the circle's edge is itself textured:
+    # JPEG rings against the black surround, so the last pixels are rarely candidates)
+    rim = circle & (r >= 1.0 - 7.0 / small.radius)
+    min_area = max(16, int(1e-4 * circle.sum()))
+    keep = np.zeros(n, bool)
+    touching = np.unique(lab[rim & (lab > 0)])
+    keep[touching] = True
+    keep &= stats[:, cv2.CC_STAT_AREA] >= min_area
+    keep[0] = False
+    seeds = keep[lab]
+    # hysteresis: grow the seeds through pixels dark in every shot (texture not required), which
+    # recovers the frame's thin parts, where the texture window also sees the scene
+    n2, lab2 = cv2.connectedComponents((dark_all | occl | seeds).astype(np.uint8), connectivity=8)
+    grown = np.zeros(n2, bool)
+    grown[np.unique(lab2[seeds])] = True
+    grown[0] = False
+    m = grown[lab2].astype(np.uint8)
+    grow = 2 + int(np.ceil(max_shift * scale))
+    m = cv2.dilate(m, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1)))
+    full = cv2.resize(m * 255, (w, h), interpolation=cv2.INTER_LINEAR) > 0
+    # one more full-resolution pixel for the upsampling's edge
+    full = cv2.dilate(full.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    full &= lens.circle_mask()
+    px = int(full.sum())
+    circle_px = int(lens.circle_mask().sum())
+    return FrameMask(full, px, px / max(circle_px, 1), float(lens.pixel_solid_angle()[full].sum()), int(keep.sum()))

@@ -1,0 +1,53 @@
+"""``ashikhmin-shirley``: the anisotropic Phong BRDF of Ashikhmin and Shirley (2000), as the GI
+renderer's anisotropy control uses it (polynomial-gi Appendix A, eq. 33-35):
+
+    albedo/π + √((n_u+1)(n_v+1))/(8π) · cos θh^(n_u cos²φh + n_v sin²φh)
+               / ((h·ωi) max(cos θi, cos θo)) · F(ωi·h),     F Schlick with F0 = specular,
+
+with φh measured from the local tangent (x). No C kernel branch: the cut renderer shades it
+through this NumPy reference, in its per-vertex tangent frame (brdf.onb), so the brushing
+direction follows that frame; the GI renderer sets the tangent per object (gi.anisotropic).
+"""
+from __future__ import annotations
+
+from typing import ClassVar, Literal
+
+import numpy as np
+from pydantic import Field
+
+from .base import BRDFModel, Color, Geometry, register
+
+
+@register
+class AshikhminShirley(BRDFModel):
+    """Anisotropic Phong (Ashikhmin-Shirley 2000); see the module docstring."""
+    label: ClassVar[str] = "Ashikhmin-Shirley (anisotropic)"
+    controls: ClassVar[tuple[dict, ...]] = (
+        {"name": "exponent_u", "kind": "range", "min": 1, "max": 2000, "step": 1},
+        {"name": "exponent_v", "kind": "range", "min": 1, "max": 2000, "step": 1},
+        {"name": "specular", "kind": "color"}, {"name": "albedo", "kind": "color"})
+    model: Literal["ashikhmin-shirley"] = "ashikhmin-shirley"
+    exponent_u: float = Field(225.0, gt=0.0, le=1e5)
+    exponent_v: float = Field(225.0, gt=0.0, le=1e5)
+    specular: Color = (0.9, 0.9, 0.9)
+    albedo: Color = (0.0, 0.0, 0.0)
+
+    def specular_part(self, g: Geometry) -> np.ndarray:
+        h = g.h
+        c = np.clip(g.ch, 1e-12, 1.0)
+        s2 = h[..., 0] ** 2 + h[..., 1] ** 2
+        cos2 = np.where(s2 > 1e-24, h[..., 0] ** 2 / np.maximum(s2, 1e-24), 1.0)
+        e = self.exponent_u * cos2 + self.exponent_v * (1.0 - cos2)
+        norm = np.sqrt((self.exponent_u + 1) * (self.exponent_v + 1)) / (8 * np.pi)
+        hd = np.maximum(g.cd, 1e-12)
+        f = norm * np.exp(e * np.log(c)) / (hd * np.maximum(np.maximum(g.ci, g.co), 1e-12))
+        f0 = np.asarray(self.specular, np.float64)
+        F = f0 + (1 - f0) * (np.clip(1.0 - g.cd, 0.0, 1.0) ** 5)[..., None]
+        return f[..., None] * F
+
+    def lobe_width(self) -> float:
+        return 2 * 2.0 / np.sqrt(min(self.exponent_u, self.exponent_v) + 2.0)
+
+    @classmethod
+    def examples(cls):
+        return [cls(exponent_u=100, exponent_v=400, specular=(0.5, 0.4, 0.3), albedo=(0.2, 0.2, 0.2))]

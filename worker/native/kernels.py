@@ -1,0 +1,318 @@
+"""The kernel backend, chosen once (as trimesh picks its Embree or its NumPy ray backend): the
+multithreaded C kernels when the library is built, else the NumPy references. Both backends
+have the same methods with the same arrays in and out; tests/core/test_native.py checks that
+they agree.
+
+    k = kernels()            # the process default: "native" when built, else "numpy"
+    k = kernels("numpy")     # the references, e.g. to test or to debug
+
+A renderer keeps the backend it was built with; nothing below it asks again.
+
+Each C kernel has one typed wrapper here: it checks and converts the arrays (dtype,
+contiguity) and names the parameters as the C prototype does (``worker.native.bind``).
+"""
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+
+from . import available, bind, c, f32p, f64, f64p, i32, i32p, i64, i64p, lib, model_id, u8p, voidp
+
+
+class NumpyKernels:
+    """The NumPy references (worker/core, worker/fit), one method per kernel."""
+    name = "numpy"
+
+    def shade_points(self, normals, wo, cut_of, mat_of, cuts, node_l, node_w, tree, mats, node8=None):
+        from ..core.render import shade_points_numpy
+        return shade_points_numpy(normals, wo, cut_of, mat_of, cuts, node_l, node_w, tree, mats)
+
+    def light_tables(self, lighting, rotation_deg, intensity, tree):
+        from ..core.lighting import light_tables_numpy
+        return light_tables_numpy(lighting, rotation_deg, intensity, tree)
+
+    def interpolate(self, tri, uv, faces, vert_rgb, out):
+        from ..core.render import interpolate_numpy
+        return interpolate_numpy(tri, uv, faces, vert_rgb, out)
+
+    def background(self, sample, dirs, uv0, envmap, rotation_deg, intensity, out, shadow=None, eye=None):
+        from ..core.render import background_numpy
+        return background_numpy(sample, dirs, uv0, envmap, rotation_deg, intensity, out, shadow, eye)
+
+    def resolve(self, tri, uv, faces, vert_rgb, bg, samples, out):
+        from ..core.render import resolve_numpy
+        return resolve_numpy(tri, uv, faces, vert_rgb, bg, samples, out)
+
+    def rotate_dirs(self, dirs, basis):
+        from ..core.render import rotate_dirs_numpy
+        return rotate_dirs_numpy(dirs, basis)
+
+    def env_coords(self, dirs):
+        from ..core.render import env_coords_numpy
+        return env_coords_numpy(dirs)
+
+    def env_lookup(self, dirs, envmap, rotation_deg, intensity, mask=None, out=None):
+        from ..core.render import env_lookup_numpy
+        return env_lookup_numpy(dirs, envmap, rotation_deg, intensity, mask, out)
+
+    def build_cuts(self, values, tau):
+        from ..core.cuts import build_cuts_numpy
+        return build_cuts_numpy(values, tau)
+
+    def coarsen(self, cs, tau):
+        from ..core.cuts import coarsen_numpy
+        return coarsen_numpy(cs, tau)
+
+    def transfer(self, normals, wo, verts, bary, cuts, node_l, node_w, tree, basis):
+        from ..fit.transfer import transfer_numpy
+        return transfer_numpy(normals, wo, verts, bary, cuts, node_l, node_w, tree, basis)
+
+    def energy_rows(self, basis, wo, nt, nphi):
+        from ..fit.basis import energy_rows_numpy
+        return energy_rows_numpy(basis, wo, nt, nphi)
+
+    def tonemap(self, rgb, exposure, curve):
+        from ..core.tonemap import tonemap_numpy
+        return tonemap_numpy(rgb, exposure, curve)
+
+
+class NativeKernels:
+    """Typed wrappers of the C kernels in src/*.c (glintk.c, shade.c, lighting.c, frame.c, fit.c)."""
+    name = "native"
+
+    def __init__(self):
+        if lib is None:
+            raise RuntimeError("the C kernels are not built (make build)")
+        self._shade = bind(
+            "glk_shade_points", None, P=i64, normals=f32p, wo_dirs=f32p, cut_of=i32p, mat_of=i32p,
+            cut_off=i64p, cut_h=u8p, cut_q=u8p, node8=f32p, node_dir=f32p, node_radius=f32p,
+            level_off=i64p, H=i32, mat_kind=i32p, mat_params=f32p, mat_refine=f32p, mat_extent=f32p,
+            tables=f32p, table_off=i64p, out=f32p)
+        self._simd = bind("glk_shade_simd", i32, want=i32)
+        self._light = bind(
+            "glk_light_tables", None, N=i64, indptr=i64p, prow=i32p, pcol=i32p, wts=f64p, map=f32p, Hm=i32, Wm=i32, s0=i64,
+            frac=f64, intensity=f64, H=i32, node_dir=f32p, scratch=f64p, node_l=f32p, node_w=f32p, node8=f32p)
+        self._interp = bind("glk_interpolate", None, P=i64, tri=i32p, uv=f32p, faces=i32p, vert_rgb=f32p, out=f32p)
+        self._background = bind(
+            "glk_background", None, n=i64, sample=i64p, dirs=f32p, uv0=f32p, map=f32p, Hm=i32, Wm=i32, rot_turns=f64,
+            intensity=f64, shadow=voidp, G=i32, gx0=f64, gz0=f64, gstep=f64, gy=f64, ex=f64, ey=f64, ez=f64, out=f32p)
+        self._rotate = bind("glk_rotate_dirs", None, P=i64, src=f32p, basis=f32p, out=f32p)
+        self._env_coords = bind("glk_env_coords", None, n=i64, dirs=f32p, out=f32p)
+        self._resolve = bind("glk_resolve", None, P=i64, S=i32, tri=i32p, uv=f32p, faces=i32p, vert_rgb=f32p,
+                             bg=f32p, out=f32p)
+        self._env = bind("glk_env_lookup", None, P=i64, dirs=f32p, mask=voidp, map=f32p, Hm=i32, Wm=i32,
+                         rotation=f64, intensity=f64, out=f32p)
+        self._build = bind("glk_build_cuts", None, vals=f32p, B=i64, H=i32, tau=f64, heights=u8p, quant=u8p,
+                           counts=i32p)
+        self._coarsen = bind("glk_coarsen", None, V=i64, offsets=i64p, heights=u8p, quant=u8p, tau=f64,
+                             out_h=u8p, out_q=u8p, counts=i32p)
+        self._transfer = bind(
+            "glk_fit_transfer", None, P=i64, normals=f32p, wo_dirs=f32p, verts=i32p, bary=f32p, cut_off=i64p,
+            cut_h=u8p, cut_q=u8p, node_l=f32p, node_w=f32p, node_dir=f32p, node_radius=f32p, node_cs=f32p,
+            level_off=i64p, H=i32, n_ref=i32, refine_r=f64p, extent=f64p, J=i32, xcut=f64, static_kind=i32,
+            static_alpha=f64, f0=f64, C=i32, cell_off=i32p, cell_idx=i32p, cell_cand=f32p, gtab=f32p, NG=i32,
+            T=f32p, E=f32p)
+        self._energy_rows = bind(
+            "glk_energy_rows", None, K=i64, wo=f64p, J=i32, centers=f64p, lam=f64p, xcut=f64, static_kind=i32,
+            static_alpha=f64, f0=f64, nt=i32, tn=f64p, tw=f64p, nphi=i32, out=f64p)
+        self._tonemap = bind("glk_tonemap", None, P=i64, rgb=f32p, exposure=f64, curve=i32, out=u8p)
+
+    def simd(self, want: int = -1) -> int:
+        """The shading kernel's vector path: want −1 asks, 0 forces scalar, 1 the best the CPU
+        has (AVX2 + FMA, chosen at run time). Returns the path in use (0 scalar, 1 AVX2)."""
+        return int(self._simd(int(want)))
+
+    def light_tables(self, lighting, rotation_deg, intensity, tree):
+        """(node_l, node_w (2N−1, 3), node8 (2N−1, 8)) float32 (see core.lighting.light_tables_numpy)."""
+        indptr, prow, pcol, wts = lighting.csr()
+        env = lighting.map
+        hm, wm = env.shape[:2]
+        shift = (float(rotation_deg) / 360.0) * wm
+        s0 = int(np.floor(shift))
+        m = len(tree.node_dir)
+        node_l = np.empty((m, 3), np.float32)
+        node_w = np.empty((m, 3), np.float32)
+        node8 = np.empty((m, 8), np.float32)
+        scratch = np.empty((m, 6), np.float64)
+        self._light(tree.n_leaves, indptr, prow, pcol, wts, c(env, np.float32), hm, wm, s0, shift - s0, float(intensity),
+                    tree.height, tree.node_dir, scratch, node_l, node_w, node8)
+        return node_l, node_w, node8
+
+    def shade_points(self, normals, wo, cut_of, mat_of, cuts, node_l, node_w, tree, mats, node8=None):
+        """(P, 3) float32 radiance (see core.render.shade_points_numpy). Points whose material
+        has no C kernel branch (kind −1) are shaded by the NumPy reference. node8: the packed
+        node records (core.lighting.pack_nodes), made here when not given."""
+        if node8 is None:
+            from ..core.lighting import pack_nodes
+            node8 = pack_nodes(node_l, node_w)
+        p = len(normals)
+        out = np.empty((p, 3), np.float32)
+        mat_of = c(mat_of, np.int32)
+        no_kernel = mats.kind[mat_of] < 0 if p else np.zeros(0, bool)
+        kind = np.where(mats.kind < 0, 0, mats.kind).astype(np.int32)   # never read for those points
+        cut_c = c(cut_of, np.int32)
+        if no_kernel.any():
+            cut_c = cut_c.copy()
+            cut_c[no_kernel] = -1                                      # the kernel writes zeros there
+        self._shade(p, c(normals, np.float32), c(wo, np.float32), cut_c, mat_of, c(cuts.offsets, np.int64),
+                    c(cuts.heights, np.uint8), c(cuts.quant, np.uint8), c(node8, np.float32),
+                    tree.node_dir, tree.node_radius, c(tree.level_offset, np.int64),
+                    tree.height, kind, mats.params, mats.refine, mats.extent, mats.tables, mats.table_off, out)
+        if no_kernel.any():
+            from ..core.render import shade_points_numpy
+
+            k = np.nonzero(no_kernel)[0]
+            out[k] = shade_points_numpy(normals[k], wo[k], np.asarray(cut_of)[k], mat_of[k], cuts, node_l,
+                                        node_w, tree, mats)
+        return out
+
+    def interpolate(self, tri, uv, faces, vert_rgb, out):
+        self._interp(len(tri), c(tri, np.int32), c(uv, np.float32), c(faces, np.int32), c(vert_rgb, np.float32), out)
+        return out
+
+    def background(self, sample, dirs, uv0, envmap, rotation_deg, intensity, out, shadow=None, eye=None):
+        """out[sample] = environment (× ground shadow) along dirs (see core.render.background_numpy)."""
+        if out.dtype != np.float32 or not out.flags.c_contiguous:
+            raise ValueError("out must be C-contiguous float32")
+        grid, geo, e = None, (0.0, 0.0, 1.0, 0.0), (0.0, 0.0, 0.0)
+        if shadow is not None:
+            grid = c(shadow[0], np.float32)
+            geo = tuple(float(x) for x in shadow[1])
+            e = tuple(float(x) for x in eye)
+        self._background(len(sample), c(sample, np.int64), c(dirs, np.float32), c(uv0, np.float32),
+                         c(envmap, np.float32), envmap.shape[0], envmap.shape[1], float(rotation_deg) / 360.0,
+                         float(intensity), grid.ctypes.data if grid is not None else None,
+                         grid.shape[0] if grid is not None else 0, *geo, *e, out)
+        return out
+
+    def rotate_dirs(self, dirs, basis):
+        """(P, 3) float32 dirs @ basis (see core.render.rotate_dirs_numpy)."""
+        src = c(dirs, np.float32)
+        out = np.empty_like(src)
+        self._rotate(len(src), src, c(basis, np.float32), out)
+        return out
+
+    def env_coords(self, dirs):
+        """(n, 2) float32 map coordinates of directions (see core.render.env_coords_numpy)."""
+        src = c(dirs, np.float32)
+        out = np.empty((len(src), 2), np.float32)
+        self._env_coords(len(src), src, out)
+        return out
+
+    def resolve(self, tri, uv, faces, vert_rgb, bg, samples, out):
+        """Per-pixel mean over samples (see core.render.resolve_numpy)."""
+        if out.dtype != np.float32 or not out.flags.c_contiguous:
+            raise ValueError("out must be C-contiguous float32")
+        self._resolve(len(out), int(samples), c(tri, np.int32), c(uv, np.float32), c(faces, np.int32),
+                      c(vert_rgb, np.float32), c(bg, np.float32), out)
+        return out
+
+    def env_lookup(self, dirs, envmap, rotation_deg, intensity, mask=None, out=None):
+        if out is None:
+            out = np.zeros((len(dirs), 3), np.float32)
+        m = c(mask, np.uint8) if mask is not None else None
+        self._env(len(dirs), c(dirs, np.float32), m.ctypes.data if m is not None else None, c(envmap, np.float32),
+                  envmap.shape[0], envmap.shape[1], float(np.radians(rotation_deg)), float(intensity), out)
+        return out
+
+    def build_cuts(self, values, tau):
+        from ..core.cuts import CutSet
+
+        values = c(values, np.float32)
+        b, n = values.shape
+        hmax = int(np.log2(n))
+        heights = np.empty((b, n), np.uint8)
+        quant = np.empty((b, n), np.uint8)
+        counts = np.empty(b, np.int32)
+        self._build(values, b, hmax, float(tau), heights, quant, counts)
+        mask = np.arange(n)[None, :] < counts[:, None]
+        offsets = np.zeros(b + 1, np.int64)
+        np.cumsum(counts, out=offsets[1:])
+        return CutSet(offsets, heights[mask], quant[mask], hmax)
+
+    def coarsen(self, cs, tau):
+        from ..core.cuts import CutSet
+
+        V = cs.n_vertices
+        oh = np.empty_like(cs.heights)
+        oq = np.empty_like(cs.quant)
+        counts = np.empty(V, np.int32)
+        self._coarsen(V, c(cs.offsets, np.int64), c(cs.heights, np.uint8), c(cs.quant, np.uint8), float(tau),
+                      oh, oq, counts)
+        off = np.zeros(V + 1, np.int64)
+        off[1:] = np.cumsum(counts)
+        # each vertex's coarse cut was written at the start of its input range
+        keep = np.repeat(cs.offsets[:-1], counts) + (np.arange(off[-1]) - np.repeat(off[:-1], counts))
+        return CutSet(off, oh[keep], oq[keep], cs.height)
+
+    def transfer(self, normals, wo, verts, bary, cuts, node_l, node_w, tree, basis):
+        """(T (3, P, J), E (P, 3)) float32 SRBF transfer rows (see fit.transfer.transfer_numpy)."""
+        from ..fit.basis import CUBE_CELLS, XCUT
+        from ..models.table import STATICS
+
+        P, J = len(normals), basis.J
+        T = np.empty((3, P, J), np.float32)
+        E = np.empty((P, 3), np.float32)
+        pairs = np.asarray(basis.refinement(), np.float64).reshape(-1, 2)
+        cell_off, cell_idx, cell_cand, gtab = basis.kernel_tables()
+        self._transfer(P, c(normals, np.float32), c(wo, np.float32), c(verts, np.int32), c(bary, np.float32),
+                       c(cuts.offsets, np.int64), c(cuts.heights, np.uint8), c(cuts.quant, np.uint8),
+                       c(node_l, np.float32), c(node_w, np.float32), tree.node_dir, tree.node_radius, _node_cs(tree),
+                       c(tree.level_offset, np.int64), tree.height, len(pairs), c(pairs[:, 0], np.float64),
+                       c(pairs[:, 1], np.float64), J, float(XCUT), STATICS[basis.static], float(basis.static_alpha),
+                       float(basis.fresnel_f0), CUBE_CELLS, cell_off, cell_idx, cell_cand, gtab, len(gtab), T, E)
+        return T, E
+
+    def energy_rows(self, basis, wo, nt, nphi):
+        """g_j(ωo) (K, J) float64 (see fit.basis.energy_rows_numpy)."""
+        from ..fit.basis import ROW_TMAX, polar_nodes
+        from ..models.table import STATICS
+
+        wo = c(np.atleast_2d(np.asarray(wo, np.float64)), np.float64)
+        tn, tw, _ = polar_nodes(nt, nphi)
+        out = np.empty((len(wo), basis.J))
+        self._energy_rows(len(wo), wo, basis.J, c(basis.centers, np.float64), c(basis.bandwidths, np.float64),
+                          float(ROW_TMAX), STATICS[basis.static], float(basis.static_alpha), float(basis.fresnel_f0),
+                          len(tn), c(tn, np.float64), c(tw, np.float64), int(nphi), out)
+        return out
+
+    def tonemap(self, rgb, exposure, curve):
+        from ..core.tonemap import CURVES
+
+        src = c(rgb, np.float32)
+        out = np.empty(src.shape, np.uint8)
+        self._tonemap(src.size // 3, src, float(exposure), CURVES[curve], out)
+        return out
+
+
+_CS: dict = {}
+
+
+def _node_cs(tree) -> np.ndarray:
+    """(2N−1, 2) float32 (cos R, sin R) of every tree node's radius (glk_fit_transfer's walk
+    compares cosines instead of taking an acos per node); kept per tree."""
+    if id(tree) not in _CS:
+        r = tree.node_radius.astype(np.float64)
+        _CS[id(tree)] = (tree, np.ascontiguousarray(np.stack([np.cos(r), np.sin(r)], 1), np.float32))
+    return _CS[id(tree)][1]
+
+
+@lru_cache(maxsize=None)
+def kernels(name: str | None = None):
+    """The backend: "native", "numpy", or None for the default (native when built)."""
+    if name is None:
+        name = "native" if available() else "numpy"
+    if name == "native":
+        return NativeKernels()
+    if name == "numpy":
+        return NumpyKernels()
+    raise ValueError(f"unknown kernel backend {name!r} (native or numpy)")
+
+
+def backend(use_native: bool = True):
+    """kernels() for code that still speaks in booleans (``use_native=False`` → references)."""
+    return kernels(None if use_native else "numpy")
+
+
+__all__ = ["NativeKernels", "NumpyKernels", "kernels", "backend", "model_id"]

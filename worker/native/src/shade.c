@@ -1,0 +1,551 @@
+/* Shading at points from visibility cuts: the C kernel of worker/core/render.py
+ * shade_points_numpy (its NumPy reference; tests/core/test_native.py and
+ * tests/models/test_conformance.py check that they agree).
+ *
+ * cyber-worlds eq. 3, inverse-brdf-modeling eq. 22:   B = Σ_k l_k v_k f_r(ω_k, ω_o)
+ * over point p's cut (cut index cut_of[p]). Per tree node and per light change, node8 holds the
+ * radiance l_k and the light-weighted centroid direction ω_k (lighting.c glk_light_tables).
+ * Nodes wider than the material's refine radius whose angle to the mirror direction is below
+ * their radius plus the material's extent (PackedBRDF) are refined: their children inherit the
+ * parent's visibility but have their own light and direction, so glossy highlights stay sharp
+ * (DESIGN.md §4).
+ *
+ * How it is fast (issue 16): each point first lists its clusters (node index, visibility) in a
+ * scalar pass over the height-encoded cut, then evaluates the BRDF over that list eight
+ * clusters at a time (AVX2/FMA, node records of 8 floats gathered by index), when the CPU has
+ * AVX2 and FMA (checked once at run time; glk_shade_simd forces the scalar path for tests).
+ * Every model's albedo/π part is the same for every cluster, so the vector paths sum
+ * E = Σ l_k v_k once and add albedo/π·E: the Lambert path needs no directions at all. GGX's
+ * D·G1(ωi)/cosθi is one division per eight clusters (the half vector stays unnormalised:
+ * D = α²|h|⁴ / (π (α² h_n² + h_t²)²), and G1(ωi)/cosθi = 2 / (cosθi + √(cos²θi (1−α²) + α²))).
+ * The scalar path evaluates f exactly as the reference does, for models without a vector
+ * path (blinn-phong, lobes) and for CPUs without AVX2.
+ */
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+#ifdef _OPENMP
+#include <omp.h>
+#endif
+#if defined(__x86_64__)
+#include <immintrin.h>
+#define GLK_X86 1
+#endif
+#include "glint_common.h"
+#include "brdf_kernels.h"
+
+/* ---------------------------------------------------------------------------------------
+ * BRDF evaluation in the shared packed form (worker/models: PackedBRDF.eval), scalar.
+ */
+static inline double ggx_G1(double c, double ch, double a) {
+    if (c * ch <= 0) return 0.0;
+    double c2 = c * c; if (c2 < 1e-20) c2 = 1e-20;
+    double t2 = (1.0 - c2) / c2; if (t2 < 0) t2 = 0;
+    return 2.0 / (1.0 + sqrt(1.0 + a * a * t2));
+}
+
+/* p(h) table in hemi-octahedral coordinates (worker/models/base.py octa_uv, table_lookup):
+ * bilinear over TABLE_N × TABLE_N samples, the three channels at once. */
+static inline void table_lookup3(const float *tab, v3 hl, double *out) {
+    double s = fabs(hl.x) + fabs(hl.y) + (hl.z > 0 ? hl.z : 0.0);
+    if (s < 1e-30) s = 1e-30;
+    double px = hl.x / s, py = hl.y / s;
+    double fu = (px + py + 1.0) * (0.5 * (TABLE_N - 1)), fv = (px - py + 1.0) * (0.5 * (TABLE_N - 1));
+    fu = fu < 0 ? 0 : (fu > TABLE_N - 1 ? TABLE_N - 1 : fu);
+    fv = fv < 0 ? 0 : (fv > TABLE_N - 1 ? TABLE_N - 1 : fv);
+    int i0 = (int)fu; if (i0 > TABLE_N - 2) i0 = TABLE_N - 2;
+    int j0 = (int)fv; if (j0 > TABLE_N - 2) j0 = TABLE_N - 2;
+    double a = fu - i0, b = fv - j0;
+    const float *r0 = tab + ((int64_t)i0 * TABLE_N + j0) * 3, *r1 = r0 + TABLE_N * 3;
+    for (int c = 0; c < 3; c++) {
+        double t0 = r0[c] * (1 - b) + r0[3 + c] * b;
+        double t1 = r1[c] * (1 - b) + r1[3 + c] * b;
+        out[c] = t0 * (1 - a) + t1 * a;
+    }
+}
+
+/* wi, wo, n, t, b world-space unit vectors; writes f (1/sr) to out[3]. gpo: GGX's per-point
+ * factor G1(ωo)/(4 cosθo). */
+static inline void brdf_eval(int kind, const float *p, const float *tab, v3 wi, v3 wo, v3 n,
+                             v3 t, v3 bt, double gpo, double *out) {
+    double ci = dot(wi, n), co = dot(wo, n);
+    out[0] = out[1] = out[2] = 0.0;
+    if (ci <= 0 || co <= 0) return;
+    out[0] = p[0] * INV_PI; out[1] = p[1] * INV_PI; out[2] = p[2] * INV_PI;
+    if (kind == K_LAMBERT) return;
+    v3 h = nrm(add(wi, wo));
+    double chh = dot(h, n), cd = dot(wi, h);
+    if (kind == K_GGX) {
+        /* D(h)·G1(ωi)·[G1(ωo)/(4 cosθo)] / cosθi; the bracket is per point (gpo) */
+        double a = p[6], a2 = a * a;
+        double c2 = chh > 0 ? chh * chh : 0.0;
+        double den = c2 * (a2 - 1.0) + 1.0;
+        double D = chh > 0 ? a2 / (PI * den * den) : 0.0;
+        double s = D * ggx_G1(ci, cd, a) / ci * gpo;
+        out[0] += s * p[3]; out[1] += s * p[4]; out[2] += s * p[5];
+    } else if (kind == K_BLINN) {
+        double e = p[6];
+        double s = (e + 8.0) / (8.0 * PI) * pow(chh > 0 ? (chh < 1 ? chh : 1) : 0, e);
+        out[0] += s * p[3]; out[1] += s * p[4]; out[2] += s * p[5];
+    } else if (kind == K_LOBES) {
+        double rv = 2.0 * ci * co - dot(wi, wo);
+        rv = rv < 0 ? 0 : (rv > 1 ? 1 : rv);
+        int m = (int)p[3];
+        for (int k = 0; k < m; k++) {
+            double e = p[4 + 4 * k];
+            double s = (e + 2.0) / (2.0 * PI) * pow(rv, e);
+            out[0] += s * p[5 + 4 * k]; out[1] += s * p[6 + 4 * k]; out[2] += s * p[7 + 4 * k];
+        }
+    } else if (kind == K_TABLE) {
+        /* p(h)·s(ωi, ωo); p[3] = F0, p[4] = static (0 paper, 1 smith), p[5] = its α
+         * (worker/models/table.py distribution_static) */
+        v3 hl = mk(dot(h, t), dot(h, bt), chh);
+        double m = 1.0 - cd; m = m < 0 ? 0 : (m > 1 ? 1 : m);
+        double m2 = m * m;
+        double F = p[3] + (1.0 - p[3]) * m2 * m2 * m;
+        double s;
+        if (p[4] > 0.5) {
+            double a2 = (double)p[5] * p[5];
+            s = F / ((ci + sqrt(a2 + (1.0 - a2) * ci * ci)) * (co + sqrt(a2 + (1.0 - a2) * co * co)));
+        } else {
+            double den = ci + co - ci * co; if (den < 1e-12) den = 1e-12;
+            s = F / den;
+        }
+        double pt[3];
+        table_lookup3(tab, hl, pt);
+        out[0] += s * pt[0]; out[1] += s * pt[1]; out[2] += s * pt[2];
+    }
+}
+
+/* ---------------------------------------------------------------------------------------
+ * The clusters a point shades: its cut's nodes with non-zero visibility, in order, where a
+ * node wider than refine_r is split while its angle to the mirror direction r is below its
+ * radius plus the extent (angle < R + e  ⇔  r·dir > cos(R + e) for R + e < π, so no acos);
+ * children inherit the parent's visibility. Writes node indices and quantised visibilities
+ * (v = q/255); returns their number (at most 2^H: the clusters partition the leaves).
+ */
+static int64_t refine_node(int h0, int64_t s0, unsigned q8, const int64_t *lev, const float *node_dir,
+                           const float *node_radius, v3 r, double refine_r, double extent,
+                           int32_t *idx, uint8_t *qv, int64_t n) {
+    int64_t st[2 * 64];
+    int sp = 0;
+    st[sp++] = h0; st[sp++] = s0;
+    while (sp) {
+        int64_t s = st[--sp];
+        int h = (int)st[--sp];
+        int64_t id = lev[h] + (s >> h);
+        if (h > 0 && node_radius[id] > refine_r) {
+            double R = node_radius[id];
+            v3 nd = mk(node_dir[3 * id], node_dir[3 * id + 1], node_dir[3 * id + 2]);
+            if (R + extent >= PI || dot(nd, r) > cos(R + extent)) {
+                int64_t half = (int64_t)1 << (h - 1);   /* right child first: the left pops first */
+                st[sp++] = h - 1; st[sp++] = s + half;
+                st[sp++] = h - 1; st[sp++] = s;
+                continue;
+            }
+        }
+        idx[n] = (int32_t)id; qv[n] = (uint8_t)q8; n++;
+    }
+    return n;
+}
+
+/* hr: the lowest level with a node wider than refine_r (no node below it is ever split) */
+static int64_t collect(int64_t c0, int64_t c1, const uint8_t *cut_h, const uint8_t *cut_q, const int64_t *lev,
+                       const float *node_dir, const float *node_radius, v3 r, double refine_r, double extent,
+                       int hr, int32_t *idx, uint8_t *qv) {
+    int64_t n = 0, start = 0;
+    for (int64_t m = c0; m < c1; m++) {
+        int h = cut_h[m];
+        unsigned q8 = cut_q[m];
+        int64_t id = lev[h] + (start >> h);
+        if (__builtin_expect(h >= hr, 0) && q8 && node_radius[id] > refine_r) {
+            n = refine_node(h, start, q8, lev, node_dir, node_radius, r, refine_r, extent, idx, qv, n);
+        } else {
+            /* branch-free: written always, kept when visible (occluded nodes are common and random) */
+            idx[n] = (int32_t)id; qv[n] = (uint8_t)q8;
+            n += q8 != 0;
+        }
+        start += (int64_t)1 << h;
+    }
+    return n;
+}
+
+/* the lowest tree level holding a node wider than refine_r (H + 1 when none is) */
+static int refine_level(const float *node_radius, const int64_t *lev, int H, double refine_r) {
+    for (int h = 1; h <= H; h++)
+        for (int64_t i = lev[h]; i < lev[h + 1]; i++)
+            if (node_radius[i] > refine_r) return h;
+    return H + 1;
+}
+
+/* ---------------------------------------------------------------------------------------
+ * Run-time choice of the vector paths.
+ */
+static int simd_mode = -1;       /* −1: not chosen yet; 0: scalar; 1: AVX2 + FMA */
+
+static int cpu_has_avx2(void) {
+#ifdef GLK_X86
+    __builtin_cpu_init();
+    return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+#else
+    return 0;
+#endif
+}
+
+/* want −1: keep the current choice (the best the CPU has, at first use); 0: scalar only;
+ * 1: the best the CPU has. Returns the mode in use (0 scalar, 1 AVX2). */
+static void init_pack_perm(void);
+
+int glk_shade_simd(int want) {
+    if (want >= 0 || simd_mode < 0) {
+        simd_mode = want != 0 && cpu_has_avx2();
+#ifdef GLK_X86
+        if (simd_mode) init_pack_perm();
+#endif
+    }
+    return simd_mode;
+}
+
+#ifdef GLK_X86
+#define T_AVX2 __attribute__((target("avx2,fma")))
+
+T_AVX2 static inline double hsum8(__m256 v) {
+    float f[8];
+    _mm256_storeu_ps(f, v);
+    return ((double)f[0] + f[1]) + ((double)f[2] + f[3]) + (((double)f[4] + f[5]) + ((double)f[6] + f[7]));
+}
+
+/* Sum over the clusters (count a multiple of 8, padding with visibility 0) of
+ * E = l·q and of the model's specular weight: S_c = l_c q s(ωi) (ggx: s without the
+ * per-point factor gpo; table: s = F/den·p_c(h), den the paper's or the smith static's). Local frame (t, b, n) of the point;
+ * wol the local view direction. */
+typedef struct { __m256 tx, ty, tz, bx, by, bz, nx, ny, nz; } frame8;
+
+/* eight quantised visibilities as floats q/255 */
+T_AVX2 static inline __m256 load_q(const uint8_t *q) {
+    __m256i v = _mm256_cvtepu8_epi32(_mm_loadl_epi64((const __m128i *)q));
+    return _mm256_mul_ps(_mm256_cvtepi32_ps(v), _mm256_set1_ps(1.0f / 255.0f));
+}
+
+T_AVX2 static inline void local_dirs(const float *node8, __m256i off, const frame8 *f, __m256 *lr, __m256 *lg,
+                                     __m256 *lb, __m256 *wt, __m256 *wb, __m256 *wn) {
+    *lr = _mm256_i32gather_ps(node8 + 0, off, 4);
+    *lg = _mm256_i32gather_ps(node8 + 1, off, 4);
+    *lb = _mm256_i32gather_ps(node8 + 2, off, 4);
+    __m256 x = _mm256_i32gather_ps(node8 + 3, off, 4);
+    __m256 y = _mm256_i32gather_ps(node8 + 4, off, 4);
+    __m256 z = _mm256_i32gather_ps(node8 + 5, off, 4);
+    __m256 ci = _mm256_fmadd_ps(x, f->nx, _mm256_fmadd_ps(y, f->ny, _mm256_mul_ps(z, f->nz)));
+    __m256 t = _mm256_fmadd_ps(x, f->tx, _mm256_fmadd_ps(y, f->ty, _mm256_mul_ps(z, f->tz)));
+    __m256 b = _mm256_fmadd_ps(x, f->bx, _mm256_fmadd_ps(y, f->by, _mm256_mul_ps(z, f->bz)));
+    /* a cluster straddling the horizon may have its centroid below it: its visibility already
+     * carries the cosine, so f is evaluated just above (world ω + n(1e-3 − cosθ), normalised:
+     * in the local frame, the normal component becomes 1e-3) */
+    const __m256 lo = _mm256_set1_ps(1e-3f);
+    __m256 low = _mm256_cmp_ps(ci, lo, _CMP_LT_OQ);
+    if (_mm256_movemask_ps(low)) {
+        __m256 l2 = _mm256_fmadd_ps(t, t, _mm256_fmadd_ps(b, b, _mm256_set1_ps(1e-6f)));
+        __m256 inv = _mm256_div_ps(_mm256_set1_ps(1.0f), _mm256_sqrt_ps(l2));
+        t = _mm256_blendv_ps(t, _mm256_mul_ps(t, inv), low);
+        b = _mm256_blendv_ps(b, _mm256_mul_ps(b, inv), low);
+        ci = _mm256_blendv_ps(ci, _mm256_mul_ps(lo, inv), low);
+    }
+    *wt = t; *wb = b; *wn = ci;
+}
+
+/* left-packing permutations: for each 8-bit mask, the indices of its set lanes, in order */
+static int32_t pack_perm[256][8];
+
+static void init_pack_perm(void) {
+    for (int m = 0; m < 256; m++) {
+        int k = 0;
+        for (int i = 0; i < 8; i++) if (m >> i & 1) pack_perm[m][k++] = i;
+        for (; k < 8; k++) pack_perm[m][k] = 0;
+    }
+}
+
+/* collect() eight cut entries at a time: node index = level offset + (start >> h) with the
+ * starts from a prefix sum of 2^h, visible entries left-packed by a permutation; a group
+ * holding a node that may be refined goes through the scalar path. Needs H ≤ 15 (level
+ * offsets in two registers, starts in 32 bits). */
+T_AVX2 static int64_t collect_avx2(int64_t c0, int64_t c1, const uint8_t *cut_h, const uint8_t *cut_q,
+                                   const int64_t *lev, int H, const float *node_dir, const float *node_radius, v3 r,
+                                   double refine_r, double extent, int hr, int32_t *idx, uint8_t *qv) {
+    int32_t l32[16];
+    for (int i = 0; i < 16; i++) l32[i] = i <= H + 1 ? (int32_t)lev[i] : 0;
+    const __m256i levlo = _mm256_loadu_si256((const __m256i *)l32), levhi = _mm256_loadu_si256((const __m256i *)(l32 + 8));
+    const __m256i one = _mm256_set1_epi32(1), seven = _mm256_set1_epi32(7), eight = _mm256_set1_epi32(8);
+    const __m256i hrm1 = _mm256_set1_epi32(hr - 1), zero = _mm256_setzero_si256();
+    const __m256i bcast3 = _mm256_set1_epi32(3);
+    const __m256i byte0 = _mm256_setr_epi8(0, 4, 8, 12, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1,
+                                           0, 4, 8, 12, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1);
+    const __m256i gather04 = _mm256_setr_epi32(0, 4, 0, 0, 0, 0, 0, 0);
+    int64_t n = 0, m = c0;
+    int32_t start = 0;
+    for (; m + 8 <= c1; m += 8) {
+        __m256i h = _mm256_cvtepu8_epi32(_mm_loadl_epi64((const __m128i *)(cut_h + m)));
+        __m256i q = _mm256_cvtepu8_epi32(_mm_loadl_epi64((const __m128i *)(cut_q + m)));
+        __m256i w = _mm256_sllv_epi32(one, h);
+        __m256i x = _mm256_add_epi32(w, _mm256_slli_si256(w, 4));
+        x = _mm256_add_epi32(x, _mm256_slli_si256(x, 8));
+        x = _mm256_add_epi32(x, _mm256_blend_epi32(zero, _mm256_permutevar8x32_epi32(x, bcast3), 0xF0));
+        __m256i need = _mm256_and_si256(_mm256_cmpgt_epi32(h, hrm1), _mm256_cmpgt_epi32(q, zero));
+        if (__builtin_expect(_mm256_movemask_epi8(need) != 0, 0)) {
+            for (int64_t k = m; k < m + 8; k++) {     /* the scalar path for this group */
+                int hh = cut_h[k];
+                unsigned q8 = cut_q[k];
+                int64_t id = lev[hh] + (start >> hh);
+                if (hh >= hr && q8 && node_radius[id] > refine_r) {
+                    n = refine_node(hh, start, q8, lev, node_dir, node_radius, r, refine_r, extent, idx, qv, n);
+                } else {
+                    idx[n] = (int32_t)id; qv[n] = (uint8_t)q8;
+                    n += q8 != 0;
+                }
+                start += (int32_t)1 << hh;
+            }
+            continue;
+        }
+        __m256i s = _mm256_add_epi32(_mm256_set1_epi32(start), _mm256_sub_epi32(x, w));
+        start += _mm256_extract_epi32(x, 7);
+        __m256i lv = _mm256_blendv_epi8(_mm256_permutevar8x32_epi32(levlo, h),
+                                        _mm256_permutevar8x32_epi32(levhi, _mm256_sub_epi32(h, eight)),
+                                        _mm256_cmpgt_epi32(h, seven));
+        __m256i id = _mm256_add_epi32(lv, _mm256_srlv_epi32(s, h));
+        int mask = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpgt_epi32(q, zero)));
+        __m256i perm = _mm256_loadu_si256((const __m256i *)pack_perm[mask]);
+        _mm256_storeu_si256((__m256i *)(idx + n), _mm256_permutevar8x32_epi32(id, perm));
+        __m256i qp = _mm256_shuffle_epi8(_mm256_permutevar8x32_epi32(q, perm), byte0);
+        _mm_storel_epi64((__m128i *)(qv + n), _mm256_castsi256_si128(_mm256_permutevar8x32_epi32(qp, gather04)));
+        n += __builtin_popcount(mask);
+    }
+    for (; m < c1; m++) {
+        int hh = cut_h[m];
+        unsigned q8 = cut_q[m];
+        int64_t id = lev[hh] + (start >> hh);
+        if (hh >= hr && q8 && node_radius[id] > refine_r) {
+            n = refine_node(hh, start, q8, lev, node_dir, node_radius, r, refine_r, extent, idx, qv, n);
+        } else {
+            idx[n] = (int32_t)id; qv[n] = (uint8_t)q8;
+            n += q8 != 0;
+        }
+        start += (int32_t)1 << hh;
+    }
+    return n;
+}
+
+T_AVX2 static void sum_lambert(int64_t cnt, const int32_t *idx, const uint8_t *qv, const float *node8, double *E) {
+    __m256 er = _mm256_setzero_ps(), eg = er, eb = er;
+    for (int64_t j = 0; j < cnt; j += 8) {
+        __m256i off = _mm256_slli_epi32(_mm256_loadu_si256((const __m256i *)(idx + j)), 3);
+        __m256 q = load_q(qv + j);
+        er = _mm256_fmadd_ps(_mm256_i32gather_ps(node8 + 0, off, 4), q, er);
+        eg = _mm256_fmadd_ps(_mm256_i32gather_ps(node8 + 1, off, 4), q, eg);
+        eb = _mm256_fmadd_ps(_mm256_i32gather_ps(node8 + 2, off, 4), q, eb);
+    }
+    E[0] = hsum8(er); E[1] = hsum8(eg); E[2] = hsum8(eb);
+}
+
+T_AVX2 static void sum_ggx(int64_t cnt, const int32_t *idx, const uint8_t *qv, const float *node8, const frame8 *f,
+                           v3 wol, float alpha, double *E, double *S) {
+    const float a2 = alpha * alpha;
+    const __m256 va2 = _mm256_set1_ps(a2), v1ma2 = _mm256_set1_ps(1.0f - a2);
+    const __m256 k = _mm256_set1_ps((float)(2.0 * a2 / PI)), zero = _mm256_setzero_ps();
+    const __m256 ot = _mm256_set1_ps((float)wol.x), ob = _mm256_set1_ps((float)wol.y), on = _mm256_set1_ps((float)wol.z);
+    __m256 er = zero, eg = zero, eb = zero, sr = zero, sg = zero, sb = zero;
+    for (int64_t j = 0; j < cnt; j += 8) {
+        __m256i off = _mm256_slli_epi32(_mm256_loadu_si256((const __m256i *)(idx + j)), 3);
+        __m256 q = load_q(qv + j);
+        __m256 lr, lg, lb, wt, wb, ci;
+        local_dirs(node8, off, f, &lr, &lg, &lb, &wt, &wb, &ci);
+        lr = _mm256_mul_ps(lr, q); lg = _mm256_mul_ps(lg, q); lb = _mm256_mul_ps(lb, q);
+        er = _mm256_add_ps(er, lr); eg = _mm256_add_ps(eg, lg); eb = _mm256_add_ps(eb, lb);
+        __m256 ht = _mm256_add_ps(wt, ot), hb = _mm256_add_ps(wb, ob), hn = _mm256_add_ps(ci, on);
+        __m256 ht2 = _mm256_fmadd_ps(ht, ht, _mm256_mul_ps(hb, hb));
+        __m256 hn2 = _mm256_mul_ps(hn, hn);
+        __m256 hh = _mm256_add_ps(hn2, ht2);
+        __m256 dd = _mm256_fmadd_ps(va2, hn2, ht2);                          /* |h|²·(cos²θh (α²−1) + 1) */
+        __m256 gd = _mm256_add_ps(ci, _mm256_sqrt_ps(_mm256_fmadd_ps(_mm256_mul_ps(ci, ci), v1ma2, va2)));
+        __m256 s = _mm256_div_ps(_mm256_mul_ps(k, _mm256_mul_ps(hh, hh)), _mm256_mul_ps(_mm256_mul_ps(dd, dd), gd));
+        /* D needs cosθh > 0, G1(ωi) needs ωi·h > 0 */
+        __m256 wh = _mm256_fmadd_ps(wt, ht, _mm256_fmadd_ps(wb, hb, _mm256_mul_ps(ci, hn)));
+        __m256 ok = _mm256_and_ps(_mm256_cmp_ps(hn, zero, _CMP_GT_OQ), _mm256_cmp_ps(wh, zero, _CMP_GT_OQ));
+        s = _mm256_and_ps(s, ok);
+        sr = _mm256_fmadd_ps(lr, s, sr); sg = _mm256_fmadd_ps(lg, s, sg); sb = _mm256_fmadd_ps(lb, s, sb);
+    }
+    E[0] = hsum8(er); E[1] = hsum8(eg); E[2] = hsum8(eb);
+    S[0] = hsum8(sr); S[1] = hsum8(sg); S[2] = hsum8(sb);
+}
+
+T_AVX2 static void sum_table(int64_t cnt, const int32_t *idx, const uint8_t *qv, const float *node8, const frame8 *f,
+                             v3 wol, const float *prm, const float *tab, double *E, double *S) {
+    const __m256 zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1.0f);
+    /* prm[3] = F0; prm[4] = static (0 paper, 1 smith), prm[5] = the smith static's α */
+    const float f0 = prm[3];
+    const int smith = prm[4] > 0.5f;
+    const float sa2 = prm[5] * prm[5];
+    const __m256 va2 = _mm256_set1_ps(sa2), v1ma2 = _mm256_set1_ps(1.0f - sa2);
+    /* the smith static's ωo factor (cosθo + Λ(cosθo)) is the same for every cluster of the point */
+    const __m256 dco = _mm256_set1_ps((float)(wol.z + sqrt((double)sa2 + (1.0 - sa2) * wol.z * wol.z)));
+    const __m256 ot = _mm256_set1_ps((float)wol.x), ob = _mm256_set1_ps((float)wol.y), on = _mm256_set1_ps((float)wol.z);
+    const __m256 half = _mm256_set1_ps(0.5f * (TABLE_N - 1)), top = _mm256_set1_ps((float)(TABLE_N - 1));
+    const __m256i imax = _mm256_set1_epi32(TABLE_N - 2), row = _mm256_set1_epi32(3 * TABLE_N);
+    const __m256i three = _mm256_set1_epi32(3), tn = _mm256_set1_epi32(TABLE_N);
+    const __m256 vf0 = _mm256_set1_ps(f0), v1mf0 = _mm256_set1_ps(1.0f - f0);
+    const __m256 absmask = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fffffff));
+    const float co = (float)wol.z;
+    __m256 er = zero, eg = zero, eb = zero, sr = zero, sg = zero, sb = zero;
+    for (int64_t j = 0; j < cnt; j += 8) {
+        __m256i off = _mm256_slli_epi32(_mm256_loadu_si256((const __m256i *)(idx + j)), 3);
+        __m256 q = load_q(qv + j);
+        __m256 lr, lg, lb, wt, wb, ci;
+        local_dirs(node8, off, f, &lr, &lg, &lb, &wt, &wb, &ci);
+        lr = _mm256_mul_ps(lr, q); lg = _mm256_mul_ps(lg, q); lb = _mm256_mul_ps(lb, q);
+        er = _mm256_add_ps(er, lr); eg = _mm256_add_ps(eg, lg); eb = _mm256_add_ps(eb, lb);
+        __m256 ht = _mm256_add_ps(wt, ot), hb = _mm256_add_ps(wb, ob), hn = _mm256_add_ps(ci, on);
+        /* hemi-octahedral table coordinates (scale-invariant: h need not be unit) */
+        __m256 s1 = _mm256_add_ps(_mm256_add_ps(_mm256_and_ps(ht, absmask), _mm256_and_ps(hb, absmask)),
+                                  _mm256_max_ps(hn, zero));
+        __m256 inv = _mm256_div_ps(one, _mm256_max_ps(s1, _mm256_set1_ps(1e-30f)));
+        __m256 px = _mm256_mul_ps(ht, inv), py = _mm256_mul_ps(hb, inv);
+        __m256 fu = _mm256_mul_ps(_mm256_add_ps(_mm256_add_ps(px, py), one), half);
+        __m256 fv = _mm256_mul_ps(_mm256_add_ps(_mm256_sub_ps(px, py), one), half);
+        fu = _mm256_min_ps(_mm256_max_ps(fu, zero), top);
+        fv = _mm256_min_ps(_mm256_max_ps(fv, zero), top);
+        __m256i i0 = _mm256_min_epi32(_mm256_cvttps_epi32(fu), imax);
+        __m256i j0 = _mm256_min_epi32(_mm256_cvttps_epi32(fv), imax);
+        __m256 a = _mm256_sub_ps(fu, _mm256_cvtepi32_ps(i0)), b = _mm256_sub_ps(fv, _mm256_cvtepi32_ps(j0));
+        __m256i base = _mm256_mullo_epi32(_mm256_add_epi32(_mm256_mullo_epi32(i0, tn), j0), three);
+        __m256i base1 = _mm256_add_epi32(base, row);
+        /* Schlick's F at ωi·h and the static denominator (inverse-brdf-modeling eq. 9, or smith) */
+        __m256 hh = _mm256_fmadd_ps(ht, ht, _mm256_fmadd_ps(hb, hb, _mm256_mul_ps(hn, hn)));
+        __m256 wh = _mm256_fmadd_ps(wt, ht, _mm256_fmadd_ps(wb, hb, _mm256_mul_ps(ci, hn)));
+        __m256 cd = _mm256_div_ps(wh, _mm256_sqrt_ps(_mm256_max_ps(hh, _mm256_set1_ps(1e-30f))));
+        __m256 m = _mm256_min_ps(_mm256_max_ps(_mm256_sub_ps(one, cd), zero), one);
+        __m256 m2 = _mm256_mul_ps(m, m);
+        __m256 F = _mm256_fmadd_ps(v1mf0, _mm256_mul_ps(_mm256_mul_ps(m2, m2), m), vf0);
+        __m256 den;
+        if (smith) {       /* (cosθi + Λ(cosθi))(cosθo + Λ(cosθo)), Λ(c) = √(α² + (1 − α²) c²) */
+            __m256 di = _mm256_add_ps(ci, _mm256_sqrt_ps(_mm256_fmadd_ps(_mm256_mul_ps(ci, ci), v1ma2, va2)));
+            den = _mm256_mul_ps(di, dco);
+        } else {
+            __m256 vco = _mm256_set1_ps(co);
+            den = _mm256_sub_ps(_mm256_add_ps(ci, vco), _mm256_mul_ps(ci, vco));
+        }
+        __m256 sf = _mm256_div_ps(F, _mm256_max_ps(den, _mm256_set1_ps(1e-12f)));
+        __m256 wa = _mm256_mul_ps(sf, _mm256_sub_ps(one, a)), wa1 = _mm256_mul_ps(sf, a);
+        __m256 w1b = _mm256_sub_ps(one, b);
+        __m256 lq[3] = {lr, lg, lb};
+        __m256 *acc[3] = {&sr, &sg, &sb};
+        for (int c = 0; c < 3; c++) {
+            __m256i o0 = _mm256_add_epi32(base, _mm256_set1_epi32(c)), o1 = _mm256_add_epi32(base1, _mm256_set1_epi32(c));
+            __m256 t00 = _mm256_i32gather_ps(tab, o0, 4);
+            __m256 t01 = _mm256_i32gather_ps(tab, _mm256_add_epi32(o0, three), 4);
+            __m256 t10 = _mm256_i32gather_ps(tab, o1, 4);
+            __m256 t11 = _mm256_i32gather_ps(tab, _mm256_add_epi32(o1, three), 4);
+            __m256 r0 = _mm256_fmadd_ps(t01, b, _mm256_mul_ps(t00, w1b));
+            __m256 r1 = _mm256_fmadd_ps(t11, b, _mm256_mul_ps(t10, w1b));
+            __m256 p = _mm256_fmadd_ps(r1, wa1, _mm256_mul_ps(r0, wa));
+            *acc[c] = _mm256_fmadd_ps(lq[c], p, *acc[c]);
+        }
+    }
+    E[0] = hsum8(er); E[1] = hsum8(eg); E[2] = hsum8(eb);
+    S[0] = hsum8(sr); S[1] = hsum8(sg); S[2] = hsum8(sb);
+}
+
+/* the vector path of one point (not inlined into the generic caller: it is compiled for AVX2) */
+T_AVX2 __attribute__((noinline)) static void sum_avx2(int kind, int64_t cnt, int32_t *idx, uint8_t *qv,
+                                                      const float *node8, const float *fr, v3 wol, const float *prm,
+                                                      const float *tab, double *E, double *S) {
+    for (int64_t j = cnt; j < ((cnt + 7) & ~(int64_t)7); j++) { idx[j] = idx[0]; qv[j] = 0; }   /* pad: v = 0 */
+    frame8 f;
+    f.tx = _mm256_set1_ps(fr[0]); f.ty = _mm256_set1_ps(fr[1]); f.tz = _mm256_set1_ps(fr[2]);
+    f.bx = _mm256_set1_ps(fr[3]); f.by = _mm256_set1_ps(fr[4]); f.bz = _mm256_set1_ps(fr[5]);
+    f.nx = _mm256_set1_ps(fr[6]); f.ny = _mm256_set1_ps(fr[7]); f.nz = _mm256_set1_ps(fr[8]);
+    if (kind == K_LAMBERT) sum_lambert(cnt, idx, qv, node8, E);
+    else if (kind == K_GGX) sum_ggx(cnt, idx, qv, node8, &f, wol, prm[6], E, S);
+    else sum_table(cnt, idx, qv, node8, &f, wol, prm, tab, E, S);
+}
+#endif
+
+/* ---------------------------------------------------------------------------------------
+ * normals, wo_dirs (P, 3) float32 unit; cut_of, mat_of (P,) int32 (cut −1: none → 0);
+ * cut_off (V+1,) int64, cut_h, cut_q (entries) uint8; node8 (2N−1, 8) float32 (l rgb, ω xyz,
+ * 0, 0); node_dir (2N−1, 3), node_radius (2N−1,) float32; level_off (H+2,) int64; materials
+ * mat_kind (M,) int32, mat_params (M, N_PARAMS), mat_refine, mat_extent (M,) float32 radians,
+ * tables float32 with table_off (M,) int64 (−1 none). Writes out (P, 3) float32 radiance.
+ */
+void glk_shade_points(
+    int64_t P, const float *normals, const float *wo_dirs, const int32_t *cut_of,
+    const int32_t *mat_of, const int64_t *cut_off, const uint8_t *cut_h, const uint8_t *cut_q,
+    const float *node8, const float *node_dir, const float *node_radius,
+    const int64_t *level_off, int H, const int32_t *mat_kind, const float *mat_params,
+    const float *mat_refine, const float *mat_extent, const float *tables, const int64_t *table_off,
+    float *out) {
+    const int simd = glk_shade_simd(-1);
+    const int64_t cap = ((int64_t)1 << H) + 8;
+    int M = 0;
+    for (int64_t p = 0; p < P; p++) if (mat_of[p] + 1 > M) M = mat_of[p] + 1;
+    int *hr = (int *)malloc(sizeof(int) * (M > 0 ? M : 1));
+    for (int i = 0; i < M; i++) hr[i] = refine_level(node_radius, level_off, H, mat_refine[i]);
+#pragma omp parallel
+    {
+        int32_t *idx = (int32_t *)malloc(sizeof(int32_t) * cap);
+        uint8_t *qv = (uint8_t *)malloc(cap);
+#pragma omp for schedule(dynamic, 16)
+        for (int64_t p = 0; p < P; p++) {
+            v3 n = mk(normals[3 * p], normals[3 * p + 1], normals[3 * p + 2]);
+            v3 wo = mk(wo_dirs[3 * p], wo_dirs[3 * p + 1], wo_dirs[3 * p + 2]);
+            double acc[3] = {0, 0, 0};
+            double co = dot(n, wo);
+            int mi = mat_of[p];
+            if (co > 0 && cut_of[p] >= 0) {
+                int kind = mat_kind[mi];
+                const float *prm = mat_params + (int64_t)mi * N_PARAMS;
+                const float *tab = table_off[mi] >= 0 ? tables + table_off[mi] : NULL;
+                v3 r = add(scl(n, 2.0 * co), scl(wo, -1.0));
+                v3 t, bt; onb(n, &t, &bt);
+                /* GGX's per-point factor G1(ωo)/(4 cosθo): h·ωo > 0 always holds for h of ωi, ωo
+                 * in the upper hemisphere, so G1(ωo) does not depend on the cluster */
+                double gpo = kind == K_GGX ? ggx_G1(co, 1.0, prm[6]) / (4.0 * co) : 0.0;
+                int64_t c0 = cut_off[cut_of[p]], c1 = cut_off[cut_of[p] + 1], cnt;
+                int vec = 0;
+#ifdef GLK_X86
+                vec = simd && (kind == K_LAMBERT || kind == K_GGX || (kind == K_TABLE && tab));
+                if (simd && H <= 15)
+                    cnt = collect_avx2(c0, c1, cut_h, cut_q, level_off, H, node_dir, node_radius, r, mat_refine[mi],
+                                       mat_extent[mi], hr[mi], idx, qv);
+                else
+#endif
+                    cnt = collect(c0, c1, cut_h, cut_q, level_off, node_dir, node_radius, r, mat_refine[mi],
+                                  mat_extent[mi], hr[mi], idx, qv);
+#ifdef GLK_X86
+                if (vec && cnt > 0) {
+                    double E[3], S[3] = {0, 0, 0};
+                    const float fr[9] = {(float)t.x, (float)t.y, (float)t.z, (float)bt.x, (float)bt.y, (float)bt.z,
+                                         (float)n.x, (float)n.y, (float)n.z};
+                    sum_avx2(kind, cnt, idx, qv, node8, fr, mk(dot(wo, t), dot(wo, bt), co), prm, tab, E, S);
+                    if (kind == K_GGX) { S[0] *= gpo * prm[3]; S[1] *= gpo * prm[4]; S[2] *= gpo * prm[5]; }
+                    for (int c = 0; c < 3; c++) acc[c] = prm[c] * INV_PI * E[c] + S[c];
+                } else
+#endif
+                {
+                    for (int64_t j = 0; j < cnt; j++) {
+                        const float *L = node8 + 8 * (int64_t)idx[j];
+                        if (L[0] <= 0 && L[1] <= 0 && L[2] <= 0) continue;
+                        v3 wi = mk(L[3], L[4], L[5]);
+                        double ci = dot(wi, n);
+                        if (ci < 1e-3) wi = nrm(add(wi, scl(n, 1e-3 - ci)));
+                        double fr[3];
+                        brdf_eval(kind, prm, tab, wi, wo, n, t, bt, gpo, fr);
+                        double q = qv[j] * (1.0 / 255.0);
+                        acc[0] += L[0] * q * fr[0]; acc[1] += L[1] * q * fr[1]; acc[2] += L[2] * q * fr[2];
+                    }
+                }
+            }
+            out[3 * p] = (float)acc[0]; out[3 * p + 1] = (float)acc[1]; out[3 * p + 2] = (float)acc[2];
+        }
+        free(idx); free(qv);
+    }
+    free(hr);
+}

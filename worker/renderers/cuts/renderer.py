@@ -1,0 +1,486 @@
+"""The cut renderer: direct environment light through per-vertex visibility cuts.
+
+cyber-worlds eq. 3 / inverse-brdf-modeling eq. 22: B(x, ωo) = Σ_k l_k v_k f_r(ω_k, ωo) over the
+point's cut, with l_k the map integrated over cluster k (core/lighting.py), v_k its mean
+cosine-weighted visibility and ω_k its light-weighted centroid. Two shading modes:
+
+* ``vertex`` (default): radiance at the vertices of the triangles the camera sees, then
+  barycentric interpolation per pixel. Fast: cost scales with visible vertices.
+* ``pixel``: every pixel shades its three vertices' cuts with its own interpolated normal and
+  view direction and blends them by barycentric weight (equal to interpolating the cuts, the
+  integral being linear in visibility). Sharper glossy highlights on coarse meshes.
+
+It caches what a frame reuses (per camera and sample count: the hit buffer, the visible
+vertices and their view directions, the background's map coordinates and the object ids; per
+lighting: the per-node light tables (C, lighting.c) and the ground shadow; per view and lighting:
+the background; per material list: the packed materials), so a BRDF change costs the shading
+of the visible vertices and the resolve, a light change adds the light tables and the
+background, and a view change adds the primary rays. The drag level of detail shades cuts
+coarsened to τ = 16 at half resolution.
+
+Anti-aliasing (``FrameRequest.samples`` S > 1, vertex mode): S primary rays per pixel through
+a pattern symmetric about the pixel centre (render.sample_offsets); the vertices of every
+sample's triangle are shaded once, and each pixel is the mean of its samples' interpolations
+or background (C glk_resolve). Inside a triangle this equals one sample exactly; silhouettes
+and the background's edges get S levels of coverage. It costs S× primary rays (once per view)
+and S× interpolation, no extra shading beyond the few vertices only a sub-pixel sample sees.
+
+Ground shadow (ground.py): when the scene's precomputation has the ground part and the frame
+asks for it (``FrameRequest.ground_shadow``, default the scene's ``ground.shadow``), background
+samples whose rays go down through the ground plane are darkened by the occlusion ratio.
+
+Besides frames, it answers the paint-to-BRDF fitter's questions through named methods
+(``surface_samples``, ``vertex_samples``, ``transfer``, ``shade_samples``, ``light``): where an
+object is seen, the SRBF transfer rows there, and its radiance under a material.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from ...core import cuts as cutmod
+from ...core.directions import get_tree
+from ...core.lighting import light_tables
+from ...core.render import MaterialTable, background, camera_rays, env_coords, resolve, shade_points
+from ...native.kernels import kernels as _kernels
+from ..base import FrameRequest, Lighting, Rendered, Renderer, Unsupported
+from .precompute import CutData
+
+DRAG_TAU = 16.0     # drag level of detail: cuts coarsened to τ = 16 (0.4% image change on the demo chair)
+_pool = None
+
+
+@lru_cache(maxsize=1)
+def _placeholder():
+    """The packed material of objects no point of a frame is shaded with (never read)."""
+    from ...models import Lambert
+
+    return Lambert().pack()
+
+
+def _tracing_pool():
+    """(pool, size): threads for primary rays, shared by the process's renderers, as many as the
+    kernels' OpenMP threads (a service worker given one core traces on one)."""
+    global _pool
+    if _pool is None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        from ... import native
+
+        n = max(1, native.max_threads())
+        _pool = (ThreadPoolExecutor(max_workers=n, thread_name_prefix="glint-trace"), n)
+    return _pool
+
+
+@dataclass(eq=False)
+class View:
+    """Primary visibility of one camera with S samples per pixel (rows p·S + s): tri (P·S,) int32
+    face per sample (−1 background), uv (P·S, 2) float32 Embree barycentrics, dirs (P·S, 3)
+    float32 ray directions, visible (K,) int32 vertices of the faces seen, wo (K, 3) float32 unit
+    directions from them to the eye, bg (n,) int64 the background sample rows, bgdirs (n, 3) their
+    directions and uv0 (n, 2) float32 their map coordinates (render.env_coords), obj (H, W) int32
+    object per pixel (from the pixel centres, −1 background); bgbuf (P·S, 3) float32 the
+    background last drawn (bg_key: its lighting and ground shadow)."""
+    camera: object
+    tri: np.ndarray
+    uv: np.ndarray
+    dirs: np.ndarray
+    visible: np.ndarray
+    samples: int = 1
+    wo: np.ndarray | None = None
+    bg: np.ndarray | None = None
+    uv0: np.ndarray | None = None
+    obj: np.ndarray | None = None
+    bgdirs: np.ndarray | None = None
+    bgbuf: np.ndarray | None = None
+    bg_key: object = None
+
+
+@dataclass
+class Samples:
+    """Surface points to shade or fit: pix (N,) flat pixel index (or vertex id for vertex
+    samples), positions (N, 3), normals (N, 3) unit, wo (N, 3) unit towards the eye, verts
+    (N, 3) int32 vertex (cut) indices, bary (N, 3) float32 weights of those cuts; all float32."""
+    pix: np.ndarray
+    positions: np.ndarray
+    normals: np.ndarray
+    wo: np.ndarray
+    verts: np.ndarray
+    bary: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.pix)
+
+
+class CutRenderer(Renderer):
+    """Renders one loaded scene from its cut set (CutData).
+
+    kernels : the kernel backend (worker/native/kernels.py); default: the process's.
+    """
+
+    kind = "cuts"
+    controls = frozenset({"camera", "light", "materials", "environment", "ground", "move"})
+    _moving = None          # MovingFrames (moving.py) of a scene with movable objects
+
+    def __init__(self, scene, data: CutData, kernels=None):
+        super().__init__(scene, data, kernels)
+        self.k = kernels or _kernels()
+        self.cuts = data.cuts
+        self.tree = get_tree(self.cuts.height)
+        self.tracer = data.tracer(scene)                    # shared by the scene's renderers
+        self.lighting = data.lighting(scene.envmap, self.tree)
+        self._view: View | None = None
+        self._views: list[View] = []        # the last few (camera, samples): still frames re-use moving ones'
+        self._light_key = None
+        self._node_light = None
+        self._node8 = None
+        self._ground_key = None
+        self._ground_factor = None
+        self._vert = np.zeros((len(scene.mesh.vertices), 3), np.float32)
+        self._mats_key = None
+        self._mats: MaterialTable | None = None
+        self._lock = threading.RLock()      # the session thread and its background builder
+        self._moving = None                 # frames of a scene with movable objects (moving.py)
+        if data.moving is not None:
+            from .moving import MovingFrames
+
+            self._moving = MovingFrames(self, data.moving)
+
+    # -- caches -----------------------------------------------------------------------------------
+    def set_environment(self, envmap: np.ndarray) -> None:
+        """Light with another (H, W, 3) float32 map. Cuts are geometry only, so they stay; the
+        per-node light is rebuilt on the next frame."""
+        with self._lock:
+            self.lighting = self.data.lighting(envmap, self.tree)
+            self._light_key = None
+
+    def view(self, camera, samples: int = 1) -> View:
+        """Primary hits of a camera with S samples per pixel (cached for the last few). With
+        movable objects: one sample, the objects where the last frame had them."""
+        if self._moving is not None:
+            with self._lock:
+                mv = self._moving.view(camera, self._moving.W)
+            v = View(camera, mv.tri, mv.uv, mv.dirs, mv.visible)
+            obj = np.where(mv.tri >= 0, self.scene.object_of_face[np.maximum(mv.tri, 0)], -1).astype(np.int32)
+            v.obj = obj.reshape(camera.height, camera.width)
+            return v
+        with self._lock:
+            for v in self._views:
+                if v.samples == samples and v.camera == camera:
+                    self._view = v
+                    return v
+        o, d = camera_rays(camera.eye, camera.target, camera.up, camera.fov_y_deg, camera.width, camera.height,
+                           samples, kernels=self.k)
+        tri, uv = self._first_hit(o, d)
+        mesh = self.scene.mesh
+        # faces and vertices seen, by marking (O(P + F), no sort)
+        fmask = np.zeros(len(mesh.faces), bool)
+        fmask[tri[tri >= 0]] = True
+        vmask = np.zeros(len(mesh.vertices), bool)
+        vmask[mesh.faces[fmask].reshape(-1)] = True
+        visible = np.nonzero(vmask)[0].astype(np.int32)
+        wo = np.asarray(camera.eye, np.float32) - mesh.vertices[visible]
+        wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+        bg = np.nonzero(tri < 0)[0]
+        bgdirs = d[bg]
+        v = View(camera, tri, uv, d, visible, samples, wo, bg, env_coords(bgdirs, self.k), bgdirs=bgdirs)
+        if samples == 1:
+            obj = np.where(tri >= 0, self.scene.object_of_face[np.maximum(tri, 0)], -1).astype(np.int32)
+            v.obj = obj.reshape(camera.height, camera.width)
+        else:
+            v.obj = self.view(camera, 1).obj
+        with self._lock:
+            self._views = [v] + [x for x in self._views if x is not v][:2]
+            self._view = v
+        return v
+
+    def _first_hit(self, o, d):
+        """(tri, uv) of primary rays, traced in slices on the tracing threads (Embree releases
+        the GIL, so two slices take about half the time on two cores)."""
+        n = len(d)
+        pool, parts = _tracing_pool()
+        if n < 4096 or parts < 2:
+            tri, uv, _ = self.tracer.first_hit(o, d)
+            return tri, uv
+        cut = [n * i // parts for i in range(parts + 1)]
+        res = list(pool.map(lambda i: self.tracer.first_hit(o[cut[i]:cut[i + 1]], d[cut[i]:cut[i + 1]]),
+                            range(parts)))
+        return np.concatenate([r[0] for r in res]), np.concatenate([r[1] for r in res])
+
+    def light(self, lighting: Lighting):
+        """(node_l (2N−1, 3) float32 radiance×sr, node_w (2N−1, 3) float32 unit centroid
+        directions) for a lighting (cached for the last one); the packed node records of the
+        shading kernel are kept beside them (``_node8``)."""
+        with self._lock:
+            key = (float(lighting.rotation_deg), float(lighting.intensity), id(self.lighting))
+            old = self._light_key
+            if key == old:
+                return self._node_light
+            if old is not None and old[0] == key[0] and old[2] == key[2] and old[1] > 0 and key[1] > 0:
+                # intensity alone: radiance scales, the light-weighted centroids do not move
+                f = np.float32(key[1] / old[1])
+                nl = self._node_light[0] * f
+                n8 = self._node8.copy()
+                n8[:, 0:3] *= f
+                self._node_light, self._node8 = (nl, self._node_light[1]), n8
+            else:
+                nl, nw, n8 = light_tables(self.lighting, lighting.rotation_deg, lighting.intensity, self.tree, self.k)
+                self._node_light, self._node8 = (nl, nw), n8
+            self._light_key = key
+            return self._node_light
+
+    def ground_available(self) -> bool:
+        """Whether this scene's precomputation has the ground shadow part."""
+        return self.data.ground is not None
+
+    def _ground(self, req: FrameRequest):
+        """(factor grid (G, G, 3) float32, (x0, z0, step, y)) for the frame's lighting, or None
+        when the frame has no ground shadow."""
+        g, spec = self.data.ground, getattr(self.scene.spec, "ground", None)
+        on = req.ground_shadow if req.ground_shadow is not None else bool(spec is not None and spec.shadow)
+        if not on or g is None:
+            return None
+        k = req.ground_intensity if req.ground_intensity is not None else (spec.intensity if spec is not None else 1.0)
+        key = (self._light_key, float(k))
+        if key != self._ground_key:
+            node_l, node_w = self._node_light
+            self._ground_factor = g.factor(g.shadow(node_l, node_w, self._node8, self.tree, self.k), k)
+            self._ground_key = key
+        return self._ground_factor, g.grid.geometry()
+
+    def _background(self, v: View, lighting: Lighting, shadow, key) -> np.ndarray:
+        """(P·S, 3) float32 buffer holding the view's background samples for this lighting and
+        ground shadow (key: the light and ground keys they were made with; redrawn only when one
+        of them changed)."""
+        if v.bgbuf is None or v.bg_key != key:
+            if v.bgbuf is None:
+                v.bgbuf = np.zeros((len(v.tri), 3), np.float32)
+            background(v.bg, v.bgdirs, v.uv0, self.lighting.map, lighting.rotation_deg, lighting.intensity,
+                       v.bgbuf, shadow, v.camera.eye, kernels=self.k)
+            v.bg_key = key
+        return v.bgbuf
+
+    def material_table(self, materials, needed=None) -> MaterialTable:
+        """Packed materials (cached by the identity of the list's items). needed: the indices of
+        the materials any point will be shaded with (default all); the others get a placeholder,
+        so a frame whose edited object is all known radiance (strokes) does not pack its srbf."""
+        needed = frozenset(range(len(materials)) if needed is None else needed)
+        key = (tuple(id(m) for m in materials), needed)
+        if key != self._mats_key:
+            self._mats = MaterialTable([m.pack() if i in needed else _placeholder()
+                                        for i, m in enumerate(materials)])
+            self._mats_key = key
+            self._mats_refs = list(materials)        # keep them alive: ids stay unique
+        return self._mats
+
+    def coarse_cuts(self) -> cutmod.CutSet:
+        """The drag-time cut set (cuts coarsened to DRAG_TAU), built once per scene (≈0.1 s
+        for 21K vertices in C)."""
+        if self._moving is not None:
+            self._moving.level("drag")              # the movable objects' drag-time cuts too
+        return self.data.coarse(DRAG_TAU, self.k)
+
+    # -- frames -----------------------------------------------------------------------------------
+    def render(self, req: FrameRequest) -> Rendered:
+        if self._moving is not None:
+            return self._render_moving(req)
+        if req.transforms and any(self.scene.spec.objects[self._index(n)].transform != t
+                                  for n, t in req.transforms.items()):
+            raise Unsupported("this scene has no movable objects (mark them \"movable\": true in the scene file)")
+        t = {}
+        t0 = time.perf_counter()
+        camera = req.camera
+        drag = req.lod == "drag"
+        cuts = self.coarse_cuts() if drag else self.cuts
+        if drag and camera.width >= 320:
+            camera = camera.model_copy(update={"width": camera.width // 2, "height": camera.height // 2})
+        samples = 1 if drag else int(req.samples)
+        if samples < 1:
+            raise ValueError(f"samples: {samples} per pixel (at least 1)")
+        materials = list(req.materials) or self.scene.materials
+        if len(materials) != len(self.scene.spec.objects):
+            raise ValueError(f"{len(materials)} materials for {len(self.scene.spec.objects)} objects")
+        v = self.view(camera, samples)
+        t1 = time.perf_counter(); t["view"] = (t1 - t0) * 1e3
+        with self._lock:        # the tables of one lighting, even if the fitter's thread asks for another
+            node_l, node_w = self.light(req.lighting)
+            node8 = self._node8
+            shadow = self._ground(req)
+            bg_key = (self._light_key, self._ground_key if shadow is not None else None)
+        t2 = time.perf_counter(); t["light"] = (t2 - t1) * 1e3
+        bg = self._background(v, req.lighting, shadow, bg_key)
+        t3 = time.perf_counter(); t["background"] = (t3 - t2) * 1e3
+        mesh = self.scene.mesh
+        img = np.empty((camera.width * camera.height, 3), np.float32)
+        if req.shading == "vertex":
+            known = {} if drag else dict(req.vertex_radiance or {})
+            vi, wo = v.visible, v.wo
+            if known:
+                keep = ~np.isin(vi, np.concatenate([ids for ids, _ in known.values()]))
+                vi, wo = vi[keep], wo[keep]
+            mat_of = self.scene.object_of_vertex[vi]
+            mats = self.material_table(materials, np.unique(mat_of).tolist())
+            rad = shade_points(mesh.normals[vi], wo, vi, mat_of, cuts, node_l, node_w, self.tree, mats, self.k,
+                               node8=node8)
+            vert = self._vert            # only the visible vertices' rows are read
+            vert[vi] = rad
+            for ids, r in known.values():
+                vert[ids] = r
+            t4 = time.perf_counter(); t["shade"] = (t4 - t3) * 1e3
+            resolve(v.tri, v.uv, mesh.faces, vert, bg, samples, img, self.k)
+            t["resolve"] = (time.perf_counter() - t4) * 1e3
+        elif req.shading == "pixel":
+            hit = np.nonzero(v.tri >= 0)[0]
+            mats = self.material_table(materials)
+            s = self._pixel_samples(v, camera, hit)
+            val = bg.copy()
+            val[hit] = self._shade(s, cuts, node_l, node_w, mats, self.scene.object_of_vertex, node8)
+            img[:] = val.reshape(-1, samples, 3).mean(1)
+            t["shade"] = (time.perf_counter() - t3) * 1e3
+        else:
+            raise ValueError(f"unknown shading mode {req.shading!r} (vertex or pixel)")
+        return Rendered(img.reshape(camera.height, camera.width, 3), v.obj, t,
+                        {"lod": req.lod, "tau": DRAG_TAU if drag else self.data.tau, "width": camera.width,
+                         "height": camera.height, "visible_vertices": int(len(v.visible)), "samples": samples,
+                         "ground_shadow": None if self.data.ground is None else shadow is not None})
+
+    def _index(self, name: str) -> int:
+        return [o.name for o in self.scene.spec.objects].index(name)
+
+    @property
+    def cuts(self) -> cutmod.CutSet:
+        """The cut of every scene vertex (cut v for vertex v). With movable objects: as they
+        stand in the last frame (moving.py MovingFrames.cuts; a moved object's own cuts are over
+        its frame's leaves, see ``_frame_of``)."""
+        if self._moving is not None:
+            with self._lock:
+                return self._moving.cuts()
+        return self._cuts
+
+    @cuts.setter
+    def cuts(self, cs: cutmod.CutSet) -> None:
+        self._cuts = cs
+
+    def place(self, transforms) -> None:
+        """Where movable objects stand for the fitter's questions until the next frame (a
+        session restoring its strokes places them first); no-op without movable objects."""
+        if self._moving is not None:
+            with self._lock:
+                self._moving.place(transforms)
+
+    def _geometry(self):
+        """(vertices, normals) (V, 3) float32 of the scene as it stands (world)."""
+        if self._moving is not None:
+            with self._lock:
+                return self._moving.geometry()
+        return self.scene.mesh.vertices, self.scene.mesh.normals
+
+    def _frame_of(self, object_index: int):
+        """world_from_frame (3, 3) of an object's cuts when it is not the world's (a movable
+        object's own cuts), else None."""
+        return None if self._moving is None else self._moving.frame(object_index)
+
+    def _frame_light(self, q, lighting: Lighting):
+        with self._lock:
+            return self._moving.frame_light(q, lighting)
+
+    def _render_moving(self, req: FrameRequest) -> Rendered:
+        """A frame of a scene with movable objects, placed by req.transforms (moving.py)."""
+        with self._lock:
+            return self._moving.render(req)
+
+    def object_mask(self, camera) -> np.ndarray:
+        """(H, W) int32 object index per pixel, −1 background."""
+        return self.view(camera).obj
+
+    # -- what the fitter asks ------------------------------------------------------------------
+    def _pixel_samples(self, v: View, camera, pix: np.ndarray) -> Samples:
+        mesh = self.scene.mesh
+        vx, vn = self._geometry()
+        f = mesh.faces[v.tri[pix]]
+        u, w2 = v.uv[pix, 0:1], v.uv[pix, 1:2]
+        bary = np.concatenate([1 - u - w2, u, w2], axis=1).astype(np.float32)
+        nrm = (bary[:, :, None] * vn[f]).sum(1)
+        nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+        pos = (bary[:, :, None] * vx[f]).sum(1)
+        wo = np.asarray(camera.eye, np.float32) - pos
+        wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+        return Samples(pix, pos.astype(np.float32), nrm.astype(np.float32), wo.astype(np.float32),
+                       f.astype(np.int32), bary)
+
+    def surface_samples(self, camera, object_index: int, pixels: np.ndarray | None = None) -> Samples:
+        """The object's pixels in a view at the camera's resolution, each with its own normal and
+        view direction and its triangle's three cuts blended by barycentric weight
+        (inverse-brdf-modeling §4.1). pixels : (M,) int64 flat indices of the camera's pixels
+        to look at (the fitter's fit pixels on view-pixel centres); then ``pix`` indexes
+        ``pixels`` instead of the image."""
+        if self._moving is not None:
+            with self._lock:
+                tri, uv, d = self._moving.hits(camera)
+            if pixels is not None:
+                tri, uv, d = tri[pixels], uv[pixels], d[pixels]
+        else:
+            o, d = camera_rays(camera.eye, camera.target, camera.up, camera.fov_y_deg, camera.width, camera.height,
+                               kernels=self.k)
+            if pixels is not None:
+                o, d = o[pixels], d[pixels]
+            tri, uv = self._first_hit(o, d)
+        obj_of = np.where(tri >= 0, self.scene.object_of_face[np.maximum(tri, 0)], -1)
+        pix = np.nonzero(obj_of == object_index)[0]
+        return self._pixel_samples(View(camera, tri, uv, d, np.zeros(0, np.int32)), camera, pix)
+
+    def vertex_samples(self, camera, object_index: int, samples: int = 1) -> Samples:
+        """The object's vertices the camera sees (vertex-mode shading points): with samples S > 1,
+        those of the one-sample and the S-sample views, so that radiance known for them
+        (``FrameRequest.vertex_radiance``) covers anti-aliased frames too."""
+        vx, vn = self._geometry()
+        vis = self.view(camera).visible
+        if samples > 1:
+            vis = np.union1d(vis, self.view(camera, samples).visible).astype(np.int32)
+        ids = vis[self.scene.object_of_vertex[vis] == object_index].astype(np.int32)
+        wo = np.asarray(camera.eye, np.float32) - vx[ids]
+        wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+        bary = np.zeros((len(ids), 3), np.float32)
+        bary[:, 0] = 1.0
+        return Samples(ids, vx[ids], vn[ids], wo.astype(np.float32),
+                       np.repeat(ids[:, None], 3, axis=1), bary)
+
+    def transfer(self, samples: Samples, basis, lighting: Lighting):
+        """SRBF transfer rows at samples (fit/transfer.py, inverse-brdf-modeling eq. 21):
+        (T (3, N, J) float32, E (N, 3) float32)."""
+        from ...fit.transfer import transfer
+
+        nrm, wo, (node_l, node_w) = self._in_frame(samples, lighting)
+        return transfer(nrm, wo, samples.verts, samples.bary, self.cuts, node_l, node_w,
+                        self.tree, basis, self.k)
+
+    def _in_frame(self, s: Samples, lighting: Lighting):
+        """(normals, wo, node lighting) of samples of one object in the frame of its cuts: the
+        world's, or a moved object's own (normals and view directions turned by R^T, the light
+        turned into the frame)."""
+        q = self._frame_of(int(self.scene.object_of_vertex[s.verts[0, 0]])) if len(s) else None
+        if q is None:
+            return s.normals, s.wo, self.light(lighting)
+        return ((s.normals @ q).astype(np.float32), (s.wo @ q).astype(np.float32), self._frame_light(q, lighting))
+
+    def shade_samples(self, samples: Samples, material, object_index: int, lighting: Lighting) -> np.ndarray:
+        """(N, 3) float64 radiance of the samples under a material, shaded like pixel mode."""
+        with self._lock:
+            nrm, wo, (node_l, node_w) = self._in_frame(samples, lighting)
+            # the packed node records belong to the world frame's tables only
+            node8 = self._node8 if self._node_light is not None and node_l is self._node_light[0] else None
+        mats = MaterialTable([material.pack()])
+        s = Samples(samples.pix, samples.positions, nrm, wo, samples.verts, samples.bary)
+        return self._shade(s, self.cuts, node_l, node_w, mats, None, node8).astype(np.float64)
+
+    def _shade(self, s: Samples, cuts, node_l, node_w, mats, mat_of_vertex, node8=None) -> np.ndarray:
+        n = len(s)
+        flat = s.verts.reshape(-1)
+        mat_of = np.zeros(3 * n, np.int32) if mat_of_vertex is None else mat_of_vertex[flat]
+        rad = shade_points(np.repeat(s.normals, 3, 0), np.repeat(s.wo, 3, 0), flat, mat_of, cuts, node_l, node_w,
+                           self.tree, mats, self.k, node8=node8).reshape(n, 3, 3)
+        return (s.bary[:, :, None] * rad).sum(1)

@@ -1,0 +1,243 @@
+"""``glint gi …``: precompute the GI tensors of a scene, render it with edited materials,
+benchmark freezing and frames (polynomial-gi). Registered in worker/cli.py COMMAND_MODULES.
+
+Tensors are stored as content-keyed parts in ``--store`` (default ``$GLINT_DATA_DIR/gi``, else
+``~/.cache/glint/gi``); ``render`` and ``bench`` precompute first when they are missing.
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+
+def _store(a):
+    from ...artifacts import DirStore
+    root = Path(a.store) if a.store else Path(os.environ.get("GLINT_DATA_DIR", Path.home() / ".cache" / "glint"))
+    return DirStore(root, "gi")
+
+
+def _overrides(a) -> dict:
+    from .options import parse_series
+    return {"series": parse_series(a.series) if a.series else None, "bounces": a.bounces, "spp": a.spp,
+            "fresnel": True if a.fresnel else None, "seed": a.seed}
+
+
+def _ensure(a, quiet: bool):
+    """(scene, GIPrecomputation, store, options, stats) with the tensors computed if missing."""
+    from tqdm import tqdm
+
+    from ...scene import load_scene
+    from .. import ensure
+    from . import GIPrecomputation
+
+    scene = load_scene(a.scene)
+    pre = GIPrecomputation()
+    store = _store(a)
+    options = _overrides(a)
+    parts = pre.parts(scene, options)
+    missing = [p for p in parts if store.get(p.key) is None]
+    bar = tqdm(total=sum(p.work for p in parts), desc="gi precompute", unit="px", file=sys.stderr,
+               disable=quiet or not missing, smoothing=0.1)
+    try:
+        stats = ensure(pre, scene, store, options, progress=bar.update)
+    finally:
+        bar.close()
+    return scene, pre, store, options, stats
+
+
+def cmd_precompute(a) -> int:
+    from . import tensors
+    t0 = time.perf_counter()
+    scene, pre, store, options, stats = _ensure(a, a.json)
+    (key, info), = stats["parts"].items()
+    meta, arrays = tensors.unpack(store.get(key))
+    N = meta["bounces"]
+    per = [int(sum(arrays[f"b{k}.{n}"].nbytes for n in ("offsets", "slot", "tail", "val", "scale")))
+           for k in range(1, N + 1)]
+    res = {"seconds": info.get("seconds", 0.0), "seconds_total": time.perf_counter() - t0, "cached": info["cached"],
+           "pixels": meta["pixels"], "width": meta["width"], "height": meta["height"], "bounces": N,
+           "series": meta["series"], "spp": meta["spp"], "fresnel": meta["fresnel"], "units": meta["units"],
+           "bytes": len(store.get(key)), "bytes_per_bounce": per,
+           "entries_per_bounce": [int(len(arrays[f"b{k}.slot"])) for k in range(1, N + 1)],
+           "rays": meta["rays"], "key": key, "store": str(store.root)}
+    if not info["cached"]:
+        res["rays_per_second"] = meta["rays"] / max(info["seconds"], 1e-9)
+        res.update(embree_speed(scene))
+    if a.json:
+        print(json.dumps(res))
+    else:
+        took = "cached" if res["cached"] else f"{res['seconds']:.1f} s"
+        mb = ", ".join(f"{b / 1e6:.1f}" for b in per)
+        print(f"GI tensors {','.join(map(str, res['series']))}: {res['pixels']} pixels × {res['spp']} spp, "
+              f"{res['bytes'] / 1e6:.1f} MB ({mb} MB per bounce), {took}\n  {store.path(key)}")
+    return 0
+
+
+def embree_speed(scene, n: int = 400_000, seed: int = 0) -> dict:
+    """Raw Embree throughput on this scene, for comparison with the precomputation's rays/s:
+    n occlusion and n first-hit rays from random surface points in uniform random directions,
+    in the precomputation's two threads (trace.Geometry.trace)."""
+    import numpy as np
+
+    from .trace import Geometry
+    geo = Geometry(scene)
+    rng = np.random.default_rng(seed)
+    area = np.linalg.norm(np.cross(geo.V[geo.F[:, 1]] - geo.V[geo.F[:, 0]], geo.V[geo.F[:, 2]] - geo.V[geo.F[:, 0]]), axis=1)
+    f = rng.choice(len(geo.F), n, p=area / area.sum())
+    u = rng.random((n, 2)); fl = u.sum(1) > 1; u[fl] = 1 - u[fl]
+    o = (1 - u.sum(1))[:, None] * geo.V[geo.F[f, 0]] + u[:, :1] * geo.V[geo.F[f, 1]] + u[:, 1:] * geo.V[geo.F[f, 2]]
+    d = rng.normal(size=(n, 3)); d /= np.linalg.norm(d, axis=1, keepdims=True)
+    o = o + geo.face_n[f] * np.sign((geo.face_n[f] * d).sum(1))[:, None] * geo.eps
+    out = {}
+    for name, occl in (("occluded", True), ("first_hit", False)):
+        geo.trace(o[:1000], d[:1000], occluded=occl)                 # warm-up
+        t0 = time.perf_counter()
+        geo.trace(o, d, occluded=occl)
+        out[f"embree_{name}_rays_per_second"] = n / (time.perf_counter() - t0)
+    return out
+
+
+def _renderer(a, quiet):
+    from .. import load
+    from . import GIRenderer
+    scene, pre, store, options, _ = _ensure(a, quiet)
+    data = load(pre, scene, store, options)
+    return GIRenderer(scene, data)
+
+
+def _apply_materials(r, specs) -> None:
+    from ...scene import SceneError
+    from .options import parse_material
+    for spec in specs or []:
+        name, sep, path = spec.partition("=")
+        if not sep:
+            raise SceneError(f"--material {spec!r}: expected OBJECT=FILE")
+        p = Path(path)
+        if not p.is_file():
+            raise SceneError(f"{p}: material file not found")
+        try:
+            data = json.loads(p.read_text())
+        except json.JSONDecodeError as e:
+            raise SceneError(f"{p}: not valid JSON ({e.msg})") from None
+        objs = [o.name for o in r.scene.spec.objects]
+        if name in objs and r.layout.fixed[objs.index(name)]:
+            raise SceneError(f"--material {name}=…: {name!r} is fixed (\"editable\": false) in this precomputation")
+        r.set_unit_material(r.layout.index(name), parse_material(data, str(p)))
+
+
+def cmd_render(a) -> int:
+    import numpy as np
+    from PIL import Image
+
+    from ...core.tonemap import tonemap
+    r = _renderer(a, False)
+    _apply_materials(r, a.material)
+    if a.bounces_drawn:
+        r.max_bounces = max(1, min(a.bounces_drawn, r.N))
+    t0 = time.perf_counter()
+    img = r.draw()
+    dt = time.perf_counter() - t0
+    out = Path(a.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(tonemap(img, a.exposure, a.tone)).save(out)
+    if a.raw:
+        np.save(a.raw, img.astype(np.float32))
+    print(f"wrote {out} ({img.shape[1]}×{img.shape[0]}, {r.max_bounces} bounces, {dt * 1000:.0f} ms)"
+          + (f" and {a.raw}" if a.raw else ""), file=sys.stderr)
+    return 0
+
+
+def _sweep(r, u: int, i: int):
+    """The i-th material of the benchmark's edit of unit u: roughness and colour sweep."""
+    from ...scene import GGX
+    m = r.materials[u]
+    if getattr(m, "model", None) == "ashikhmin-shirley":
+        return m.model_copy(update={"exponent_v": m.exponent_u * (0.1 + 3.0 * ((i * 0.37) % 1.0))})
+    return GGX(alpha=0.05 + 0.3 * ((i * 0.37) % 1.0), specular=(0.6, 0.5, 0.4), albedo=(0.3, 0.2 + 0.1 * (i % 3), 0.1))
+
+
+def cmd_bench(a) -> int:
+    import numpy as np
+
+    from ...core.tonemap import tonemap
+    from ...native import available, lib
+    r = _renderer(a, a.json)
+    u = r.layout.index(a.object)
+    other = next((k for k in range(r.U) if k != u), None)
+    r.draw()                                       # warm-up; a unit is live
+    # wall-clock and process CPU times: on a loaded machine the CPU time (all threads) is the
+    # better measure of the work; with one thread it is the time on a quiet core
+    t_freeze, c_freeze = [], []
+    for _ in range(max(1, a.repeat)):
+        if other is not None:
+            r.freeze(other)
+        c0 = time.process_time()
+        t_freeze.append(r.freeze(u))
+        c_freeze.append(time.process_time() - c0)
+    frames, cpu, proj, dots, tm = [], [], [], [], []
+    for i in range(a.frames + 2):
+        r.set_unit_material(u, _sweep(r, u, i))
+        t0, c0 = time.perf_counter(), time.process_time()
+        img = r.draw()
+        t1, c1 = time.perf_counter(), time.process_time()
+        tonemap(img)
+        t2 = time.perf_counter()
+        if i >= 2:                                 # warm-up frames
+            frames.append(t1 - t0); cpu.append(c1 - c0); tm.append(t2 - t1)
+            proj.append(r.last_timings["project"]); dots.append(r.last_timings["frame"])
+        assert "freeze" not in r.last_timings, "a frame re-froze"
+    ms = float(np.median(frames) * 1000)
+    cam = r.scene.spec.camera
+    fz = r.frozen
+    res = {"ms_freeze": float(np.median(t_freeze) * 1000), "ms_per_frame": ms, "fps": 1000.0 / ms,
+           "cpu_ms_freeze": float(np.median(c_freeze) * 1000), "cpu_ms_per_frame": float(np.median(cpu) * 1000),
+           "p95_ms": float(np.percentile(frames, 95) * 1000), "ms_project": float(np.median(proj)),
+           "ms_dot": float(np.median(dots)), "ms_tonemap": float(np.median(tm) * 1000), "frames": a.frames,
+           "width": cam.width, "height": cam.height, "object": a.object, "pixels": int(len(r.prim.pixel)),
+           "live_pixels": int(len(fz.live)), "live_values": fz.live_values, "live_layout": "dense" if fz.dense is not None else "sparse",
+           "live_powers": fz.NPe, "frozen_bytes": int(fz.nbytes),
+           "tensor_bytes": r.data.nbytes, "series": list(r.opts.series), "bounces": r.N, "spp": r.opts.spp,
+           "native": available(), "threads": int(lib.glk_max_threads()) if available() else 1}
+    print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items()))
+    return 0
+
+
+def add_commands(sub) -> None:
+    g = sub.add_parser("gi", help="global illumination with BRDF editing (polynomial-gi tensors)")
+    gs = g.add_subparsers(dest="gi_cmd", required=True)
+
+    def common(p):
+        p.add_argument("scene")
+        p.add_argument("--series", help="BRDF series from the eye, e.g. 64,1,1,1 (default: the scene's gi.series)")
+        p.add_argument("--bounces", type=int, help="bounces N (pads the series with 1 or truncates it)")
+        p.add_argument("--spp", type=int, help="paths per pixel (default: the scene's gi.spp, else 64)")
+        p.add_argument("--fresnel", action="store_true", help="precompute the Fresnel layer (Appendix A)")
+        p.add_argument("--seed", type=int, help="random seed of the path tracer")
+        p.add_argument("--store", help="tensor store folder (default $GLINT_DATA_DIR or ~/.cache/glint)")
+
+    p = gs.add_parser("precompute", help="path-trace and store the multibounce tensors")
+    common(p)
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(fn=cmd_precompute)
+
+    r = gs.add_parser("render", help="render with edited materials (precomputing first if needed)")
+    common(r)
+    r.add_argument("--out", required=True)
+    r.add_argument("--raw", help="linear float32 H×W×3 radiance .npy")
+    r.add_argument("--material", action="append", metavar="OBJECT=FILE",
+                   help="an object's (or region's) material as JSON; repeatable")
+    r.add_argument("--bounces-drawn", type=int, help="draw only the first N bounces (1: direct light)")
+    r.add_argument("--exposure", type=float, default=0.0)
+    r.add_argument("--tone", default="neutral", choices=["linear", "aces", "neutral"])
+    r.set_defaults(fn=cmd_render)
+
+    b = gs.add_parser("bench", help="freeze time and frame rate while one object's BRDF changes every frame")
+    common(b)
+    b.add_argument("--object", required=True, help="the edited object (or region)")
+    b.add_argument("--frames", type=int, default=30)
+    b.add_argument("--repeat", type=int, default=3, help="freezes timed (median)")
+    b.add_argument("--json", action="store_true")
+    b.set_defaults(fn=cmd_bench)

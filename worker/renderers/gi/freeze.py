@@ -1,0 +1,231 @@
+"""Object freezing and the per-frame dot product (polynomial-gi §5.2, eq. 25-29).
+
+While one unit i is edited, every other unit's coefficients are frozen, so each tensor entry's
+tail (the multiset z of diffuse-equivalent units, and for a (J, J2) series the second vertex)
+reduces to a power n of d_i times a constant A = d̄_z / d_i^n (eq. 27), times ĉ of the second
+vertex unless it is on unit i (index k ≥ 1 then). Freezing sums the tensors accordingly:
+
+* ``V`` (P, K2, NP, 3): for every hit pixel, the part whose first vertex is *not* unit i (other
+  objects, other regions' weights, fixed objects): Σ cf_slot · A · T, contracted with the frozen
+  first-vertex coefficients cf (the paper's V^i_n);
+* for the pixels on unit i ("live"), F^i (eq. 27) as a sparse list of (slot, k, n) keys with
+  half-float values and a scale per pixel.
+
+A frame is then (eq. 28-29) B = Σ_{k,n} ĉ_k d_i^n V + h_i Σ_e c_slot(θo) ĉ_k d_i^n F_e, with
+c_slot(θo) interpolated between the view-angle nodes of the unit's projection. ``freeze_numpy``
+and ``frame_numpy`` are the references of the C kernels ``gi_freeze`` / ``gi_frame`` (gi.c).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import zspace
+from .tensors import Bounce
+
+SCALE_MAX = 16384.0
+
+
+def tail_tables(i: int, N: int, U: int, J2: int, d: np.ndarray, second: np.ndarray | None):
+    """Per bounce k (list index k − 1): (kk (T,) int32, n (T,) int32, A (T, 3) float32) for
+    edited unit i. d (U, 3) diffuse equivalents; second (U, C2, 3) second-vertex coefficients
+    (C2 = trace.second_codes(J2), J2 series) or None."""
+    out = []
+    for k in range(1, N + 1):
+        if k == 1:
+            out.append((np.zeros(1, np.int32), np.zeros(1, np.int32), np.ones((1, 3), np.float32)))
+            continue
+        S = k - 2 if J2 > 1 else k - 1
+        zs = zspace.enumerate_all(U, S)
+        nz = np.array([z.count(i) for z in zs], np.int32)
+        Az = np.ones((len(zs), 3))
+        for r, z in enumerate(zs):
+            for u in z:
+                if u != i:
+                    Az[r] *= d[u]
+        if J2 <= 1:
+            out.append((np.zeros(len(zs), np.int32), nz, Az.astype(np.float32)))
+            continue
+        C2 = second.shape[1] if second is not None else 1
+        W2 = U * C2 + 1
+        kk_w = np.zeros(W2, np.int32)
+        A_w = np.ones((W2, 3))
+        for w in range(W2 - 1):
+            u2, s2 = divmod(w, C2)
+            if u2 == i:
+                kk_w[w] = 1 + s2
+            else:
+                A_w[w] = second[u2, s2]
+        kk = np.repeat(kk_w, len(zs))
+        n = np.tile(nz, W2)
+        A = (A_w[:, None, :] * Az[None, :, :]).reshape(-1, 3)
+        out.append((kk, n, A.astype(np.float32)))
+    return out
+
+
+@dataclass
+class PixelUnits:
+    """First-vertex units of the hit pixels: units (P, L) int32 (−1 padding, U = the fixed
+    pseudo-unit), weights (P, L) float32 (H(x)), k0 (P,) int32, t (P,) float32 view-angle
+    interpolation (basis.theta_interp)."""
+    units: np.ndarray
+    weights: np.ndarray
+    k0: np.ndarray
+    t: np.ndarray
+
+
+def lerp_coeffs(C1: np.ndarray, k0: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(P, K1, 3) coefficients of one unit's table C1 (Kθ, K1, 3) at pixels' view angles."""
+    return C1[k0] * (1.0 - t)[:, None, None] + C1[k0 + 1] * t[:, None, None]
+
+
+@dataclass
+class Frozen:
+    """Output of freezing unit i.
+
+    V (P, K2, NP, 3) float32: every hit pixel's part with frozen first-vertex coefficients.
+    live (Q,) int64 indices of the hit pixels on unit i, h (Q,) float32 its weight there,
+    scale (Q,) float32 per live pixel, and F^i (eq. 27) in one of two layouts:
+
+    * dense (K2 = 1, the (J, 1, …) series): ``dense`` (Q, NPe, 3, S) uint16 half floats,
+      [power n][channel][slot], slots padded with zeros to S (a multiple of 8) for SIMD, NPe the
+      largest power present + 1;
+    * sparse (J2 series): offsets (Q + 1,) int64 into entries (m, 4) uint16 = [key, r, g, b],
+      key = (slot·K2 + k)·NP + n, 8 bytes an entry.
+    """
+    unit: int
+    K2: int
+    NP: int
+    V: np.ndarray
+    live: np.ndarray
+    h: np.ndarray
+    scale: np.ndarray
+    offsets: np.ndarray | None = None
+    entries: np.ndarray | None = None
+    dense: np.ndarray | None = None
+
+    @property
+    def NPe(self) -> int:
+        return self.dense.shape[1] if self.dense is not None else self.NP
+
+    @property
+    def key(self) -> np.ndarray:
+        return self.entries[:, 0]
+
+    @property
+    def val(self) -> np.ndarray:
+        return self.entries[:, 1:].copy().view(np.float16)
+
+    @property
+    def live_values(self) -> int:
+        """Stored live values (entries, or dense cells), for benchmarks."""
+        return int(self.dense.size // 3) if self.dense is not None else int(len(self.entries))
+
+    @property
+    def nbytes(self) -> int:
+        arrs = [self.V, self.live, self.h, self.scale] + [a for a in (self.offsets, self.entries, self.dense) if a is not None]
+        return sum(a.nbytes for a in arrs)
+
+
+def padded_slots(K1: int) -> int:
+    return (K1 + 7) // 8 * 8
+
+
+def use_dense(K1: int, K2: int, NP: int, NPe: int, Q: int, sparse_bound: int) -> bool:
+    """The dense live layout when it is possible (K2 = 1) and at most twice the bytes of the
+    sparse one's upper bound (its SIMD loop streams about twice as fast per byte); sparse
+    tensors from few paths per pixel stay sparse."""
+    return K2 == 1 and Q * NPe * 3 * padded_slots(K1) * 2 <= 2 * 8 * sparse_bound
+
+
+def sparse_bound(bounces, live: np.ndarray, K1: int, K2: int, NP: int) -> np.ndarray:
+    """(Q + 1,) int64 prefix sums of an upper bound of each live pixel's sparse entries."""
+    P = len(bounces[0].offsets) - 1 if bounces else 0
+    cnt = sum(np.diff(b.offsets) for b in bounces) if bounces else np.zeros(P, np.int64)
+    return np.concatenate([[0], np.cumsum(np.minimum(cnt[live], K1 * K2 * NP))]).astype(np.int64)
+
+
+def pixel_weights(pu: PixelUnits, i: int):
+    """(h (P,) weight of unit i at each pixel, mask of other units (P, L))."""
+    is_i = pu.units == i
+    return (pu.weights * is_i).sum(1).astype(np.float32), (pu.units >= 0) & ~is_i
+
+
+def freeze_numpy(bounces: list[Bounce], tables, pu: PixelUnits, C1: np.ndarray, i: int, K1: int, K2: int, NP: int) -> Frozen:
+    """NumPy reference of gi_freeze (see module docstring). C1 (U + 1, Kθ, K1, 3) float32."""
+    P = len(pu.k0)
+    h, other = pixel_weights(pu, i)
+    cf = np.zeros((P, K1, 3))
+    for l in range(pu.units.shape[1]):
+        sel = np.nonzero(other[:, l])[0]
+        if len(sel):
+            cf[sel] += pu.weights[sel, l, None, None] * _lerp_rows(C1, pu.units[sel, l], pu.k0[sel], pu.t[sel])
+    V = np.zeros((P, K2, NP, 3))
+    live = np.nonzero(h > 0)[0]
+    qpos = np.full(P, -1, np.int64); qpos[live] = np.arange(len(live))
+    Fd = np.zeros((len(live), K1, K2, NP, 3))
+    npmax = 0
+    for b, (kk, n, A) in zip(bounces, tables):
+        cnt = np.diff(b.offsets)
+        pix = np.repeat(np.arange(P), cnt)
+        v = b.val.astype(np.float64) * b.scale[pix, None] * A[b.tail]
+        s = b.slot.astype(np.int64)
+        k_, n_ = kk[b.tail], n[b.tail]
+        np.add.at(V, (pix, k_, n_), cf[pix, s] * v)
+        q = qpos[pix]
+        m = q >= 0
+        np.add.at(Fd, (q[m], s[m], k_[m], n_[m]), v[m])
+        npmax = max(npmax, int(n_[m].max()) if m.any() else 0)
+    # half floats with a scale per live pixel
+    Q = len(live)
+    flat = Fd.reshape(Q, K1 * K2 * NP, 3)
+    amax = np.abs(flat).max(axis=(1, 2)) if Q else np.zeros(0)
+    scale = np.where(amax > 0, amax / SCALE_MAX, 1.0).astype(np.float32)
+    NPe = npmax + 1
+    if use_dense(K1, K2, NP, NPe, Q, int(sparse_bound(bounces, live, K1, K2, NP)[-1])):
+        S = padded_slots(K1)
+        dense = np.zeros((Q, NPe, 3, S), np.float16)
+        q16 = (Fd[:, :, 0, :NPe, :] / scale[:, None, None, None]).astype(np.float16)     # (Q, K1, NPe, 3)
+        dense[..., :K1] = q16.transpose(0, 2, 3, 1)
+        return Frozen(i, K2, NP, V.astype(np.float32), live.astype(np.int64), h[live], scale,
+                      dense=dense.view(np.uint16))
+    qv = (flat / scale[:, None, None]).astype(np.float16)
+    qi, cell = np.nonzero((qv != 0).any(-1))
+    offsets = np.concatenate([[0], np.cumsum(np.bincount(qi, minlength=Q))]).astype(np.int64)
+    entries = np.empty((len(cell), 4), np.uint16)
+    entries[:, 0] = cell
+    entries[:, 1:] = qv[qi, cell].view(np.uint16)
+    return Frozen(i, K2, NP, V.astype(np.float32), live.astype(np.int64), h[live], scale, offsets, entries)
+
+
+def _lerp_rows(C1, units, k0, t):
+    """(R, K1, 3): C1[units] interpolated at (k0, t) per row."""
+    return C1[units, k0] * (1.0 - t)[:, None, None] + C1[units, k0 + 1] * t[:, None, None]
+
+
+def frame_numpy(fz: Frozen, pu: PixelUnits, C1i: np.ndarray, ck: np.ndarray, d: np.ndarray, K1: int) -> np.ndarray:
+    """NumPy reference of gi_frame: (P, 3) float32 radiance of the hit pixels.
+
+    C1i (Kθ, K1, 3) the edited unit's first-vertex table; ck (K2, 3) second-vertex factors
+    (ck[0] = 1); d (3,) its diffuse equivalent."""
+    dp = np.stack([d ** n for n in range(fz.NP)])                        # (NP, 3)
+    ckn = ck[:, None, :] * dp[None, :, :]                                 # (K2, NP, 3)
+    B = np.einsum("pknc,knc->pc", fz.V.astype(np.float64), ckn)
+    if len(fz.live) and fz.dense is not None:
+        c = lerp_coeffs(C1i.astype(np.float64), pu.k0[fz.live], pu.t[fz.live])   # (Q, K1, 3)
+        F = fz.dense.view(np.float16)[..., :K1].astype(np.float64)                # (Q, NPe, 3, K1)
+        acc = np.einsum("qnck,qkc,nc->qc", F, c, dp[:fz.NPe])
+        B[fz.live] += (fz.h * fz.scale)[:, None] * acc
+    elif len(fz.live):
+        c = lerp_coeffs(C1i.astype(np.float64), pu.k0[fz.live], pu.t[fz.live])   # (Q, K1, 3)
+        cnt = np.diff(fz.offsets)
+        q = np.repeat(np.arange(len(fz.live)), cnt)
+        key = fz.key.astype(np.int64)
+        s, rest = np.divmod(key, fz.K2 * fz.NP)
+        k_, n_ = np.divmod(rest, fz.NP)
+        v = fz.val.astype(np.float64) * fz.scale[q, None] * c[q, s] * ckn[k_, n_]
+        acc = np.zeros((len(fz.live), 3))
+        np.add.at(acc, q, v)
+        B[fz.live] += fz.h[:, None] * acc
+    return B.astype(np.float32)

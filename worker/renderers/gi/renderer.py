@@ -1,0 +1,293 @@
+"""The GI renderer: interreflections with a fixed view and lighting, BRDFs edited live
+(polynomial-gi). ``GIPrecomputation`` path-traces the per-pixel multibounce tensors (trace.py);
+``GIRenderer`` projects the materials onto the basis (basis.py), freezes every unit but the one
+being edited and draws each frame with one dot product per pixel (freeze.py).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+import numpy as np
+
+from ...errors import GlintError
+from ..base import FrameRequest, Part, Precomputation, Progress, Rendered, Renderer, Unsupported
+from . import freeze as fzm
+from . import native as gn
+from . import tensors
+from .basis import QUOTIENTS, THETA_NODES, Projection, fixed_projection, project, theta_interp
+from .options import GIOptions, UnitLayout, parse_options, tensor_key, unit_layout
+from .trace import Geometry, Primary, make_setup, primary_hits, second_codes, trace_tile
+
+KIND = "gi"
+
+
+def region_images(scene, opts: GIOptions) -> list[np.ndarray]:
+    from .trace import load_weight_image
+    return [load_weight_image(scene.resolve(r.weights)) for r in opts.regions]
+
+
+def _label(opts: GIOptions) -> str:
+    return f"GI tensors {','.join(map(str, opts.series))} ({opts.bounces} bounces, {opts.spp} spp)"
+
+
+class GIPrecomputation(Precomputation):
+    """One part: the tensors of all bounces, keyed by tensor_key (options.py). Chunks are
+    ranges of tiles (trace.tile_pixels) with their own random streams, so any split assembles
+    into the same bytes. ``work`` counts pixels."""
+
+    kind = KIND
+
+    def __init__(self):
+        self._setups: dict[int, tuple[str, Any]] = {}
+
+    def _setup(self, scene, opts: GIOptions, key: str):
+        cached = self._setups.get(id(scene))
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        layout = unit_layout(scene, opts)
+        S = make_setup(scene, opts, layout, region_images(scene, opts))
+        self._setups = {id(scene): (key, S)}
+        return S
+
+    def parts(self, scene, options: Mapping[str, Any]) -> list[Part]:
+        opts = parse_options(scene, options)
+        unit_layout(scene, opts)                         # validates regions / anisotropy names
+        key = tensor_key(scene, opts, region_images(scene, opts))
+        cam = scene.spec.camera
+        return [Part(key, _label(opts), work=cam.width * cam.height, meta={})]
+
+    def chunks(self, scene, part: Part, options: Mapping[str, Any], n: int) -> list[Any]:
+        opts = parse_options(scene, options)
+        S = self._setup(scene, opts, part.key)
+        edges = np.linspace(0, S.n_tiles, max(1, min(n, S.n_tiles)) + 1).astype(int)
+        return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
+
+    def compute(self, scene, part: Part, options: Mapping[str, Any], chunk: Any = None,
+                progress: Progress | None = None, threads: int = 2) -> Any:
+        opts = parse_options(scene, options)
+        S = self._setup(scene, opts, part.key)
+        a, b = chunk if chunk is not None else (0, S.n_tiles)
+        if progress and a == 0:
+            cam = scene.spec.camera
+            progress(cam.width * cam.height - len(S.prim.pixel))    # background pixels
+        out = []
+        for t in range(a, b):
+            out.append(trace_tile(S, t, use_native=True, threads=threads))
+            if progress:
+                progress(min(S.tile, len(S.prim.pixel) - t * S.tile))
+        return {"range": (a, b), "tiles": out}
+
+    def assemble(self, scene, part: Part, options: Mapping[str, Any], results: list[Any]) -> tuple[bytes, dict]:
+        opts = parse_options(scene, options)
+        S = self._setup(scene, opts, part.key)
+        results = sorted(results, key=lambda r: r["range"][0])
+        tiles = [t for r in results for t in r["tiles"]]
+        if len(tiles) != S.n_tiles:
+            raise GlintError(f"GI precomputation: {len(tiles)} tiles assembled, {S.n_tiles} expected")
+        bounces = tensors.join_tiles([t[0] for t in tiles], S.N)
+        rays = int(sum(t[1] for t in tiles))
+        layout = S.layout
+        meta = {"series": list(opts.series), "bounces": S.N, "spp": opts.spp, "fresnel": opts.fresnel,
+                "J": S.J, "J2": S.J2, "U": S.U, "layers": S.layers, "K1": S.K1, "tails": S.tails,
+                "units": layout.names, "width": scene.spec.camera.width, "height": scene.spec.camera.height,
+                "pixels": int(len(S.prim.pixel)), "rays": rays + int(scene.spec.camera.width * scene.spec.camera.height)}
+        arrays = {"pixel": S.prim.pixel, "obj": S.prim.obj.astype(np.int32), **tensors.bounce_arrays(bounces)}
+        blob = tensors.pack(meta, arrays)
+        stats = {"pixels": meta["pixels"], "bounces": S.N, "series": list(opts.series), "spp": opts.spp,
+                 "rays": meta["rays"], "entries_per_bounce": [b.entries for b in bounces],
+                 "bytes_per_bounce": [b.nbytes for b in bounces]}
+        return blob, stats
+
+    def load(self, scene, blobs: Mapping[str, bytes], options: Mapping[str, Any]) -> "GIData":
+        opts = parse_options(scene, options)
+        (key,) = [p.key for p in self.parts(scene, options)]
+        meta, arrays = tensors.unpack(blobs[key])
+        return GIData(meta, arrays["pixel"], arrays["obj"], tensors.bounces_from(arrays, meta["bounces"]), opts)
+
+
+@dataclass
+class GIData:
+    """Loaded tensors: meta (series, units, sizes…), pixel (P,) int64 flat hit-pixel indices,
+    obj (P,) int32, bounces (list of tensors.Bounce), opts (GIOptions)."""
+    meta: dict
+    pixel: np.ndarray
+    obj: np.ndarray
+    bounces: list
+    opts: GIOptions
+
+    @property
+    def nbytes(self) -> int:
+        return int(sum(b.nbytes for b in self.bounces))
+
+
+def _same(a, b) -> bool:
+    return a.model_dump(mode="json") == b.model_dump(mode="json")
+
+
+class GIRenderer(Renderer):
+    """Draws a GI scene with edited materials (fixed camera and lighting).
+
+    ``render`` takes the materials of the scene's objects in order, optionally followed by the
+    materials of the GI regions (options.regions order). The unit whose material changed is
+    made live (freezing the others, eq. 27) when it is not already; every frame projects the
+    live unit's material and evaluates eq. 28. ``max_bounces`` (1..N) limits the bounces drawn
+    (1 = direct light only). The environment's intensity may change (radiance is linear in
+    it); its rotation and the camera may not (``Unsupported``).
+    """
+
+    kind = KIND
+    controls = frozenset({"materials"})
+
+    def __init__(self, scene, data: GIData, kernels=None, max_bounces: int | None = None):
+        super().__init__(scene, data, kernels)
+        # the process's kernel backend decides, as for every renderer (worker/native/kernels.py)
+        self.use_native = kernels is None or getattr(kernels, "name", "native") == "native"
+        self.opts = data.opts
+        self.layout: UnitLayout = unit_layout(scene, self.opts)
+        m = data.meta
+        self.J, self.J2, self.U, self.K1, self.layers = m["J"], m["J2"], m["U"], m["K1"], m["layers"]
+        self.N = m["bounces"]
+        self.K2 = 1 if self.J2 <= 1 else 1 + second_codes(self.J2)
+        self.max_bounces = self.N if max_bounces is None else int(max_bounces)
+        geo = Geometry(scene)
+        self.prim: Primary = primary_hits(geo, scene)
+        if len(self.prim.pixel) != len(data.pixel) or not np.array_equal(self.prim.pixel, data.pixel):
+            raise GlintError("GI tensors do not match the scene's camera hits (precompute again)", status=409)
+        from .trace import Regions
+        reg = Regions(self.layout, self.opts.regions, geo, region_images(scene, self.opts))
+        units, weights = reg.weights(self.prim.obj, self.prim.pos)
+        k0, t = theta_interp(self.prim.cos_o)
+        self.pu = fzm.PixelUnits(units, weights, k0, t)
+        self.materials = [u.material for u in self.layout.units]
+        self.qkind = [QUOTIENTS.index(q) for q in self.layout.quotients(scene, self.opts)]
+        self._proj_cache: dict[tuple[int, str], Projection] = {}
+        self.frozen: fzm.Frozen | None = None
+        self._frozen_mats: list | None = None
+        self._frozen_bounces = None
+        self.last_timings: dict[str, float] = {}
+        self._image = np.ascontiguousarray(self.prim.background.reshape(-1, 3), np.float32).copy()
+
+    # --- projections ----------------------------------------------------------------------------
+
+    def projection(self, u: int, material) -> Projection:
+        key = (u, material.model_dump_json())
+        p = self._proj_cache.get(key)
+        if p is None:
+            unit = self.layout.units[u]
+            nu = unit.anisotropic.exponent if unit.anisotropic is not None else None
+            if nu is not None and getattr(material, "model", None) != "ashikhmin-shirley":
+                raise GlintError(f"{unit.name!r} was precomputed for anisotropy editing: give it an "
+                                 f"ashikhmin-shirley material with exponent_u = {nu:g}")
+            if nu is not None and abs(material.exponent_u - nu) > 1e-9:
+                raise GlintError(f"{unit.name!r}: exponent_u is fixed at {nu:g} by the precomputation "
+                                 f"(got {material.exponent_u:g}); edit exponent_v (the anisotropy ratio)")
+            if nu is None and getattr(material, "model", None) == "ashikhmin-shirley":
+                raise GlintError(f"{unit.name!r}: ashikhmin-shirley needs the object in gi.anisotropic")
+            p = project(material, self.J, self.layers, self.J2, nu, self.qkind[unit.object])
+            if len(self._proj_cache) > 256:
+                self._proj_cache.clear()
+            self._proj_cache[key] = p
+        return p
+
+    def _tables(self, mats):
+        projs = [self.projection(u, m) for u, m in enumerate(mats)]
+        C1 = np.stack([p.first for p in projs] + [fixed_projection(self.J, self.layers).first]).astype(np.float32)
+        d = np.stack([p.d for p in projs]) if projs else np.zeros((0, 3))
+        second = np.stack([p.second for p in projs]) if (self.J2 > 1 and projs) else None
+        return projs, C1, d, second
+
+    # --- freezing and frames ----------------------------------------------------------------------
+
+    def freeze(self, i: int) -> float:
+        """Make unit i live with every other unit frozen at its current material; seconds."""
+        t0 = time.perf_counter()
+        _, C1, d, second = self._tables(self.materials)
+        nb = self.max_bounces
+        tables = fzm.tail_tables(i, nb, self.U, self.J2, d, second)
+        bounces = self.data.bounces[:nb]
+        if self.use_native and gn.available():
+            self.frozen = gn.freeze(bounces, tables, self.pu, C1, i, self.K1, self.K2, self.N)
+        else:
+            self.frozen = fzm.freeze_numpy(bounces, tables, self.pu, C1, i, self.K1, self.K2, self.N)
+        self._frozen_mats = list(self.materials)
+        self._frozen_bounces = nb
+        return time.perf_counter() - t0
+
+    def set_unit_material(self, name_or_index, material) -> None:
+        i = name_or_index if isinstance(name_or_index, int) else self.layout.index(name_or_index)
+        self.materials[i] = material
+
+    def _apply(self, materials) -> None:
+        objs = self.scene.spec.objects
+        n = len(objs)
+        if len(materials) not in (0, n, n + len(self.opts.regions)):
+            raise GlintError(f"{len(materials)} materials for {n} objects and {len(self.opts.regions)} regions")
+        for oi, m in enumerate(materials[:n]):
+            if self.layout.fixed[oi]:
+                if not _same(m, objs[oi].material):
+                    raise Unsupported(f"object {objs[oi].name!r} is fixed (\"editable\": false) in this GI "
+                                      f"precomputation: its material is baked in and cannot change")
+                continue
+            self.materials[self.layout.of_object[oi][0]] = m
+        for r, m in enumerate(materials[n:]):
+            self.materials[self.layout.index(self.opts.regions[r].name)] = m
+
+    def draw(self) -> np.ndarray:
+        """(H, W, 3) float32 radiance with the current materials (freezing when needed). The
+        array is the renderer's own buffer, overwritten by the next draw."""
+        t0 = time.perf_counter()
+        timings = {}
+        changed = [] if self._frozen_mats is None else \
+            [u for u in range(self.U) if not _same(self.materials[u], self._frozen_mats[u])]
+        live = None if self.frozen is None else self.frozen.unit
+        need = self.frozen is None or self._frozen_bounces != self.max_bounces or any(u != live for u in changed)
+        if need and self.U > 0:
+            target = ([u for u in changed if u != live] or [live if live is not None else 0])[-1]
+            timings["freeze"] = 1000 * self.freeze(target)
+        elif need:
+            timings["freeze"] = 1000 * self.freeze(-1)
+        fz = self.frozen
+        t1 = time.perf_counter()
+        if fz.unit >= 0:
+            p = self.projection(fz.unit, self.materials[fz.unit])
+            C1i, d = p.first, p.d
+            ck = np.ones((self.K2, 3), np.float32)
+            if self.K2 > 1:
+                ck[1:] = p.second
+        else:
+            C1i, d, ck = np.zeros((THETA_NODES, self.K1, 3), np.float32), np.zeros(3), np.ones((1, 3), np.float32)
+        t2 = time.perf_counter()
+        img = self._image                     # background pixels never change
+        if self.use_native and gn.available():
+            gn.frame(fz, self.pu, C1i, ck, d, self.K1, self.prim.pixel, img)
+        else:
+            img[self.prim.pixel] = fzm.frame_numpy(fz, self.pu, C1i, ck, d, self.K1)
+        t3 = time.perf_counter()
+        timings.update({"project": 1000 * (t2 - t1), "frame": 1000 * (t3 - t2), "total": 1000 * (time.perf_counter() - t0)})
+        self.last_timings = timings
+        cam = self.scene.spec.camera
+        return img.reshape(cam.height, cam.width, 3)
+
+    def render(self, req: FrameRequest) -> Rendered:
+        spec = self.scene.spec
+        if req.camera is not None and not _same(req.camera, spec.camera):
+            raise Unsupported("the GI renderer draws the precomputed view only: the camera is fixed by its "
+                              "precomputation (use the direct-light renderer to move it)")
+        env = spec.environment
+        if abs(req.lighting.rotation_deg - env.rotation_deg) > 1e-9:
+            raise Unsupported("the GI renderer's lighting is fixed by its precomputation: the environment "
+                              "cannot rotate (use the direct-light renderer, or precompute again)")
+        self._apply(list(req.materials or []))
+        img = self.draw()
+        scale = req.lighting.intensity / env.intensity if env.intensity > 0 else 0.0
+        img = img * np.float32(scale) if scale != 1.0 else img.copy()
+        return Rendered(img, self.prim.object_id.copy(), dict(self.last_timings),
+                        {"live": self.layout.units[self.frozen.unit].name if self.frozen.unit >= 0 else None,
+                         "bounces": self.max_bounces, "series": list(self.opts.series)})
+
+    def object_mask(self, camera=None) -> np.ndarray:
+        if camera is not None and not _same(camera, self.scene.spec.camera):
+            raise Unsupported("the GI renderer's camera is fixed by its precomputation")
+        return self.prim.object_id.copy()
