@@ -40,7 +40,8 @@ def test_bad_sigma_is_refused():
 def test_energy_rows_are_directional_albedos():
     """Σ_j g_j^l c_j equals the specular directional albedo ∫ f_s cosθi dωi computed by an
     independent quadrature over ωi (the rows integrate over half vectors around each centre),
-    for both static functions, at rows from the normal to the horizon."""
+    for both static functions, at rows from the normal to the horizon (4-6 s: the independent
+    quadrature, for two bases)."""
     rng = np.random.default_rng(3)
     for b in (paper_basis(fresnel_f0=0.3), default_basis(fresnel_f0=0.5, static_alpha=0.15)):
         g = b.energy_rows()
@@ -55,6 +56,7 @@ def test_energy_rows_are_directional_albedos():
 @pytest.mark.skipif(not native.available(), reason="C kernels not built")
 @pytest.mark.parametrize("static", ["paper", "smith"])
 def test_energy_rows_c_kernel_matches_numpy(static):
+    """glk_energy_rows against its NumPy reference, both statics (~1 s each)."""
     from worker.native.kernels import kernels
 
     b = default_basis(static=static, static_alpha=0.2)

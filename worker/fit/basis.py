@@ -84,7 +84,7 @@ def multiscale_centers(j: int = DEFAULT_J, sigma: float = DEFAULT_SIGMA, fine=DE
     for factor, cone in fine:
         s = sigma * factor
         cap = 2.0 * np.pi * (1.0 - np.cos(np.radians(cone)))
-        n = max(1, int(round(cap / (spacing * factor) ** 2)))
+        n = max(1, round(cap / (spacing * factor) ** 2))
         cen.append(cap_centers(n, np.radians(cone)))
         lam.append(np.full(n, bandwidth_from_sigma(s)))
     return np.concatenate(cen), np.concatenate(lam)
