@@ -218,8 +218,8 @@ T_AVX2 static inline double hsum8(__m256 v) {
 
 /* Sum over the clusters (count a multiple of 8, padding with visibility 0) of
  * E = l·q and of the model's specular weight: S_c = l_c q s(ωi) (ggx: s without the
- * per-point factor gpo; table: s = F/den·p_c(h), den the paper's or the smith static's). Local frame (t, b, n) of the point;
- * wol the local view direction. */
+ * per-point factor gpo; table: s = F/den·p_c(h), den the paper's or the smith static's).
+ * Local frame (t, b, n) of the point; wol the local view direction. */
 typedef struct { __m256 tx, ty, tz, bx, by, bz, nx, ny, nz; } frame8;
 
 /* eight quantised visibilities as floats q/255 */
