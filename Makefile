@@ -32,7 +32,7 @@ postgres:
 	./scripts/ensure-postgresql
 
 test: install browser postgres
-	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -ra $(PYTEST_ARGS)
+	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -ra --durations=15 $(PYTEST_ARGS)
 
 bench: install
 	$(VENV)/bin/glint bench render bench/oakChair.json --frames 40 --json

@@ -109,8 +109,14 @@ def test_studio_and_viewer(server, bunny_scene, browser, artifacts):
     under = (g2 - g1)[rows, cols].mean()
     mask = np.ones_like(g2, bool)
     mask[rows, cols] = False
-    assert under > 4 and under > 3 * np.abs(g2 - g1)[mask].mean(), (under, np.abs(g2 - g1)[mask].mean())
-    assert "fit" in page.locator("#status").inner_text()
+    # one BRDF serves the whole object, so a stroke also changes unpainted pixels that see the same
+    # half vectors: at the default unpainted weight (0.25) the standard strokes spill about a third
+    # of their change (BENCHMARKS.md, "Strokes"); under the stroke must still change most
+    rest = np.abs(g2 - g1)[mask].mean()
+    assert under > 4 and under > 2 * rest, (under, rest)
+    # the designer is told what the stroke achieved and what spilled (issue 11)
+    st = page.locator("#status").inner_text()
+    assert "fit" in st and "achieved" in st and "spill" in st, st
 
     # 4. dragging a point of the curve editor changes the material and the frame
     pts = json.loads(page.locator("#curve").get_attribute("data-points"))

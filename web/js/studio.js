@@ -169,8 +169,8 @@ function onEvent(ev) {
     status(`paint: fitted in ${ev.ms_fit.toFixed(1)} ms, error ${(100 * ev.error_l1).toFixed(1)}%`);
   } else if (ev.type === "fit") {
     setMaterial(ev.material);
-    status(fitSummary(ev.stats || {}));
-    if (ev.notes?.length) status(ev.notes.join("; "));
+    // the figures and the notes together: the notes say why a stroke fell short
+    status([fitSummary(ev.stats || {}), ...(ev.notes || [])].join("; "));
   } else if (ev.type === "stroke" && ev.notes?.length) {
     status(ev.notes.join("; "));
   } else if (ev.type === "saved") {
