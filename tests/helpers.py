@@ -1,6 +1,7 @@
 """Helpers the test modules share (a module, not conftest: conftest names are ambiguous across
 folders)."""
 import asyncio
+import atexit
 import io
 import json
 import os
@@ -47,6 +48,21 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+_started: list[subprocess.Popen] = []
+
+
+@atexit.register
+def _stop_leftovers() -> None:
+    """No server outlives the test run, even one a failing test or fixture never stopped."""
+    for p in _started:
+        if p.poll() is None:
+            p.terminate()
+            try:
+                p.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                p.kill()
+
+
 class GlintServer:
     """A real ``glint serve`` in a subprocess on a free loopback port (stop() or use as a context)."""
 
@@ -61,6 +77,7 @@ class GlintServer:
         args = [sys.executable, "-m", "worker.cli", "serve", "--port", str(self.port), "--data-dir", str(self.data),
                 "--workers", str(workers)] + ([] if demo else ["--no-demo"])
         self.proc = subprocess.Popen(args, cwd=ROOT, env=full, stdout=self._log, stderr=subprocess.STDOUT)
+        _started.append(self.proc)
         for _ in range(600):
             try:
                 if httpx.get(self.base + "/healthz", timeout=1).status_code == 200:

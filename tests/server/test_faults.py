@@ -47,9 +47,12 @@ def faulty(tmp_path_factory, shared_assets):
     assets = {"mesh": mesh["id"], "env": env["id"], "mesh_sha": mesh["sha256"]}
     scene = _scene(c, assets)
     assert _wait_pre(c, c.post(f"/v1/scenes/{scene}/precompute").json()["id"])["status"] == "done"
-    yield {"srv": srv, "c": c, "assets": assets, "scene": scene}
-    c.close()
-    srv.stop()
+    f = {"srv": srv, "c": c, "assets": assets, "scene": scene}
+    yield f
+    # a test may have restarted the server (f["srv"] is then the new one)
+    f["c"].close()
+    for s in {id(srv): srv, id(f["srv"]): f["srv"]}.values():
+        s.stop()
 
 
 def workers_of(pid: int) -> list[int]:
