@@ -143,3 +143,37 @@ async def next_frame(ws, min_ack=-1, events=None, timeout=60):
             server_event.validate_python(ev)          # every event matches the published schema
             if events is not None:
                 events.append(ev)
+
+
+# -- the studio in a browser (Playwright pages) -------------------------------------------------
+def frame_no(page) -> int:
+    """The number of the last frame the studio's canvas drew."""
+    return int(page.evaluate("() => +(document.getElementById('view').dataset.frame || 0)"))
+
+
+def wait_new_frame(page, after, timeout=60_000):
+    page.wait_for_function(f"() => +(document.getElementById('view').dataset.frame || 0) > {after}", timeout=timeout)
+    page.wait_for_timeout(150)
+
+
+def settle(page, quiet_ms=1200, timeout=60_000):
+    """Wait until no new frame has arrived for quiet_ms (the last message's frame is in)."""
+    waited, last = 0, frame_no(page)
+    while waited < timeout:
+        page.wait_for_timeout(quiet_ms)
+        waited += quiet_ms
+        now = frame_no(page)
+        if now == last:
+            return
+        last = now
+    raise TimeoutError("frames kept coming")
+
+
+def drag(page, x, y, dx, dy, steps=8, step_ms=30):
+    """Press at (x, y) and move by (dx, dy) in steps, as a hand would."""
+    page.mouse.move(x, y)
+    page.mouse.down()
+    for k in range(1, steps + 1):
+        page.mouse.move(x + dx * k / steps, y + dy * k / steps)
+        page.wait_for_timeout(step_ms)
+    page.mouse.up()

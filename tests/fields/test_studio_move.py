@@ -9,6 +9,9 @@ import numpy as np
 import pytest
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+import helpers
+from helpers import frame_no
+
 pw = pytest.importorskip("playwright.sync_api")
 
 
@@ -27,29 +30,12 @@ def project(cam, p):
     return (x + 1) / 2 * cam["width"], (1 - y) / 2 * cam["height"]
 
 
-def frame_no(page):
-    return int(page.evaluate("() => +(document.getElementById('view').dataset.frame || 0)"))
+def settle(page):
+    helpers.settle(page, quiet_ms=1000)
 
 
-def settle(page, quiet_ms=1000, timeout=60_000):
-    waited, last = 0, frame_no(page)
-    while waited < timeout:
-        page.wait_for_timeout(quiet_ms)
-        waited += quiet_ms
-        now = frame_no(page)
-        if now == last:
-            return
-        last = now
-    raise TimeoutError("frames kept coming")
-
-
-def drag(page, x, y, dx, dy, steps=10):
-    page.mouse.move(x, y)
-    page.mouse.down()
-    for k in range(1, steps + 1):
-        page.mouse.move(x + dx * k / steps, y + dy * k / steps)
-        page.wait_for_timeout(40)
-    page.mouse.up()
+def drag(page, x, y, dx, dy):
+    helpers.drag(page, x, y, dx, dy, steps=10, step_ms=40)
 
 
 def test_move_tool_slides_and_turns_the_object(server, crate, crate_scene, artifacts):

@@ -7,6 +7,8 @@ import numpy as np
 import pytest
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+from helpers import drag, frame_no, settle, wait_new_frame
+
 pw = pytest.importorskip("playwright.sync_api")
 
 # luminance on a coarse grid of the frame canvas, read in the page (a few KB, not 1.2 MB)
@@ -23,38 +25,6 @@ GRID_JS = """(id) => {
 
 def grid(page, cid="view"):
     return np.asarray(page.evaluate(GRID_JS, cid), np.float64).reshape(48, 64)
-
-
-def frame_no(page):
-    return int(page.evaluate("() => +(document.getElementById('view').dataset.frame || 0)"))
-
-
-def wait_new_frame(page, after, timeout=60_000):
-    page.wait_for_function(f"() => +(document.getElementById('view').dataset.frame || 0) > {after}", timeout=timeout)
-    page.wait_for_timeout(150)
-
-
-def settle(page, quiet_ms=1200, timeout=60_000):
-    """Wait until no new frame has arrived for quiet_ms (the last message's frame is in)."""
-    waited, last = 0, frame_no(page)
-    while waited < timeout:
-        page.wait_for_timeout(quiet_ms)
-        waited += quiet_ms
-        now = frame_no(page)
-        if now == last:
-            return
-        last = now
-    raise TimeoutError("frames kept coming")
-
-
-def drag(page, x, y, dx, dy, steps=8):
-    """Press at (x, y) and move by (dx, dy) in steps, as a hand would."""
-    page.mouse.move(x, y)
-    page.mouse.down()
-    for k in range(1, steps + 1):
-        page.mouse.move(x + dx * k / steps, y + dy * k / steps)
-        page.wait_for_timeout(30)
-    page.mouse.up()
 
 
 @pytest.fixture(scope="module")

@@ -47,7 +47,14 @@ import numpy as np
 from ...core import cuts as cutmod
 from ...core.directions import get_tree
 from ...core.lighting import light_tables
-from ...core.render import MaterialTable, background, camera_rays, env_coords, resolve, shade_points
+from ...core.render import (
+    MaterialTable,
+    background,
+    camera_rays,
+    env_coords,
+    resolve,
+    shade_points,
+)
 from ...native.kernels import kernels as _kernels
 from ..base import FrameRequest, Lighting, Rendered, Renderer, Unsupported
 from .precompute import CutData
@@ -147,6 +154,7 @@ class CutRenderer(Renderer):
         self._mats_key = None
         self._mats: MaterialTable | None = None
         self._packs: OrderedDict[str, object] = OrderedDict()   # content → PackedBRDF, most recent last
+        self._drag_mats = self._drag_mats_of = None             # drag-level table, and the table it came from
         self._lock = threading.RLock()      # the session thread and its background builder
         self._moving = None                 # frames of a scene with movable objects (moving.py)
         if data.moving is not None:
@@ -285,7 +293,7 @@ class CutRenderer(Renderer):
         """The drag level of detail's materials: clusters refined to no finer than DRAG_REFINE
         (a fitted srbf's finest level asks for 0.03 rad, 2.5× the frame; a blurrier highlight
         while the camera moves, the full one when it stops)."""
-        if getattr(self, "_drag_mats_of", None) is not mats:
+        if self._drag_mats_of is not mats:
             d = copy.copy(mats)
             d.refine = np.maximum(mats.refine, np.float32(DRAG_REFINE))
             self._drag_mats, self._drag_mats_of = d, mats
