@@ -77,3 +77,21 @@ def test_kernel_matches_reference(bunny, name, i, m):
     b = shade_points_numpy(n, wo, vi, mat_of, cuts, nl, nw, tree, mats)
     assert b.max() > 0
     np.testing.assert_allclose(a, b, rtol=2e-4, atol=1e-6 * b.max())
+
+
+def test_srbf_table_through_the_cached_basis_matches_the_direct_sum():
+    """A fitted srbf's p(h) table comes from the basis cached at the table directions (one
+    mat-mul per stroke); it must equal the direct sum over centres (models/srbf.py srbf_p)."""
+    from worker.fit.basis import default_basis
+    from worker.models.srbf import TABLE_CACHE_MIN_J, srbf_p, srbf_table
+    from worker.models.table import hemisphere_table_dirs
+
+    b = default_basis()
+    assert b.J >= TABLE_CACHE_MIN_J
+    rng = np.random.default_rng(3)
+    coef = rng.gamma(0.5, 2.0, (b.J, 3))
+    ref = srbf_p(hemisphere_table_dirs(), b.centers, b.bandwidths, coef)
+    for _ in range(2):              # computed, then from the cache
+        got = srbf_table(b.centers, b.bandwidths, coef)
+        err = np.abs(got - ref).max() / np.abs(ref).max()
+        assert err < 1e-5, f"cached-basis table differs from the direct sum by {err:.2e} (relative to its max)"

@@ -32,19 +32,29 @@ def _orbit(rt, seq, drag=True, dx=0.05):
 def test_full_frames_while_dragging_when_they_fit_the_budget(bunny_renderer):
     rt = _runtime(bunny_renderer)
     rt.frame_budget_ms = 1e6                            # everything fits
+    first, _ = rt.frame(0)               # the opening frame: one sample at once, then anti-aliased
+    assert first["lod"] is False and first["samples"] == 1 and rt.needs_still_frame()
     first, _ = rt.frame(0)
-    assert first["lod"] is False and first["samples"] == S.STILL_SAMPLES   # a still frame: anti-aliased
+    assert first["samples"] == S.STILL_SAMPLES
     hdrs = [_orbit(rt, i) for i in range(1, 6)]
     assert all(h["lod"] is False and h["samples"] == 1 for h in hdrs)
     assert hdrs[-1]["width"] == rt.state.camera.width
-    still = _orbit(rt, 6, drag=False, dx=0.0)             # the user lets go
-    assert still["lod"] is False and still["samples"] == S.STILL_SAMPLES
+    # the user lets go: at once one sample (the anti-aliased hits of this camera are not traced
+    # yet), then the still frame the runner asks for when idle, anti-aliased
+    h = _orbit(rt, 6, drag=False, dx=0.0)
+    assert h["lod"] is False and h["samples"] == 1 and rt.needs_still_frame()
+    still, _ = rt.frame(6)
+    assert still["lod"] is False and still["samples"] == S.STILL_SAMPLES and not rt.needs_still_frame()
+    # a material change in that settled view is anti-aliased at once: its hits are cached
+    rt.handle({"seq": 7, "type": "material", "material": {"model": "lambert", "albedo": [0.6, 0.3, 0.2]}})
+    h, _ = rt.frame(7)
+    assert h["samples"] == S.STILL_SAMPLES and not rt.needs_still_frame()
 
 
 def test_drag_level_of_detail_when_full_frames_do_not_fit(bunny_renderer, monkeypatch):
     rt = _runtime(bunny_renderer)
     rt.frame_budget_ms = 1e-3                           # nothing fits
-    rt.frame(0)
+    rt._full_ms["view"].clear()
     h1 = _orbit(rt, 1)                                  # no full frame with a moving view measured yet
     assert h1["lod"] is False
     hdrs = [_orbit(rt, i) for i in range(2, 6)]
@@ -58,8 +68,10 @@ def test_drag_level_of_detail_when_full_frames_do_not_fit(bunny_renderer, monkey
     _orbit(rt, 8)
     monkeypatch.setattr(S, "REPROBE_S", 1e9)
     assert _orbit(rt, 9)["lod"] is False
-    # the drag ends: a still frame, anti-aliased
+    # the drag ends: one sample at once, then the still frame, anti-aliased
     h = _orbit(rt, 10, drag=False)
+    assert h["lod"] is False and h["samples"] == 1 and rt.needs_still_frame()
+    h, _ = rt.frame(10)
     assert h["lod"] is False and h["samples"] == S.STILL_SAMPLES and not rt.needs_still_frame()
     # a camera moving without drag flags: full quality, one sample per frame; once it stops, the
     # still frame the runner asks for when idle is anti-aliased

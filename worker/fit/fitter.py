@@ -8,6 +8,7 @@ exactly, and a session can be rebuilt from its stored strokes.
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 
@@ -23,7 +24,39 @@ from .brush import (DEFAULT_UNPAINTED_WEIGHT, Stroke, StrokeHistory, apply_strok
 from .solve import FitRows, SolveResult, gram, solve
 
 MAX_FIT_ROWS = 4000     # the paper's largest N; see Fitter.row_stride
+# a quick view (Fitter.build_view with ``select``): the painted pixels plus about this many
+# unpainted ones spread over the object, so a stroke in a view not yet built reaches its frame
+# in a fraction of the full view's cost (issue 9, issue 11); the rest comes later (extend_view)
+QUICK_ROWS = 400
 DEFAULT_FIT_ALBEDO = False
+
+
+def _take(smp, idx):
+    """Rows idx of a renderer's Samples (a dataclass of per-point arrays)."""
+    return dataclasses.replace(smp, **{f.name: getattr(smp, f.name)[idx] for f in dataclasses.fields(smp)})
+
+
+def _cat(a, b):
+    """Samples a followed by Samples b."""
+    return dataclasses.replace(a, **{f.name: np.concatenate([getattr(a, f.name), getattr(b, f.name)])
+                                     for f in dataclasses.fields(a)})
+
+
+def painted_select(stroke: Stroke):
+    """A ``build_view``/``extend_view`` selection: the pixels a stroke paints."""
+    return lambda xy, footprint: stroke_weights(stroke, xy, footprint) > 0
+
+
+def quick_select(stroke: Stroke | None = None, rows: int = QUICK_ROWS):
+    """A quick view's selection: every s-th object pixel in scan order (about ``rows`` of
+    them) and every pixel the stroke paints."""
+    def select(xy, footprint):
+        keep = np.zeros(len(xy), bool)
+        keep[::max(1, -(-len(xy) // rows))] = True
+        if stroke is not None:
+            keep |= stroke_weights(stroke, xy, footprint) > 0
+        return keep
+    return select
 
 
 def albedo_of(material) -> tuple[float, float, float]:
@@ -58,6 +91,20 @@ class FitView:
     seconds_transfer: float
     samples: object = field(repr=False, default=None)
     cache: dict = field(repr=False, default_factory=dict)
+    # a partial view (built with ``select``): every object pixel of the fit grid as candidates
+    # (their samples and xy), and the candidates not built yet (indices into them)
+    cand_samples: object = field(repr=False, default=None)
+    cand_xy: np.ndarray | None = field(repr=False, default=None)
+    unbuilt: np.ndarray | None = field(repr=False, default=None)
+
+    @property
+    def partial(self) -> bool:
+        return self.unbuilt is not None and len(self.unbuilt) > 0
+
+    @property
+    def n_object(self) -> int:
+        """Object pixels of the view at fit resolution, built or not."""
+        return self.n + (len(self.unbuilt) if self.unbuilt is not None else 0)
 
     @property
     def lighting(self) -> Lighting:
@@ -159,9 +206,14 @@ class Fitter:
         return len(self.views) - 1
 
     def build_view(self, camera: Camera | None = None, rotation_deg: float | None = None,
-                   intensity: float | None = None) -> FitView:
+                   intensity: float | None = None, select=None) -> FitView:
         """A view's fit rows (transfer, Gram, base rendering) without saving it: safe to run
-        on a background thread while the fitter is in use."""
+        on a background thread while the fitter is in use.
+
+        select : None (every object pixel of the fit grid) or a function (xy (M, 2) view-image
+            pixel centres, footprint) -> (M,) bool choosing the rows to build now: a partial
+            view, completed later by ``extend_view`` (its unpainted rows weigh for the unbuilt
+            ones meanwhile, see ``fit``)."""
         spec = self.renderer.scene.spec
         camera = camera or spec.camera
         rot = spec.environment.rotation_deg if rotation_deg is None else float(rotation_deg)
@@ -178,15 +230,56 @@ class Fitter:
         if len(smp) == 0:
             raise FitError(f"object {self.object_name!r} covers no pixel of this view at the fit "
                            f"resolution {fw}×{fh}; move the camera closer or raise fit_scale")
-        lighting = Lighting(rot, inten)
-        T, E = self.renderer.transfer(smp, self.basis, lighting)
-        gr = gram(T)
-        secs = time.perf_counter() - t0
         pix = smp.pix
         xy = np.stack([cols[pix % fw] + 0.5, rows[pix // fw] + 0.5], axis=1).astype(np.float64)
-        view = FitView(camera, rot, inten, (fw, fh), pix, xy, T, E, np.zeros((len(pix), 3)), gr, secs, smp)
-        view.base = self._shade_base(view)
+        J = self.basis.J
+        view = FitView(camera, rot, inten, (fw, fh), pix[:0], xy[:0], np.zeros((3, 0, J), np.float32),
+                       np.zeros((0, 3), np.float32), np.zeros((0, 3)), np.zeros((3, J, J)), 0.0,
+                       _take(smp, np.zeros(0, np.int64)))
+        first = np.arange(len(pix))
+        if select is not None:
+            keep = np.asarray(select(xy, view.footprint), bool)
+            if not keep.all():
+                view.cand_samples, view.cand_xy = smp, xy
+                view.unbuilt = np.nonzero(~keep)[0]
+                first = np.nonzero(keep)[0]
+        if len(first) == 0:                  # a selection that picks nothing: one row to start
+            first, view.unbuilt = view.unbuilt[:1], view.unbuilt[1:]
+        self._add_rows(view, _take(smp, first), xy[first])
+        view.seconds_transfer = time.perf_counter() - t0
         return view
+
+    def extend_view(self, view: FitView, select=None) -> int:
+        """Build more of a partial view: the unbuilt candidates ``select`` (as in build_view)
+        picks, or all of them. Returns the number of rows added. Not thread-safe against a fit
+        of the same view: the session calls it on its own thread."""
+        if not view.partial:
+            return 0
+        t0 = time.perf_counter()
+        idx = view.unbuilt
+        if select is not None:
+            idx = idx[np.asarray(select(view.cand_xy[idx], view.footprint), bool)]
+        if len(idx) == 0:
+            return 0
+        self._add_rows(view, _take(view.cand_samples, idx), view.cand_xy[idx])
+        view.unbuilt = np.setdiff1d(view.unbuilt, idx, assume_unique=True)
+        if not view.partial:
+            view.cand_samples = view.cand_xy = view.unbuilt = None
+        view.seconds_transfer += time.perf_counter() - t0
+        return len(idx)
+
+    def _add_rows(self, view: FitView, smp, xy: np.ndarray) -> None:
+        """Transfer, Gram and base rendering of more pixels of a view, appended to its rows."""
+        T, E = self.renderer.transfer(smp, self.basis, view.lighting)
+        base = self.renderer.shade_samples(smp, self.base_material, self.obj, view.lighting)
+        view.pix = np.concatenate([view.pix, smp.pix])
+        view.xy = np.concatenate([view.xy, xy])
+        view.T = np.concatenate([view.T, T], axis=1) if view.T.shape[1] else T
+        view.E = np.concatenate([view.E, E])
+        view.base = np.concatenate([view.base, base])
+        view.gram = view.gram + gram(T)          # Σ_i T_iᵀT_i: additive over rows
+        view.samples = _cat(view.samples, smp)
+        view.cache.clear()
 
     def _shade_base(self, view: FitView) -> np.ndarray:
         """B' (N, 3): the base material at the view's fit pixels, shaded like the renderer's
@@ -254,13 +347,17 @@ class Fitter:
         painted = 0
         stride = self.row_stride()
         for v, (tgt, pmask) in zip(self.views, targets):
-            painted += int(pmask.sum())
+            npaint = int(pmask.sum())
+            painted += npaint
+            # a partial view's unpainted rows stand for its unbuilt pixels too (every painted
+            # pixel is built: the session extends a view under each stroke)
+            uw = unpainted_weight * (v.n_object - npaint) / max(1, v.n - npaint) if v.partial else unpainted_weight
             if stride == 1:
-                rows.append(FitRows(v.T, v.E, tgt, np.where(pmask, 1.0, unpainted_weight), v.gram))
+                rows.append(FitRows(v.T, v.E, tgt, np.where(pmask, 1.0, uw), v.gram))
                 continue
             # every stride-th row stands for the unpainted rows around it; painted rows count once
             sub = np.arange(0, v.n, stride)
-            w = np.where(pmask[sub], 1.0, unpainted_weight * stride)
+            w = np.where(pmask[sub], 1.0, uw * stride)
             rows.append(FitRows(v.T[:, sub], v.E[sub], tgt[sub], w, self._sub_gram(v, stride)))
             extra = np.nonzero(pmask & (np.arange(v.n) % stride != 0))[0]
             if len(extra):

@@ -326,6 +326,12 @@ class SessionThread(threading.Thread):
         self.inbox: deque = deque()
         self.cv = threading.Condition()
         self.stopping = False
+        self.poked = False              # a background build for this session has finished
+
+    def poke(self) -> None:
+        with self.cv:
+            self.poked = True
+            self.cv.notify()
 
     def post(self, msg: dict) -> None:
         with self.cv:
@@ -349,18 +355,29 @@ class SessionThread(threading.Thread):
             renderer = self.cache.renderer(p["scene"], (p.get("state") or {}).get("renderer"))
             rt = SessionRuntime(renderer.scene, renderer, p, env_loader=self.cache.envmap,
                                 renderer_for=lambda kind: self.cache.renderer(p["scene"], kind))
+            rt.wake = self.poke
             ack = int(p.get("ack", -1))
             for e in rt.take_events():
                 self._event(e)
             self.outq.put(("frame", self.sid, rt.frame(ack)))
             while True:
                 with self.cv:
-                    while not self.inbox and not self.stopping:
+                    while not self.inbox and not self.stopping and not self.poked:
                         self.cv.wait()
                     if self.stopping:
                         return
                     msgs = list(self.inbox)
                     self.inbox.clear()
+                    self.poked = False
+                # background results (completed fit views, the vertex transfer): a new frame
+                # only when they change it
+                changed = rt.absorb()
+                if not msgs and not changed:
+                    with self.cv:
+                        idle = not self.inbox
+                    if idle:
+                        rt.prefetch()
+                    continue
                 for m in msgs:
                     try:
                         for e in rt.handle(m):
@@ -374,13 +391,18 @@ class SessionThread(threading.Thread):
                 except Exception as ex:
                     self._event(error_event(ex, ack) | {"message": f"fit failed: {error_event(ex)['message']}"})
                 try:
-                    self.outq.put(("frame", self.sid, rt.frame(ack, skipped=len(msgs) - 1)))
+                    self.outq.put(("frame", self.sid, rt.frame(ack, skipped=max(0, len(msgs) - 1))))
                 except Exception as ex:
                     self._event(error_event(ex, ack) | {"message": f"render failed: {error_event(ex)['message']}"})
                 with self.cv:
                     idle = not self.inbox
                 if idle:
                     rt.prefetch()
+                    if rt.needs_still_frame():      # the settled, anti-aliased image of the same state
+                        try:
+                            self.outq.put(("frame", self.sid, rt.frame(ack)))
+                        except Exception as ex:
+                            self._event(error_event(ex, ack) | {"message": f"render failed: {error_event(ex)['message']}"})
         except Exception as ex:
             self._event({**error_event(ex), "fatal": True,
                          "message": f"cannot open the session: {error_event(ex)['message']}"})

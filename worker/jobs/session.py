@@ -31,7 +31,7 @@ from PIL import Image
 from ..core.tonemap import tonemap
 from ..errors import GlintError
 from ..fit.brush import Stroke
-from ..fit.fitter import FitError, Fitter
+from ..fit.fitter import QUICK_ROWS, FitError, Fitter, painted_select, quick_select
 from ..models import SRBF
 from ..renderers.base import FrameRequest, Lighting
 from ..scene import Camera
@@ -92,8 +92,12 @@ class SessionRuntime:
         self._drag = False
         self._skipped = 0
         self._fitted = None       # the material the fitter produced last (identity)
+        self._quick_next = False  # the next frame shows a new fit: one sample first
         self._vt = None           # per-vertex transfer of the edited object: (key, ids, T, E)
         self._pending: dict = {}  # prefetch futures by what they build
+        self._completions: dict = {}   # view index -> (fitter, moves, future of its full build)
+        self.wake = lambda: None  # called from the builder when a result is ready (SessionThread)
+        self.quick_rows = QUICK_ROWS
         self._env_key = None
         # frame cost history for the level of detail: ms of full one-sample frames by what
         # changed since the frame before ("view": camera, "light": lighting, "other")
@@ -161,32 +165,78 @@ class SessionRuntime:
     def _view_key(self, camera, rot, inten):
         return (camera.model_dump_json(), float(rot), float(inten))
 
-    def _view_index(self, camera: Camera, rot: float, inten: float) -> int:
+    def _view_index(self, camera: Camera, rot: float, inten: float, stroke: dict | None = None) -> int:
+        """The saved fit view of a camera and light, built if needed. For a live stroke
+        (``stroke`` given) a view not built yet is a quick one (fit/fitter.py QUICK_ROWS): the
+        stroke's pixels and a sparse grid of the rest, completed in the background once the
+        user stops dragging (``_complete``); a partial view is extended under each new stroke,
+        so painted pixels are always fitted. Replayed strokes get full views."""
         fx = self._ensure_fitter()
+        sel = None if stroke is None else Stroke.model_validate({**stroke, "view": 0})
         for i, v in enumerate(fx.views):
             if v.camera == camera and v.rotation_deg == rot and v.intensity == inten and \
                     self._view_moves.get(i, 0) == self._moves:
+                if v.partial and sel is not None:
+                    fx.extend_view(v, painted_select(sel))
                 return i
         key = ("view", self.state.epoch, self._moves, self._view_key(camera, rot, inten))
         fut = self._pending.pop(key, None)
-        if fut is not None and not fut.cancelled():
-            view = fut.result()           # prepared while the user orbited (or wait for it)
+        if fut is not None and not fut.cancelled() and (fut.done() or sel is None):
+            view = fut.result()           # prepared while the user orbited
             if isinstance(view, Exception):
                 raise view
-            fx.views.append(view)
-            self._view_moves[len(fx.views) - 1] = self._moves
-            return len(fx.views) - 1
-        i = fx.add_view(camera, rot, inten)
+            fut = None
+        elif sel is not None:
+            view = fx.build_view(camera, rot, inten, select=quick_select(sel, self.quick_rows))
+        else:
+            view = fx.build_view(camera, rot, inten)
+        fx.views.append(view)
+        i = len(fx.views) - 1
         self._view_moves[i] = self._moves
+        if view.partial:
+            if fut is not None and not fut.cancelled():
+                self._adopt(i, fut)       # the full view already on its way completes it
+            elif not self._drag:
+                self._complete(i)
         return i
 
-    def _add_stroke(self, rec: dict) -> StrokeEvent:
-        """Add a stored or new stroke record; a stroke that cannot apply is rejected (reported,
-        not raised: the session goes on, and the server stops replaying it)."""
+    def _complete(self, i: int) -> None:
+        """Build view i in full on the background builder; it replaces the partial view when
+        it is ready (``absorb``)."""
+        if i in self._completions:
+            return
+        v = self.fitter.views[i]
+        self._adopt(i, _builder.submit(self._build_view, self.fitter, v.camera, v.rotation_deg, v.intensity))
+
+    def _adopt(self, i: int, fut: Future) -> None:
+        self._completions[i] = (self.fitter, self._moves, fut)
+        fut.add_done_callback(lambda _f: self.wake())
+
+    def absorb(self) -> bool:
+        """Background results the session can take now: completed views replace their partial
+        ones (the fit is re-run). Returns whether anything changed. Runs on the session's thread."""
+        changed = False
+        for i, (fx, moves, fut) in list(self._completions.items()):
+            if not fut.done():
+                continue
+            del self._completions[i]
+            view = None if fut.cancelled() else fut.result()
+            if fx is not self.fitter or moves != self._moves or isinstance(view, Exception) or view is None:
+                continue
+            if i < len(fx.views) and fx.views[i].partial:
+                fx.views[i] = view
+                self._needs_fit = bool(len(fx.history))
+                changed = True
+        return changed
+
+    def _add_stroke(self, rec: dict, live: bool = False) -> StrokeEvent:
+        """Add a stored or new (``live``) stroke record; a stroke that cannot apply is rejected
+        (reported, not raised: the session goes on, and the server stops replaying it)."""
         seq = rec.get("seq")
         try:
             cam = Camera.model_validate(rec["camera"])
-            i = self._view_index(cam, float(rec["rotation_deg"]), float(rec["intensity"]))
+            i = self._view_index(cam, float(rec["rotation_deg"]), float(rec["intensity"]),
+                                 rec["stroke"] if live else None)
             st = Stroke.model_validate({**rec["stroke"], "view": i})
             notes = self.fitter.add_stroke(st)
             return StrokeEvent(seq=seq, strokes=len(self.fitter.history), notes=notes)
@@ -205,6 +255,7 @@ class SessionRuntime:
         self.fitter = None                         # fit rows belong to a renderer
         self._vt = None
         self._pending.clear()
+        self._completions.clear()
         self._env_key = ("switched",)            # the new renderer gets the session's map
 
     def _paint(self, name: str, seq) -> list[dict]:
@@ -253,15 +304,17 @@ class SessionRuntime:
             self._moves += 1
             self._vt = None
             self._pending.clear()
+        self._completions.clear()
         if eff.kind == "rebase":
             self.fitter = None             # strokes painted over the old material do not carry over
             self._needs_fit = False
             self._pending.clear()
+        self._completions.clear()
         if msg.type == "material":
             name = msg.object or self.state.object
             ev.append({"type": "curve", "seq": msg.seq, "object": name, "curve": brdf_curve(msg.material)})
         elif eff.kind == "stroke":
-            se = self._add_stroke({**eff.stroke, "seq": msg.seq})
+            se = self._add_stroke({**eff.stroke, "seq": msg.seq}, live=True)
             if not se.rejected:
                 self._needs_fit = True
             ev.append(se.model_dump())
@@ -316,6 +369,7 @@ class SessionRuntime:
         out = fx.fit(constrained=self.state.constrained, unpainted_weight=self.state.unpainted_weight)
         self._set_material(i, out.material)
         self._fitted = out.material
+        self._quick_next = True
         s = out.solve
         bound = np.asarray(s.energy_bound, np.float64)
         stats = {"strokes": len(fx.history), "pixels": out.pixels, "painted": out.painted,
@@ -332,13 +386,18 @@ class SessionRuntime:
 
     # -- background work ----------------------------------------------------------------------------
     def prefetch(self) -> None:
-        """While the user orbits: prepare what a stroke in the current view and light will need
-        (its fit view, the per-vertex transfer of the edited object), on the process's background
+        """When the session is idle and the user is not dragging: complete the partial fit
+        views (strokes painted mid-drag got quick ones), and prepare what a stroke in the
+        current view and light will need (its fit view; the per-vertex transfer of the edited
+        object once the user paints a second time in one view), on the process's background
         builder. Only for sessions that paint (a fitter exists in this epoch)."""
         if self.fitter is None or self._drag or self.state.readonly:
             return
         cam, rot, inten = self.state.camera, self.state.rotation_deg, self.state.intensity
         fx = self.fitter
+        for i, v in enumerate(fx.views):
+            if v.partial and self._view_moves.get(i, 0) == self._moves:
+                self._complete(i)
         if not any(v.camera == cam and v.rotation_deg == rot and v.intensity == inten and
                    self._view_moves.get(i, 0) == self._moves for i, v in enumerate(fx.views)):
             key = ("view", self.state.epoch, self._moves, self._view_key(cam, rot, inten))
@@ -348,11 +407,22 @@ class SessionRuntime:
                     del self._pending[k]
                 self._pending[key] = _builder.submit(self._build_view, fx, cam, rot, inten)
         vkey = ("vt", self._view_key(cam, rot, inten))
-        if (self._vt is None or self._vt[0] != vkey[1]) and vkey not in self._pending:
+        if self._vt_wanted() and (self._vt is None or self._vt[0] != vkey[1]) and vkey not in self._pending:
             for k in [k for k in self._pending if k[0] == "vt"]:
                 self._pending[k].cancel()
                 del self._pending[k]
             self._pending[vkey] = _builder.submit(self._build_vertex_transfer, cam, rot, inten)
+            self._pending[vkey].add_done_callback(lambda _f: self.wake())
+
+    def _vt_wanted(self) -> bool:
+        """Whether the per-vertex transfer of this view is worth its cost (about a second of
+        one core, ~50 ms saved per stroke frame): once two active strokes were painted in it."""
+        st, fx = self.state, self.fitter
+        n = 0
+        for s in fx.history.strokes:
+            v = fx.views[s.view]
+            n += v.camera == st.camera and v.rotation_deg == st.rotation_deg and v.intensity == st.intensity
+        return n >= 2
 
     @staticmethod
     def _build_view(fx: Fitter, cam, rot, inten):
@@ -371,18 +441,18 @@ class SessionRuntime:
         return (self._view_key(cam, rot, inten), smp.pix, T, E)
 
     def _vertex_transfer(self):
+        """The per-vertex transfer of the current view and light if it is ready, else None:
+        a frame never waits for it (it is built in the background, ``prefetch``)."""
         key = self._view_key(self.state.camera, self.state.rotation_deg, self.state.intensity)
         if self._vt is not None and self._vt[0] == key:
             return self._vt
-        fut = self._pending.pop(("vt", key), None)
-        if fut is not None and not fut.cancelled():
-            try:
+        fut = self._pending.get(("vt", key))
+        if fut is not None and fut.done():
+            del self._pending[("vt", key)]
+            if not fut.cancelled() and fut.exception() is None:
                 self._vt = fut.result()
                 return self._vt
-            except Exception:
-                pass
-        self._vt = self._build_vertex_transfer(self.state.camera, self.state.rotation_deg, self.state.intensity)
-        return self._vt
+        return None
 
     def _override(self):
         """Known radiance of the edited object's vertices when its material is the current fit:
@@ -390,7 +460,10 @@ class SessionRuntime:
         i = self.state.object_index
         if self._fitted is None or self.materials[i] is not self._fitted or not hasattr(self.renderer, "vertex_samples"):
             return None
-        _, ids, T, E = self._vertex_transfer()
+        vt = self._vertex_transfer()
+        if vt is None:
+            return None
+        _, ids, T, E = vt
         c = np.asarray(self._fitted.coefficients, np.float32)
         rad = np.asarray(self._fitted.albedo, np.float32) * E + np.stack([T[k] @ c[:, k] for k in range(3)], axis=1)
         return {i: (ids, rad.astype(np.float32))}
@@ -429,6 +502,10 @@ class SessionRuntime:
             return "full", 1
         return "drag", 1
 
+    def _still_view_ready(self, camera, samples: int) -> bool:
+        has = getattr(self.renderer, "has_view", None)
+        return has is None or has(camera, samples)
+
     def needs_still_frame(self) -> bool:
         """Whether the last frame was a moving one (one sample, or the drag level of detail) and
         the session is not dragging: when no message is waiting, one more frame (``frame``) is
@@ -445,6 +522,15 @@ class SessionRuntime:
         if not st.allows("camera"):          # a fixed-view renderer draws its own camera and light
             camera = self.scene.spec.camera
             lighting = Lighting(self.scene.spec.environment.rotation_deg, st.intensity)
+        # progressive: a new fit, or a camera whose anti-aliased primary hits are not traced yet
+        # (the user just let go), is shown at once with one sample; the anti-aliased frame
+        # follows when the session is idle (needs_still_frame, the worker's loop), and that one
+        # is not put off again
+        follow_up = self._last is not None and self._last[0] == st.camera and not self._last[3] and \
+            self._last[4] < STILL_SAMPLES
+        if samples > 1 and (self._quick_next or (not follow_up and not self._still_view_ready(camera, samples))):
+            samples = 1
+        self._quick_next = False
         req = FrameRequest(camera=camera, lighting=lighting, materials=st.materials, lod=lod, samples=samples,
                            ground_shadow=st.shadow, transforms=st.transforms or None,
                            # the per-vertex transfer is per view: built for still views, not per drag frame

@@ -170,6 +170,14 @@ class CutRenderer(Renderer):
             self.lighting = self.data.lighting(envmap, self.tree)
             self._light_key = None
 
+    def has_view(self, camera, samples: int = 1) -> bool:
+        """Whether the primary hits of (camera, samples) are cached: a frame of them costs
+        only shading. Movable-object scenes draw one sample (always ready)."""
+        if self._moving is not None:
+            return True
+        with self._lock:
+            return any(v.samples == samples and v.camera == camera for v in self._views)
+
     def view(self, camera, samples: int = 1) -> View:
         """Primary hits of a camera with S samples per pixel (cached for the last few). With
         movable objects: one sample, the objects where the last frame had them."""
