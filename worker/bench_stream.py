@@ -116,6 +116,19 @@ class Server:
                     pass
         return out
 
+    def cpu_seconds(self) -> dict:
+        """CPU seconds (user + system) used so far: {"server": s, "workers": s} (the machine's
+        other load does not count, so runs on a busy machine can be compared by it)."""
+        tick = os.sysconf("SC_CLK_TCK")
+        out = {"server": 0.0, "workers": 0.0}
+        for pid in self.pids():
+            try:
+                f = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+                out["server" if pid == self.proc.pid else "workers"] += (int(f[11]) + int(f[12])) / tick
+            except (OSError, ValueError, IndexError):
+                pass
+        return out
+
     def memory(self) -> dict:
         """Resident memory now and at peak (VmRSS, VmHWM), MiB, summed over server and workers."""
         rss = hwm = 0
@@ -330,7 +343,7 @@ async def _load_session(port: int, ses: dict, seconds: float, index: int) -> dic
                 strokes.append((hit[0][0] - s.sent[seq]) * 1e3)
         got = [f for f in s.frames[n0:] if f[0] <= t_start + dur]
         vl = [v for v in s.view_latencies(got) if v is not None]
-        return {"fps": len(got) / dur, "view_p50_ms": pct(vl, 50), "view_p95_ms": pct(vl, 95),
+        return {"fps": len(got) / dur, "frames": len(got), "view_p50_ms": pct(vl, 50), "view_p95_ms": pct(vl, 95),
                 "stroke_p50_ms": pct(strokes, 50), "stroke_p95_ms": pct(strokes, 95), "strokes": len(pending),
                 "strokes_framed": len(strokes), "errors": len(s.errors),
                 "error_messages": [e.get("message") for e in s.errors][:3]}
@@ -350,9 +363,16 @@ def bench_load(sessions: int = 8, seconds: float = 20.0, runs: int = 2, port: in
             async def all_sessions():
                 return await asyncio.gather(*[_load_session(srv.port, s, seconds, i) for i, s in enumerate(ses)])
 
+            cpu0 = srv.cpu_seconds()
             per = asyncio.run(all_sessions())
+            cpu1 = srv.cpu_seconds()
             time.sleep(2.0)                      # the streams have closed: what stays resident
             mem = srv.memory()
+            frames = sum(x["frames"] for x in per)
+            strokes_sent = sum(x["strokes"] for x in per)
+            mem.update({"cpu_s_server": cpu1["server"] - cpu0["server"], "cpu_s_workers": cpu1["workers"] - cpu0["workers"],
+                        "frames": frames, "strokes_sent": strokes_sent,
+                        "load_avg_1min": os.getloadavg()[0]})
             strokes = [x["stroke_p95_ms"] for x in per if x["stroke_p95_ms"] is not None]
             out["runs"].append({"sessions": per, "min_fps": min(x["fps"] for x in per),
                                 "mean_fps": statistics.mean(x["fps"] for x in per),
@@ -365,7 +385,8 @@ def bench_load(sessions: int = 8, seconds: float = 20.0, runs: int = 2, port: in
                       f"errors {r['errors']}, rss {r['rss_mib']:.0f} MiB", file=sys.stderr)
         last = out["runs"][-1]
         out.update({k: last[k] for k in ("min_fps", "mean_fps", "view_p95_ms", "stroke_p95_ms", "errors",
-                                         "rss_mib", "peak_rss_mib")})
+                                         "rss_mib", "peak_rss_mib", "cpu_s_server", "cpu_s_workers", "frames",
+                                         "strokes_sent", "load_avg_1min")})
         out["sessions"] = last["sessions"]
         if runs > 1:
             out["rss_growth_mib"] = out["runs"][-1]["rss_mib"] - out["runs"][0]["rss_mib"]

@@ -34,6 +34,8 @@ from .materials import add_version
 router = APIRouter(prefix="/v1/sessions", tags=["sessions"])
 log = logging.getLogger("glint")
 AUTH_SECONDS = 10.0      # a stream must authenticate within this
+MAX_BATCH = 256          # client messages stored in one transaction at most
+MAX_PENDING = 4096       # client messages waiting to be stored before the stream is refused
 
 
 def _stream_url(sid: str) -> str:
@@ -126,39 +128,58 @@ def persist(st, sid: str, msg) -> tuple[dict | None, dict | None]:
     """Apply a validated message to the stored state and record it before the worker sees it.
     Returns (error event, None) when it cannot apply (nothing is stored or forwarded), else
     (None, the message to forward)."""
+    return persist_batch(st, sid, [msg])[0]
+
+
+def persist_batch(st, sid: str, msgs: list) -> list[tuple[dict | None, dict | None]]:
+    """``persist`` for messages in order, in one transaction: the state is read, validated and
+    written once however many messages arrived meanwhile (a camera dragged at 60 Hz by eight
+    designers is hundreds of messages a second; one transaction each made the stream fall
+    seconds behind, issue 9). Returns (error event, forwarded message) per message."""
+    out = []
     with _lock(sid), st.db() as s, s.begin():
         row = _row(s, sid)
-        before = _load_state(s, row)
-        if msg.type == "environment" and msg.asset_id is not None:
-            # an uploaded map (e.g. a capture): the stored file goes into the state as a preset
-            a = s.get(Asset, msg.asset_id)
-            if a is None or a.kind != "envmap":
-                return ErrorEvent(seq=msg.seq, message=f"environment: {msg.asset_id!r} is not an uploaded "
-                                                       "environment map").model_dump(), None
-            msg = msg.model_copy(update={"asset_id": None, "preset": EnvPreset(
-                label=a.filename, sha256=a.sha256, filename=a.filename, rotation_deg=0.0)})
-        try:
-            state, eff = apply(before, msg)
-        except StateError as e:
-            return ErrorEvent(seq=msg.seq, message=str(e)).model_dump(), None
-        epoch = before.epoch
-        if eff.kind == "stroke":
-            # a new stroke drops the redo stack
-            for r in s.scalars(select(StrokeRow).where(StrokeRow.session_id == sid, StrokeRow.epoch == epoch,
-                                                       StrokeRow.undone.is_(True), StrokeRow.dropped.is_(False))):
-                r.dropped = True
-            s.add(StrokeRow(session_id=sid, epoch=epoch, seq=msg.seq, body=eff.stroke))
-        elif eff.kind in ("undo", "redo"):
-            q = select(StrokeRow).where(StrokeRow.session_id == sid, StrokeRow.epoch == epoch,
-                                        StrokeRow.dropped.is_(False), StrokeRow.rejected.is_(False),
-                                        StrokeRow.undone.is_(eff.kind == "redo"))
-            q = q.order_by(StrokeRow.seq.desc() if eff.kind == "undo" else StrokeRow.seq.asc())
-            r = s.scalars(q.limit(1)).first()
-            if r is not None:
-                r.undone = eff.kind == "undo"
+        state = _load_state(s, row)
+        for msg in msgs:
+            err, fwd, state = _apply_one(s, sid, state, msg)
+            out.append((err, fwd))
         row.state = state.model_dump(mode="json")
         row.last_active = now()
-    return None, msg.model_dump(mode="json")
+    return out
+
+
+def _apply_one(s, sid: str, before: SessionState, msg):
+    """One message against the state: (error event, None, before) or (None, forwarded, after)."""
+    if msg.type == "environment" and msg.asset_id is not None:
+        # an uploaded map (e.g. a capture): the stored file goes into the state as a preset
+        a = s.get(Asset, msg.asset_id)
+        if a is None or a.kind != "envmap":
+            return ErrorEvent(seq=msg.seq, message=f"environment: {msg.asset_id!r} is not an uploaded "
+                                                   "environment map").model_dump(), None, before
+        msg = msg.model_copy(update={"asset_id": None, "preset": EnvPreset(
+            label=a.filename, sha256=a.sha256, filename=a.filename, rotation_deg=0.0)})
+    try:
+        state, eff = apply(before, msg)
+    except StateError as e:
+        return ErrorEvent(seq=msg.seq, message=str(e)).model_dump(), None, before
+    epoch = before.epoch
+    if eff.kind == "stroke":
+        # a new stroke drops the redo stack
+        for r in s.scalars(select(StrokeRow).where(StrokeRow.session_id == sid, StrokeRow.epoch == epoch,
+                                                   StrokeRow.undone.is_(True), StrokeRow.dropped.is_(False))):
+            r.dropped = True
+        s.add(StrokeRow(session_id=sid, epoch=epoch, seq=msg.seq, body=eff.stroke))
+        s.flush()
+    elif eff.kind in ("undo", "redo"):
+        q = select(StrokeRow).where(StrokeRow.session_id == sid, StrokeRow.epoch == epoch,
+                                    StrokeRow.dropped.is_(False), StrokeRow.rejected.is_(False),
+                                    StrokeRow.undone.is_(eff.kind == "redo"))
+        q = q.order_by(StrokeRow.seq.desc() if eff.kind == "undo" else StrokeRow.seq.asc())
+        r = s.scalars(q.limit(1)).first()
+        if r is not None:
+            r.undone = eff.kind == "undo"
+            s.flush()
+    return None, msg.model_dump(mode="json"), state
 
 
 def on_worker_event(st, sid: str, ev: dict) -> dict | None:
@@ -293,7 +314,51 @@ async def stream(ws: WebSocket, sid: str, token: str | None = Query(None)):
                 if ev is not None:
                     await ws.send_text(json.dumps(ev))
 
+    # messages are read as fast as they come and stored in batches (persist_batch): the socket
+    # never backs up behind the database, and the worker gets them in order
+    inbox: asyncio.Queue = asyncio.Queue()
+
+    async def process():
+        """Store and forward the inbox in batches until the ``None`` the stream's end puts in it
+        (what was received is stored even when the client has gone)."""
+        ending = False
+        try:
+            while not ending:
+                batch = [await inbox.get()]
+                while not inbox.empty() and len(batch) < MAX_BATCH:
+                    batch.append(inbox.get_nowait())
+                ending = batch[-1] is None
+                batch = [m for m in batch if m is not None]
+                if not batch:
+                    continue
+                for err, fwd in await run_in_threadpool(persist_batch, st, sid, batch):
+                    if ending:
+                        continue            # the stream is over: stored, nobody to tell
+                    if err is None:
+                        st.pool.send(sid, fwd)
+                        st.metrics.message(sid, fwd)
+                        continue
+                    try:
+                        await ws.send_text(json.dumps(err))
+                    except (WebSocketDisconnect, RuntimeError):
+                        pass                # the client left; what it sent is still stored
+        except asyncio.CancelledError:
+            raise
+        except KeyError:            # the pool no longer has it: a newer stream of it took over
+            try:
+                await _fail(ws, 4409, "this session was opened by another stream (a reconnect or another tab); "
+                                      "this one is closed", 409)
+            except Exception:
+                pass
+        except Exception as e:      # the database failed: tell the client, end the stream
+            log.exception("session %s: storing messages failed", sid)
+            try:
+                await _fail(ws, 1011, f"the server could not store your input ({type(e).__name__}); reconnect", 500)
+            except Exception:
+                pass
+
     sender = asyncio.create_task(pump())
+    processor = asyncio.create_task(process())
     try:
         while True:
             try:
@@ -322,18 +387,24 @@ async def stream(ws: WebSocket, sid: str, token: str | None = Query(None)):
                     seq=seq if isinstance(seq, int) else None,
                     message=f"{'.'.join(str(x) for x in err['loc'])}: {err['msg']}").model_dump()))
                 continue
-            err, fwd = await run_in_threadpool(persist, st, sid, msg)
-            if err is not None:
-                await ws.send_text(json.dumps(err))
-                continue
-            st.pool.send(sid, fwd)
-            st.metrics.message(sid, fwd)
+            if processor.done():
+                break
+            if inbox.qsize() >= MAX_PENDING:
+                await _fail(ws, 4429, f"more than {MAX_PENDING} messages waiting to be stored: the client sends "
+                                      "faster than the server can keep up; reconnect", 429)
+                break
+            inbox.put_nowait(msg)
     except WebSocketDisconnect:
         pass
     except RuntimeError as e:   # sending on a socket the client already closed
         log.info("session %s stream ended: %s", sid, e)
     finally:
         sender.cancel()
+        inbox.put_nowait(None)      # store what was received, then stop
+        try:
+            await asyncio.wait_for(processor, 30.0)
+        except (asyncio.TimeoutError, asyncio.CancelledError):
+            processor.cancel()
         st.streams.pop(sid, None)
         st.pool.close_session(sid)
         st.metrics.session_ended(sid)

@@ -155,3 +155,30 @@ def test_drag_frames_refine_no_finer_than_the_drag_limit(bunny_renderer):
     a, b = clamped.radiance[obj], exact.radiance[obj]
     rel = float(np.sqrt(((a - b) ** 2).mean() / (b ** 2).mean()))
     assert 0 < rel < 0.01, f"drag refinement changed the object by {rel:.4f} relative RMSE"
+
+
+def test_under_load_drag_frames_drop_to_a_quarter_of_the_resolution(cache_dir, monkeypatch):
+    """Issue 9: a session's frame budget is its share of the worker (sessions that moved
+    something in the last second); when even half-resolution drag frames do not fit it, they
+    are drawn at a quarter, and half is tried again after REPROBE_S."""
+    from worker.scene import load_scene
+
+    r = open_renderer(load_scene(ROOT / "tests" / "scenes" / "bunny.json"))
+    cam = r.scene.spec.camera.model_copy(update={"width": 640, "height": 480})
+    st = new_state(r.scene.spec, camera=cam.model_dump(mode="json"))
+    rt = SessionRuntime(r.scene, CutRenderer(r.scene, r.data), {"state": st.model_dump(mode="json"), "strokes": []})
+    monkeypatch.setattr(S, "REPROBE_S", 1e9)
+    rt.frame_budget_ms = 1e6
+    assert S.busy_sessions(__import__("time").monotonic()) >= 1
+    _orbit(rt, 1)
+    rt.frame_budget_ms = 1e-3                           # full frames never fit: drag level, half first
+    h = _orbit(rt, 2)
+    assert h["lod"] is True and (h["width"], h["height"]) == (320, 240), h
+    h = _orbit(rt, 3)                                   # half did not fit either: a quarter
+    assert h["lod"] is True and (h["width"], h["height"]) == (160, 120), h
+    rt._last_half = -float("inf")                       # long since the last half frame: try it again
+    assert _orbit(rt, 4)["width"] == 320
+    # the budget is shared: two busy sessions halve it
+    other = SessionRuntime(r.scene, CutRenderer(r.scene, r.data), {"state": st.model_dump(mode="json"), "strokes": []})
+    other.handle({"seq": 1, "type": "view", "eye": [0.2, 0.6, 3.2], "drag": True})
+    assert S.busy_sessions(__import__("time").monotonic()) >= 2

@@ -263,3 +263,37 @@ def test_worker_never_imports_server():
     root = Path(__file__).resolve().parents[2] / "worker"
     bad = [str(p) for p in root.rglob("*.py") if "from server" in p.read_text() or "import server" in p.read_text()]
     assert not bad or bad == [str(root / "cli.py")], bad      # the CLI starts the server (glint serve)
+
+
+def test_apply_never_changes_the_state_it_is_given(bunny_renderer):
+    """``apply`` copies the state shallowly (copy-on-write, issue 9: a deep copy per message
+    was 12% of a worker under load), so no message may edit a nested value in place: for every
+    message type the input state dumps the same before and after."""
+    import json
+
+    from worker.jobs.state import StateError, _MESSAGES
+
+    sc = bunny_renderer.scene
+    st = new_state(sc.spec)
+    st.variants = []
+    examples = {
+        "view": {"eye": [0.4, 0.6, 3.0], "drag": True}, "light": {"rotation_deg": 30, "intensity": 1.5},
+        "material": {"material": {"model": "lambert", "albedo": [0.2, 0.3, 0.4]}},
+        "stroke": {"stroke": STROKE}, "undo": {}, "redo": {}, "fit": {"constrained": False, "unpainted_weight": 0.5},
+        "save": {"name": "x"}, "display": {"exposure": 1.0, "tone": "aces", "quality": 70, "shadow": True},
+        "variant": {"index": 0}, "environment": {"index": 0},
+        "move": {"object": "bunny", "transform": {"translate": [0.1, 0, 0]}},
+        "renderer": {"kind": "cuts"}, "paint": {"gloss": 80.0, "aspecular": {"15": [0.5, 0.5, 0.5]}},
+    }
+    assert set(examples) == set(_MESSAGES), set(_MESSAGES) ^ set(examples)
+    applied = 0
+    for i, (t, fields) in enumerate(examples.items()):
+        before = json.dumps(st.model_dump(mode="json"), sort_keys=True)
+        try:
+            after, _ = apply(st, client_msg.validate_python({"seq": i, "type": t, **fields}))
+        except StateError:
+            continue                     # not applicable to this scene (e.g. no variants): nothing changes
+        assert json.dumps(st.model_dump(mode="json"), sort_keys=True) == before, f"{t} changed its input state"
+        applied += 1
+        st = after
+    assert applied >= 10, applied

@@ -59,7 +59,10 @@ class FrameRequest:
     camera : scene.Camera (its width and height are the frame's).
     lighting : Lighting.
     materials : one scene material per object, in scene order.
-    lod : "full", or "drag" while the user drags (the renderer picks what it coarsens).
+    lod : "full", or "drag" while the user drags (the renderer picks what it coarsens), or
+        "quick": a first frame shown at once before the anti-aliased still (full resolution;
+        the cut renderer draws one sample with clusters refined to its drag level; renderers
+        without such a level treat it as "full").
     shading : renderer-specific shading mode ("vertex" or "pixel" for cuts).
     transforms : object name -> scene.Transform for movable objects (cut renderer).
     samples : primary-visibility samples per pixel (anti-aliasing), ≥ 1.
@@ -69,6 +72,8 @@ class FrameRequest:
     ground_shadow : draw the shadow-catcher ground's shadow (None: the scene's ``ground.shadow``,
         off for a scene without ``ground``); renderers without one ignore it.
     ground_intensity : its strength k in [0, 1] (None: the scene's ``ground.intensity``).
+    drag_scale : at the drag level of detail, the resolution divisor (2: half, 4: a quarter,
+        chosen by the session under load); renderers may ignore it.
     """
     camera: Any
     lighting: Lighting = Lighting()
@@ -80,6 +85,7 @@ class FrameRequest:
     vertex_radiance: Mapping[int, tuple[np.ndarray, np.ndarray]] | None = None
     ground_shadow: bool | None = None
     ground_intensity: float | None = None
+    drag_scale: int = 2
 
 
 @dataclass

@@ -339,10 +339,12 @@ class CutRenderer(Renderer):
         t0 = time.perf_counter()
         camera = req.camera
         drag = req.lod == "drag"
+        quick = req.lod == "quick"          # full resolution and cuts, one sample, DRAG_REFINE clusters
         cuts = self.coarse_cuts() if drag else self.cuts
-        if drag and camera.width >= 320:
-            camera = camera.model_copy(update={"width": camera.width // 2, "height": camera.height // 2})
-        samples = 1 if drag else int(req.samples)
+        k = max(1, int(req.drag_scale))
+        if drag and camera.width >= 160 * k:
+            camera = camera.model_copy(update={"width": camera.width // k, "height": camera.height // k})
+        samples = 1 if drag or quick else int(req.samples)
         if samples < 1:
             raise ValueError(f"samples: {samples} per pixel (at least 1)")
         materials = list(req.materials) or self.scene.materials
@@ -368,7 +370,7 @@ class CutRenderer(Renderer):
                 vi, wo = vi[keep], wo[keep]
             mat_of = self.scene.object_of_vertex[vi]
             mats = self.material_table(materials, np.unique(mat_of).tolist())
-            if drag:
+            if drag or quick:
                 mats = self._drag_materials(mats)
             rad = shade_points(mesh.normals[vi], wo, vi, mat_of, cuts, node_l, node_w, self.tree, mats, self.k,
                                node8=node8)
