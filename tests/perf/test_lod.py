@@ -182,3 +182,26 @@ def test_under_load_drag_frames_drop_to_a_quarter_of_the_resolution(cache_dir, m
     other = SessionRuntime(r.scene, CutRenderer(r.scene, r.data), {"state": st.model_dump(mode="json"), "strokes": []})
     other.handle({"seq": 1, "type": "view", "eye": [0.2, 0.6, 3.2], "drag": True})
     assert S.busy_sessions(__import__("time").monotonic()) >= 2
+
+
+def test_a_still_frame_is_given_up_when_a_message_arrives(bunny_renderer):
+    """The anti-aliased still is optional: shaded in parts, abandoned as soon as the session
+    has a new message (its frame comes first); drawn in full, it equals the frame in one go."""
+    import numpy as np
+
+    from worker.renderers.base import FrameCancelled, FrameRequest, Lighting
+
+    rt = _runtime(bunny_renderer)
+    rt.frame(0)
+    h = _orbit(rt, 1, drag=False)
+    assert h["samples"] == 1 and rt.needs_still_frame()
+    with pytest.raises(FrameCancelled):
+        rt.frame(1, cancelled=lambda: True)
+    assert rt.needs_still_frame()                    # nothing changed: the still is still owed
+    h, _ = rt.frame(1, cancelled=lambda: False)
+    assert h["samples"] == S.STILL_SAMPLES and not rt.needs_still_frame()
+    st = rt.state
+    req = dict(camera=st.camera, lighting=Lighting(st.rotation_deg, st.intensity), materials=st.materials, samples=4)
+    whole = rt.renderer.render(FrameRequest(**req)).radiance
+    parts = rt.renderer.render(FrameRequest(**req, cancelled=lambda: False)).radiance
+    np.testing.assert_array_equal(parts, whole)

@@ -393,6 +393,7 @@ class SessionThread(threading.Thread):
 
     def run(self) -> None:
         from worker.jobs.session import SessionRuntime, error_event
+        from worker.renderers.base import FrameCancelled
 
         rt = None
         try:
@@ -438,7 +439,11 @@ class SessionThread(threading.Thread):
                         # the settled, anti-aliased image of the same state
                         PRIORITY.wait_turn()
                         try:
-                            self.outq.put(("frame", self.sid, rt.frame(ack)))
+                            # given up as soon as a message arrives: that one's frame comes first
+                            self.outq.put(("frame", self.sid, rt.frame(
+                                ack, cancelled=lambda: bool(self.inbox) or self.stopping)))
+                        except FrameCancelled:
+                            pass
                         except Exception as ex:
                             self._event(error_event(ex, ack) | {"message": f"render failed: {error_event(ex)['message']}"})
         except Exception as ex:

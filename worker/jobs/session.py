@@ -559,8 +559,10 @@ class SessionRuntime:
         the settled, anti-aliased image of the same state."""
         return self._last is not None and not self._drag and self._last[4] < STILL_SAMPLES
 
-    def frame(self, ack: int, skipped: int = 0) -> tuple[dict, bytes]:
-        """The current frame: (header (FrameHeader fields), JPEG bytes)."""
+    def frame(self, ack: int, skipped: int = 0, cancelled=None) -> tuple[dict, bytes]:
+        """The current frame: (header (FrameHeader fields), JPEG bytes). cancelled : for an
+        optional frame (the still), a function saying it is no longer wanted; the renderer may
+        then raise renderers.base.FrameCancelled (nothing changes)."""
         t0 = time.perf_counter()
         st = self.state
         change = self._change()
@@ -579,7 +581,7 @@ class SessionRuntime:
             lod, samples = "quick", 1
         self._quick_next = False
         req = FrameRequest(camera=camera, lighting=lighting, materials=st.materials, lod=lod, samples=samples,
-                           drag_scale=self.drag_scale,
+                           drag_scale=self.drag_scale, cancelled=cancelled,
                            ground_shadow=st.shadow, transforms=st.transforms or None,
                            # the per-vertex transfer is per view: built for still views, not per drag frame
                            vertex_radiance=None if self._drag else self._override())

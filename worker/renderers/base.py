@@ -52,6 +52,10 @@ class Lighting:
     intensity: float = 1.0
 
 
+class FrameCancelled(Exception):
+    """A frame its requester no longer needs (``FrameRequest.cancelled`` said so mid-way)."""
+
+
 @dataclass
 class FrameRequest:
     """One frame.
@@ -74,6 +78,9 @@ class FrameRequest:
     ground_intensity : its strength k in [0, 1] (None: the scene's ``ground.intensity``).
     drag_scale : at the drag level of detail, the resolution divisor (2: half, 4: a quarter,
         chosen by the session under load); renderers may ignore it.
+    cancelled : for an optional frame (a session's anti-aliased still): a function that says
+        it is no longer wanted (a new message came); renderers may check it between parts of
+        their work and raise FrameCancelled, so the new message is not kept waiting.
     """
     camera: Any
     lighting: Lighting = Lighting()
@@ -86,6 +93,7 @@ class FrameRequest:
     ground_shadow: bool | None = None
     ground_intensity: float | None = None
     drag_scale: int = 2
+    cancelled: Callable[[], bool] | None = None
 
 
 @dataclass
