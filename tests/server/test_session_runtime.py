@@ -76,6 +76,7 @@ def test_a_stroke_mid_drag_gets_a_quick_view_completed_after(bunny_renderer):
     assert not rt._completions                  # still dragging: nothing built in the background
     rt.handle({"seq": 3, "type": "view", "eye": [0.3, 0.6, 3.1], "drag": False})      # lets go
     rt.prefetch()
+    rt.handle({"seq": 4, "type": "display", "exposure": 0.5})     # messages meanwhile keep it coming
     fut = rt._completions[0][2]
     fut.result(timeout=120)
     assert woke and rt.absorb() and not rt.fitter.views[0].partial
@@ -83,7 +84,7 @@ def test_a_stroke_mid_drag_gets_a_quick_view_completed_after(bunny_renderer):
     assert full["pixels"] == v.n_object > quick["pixels"]
     cam = rt.state.camera.model_dump()
     rec = [{"seq": 2, "stroke": STROKE, "camera": cam, "rotation_deg": 0.0, "intensity": 1.0, "undone": False}]
-    again = _runtime(bunny_renderer, rec, last_seq=3)
+    again = _runtime(bunny_renderer, rec, last_seq=4)
     again.fit_if_needed()
     np.testing.assert_allclose(np.asarray(again.materials[0].coefficients),
                                np.asarray(rt.materials[0].coefficients), rtol=1e-5, atol=1e-8)

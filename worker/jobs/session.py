@@ -238,8 +238,9 @@ class SessionRuntime:
     def _complete(self, i: int) -> None:
         """Build view i in full on the background builder; it replaces the partial view when
         it is ready (``absorb``)."""
-        if i in self._completions:
-            return
+        fx, moves, _ = self._completions.get(i, (None, None, None))
+        if fx is self.fitter and moves == self._moves:
+            return                          # on its way
         v = self.fitter.views[i]
         self._adopt(i, _builder.submit(self._build_view, self.fitter, v.camera, v.rotation_deg, v.intensity))
 
@@ -341,12 +342,12 @@ class SessionRuntime:
             self._moves += 1
             self._vt = None
             self._pending.clear()
-        self._completions.clear()
+            self._completions.clear()
         if eff.kind == "rebase":
             self.fitter = None             # strokes painted over the old material do not carry over
             self._needs_fit = False
             self._pending.clear()
-        self._completions.clear()
+            self._completions.clear()
         if msg.type == "material":
             name = msg.object or self.state.object
             ev.append({"type": "curve", "seq": msg.seq, "object": name, "curve": brdf_curve(msg.material)})
