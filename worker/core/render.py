@@ -135,12 +135,16 @@ def shade_points_numpy(normals, wo, cut_of, mat_of, cuts: CutSet, node_l, node_w
     return out.astype(np.float32)
 
 
-def expand_cut_entries(cut_of, cuts: CutSet, tree: DirectionTree, mirror, refine, extent):
-    """The cluster list each point shades: its cut's nodes with non-zero visibility, refined
-    where the BRDF needs it (children inherit the parent's visibility).
+def expand_cut_entries(cut_of, cuts: CutSet, tree: DirectionTree, mirror, pairs):
+    """The cluster list each point evaluates: its cut's nodes with non-zero visibility, split
+    while any (refine radius, extent) pair asks for it (children inherit the parent's
+    visibility). The renderer passes one pair per point (its material's), the fitter one scalar
+    pair per basis level (fit/transfer.py).
 
     cut_of : (P,) cut index per point (≥ 0). mirror : (P, 3) float64 mirror directions.
-    refine, extent : (P,) float64 radians (PackedBRDF.refine_radius / extent).
+    pairs : [(refine, extent), …], each radians, a scalar or (P,) float64 per point
+        (PackedBRDF.refine_radius / extent); a node of radius R at angle a from the mirror
+        direction is split when R > refine and a < R + extent.
     Returns (pt, idx, q): (M,) point index, flat tree-node index and visibility in [0, 1].
     """
     a = cuts.offsets[cut_of]
@@ -157,12 +161,17 @@ def expand_cut_entries(cut_of, cuts: CutSet, tree: DirectionTree, mirror, refine
     q = cuts.quant[node].astype(np.float64) / 255.0
     keep = q > 0
     pt, h, start, q = pt[keep], h[keep], start[keep], q[keep]
+    pairs = [(np.asarray(r, np.float64), np.asarray(e, np.float64)) for r, e in pairs]
     while True:
         idx = tree.level_offset[h] + (start >> h)
         R = tree.node_radius[idx].astype(np.float64)
         nd = tree.node_dir[idx].astype(np.float64)
         ang = np.arccos(np.clip((nd * mirror[pt]).sum(1), -1.0, 1.0))
-        ref = (h > 0) & (R > refine[pt]) & (ang < R + extent[pt])
+        ref = np.zeros(len(pt), bool)
+        for r, e in pairs:
+            r, e = (r[pt] if r.ndim else r), (e[pt] if e.ndim else e)
+            ref |= (R > r) & ((R + e >= np.pi) | (ang < R + e))
+        ref &= h > 0
         if not ref.any():
             return pt, idx, q
         k = np.nonzero(ref)[0]
@@ -194,8 +203,7 @@ def _shade_chunk(n, wo, cut_of, mat_of, cuts, node_l, node_w, tree, mats):
         return out
     r = 2.0 * co[live, None] * n[live] - wo[live]                      # mirror directions
     m = mat_of[live]
-    p, idx, q = expand_cut_entries(cut_of[live], cuts, tree, r, mats.refine[m].astype(np.float64),
-                                   mats.extent[m].astype(np.float64))
+    p, idx, q = expand_cut_entries(cut_of[live], cuts, tree, r, [(mats.refine[m], mats.extent[m])])
     pt = live[p]
     l = node_l[idx].astype(np.float64)
     dark = (l <= 0).all(1)

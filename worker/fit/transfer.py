@@ -20,53 +20,12 @@ import scipy.sparse as sp
 from ..core.brdf import onb
 from ..core.cuts import CutSet
 from ..core.directions import DirectionTree
-from ..core.render import cluster_directions
+from ..core.render import cluster_directions, expand_cut_entries
 from .basis import SRBFBasis
 
 
 def _local(v, t, b, n):
     return np.stack([(v * t).sum(1), (v * b).sum(1), (v * n).sum(1)], 1)
-
-
-def expand_cut_entries_multi(cut_of, cuts: CutSet, tree: DirectionTree, mirror, pairs):
-    """The cluster list each point evaluates: its cut's nodes with non-zero visibility, split
-    while any (refine radius, extent) pair of ``pairs`` asks for it (children inherit the
-    parent's visibility); ``core.render.expand_cut_entries`` with several pairs.
-
-    cut_of : (P,) cut index per point (≥ 0). mirror : (P, 3) float64 mirror directions.
-    Returns (pt, idx, q): (M,) point index, flat tree-node index and visibility in [0, 1].
-    """
-    a = cuts.offsets[cut_of]
-    b = cuts.offsets[cut_of + 1]
-    cnt = (b - a).astype(np.int64)
-    pt = np.repeat(np.arange(len(cut_of)), cnt)
-    node = np.concatenate([np.arange(x, y) for x, y in zip(a, b)]) if len(a) else np.zeros(0, np.int64)
-    h = cuts.heights[node].astype(np.int64)
-    w = np.int64(1) << h
-    csum = np.cumsum(w)
-    first = np.repeat(np.cumsum(cnt) - cnt, cnt)
-    start = csum - w - (csum[first] - w[first])
-    q = cuts.quant[node].astype(np.float64) / 255.0
-    keep = q > 0
-    pt, h, start, q = pt[keep], h[keep], start[keep], q[keep]
-    while True:
-        idx = tree.level_offset[h] + (start >> h)
-        R = tree.node_radius[idx].astype(np.float64)
-        nd = tree.node_dir[idx].astype(np.float64)
-        ang = np.arccos(np.clip((nd * mirror[pt]).sum(1), -1.0, 1.0))
-        ref = np.zeros(len(pt), bool)
-        for r, e in pairs:
-            ref |= (R > r) & ((R + e >= np.pi) | (ang < R + e))
-        ref &= h > 0
-        if not ref.any():
-            return pt, idx, q
-        k = np.nonzero(ref)[0]
-        half = np.int64(1) << (h[k] - 1)
-        stay = ~ref
-        pt = np.concatenate([pt[stay], pt[k], pt[k]])
-        q = np.concatenate([q[stay], q[k], q[k]])
-        start = np.concatenate([start[stay], start[k], start[k] + half])
-        h = np.concatenate([h[stay], h[k] - 1, h[k] - 1])
 
 
 def transfer_numpy(normals, wo, verts, bary, cuts: CutSet, node_l, node_w, tree: DirectionTree,
@@ -102,7 +61,7 @@ def _transfer_chunk(n, wo, verts, bary, cuts, node_l, node_w, tree, basis, pairs
     k = np.repeat(live, 3)                                   # (pixel, corner) pairs
     cut_of = verts[live].reshape(-1)
     r = 2.0 * co[k, None] * n[k] - wo[k]
-    pair, idx, q = expand_cut_entries_multi(cut_of, cuts, tree, r, pairs)
+    pair, idx, q = expand_cut_entries(cut_of, cuts, tree, r, pairs)
     px = k[pair]
     wgt = bary[live].reshape(-1)[pair] * q
     l = node_l[idx].astype(np.float64)
