@@ -9,7 +9,13 @@ from worker.core.lighting import LeafLighting, pack_nodes
 from worker.envmap import load_envmap
 from worker.native.kernels import kernels
 from worker.renderers.cuts import _native
-from worker.renderers.cuts.combine import Combiner, RotatedSamples, combine_native, combine_numpy, lookup
+from worker.renderers.cuts.combine import (
+    Combiner,
+    RotatedSamples,
+    combine_native,
+    combine_numpy,
+    lookup,
+)
 from worker.renderers.cuts.fields import frame_light_tables, frame_lighting
 from worker.renderers.cuts.rotate import LeafMap
 
