@@ -164,6 +164,15 @@ void glf_nearest_leaves(int64_t P, const double *dirs, const int32_t *table, int
  * Output: only the nodes that are not wholly free (the rest of the cut is implied), as
  * (first leaf, height, value), sample i at pos[i] in (out_s, out_h, out_q), counts[i] nodes.
  */
+/* popcount without -mpopcnt (the library is built for any x86-64 / ARM): __builtin_popcountll
+ * would be a libgcc call per word */
+static inline int pop64(uint64_t x) {
+    x = x - ((x >> 1) & 0x5555555555555555ULL);
+    x = (x & 0x3333333333333333ULL) + ((x >> 2) & 0x3333333333333333ULL);
+    x = (x + (x >> 4)) & 0x0F0F0F0F0F0F0F0FULL;
+    return (int)((x * 0x0101010101010101ULL) >> 56);
+}
+
 static inline int nib(const uint8_t *hp, int64_t k) { return (hp[k >> 1] >> ((k & 1) * 4)) & 15; }
 static inline int bitv(const uint8_t *bits, int64_t k) { return (bits[k >> 3] >> (7 - (k & 7))) & 1; }
 
@@ -187,28 +196,30 @@ void glf_rotate(int64_t n, const int32_t *ids, const int64_t *f_off, const uint8
         for (int64_t i = 0; i < n; i++) {
             int64_t a = f_off[ids[i]], b = f_off[ids[i] + 1];
             for (int64_t k = 0; k < NW; k++) W[k] = ~(uint64_t)0;
-            int64_t start = 0, blocked = 0;
-            for (int64_t k = a; k < b; k++) {
-                int h = nib(f_hp, k);
-                int64_t len = (int64_t)1 << h;
-                if (!bitv(f_bits, k)) {
-                    blocked += len;
+            int64_t start = 0, blocked = 0, rs = -1;      /* rs: start of the current blocked run */
+            for (int64_t k = a; k <= b; k++) {
+                /* consecutive blocked nodes are cleared as one run [rs, start) */
+                int blk = k < b && !bitv(f_bits, k);
+                if (blk) { if (rs < 0) rs = start; }
+                else if (rs >= 0) {
+                    blocked += start - rs;
                     if (identity) {
-                        for (int64_t l = start; l < start + len;) {
-                            if ((l & 63) == 0 && l + 64 <= start + len) { W[l >> 6] = 0; l += 64; }
+                        for (int64_t l = rs; l < start;) {
+                            if ((l & 63) == 0 && l + 64 <= start) { W[l >> 6] = 0; l += 64; }
                             else { W[l >> 6] &= ~((uint64_t)1 << (l & 63)); l++; }
                         }
                     } else {
-                        for (int32_t q = inv_off[start]; q < inv_off[start + len]; q++) {
+                        for (int32_t q = inv_off[rs]; q < inv_off[start]; q++) {
                             int32_t j = inv_idx[q];
                             W[j >> 6] &= ~((uint64_t)1 << (j & 63));
                         }
                     }
+                    rs = -1;
                 }
-                start += len;
+                if (k < b) start += (int64_t)1 << nib(f_hp, k);
             }
             if (blocked == 0) { counts[i] = 0; pos[i] = 0; continue; }
-            for (int64_t k = 0; k < NW; k++) Z[lev[6] + k] = 64 - __builtin_popcountll(W[k]);
+            for (int64_t k = 0; k < NW; k++) Z[lev[6] + k] = 64 - pop64(W[k]);
             for (int h = 7; h <= H; h++)
                 for (int64_t j = 0; j < (N >> h); j++) Z[lev[h] + j] = Z[lev[h - 1] + 2 * j] + Z[lev[h - 1] + 2 * j + 1];
             int32_t c = 0;
@@ -222,7 +233,7 @@ void glf_rotate(int64_t n, const int32_t *ids, const int64_t *f_off, const uint8
                 else {
                     int64_t l0 = j << h;
                     uint64_t mask = (((uint64_t)1 << len) - 1) << (l0 & 63);
-                    zeros = len - __builtin_popcountll(W[l0 >> 6] & mask);
+                    zeros = len - pop64(W[l0 >> 6] & mask);
                 }
                 if (zeros == 0) continue;                                   /* free: implied */
                 else if (zeros == len) { os[c] = (int32_t)(j << h); oh[c] = (uint8_t)h; oq[c] = 0; c++; }
@@ -376,6 +387,15 @@ void glf_combine(int64_t V, const int32_t *cut_of, const int64_t *b_off, const u
             int64_t bo = b_off[cut_of[v]], bn = b_off[cut_of[v] + 1] - bo;
             const uint8_t *bh = b_h + bo, *bq = b_q + bo;
             int64_t c = 0, x = 0, z = -1;     /* delta: start of the pending run of zeros (−1: none) */
+            /* pass: every base node before the next event comes out whole, valued qb & keep:
+             * F = 1, or (product) where the fields block everything (255 F < 0.5: every piece
+             * rounds to 0, as the split below would give for a node before the event) */
+            int pass = 1;
+            uint8_t keep = 0xFF;
+            if (m == 0 && !delta) {           /* no field reaches it: its own cut as is */
+                memcpy(dh, bh, bn); memcpy(dq, bq, bn);
+                c = bn; bn = 0;
+            }
             for (int64_t k = 0; k < bn; k++) {
                 if (b_skip && F == 1.0 && ((bo + k) & (SKIP - 1)) == 0) {
                     /* delta: whole blocks of SKIP base nodes before the next event add zeros only */
@@ -390,9 +410,9 @@ void glf_combine(int64_t V, const int32_t *cut_of, const int64_t *b_off, const u
                 int qb = bq[k];
                 /* dark, or untouched: the base node as is (bitwise |, &: one well-predicted branch
                  * where dark and lit nodes alternate) */
-                if ((qb == 0) | ((e <= next) & (F == 1.0))) {
+                if ((qb == 0) | ((e <= next) & pass)) {
                     if (delta) { if (z < 0) z = x; }
-                    else { dh[c] = (uint8_t)h0; dq[c] = (uint8_t)qb; c++; }
+                    else { dh[c] = (uint8_t)h0; dq[c] = (uint8_t)qb & keep; c++; }
                     x = e;
                     continue;
                 }
@@ -437,6 +457,8 @@ void glf_combine(int64_t V, const int32_t *cut_of, const int64_t *b_off, const u
                         F *= f[j];
                         if (nxt[j] < next) next = nxt[j];
                     }
+                    pass = F == 1.0 || (!delta && 255.0 * F < 0.5);
+                    keep = F == 1.0 ? 0xFF : 0;
                 }
             }
             if (z >= 0) c = zero_run(z, x, H, dh, dq, c);

@@ -461,20 +461,35 @@ class Combiner:
         self.max_pools = max_pools
         self.pool_bytes = pool_bytes
         self._pools: OrderedDict = OrderedDict()
+        self._maps: OrderedDict = OrderedDict()       # rotation -> LeafMap
         self._caps: dict[str, int] = {}
         self.last_stats: dict = {}
 
     def pool(self, field: Field, q: np.ndarray) -> RotatedSamples:
         """The kept samples and cells of a field seen through rotation q (source → receiver)."""
-        key = (field.key or id(field), np.round(np.asarray(q, np.float64), 9).tobytes(), self.hmin)
+        qk = np.round(np.asarray(q, np.float64), 9).tobytes()
+        key = (field.key or id(field), qk, self.hmin)
         p = self._pools.get(key)
         if p is None or p.nbytes > self.pool_bytes:
-            p = RotatedSamples(field, LeafMap(self.tree, q, self.native), self.hmin)
+            p = RotatedSamples(field, self.leaf_map(q, qk), self.hmin)
             self._pools[key] = p
         self._pools.move_to_end(key)
         while len(self._pools) > self.max_pools:
             self._pools.popitem(last=False)
         return p
+
+    def leaf_map(self, q: np.ndarray, qk: bytes | None = None) -> LeafMap:
+        """The LeafMap of rotation q, shared by the pools of every field seen through it (a
+        turned chair sees the floor and the table through the same rotation), kept for the
+        last few rotations."""
+        qk = qk or np.round(np.asarray(q, np.float64), 9).tobytes()
+        m = self._maps.get(qk)
+        if m is None:
+            m = self._maps[qk] = LeafMap(self.tree, q, self.native)
+        self._maps.move_to_end(qk)
+        while len(self._maps) > 4:
+            self._maps.popitem(last=False)
+        return m
 
     def stencils(self, positions: np.ndarray, normals: np.ndarray, occluders) -> tuple[np.ndarray, np.ndarray, int]:
         """The trilinear stencils of K receivers in each occluder's field, culled (§V.B) and with

@@ -104,6 +104,7 @@ __all__ = [
     "combined_cuts",
     "compute_part",
     "field_parts",
+    "frame_light_tables",
     "frame_lighting",
     "load_part",
     "object_shape",
@@ -311,12 +312,34 @@ def frame_lighting(lighting: LeafLighting, world_from_frame: np.ndarray, rotatio
     rotation resamples the map bilinearly first (``_frame_lighting_resampled``).
     """
     q, _ = rotation_part(_as4(world_from_frame))
-    yaw = np.degrees(np.arctan2(q[0, 2], q[0, 0]))
-    c, s = np.cos(np.radians(yaw)), np.sin(np.radians(yaw))
-    if np.abs(q - np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])).max() < 1e-9:
+    yaw = yaw_of(q)
+    if yaw is not None:
         l, ld = lighting.leaf_radiance(rotation_deg - yaw, intensity)
         return node_lighting(l, ld, lighting.tree)
     return _frame_lighting_resampled(lighting, q, rotation_deg, intensity)
+
+
+def yaw_of(q: np.ndarray) -> float | None:
+    """The angle θ in degrees of a (3, 3) rotation about +Y (q = R_y(θ)), None for any other."""
+    yaw = float(np.degrees(np.arctan2(q[0, 2], q[0, 0])))
+    c, s = np.cos(np.radians(yaw)), np.sin(np.radians(yaw))
+    return yaw if np.abs(q - np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])).max() < 1e-9 else None
+
+
+def frame_light_tables(lighting: LeafLighting, world_from_frame: np.ndarray, rotation_deg: float = 0.0,
+                       intensity: float = 1.0, kernels=None):
+    """``frame_lighting`` with the shading kernel's packed node records: (node_l, node_w
+    (2N−1, 3), node8 (2N−1, 8)) float32. A yaw is the world's light tables at rotation_deg − θ,
+    built by the kernel backend (glk_light_tables: a frame of a turning object costs ~1 ms
+    instead of ~10 ms; float32 rounding apart, the same tables); other rotations resample."""
+    from ...core.lighting import light_tables, pack_nodes
+
+    q, _ = rotation_part(_as4(world_from_frame))
+    yaw = yaw_of(q)
+    if yaw is not None:
+        return light_tables(lighting, rotation_deg - yaw, intensity, lighting.tree, kernels)
+    nl, nw = _frame_lighting_resampled(lighting, q, rotation_deg, intensity)
+    return nl, nw, pack_nodes(nl, nw)
 
 
 def _frame_lighting_resampled(lighting: LeafLighting, world_from_frame: np.ndarray, rotation_deg: float,

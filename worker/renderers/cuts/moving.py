@@ -55,7 +55,7 @@ from .fields import (
     ObjectShape,
     compute_part,
     field_parts,
-    frame_lighting,
+    frame_light_tables,
     load_part,
     object_shape,
     split_transform,
@@ -487,19 +487,23 @@ class MovingFrames:
 
     # -- light --------------------------------------------------------------------------------------
     def frame_light(self, q: np.ndarray, lighting):
-        """Node lighting over the leaves of a frame turned by q (world_from_frame), kept for the
-        last few frames and lightings."""
+        """Node lighting (node_l, node_w) over the leaves of a frame turned by q
+        (world_from_frame), kept for the last few frames and lightings."""
+        return self.frame_light_tables(q, lighting)[:2]
+
+    def frame_light_tables(self, q: np.ndarray, lighting):
+        """(node_l, node_w, node8) of ``frame_light`` (fields.frame_light_tables)."""
         lt = self.r.lighting
         key = (np.round(q, 9).tobytes(), float(lighting.rotation_deg), float(lighting.intensity), id(lt))
         hit = self._frame_light.get(key)
         if hit is not None and hit[0] is lt:
             self._frame_light.move_to_end(key)
             return hit[1]
-        nl = frame_lighting(lt, q, lighting.rotation_deg, lighting.intensity)
-        self._frame_light[key] = (lt, nl)
+        tables = frame_light_tables(lt, q, lighting.rotation_deg, lighting.intensity, self.r.k)
+        self._frame_light[key] = (lt, tables)
         while len(self._frame_light) > 24:
             self._frame_light.popitem(last=False)
-        return nl
+        return tables
 
     # -- a frame ------------------------------------------------------------------------------------
     def render(self, req) -> Rendered:
@@ -522,6 +526,7 @@ class MovingFrames:
         v = self.view(camera, W)
         t1 = time.perf_counter(); t["view"] = (t1 - t0) * 1e3
         node_l, node_w = r.light(req.lighting)
+        node8 = r._node8                     # set with node_l (the renderer's lock is held)
         mats = r.material_table(materials)
         t2 = time.perf_counter(); t["light"] = (t2 - t1) * 1e3
         mesh, d = r.scene.mesh, self.d
@@ -536,7 +541,7 @@ class MovingFrames:
         # static vertices: kept radiance minus what the moved objects' fields take away
         sv = vis[~d.is_movable[obj_of[vis]]]
         if len(sv):
-            rad = self._static_radiance(sv, eye, node_l, node_w, mats, lv, req.lod)
+            rad = self._static_radiance(sv, eye, node_l, node_w, mats, lv, req.lod, node8)
             occ = [(d.fields[i], Wf[i]) for i in d.movable]
             x, n = mesh.vertices[sv], mesh.normals[sv]
             cells, wts, _ = lv.combiner.stencils(x, n, occ)
@@ -548,7 +553,7 @@ class MovingFrames:
                 self._count(stats, lv.combiner.last_stats)
                 wo = _unit(eye - x[aff])
                 dr = shade_points(n[aff], wo, np.arange(len(aff), dtype=np.int32), obj_of[sv[aff]], delta, node_l,
-                                  node_w, r.tree, mats, r.k)
+                                  node_w, r.tree, mats, r.k, node8=node8)
                 rad = rad.copy()
                 rad[aff] = np.maximum(rad[aff] - dr, 0.0)
             vert[sv] = rad
@@ -568,9 +573,9 @@ class MovingFrames:
             q, _ = rotation_part(Wf[i])
             xw = sh.vertices[local].astype(np.float64) @ W[i][:3, :3].T + W[i][:3, 3]
             wo = _unit((eye - xw) @ q)                                   # into the object's frame
-            nl, nw = self.frame_light(q, req.lighting)
+            nl, nw, n8 = self.frame_light_tables(q, req.lighting)
             vert[ids] = shade_points(sh.normals[local], wo, np.arange(len(ids), dtype=np.int32), obj_of[ids], cs, nl, nw,
-                                     r.tree, mats, r.k)
+                                     r.tree, mats, r.k, node8=n8)
             stats["moving_vertices"] += len(ids)
         t4 = time.perf_counter(); t["moving"] = (t4 - t3) * 1e3
         interpolate(v.tri, v.uv, mesh.faces, vert, img, r.k)
@@ -672,7 +677,8 @@ class MovingFrames:
         stats["samples_rotated"] += int(cs.get("samples_rotated", 0))
         stats["cells_merged"] += int(cs.get("cells_merged", 0))
 
-    def _static_radiance(self, sv: np.ndarray, eye: np.ndarray, node_l, node_w, mats, lv: _Level, lod: str):
+    def _static_radiance(self, sv: np.ndarray, eye: np.ndarray, node_l, node_w, mats, lv: _Level, lod: str,
+                         node8=None):
         """(len(sv), 3) float32 radiance of static vertices with the static cuts alone (no movable
         object), kept for the eye, lighting and materials; missing vertices are shaded here."""
         r, d = self.r, self.d
@@ -687,7 +693,8 @@ class MovingFrames:
             mesh = r.scene.mesh
             wo = _unit(eye - mesh.vertices[miss])
             st.rad[miss] = shade_points(mesh.normals[miss], wo, d.static_row[miss].astype(np.int32),
-                                        r.scene.object_of_vertex[miss], lv.static, node_l, node_w, r.tree, mats, r.k)
+                                        r.scene.object_of_vertex[miss], lv.static, node_l, node_w, r.tree, mats, r.k,
+                                        node8=node8)
             st.have[miss] = True
         return st.rad[sv]
 
