@@ -181,6 +181,7 @@ class SessionHost:
         if self._pre_cache is None:
             self._pre_cache = DataCache(self.settings.model_copy(update={"tmp_dir": self.settings.tmp_dir + "-pre"}))
         cache = self._pre_cache
+        w_job = time.time()
         scene_p = p["scene"]
         kind = scene_p.get("renderer") or "cuts"
         _, pre = get(kind)
@@ -194,6 +195,7 @@ class SessionHost:
         n = max(1, round(cpus * self.chunks_per_cpu))
         me = ray.get_runtime_context().current_actor
         t0 = time.perf_counter()
+        tl = {"prepare": time.time() - w_job}
         info, computed, ray_stats = {}, 0, {}
         for part in parts:
             blob = cache.parts.get(part.key)
@@ -201,13 +203,16 @@ class SessionHost:
                 info[part.key] = {"label": part.label, "cached": True, **pre.describe(sc, part, blob)}
                 self.tick(jid, part.work)
                 continue
-            t1 = time.perf_counter()
+            t1, w_sub = time.perf_counter(), time.time()
             chunks = pre.chunks(sc, part, options, n)
             refs = [compute_chunk.options(scheduling_strategy="SPREAD").remote(
                 self.settings, scene_p, kind, part, options, ch, me, jid) for ch in chunks]
             results = ray.get(refs)                 # in chunk order, whatever order they finished in
+            w_res = time.time()
             blob, stats = pre.assemble(sc, part, options, [r["result"] for r in results])
+            w_asm = time.time()
             cache.parts.put(part.key, blob)
+            tl.update(_timeline(results, w_sub, w_res, w_asm))
             wall = time.perf_counter() - t1
             nodes = sorted({r["node_id"] for r in results})
             ray_stats = {"ray_chunks": len(chunks), "ray_nodes": len(nodes), "ray_cpus": cpus,
@@ -224,7 +229,28 @@ class SessionHost:
         for v in info.values():
             flat.update({k: x for k, x in v.items() if k != "label"})
         return {"kind": kind, "parts": manifest,
-                "stats": {**flat, "seconds": time.perf_counter() - t0, "computed": computed, "backend": "ray"}}
+                "stats": {**flat, "seconds": time.perf_counter() - t0, "computed": computed, "backend": "ray",
+                          "timeline": tl}}
+
+
+def _timeline(results: list[dict], w_sub: float, w_res: float, w_asm: float) -> dict:
+    """Where a part's wall time went (seconds, from the tasks' and the host's wall clocks):
+    submission to the first task running (worker start), the tasks' set-up (imports, scene,
+    tracer: first task of each process) and compute, the gap between the first and the last
+    node finishing (imbalance), the last result to the end of assembly, then storing."""
+    first = min(r["t"][0] for r in results)
+    ends: dict = {}
+    for r in results:
+        ends[r["node_id"]] = max(ends.get(r["node_id"], 0.0), r["t"][2])
+    return {"submit_to_first_task": first - w_sub,
+            "task_setup_max": max(r["t"][1] - r["t"][0] for r in results),
+            "task_setup_sum": sum(r["t"][1] - r["t"][0] for r in results),
+            "task_compute_sum": sum(r["t"][2] - r["t"][1] for r in results),
+            "tasks_span": max(ends.values()) - first,
+            "node_finish_spread": max(ends.values()) - min(ends.values()),
+            "last_task_to_results": w_res - max(ends.values()),
+            "assemble": w_asm - w_res, "store": time.time() - w_asm,
+            "processes": len({(r["node_id"], r["pid"]) for r in results})}
 
 
 # -- chunk tasks ----------------------------------------------------------------------------------
@@ -266,6 +292,7 @@ def compute_chunk(settings: WorkerSettings, scene_p: dict, kind: str, part, opti
     """One chunk of a part, on one CPU of whichever node Ray chose; progress goes to ``host``
     at most a few times a second. Returns {"result": what Precomputation.assemble takes,
     "node_id", "seconds"}."""
+    w0 = time.time()
     os.environ["OPENBLAS_NUM_THREADS"] = "1"         # before NumPy loads in a fresh task process
     from worker import native
     from worker.renderers import get
@@ -275,6 +302,7 @@ def compute_chunk(settings: WorkerSettings, scene_p: dict, kind: str, part, opti
     cache = _task_cache(settings)
     _, pre = get(kind)
     sc = cache.scene(scene_p)
+    w1 = time.time()
     pending = [0, time.monotonic()]
     lock = threading.Lock()
 
@@ -290,4 +318,4 @@ def compute_chunk(settings: WorkerSettings, scene_p: dict, kind: str, part, opti
     if pending[0]:
         host.tick.remote(jid, pending[0])
     return {"result": res, "node_id": ray.get_runtime_context().get_node_id(), "seconds": time.perf_counter() - t0,
-            "cpu_seconds": time.process_time() - c0}
+            "cpu_seconds": time.process_time() - c0, "pid": os.getpid(), "t": (w0, w1, time.time())}
