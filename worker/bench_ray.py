@@ -3,9 +3,13 @@
 The scene's files go into a fresh blob store (so nothing is cached) at a path every node can
 read, and one ``SessionHost`` actor coordinates the precomputation exactly as the service does:
 the part split into chunks, one Ray task per chunk spread over the nodes, assembled into the
-part's bytes. Reported: seconds of the chunk phase and assembly (``seconds_wall``), the chunk
+part's bytes, on a host that has started (as the service's hosts start with the server) but
+with fresh task processes (this bench is a new Ray job each run). Reported: seconds of the chunk
+phase and assembly (``seconds_wall``), of the whole job from its request to its result
+(``seconds_job``: with the host's scene load and naming of the parts), the chunk
 count, the nodes and CPUs used, and the SHA-256 of the assembled part (equal across cluster
-sizes: the assembly is byte-identical). ``scripts/bench-ray`` runs it on one node, adds a second,
+sizes: the assembly is byte-identical) and a ``timeline`` of where the time went (ray_actors.py).
+``scripts/bench-ray`` runs it on one node, adds a second,
 runs it again and prints the speed-up.
 """
 from __future__ import annotations
@@ -50,6 +54,9 @@ def bench_ray_precompute(scene_path: str, address: str, node_ip: str | None = No
         try:
             settings = WorkerSettings(blob_root=str(root / "blobs"), tmp_dir=str(root / "tmp"))
             host = ray.remote(SessionHost).options(num_cpus=0, max_concurrency=16).remote(0, settings, chunks_per_cpu)
+            # as in the service, whose hosts start with the server: the job is timed on a running
+            # host (its process started, modules imported, tree built), not on the host's start
+            ray.get(host.ready.remote())
             t0 = time.perf_counter()
             host.control.remote(0, ("job", "bench", {"type": "precompute", "scene": payload}))
             res = None
