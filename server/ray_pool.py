@@ -86,11 +86,11 @@ class RayWorkerPool(LocalWorkerPool):
     settings : slot -> WorkerSettings (blob_root must be reachable at that path on every node).
     restore : sid -> a session's open payload from the database (after a host dies).
     node_ip : this process's address as the cluster sees it (Ray's ``_node_ip_address``).
-    chunks_per_cpu : precomputation chunks per cluster CPU.
+    chunks_per_cpu : pieces per cluster CPU a part is cut into (grouped into guided chunks).
     """
 
     def __init__(self, n: int, settings: Callable[[int], object], restore=None, address: str | None = None,
-                 node_ip: str | None = None, chunks_per_cpu: float = 2.0):
+                 node_ip: str | None = None, chunks_per_cpu: float = 32.0):
         super().__init__(n, settings, restore)
         self.address = address
         self.node_ip = node_ip

@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 
 
-def bench_ray_precompute(scene_path: str, address: str, node_ip: str | None = None, chunks_per_cpu: float = 2.0,
+def bench_ray_precompute(scene_path: str, address: str, node_ip: str | None = None, chunks_per_cpu: float = 32.0,
                          store: str | None = None) -> dict:
     import ray
 
@@ -96,7 +96,7 @@ def add_commands(sub) -> None:
     p.add_argument("scene")
     p.add_argument("--address", required=True, help="the cluster's GCS address host:port")
     p.add_argument("--node-ip", help="this process's address as the cluster sees it (e.g. 127.0.0.2)")
-    p.add_argument("--chunks-per-cpu", type=float, default=2.0)
+    p.add_argument("--chunks-per-cpu", type=float, default=32.0)
     p.add_argument("--store", help="folder for the temporary blob store (must be readable by every node; default /tmp)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(fn=cmd_bench_ray)

@@ -29,6 +29,7 @@ this module to name the actor class, and must stay free of them (tests/scale/tes
 from __future__ import annotations
 
 import hashlib
+import itertools
 import json
 import os
 import queue
@@ -104,7 +105,7 @@ class SessionHost:
     not keep call order, so requests are applied strictly by n. ``poll(timeout)`` returns the
     replies queued since the last poll (waiting up to timeout for the first)."""
 
-    def __init__(self, slot: int, settings: WorkerSettings, chunks_per_cpu: float = 2.0):
+    def __init__(self, slot: int, settings: WorkerSettings, chunks_per_cpu: float = 32.0):
         self.slot = slot
         self.chunks_per_cpu = chunks_per_cpu
         self.settings = settings
@@ -232,7 +233,7 @@ class SessionHost:
             w_sub = time.time()
             shipped = [_scene_key(scene_p), ray.put(_portable(sc)), ray.put(get_tree())]
             for part in todo:
-                chunks = pre.chunks(sc, part, options, n)
+                chunks = guided(pre.chunks(sc, part, options, n), cpus)
                 jobs.append((part, chunks, [compute_chunk.options(scheduling_strategy="SPREAD").remote(
                     shipped, kind, part, options, ch, me, jid) for ch in chunks]))
             tl["submit"] = time.time() - w_sub
@@ -268,7 +269,34 @@ class SessionHost:
                           "timeline": tl}}
 
 
+def guided(pieces: list, cpus: int) -> list:
+    """Consecutive pieces grouped into chunks of decreasing size (guided self-scheduling): each
+    chunk takes 1/(2·cpus) of the pieces left, at least one, so the first chunks are large (few
+    tasks) and the last ones single pieces (the nodes finish together). Ray hands the chunks, in
+    order, to whichever CPU is free. Only for pieces that are contiguous (start, stop) ranges,
+    as cut vertex ranges and GI tile ranges are; other chunk lists are returned as they are.
+    A group is the range (first start, last stop): for the cut renderer on batch boundaries, so
+    the same batches are traced and the assembly is the same bytes."""
+    ok = len(pieces) > 1 and all(isinstance(c, tuple) and len(c) == 2 and all(isinstance(x, int) for x in c)
+                                 for c in pieces) and all(a[1] == b[0] for a, b in itertools.pairwise(pieces))
+    if not ok:
+        return pieces
+    out, i = [], 0
+    while i < len(pieces):
+        k = max(1, (len(pieces) - i) // (2 * max(1, cpus)))
+        out.append((pieces[i][0], pieces[i + k - 1][1]))
+        i += k
+    return out
+
+
 def _host_warm_up() -> None:
+    """Imports a scene load needs (mesh and map readers: ~1 s in a fresh process) and the tree."""
+    import cv2  # noqa: F401
+    import OpenEXR  # noqa: F401
+    import trimesh  # noqa: F401
+
+    import worker.blobs
+    import worker.scene  # noqa: F401
     from worker.core.directions import get_tree
     from worker.renderers import get
 
