@@ -28,7 +28,7 @@ from typing import Callable
 import ray
 from ray.exceptions import GetTimeoutError, RayActorError
 
-from worker.jobs.ray_actors import SessionHost
+from worker.jobs.ray_actors import SessionHost, warm_up
 
 from .workers import LocalWorkerPool
 
@@ -123,6 +123,8 @@ class RayWorkerPool(LocalWorkerPool):
         self.loop = asyncio.get_running_loop()
         for i in range(self.n):
             self._spawn(i)
+        # a task process per cluster CPU starts and imports now, not inside the first precomputation
+        self._warm = [warm_up.options(scheduling_strategy="SPREAD").remote("cuts") for _ in range(int(res.get("CPU", 0)))]
         t = threading.Thread(target=self._monitor, daemon=True, name="glint-pool-monitor")
         t.start()
         self._threads.append(t)
