@@ -69,6 +69,8 @@ def bench_ray_precompute(scene_path: str, address: str, node_ip: str | None = No
                             "seconds_wall": st["seconds_wall"], "seconds_chunks_max": st["seconds_chunks_max"],
                             "chunk_concurrency": st["seconds_chunks_sum"] / st["seconds_wall"],
                             "cpu_share_of_chunk_time": st["cpu_seconds_chunks_sum"] / st["seconds_chunks_sum"],
+                            "seconds_chunks_sum": st["seconds_chunks_sum"],
+                            "cpu_seconds_chunks_sum": st["cpu_seconds_chunks_sum"],
                             "seconds_job": total, "part_sha256": sha, "timeline": st.get("timeline")})
         finally:
             ray.shutdown()
