@@ -255,8 +255,9 @@ class SessionHost:
             info[part.key] = {"label": part.label, "cached": False, "seconds": wall, "bytes": len(blob),
                               **stats, **ray_stats}
             computed += 1
-        try:                                        # long done: only which processes warmed up
-            tl["warm_processes"] = len(set(ray.get(warm, timeout=10)))
+        try:             # which processes warmed up (never waited for: a busy cluster may still queue them)
+            done, _ = ray.wait(warm, num_returns=len(warm), timeout=0)
+            tl["warm_processes"] = len(set(ray.get(done)))
         except Exception as e:                      # noqa: BLE001 -- a warm-up is no part of the result
             tl["warm_error"] = f"{type(e).__name__}: {e}"
         manifest = {k: cache.parts.sha(k) for k in info}
