@@ -43,7 +43,7 @@ class Settings(BaseModel):
     backend: str = Field("local", pattern="^(local|ray)$", description="worker backend: local or ray")
     ray_address: str | None = Field(None, description="Ray cluster to join (host:port of its GCS); unset: start one in-process")
     ray_node_ip: str | None = Field(None, description="this process's address as the Ray cluster sees it (e.g. 127.0.0.2 on loopback)")
-    ray_chunks_per_cpu: float = Field(2.0, gt=0, description="precomputation chunks per cluster CPU (load balance vs overhead)")
+    ray_chunks_per_cpu: float = Field(32.0, gt=0, description="pieces per cluster CPU a precomputation part is cut into, grouped into chunks of decreasing size (load balance vs overhead)")
     # operations
     log_format: str = Field("text", pattern="^(text|json)$", description="log lines as text or one JSON object per line")
     shutdown_grace_seconds: float = Field(0.0, ge=0, description="on SIGTERM, how long running precomputations may finish before they are failed")

@@ -28,7 +28,7 @@ from typing import Callable
 import ray
 from ray.exceptions import GetTimeoutError, RayActorError
 
-from worker.jobs.ray_actors import SessionHost
+from worker.jobs.ray_actors import SessionHost, warm_up
 
 from .workers import LocalWorkerPool
 
@@ -86,11 +86,11 @@ class RayWorkerPool(LocalWorkerPool):
     settings : slot -> WorkerSettings (blob_root must be reachable at that path on every node).
     restore : sid -> a session's open payload from the database (after a host dies).
     node_ip : this process's address as the cluster sees it (Ray's ``_node_ip_address``).
-    chunks_per_cpu : precomputation chunks per cluster CPU.
+    chunks_per_cpu : pieces per cluster CPU a part is cut into (grouped into guided chunks).
     """
 
     def __init__(self, n: int, settings: Callable[[int], object], restore=None, address: str | None = None,
-                 node_ip: str | None = None, chunks_per_cpu: float = 2.0):
+                 node_ip: str | None = None, chunks_per_cpu: float = 32.0):
         super().__init__(n, settings, restore)
         self.address = address
         self.node_ip = node_ip
@@ -123,6 +123,8 @@ class RayWorkerPool(LocalWorkerPool):
         self.loop = asyncio.get_running_loop()
         for i in range(self.n):
             self._spawn(i)
+        # a task process per cluster CPU starts and imports now, not inside the first precomputation
+        self._warm = [warm_up.options(scheduling_strategy="SPREAD").remote("cuts") for _ in range(int(res.get("CPU", 0)))]
         t = threading.Thread(target=self._monitor, daemon=True, name="glint-pool-monitor")
         t.start()
         self._threads.append(t)

@@ -124,7 +124,22 @@ def build_tree(height: int = HEIGHT) -> DirectionTree:
     )
 
 
+_adopted: dict[int, DirectionTree] = {}
+
+
 @lru_cache(maxsize=4)
+def _built_tree(height: int) -> DirectionTree:
+    return build_tree(height)
+
+
 def get_tree(height: int = HEIGHT) -> DirectionTree:
     """The process-wide direction tree (about 1 s to build for height 15)."""
-    return build_tree(height)
+    t = _adopted.get(height)
+    return t if t is not None else _built_tree(height)
+
+
+def adopt_tree(tree: DirectionTree) -> None:
+    """Use ``tree``, a ``build_tree`` result made by another process, as this process's
+    ``get_tree(tree.height)``: a Ray chunk task gets its coordinator's tree through the object
+    store instead of spending a second building it again (ray_actors.py)."""
+    _adopted[tree.height] = tree

@@ -13,32 +13,34 @@ asks the renderer's ``Precomputation`` for its parts, splits each missing part i
 ``SPREAD`` scheduling so that every node of the cluster takes a share, gathers the results in
 chunk order and ``assemble``\\ s them into the part's bytes: the same bytes as a single local run
 (tests/scale). Tasks report progress back to the host (``tick``), which reports it to the pool
-in the same messages as a local worker.
+in the same messages as a local worker. The serial work around the tasks is kept short
+(``_run_precompute``): worker processes warm up while the host loads the scene, the tasks get
+the loaded scene and the direction tree from the object store, and every part is submitted at
+once; the job's stats carry a ``timeline`` of where the time went.
 
-Blobs: every node reads meshes and maps, and the host writes parts, through ``BlobStore`` at the
-same ``blob_root`` path; on several hosts that path must be a shared directory (NFS, a mounted
-volume) or the store an S3-compatible one behind the same methods (worker/blobs.py).
+Blobs: the host reads meshes and maps and writes parts through ``BlobStore`` at ``blob_root``;
+the tasks read nothing from it (their scene comes through Ray's object store). Session hosts on
+several machines must all reach that path: a shared directory (NFS, a mounted volume) or an
+S3-compatible store behind the same methods (worker/blobs.py).
 
 Nothing here imports the tracer, OpenCV or the solvers at module level: the API process imports
 this module to name the actor class, and must stay free of them (tests/scale/test_ray.py).
 """
 from __future__ import annotations
 
-import atexit
+import hashlib
+import itertools
+import json
 import os
 import queue
-import shutil
-import tempfile
 import threading
 import time
 import traceback
-from collections import deque
-from pathlib import Path
+from collections import OrderedDict, deque
 
 import ray
 
 from .runner import JobError, WorkerSettings, worker_main
-
 
 # -- the host's pipes --------------------------------------------------------------------------
 
@@ -103,7 +105,7 @@ class SessionHost:
     not keep call order, so requests are applied strictly by n. ``poll(timeout)`` returns the
     replies queued since the last poll (waiting up to timeout for the first)."""
 
-    def __init__(self, slot: int, settings: WorkerSettings, chunks_per_cpu: float = 2.0):
+    def __init__(self, slot: int, settings: WorkerSettings, chunks_per_cpu: float = 32.0):
         self.slot = slot
         self.chunks_per_cpu = chunks_per_cpu
         self.settings = settings
@@ -118,10 +120,19 @@ class SessionHost:
         self.thread = threading.Thread(target=worker_main, args=(slot, self.requests, self.replies, settings),
                                        daemon=True, name="glint-worker-main")
         self.thread.start()
+        # what every precomputation's coordination needs (modules, the direction tree: ~2 s in a
+        # fresh process), made once when the host starts rather than inside its first job
+        self._warm = threading.Thread(target=_host_warm_up, daemon=True, name="glint-host-warm-up")
+        self._warm.start()
 
     def whoami(self) -> dict:
         ctx = ray.get_runtime_context()
         return {"pid": os.getpid(), "node_id": ctx.get_node_id(), "slot": self.slot}
+
+    def ready(self) -> bool:
+        """Wait until the host's start-up warm-up (modules, direction tree) is done."""
+        self._warm.join()
+        return True
 
     def control(self, n: int, item: tuple) -> None:
         with self._order:
@@ -174,6 +185,24 @@ class SessionHost:
                 self._jobs.pop(jid, None)
 
     def _run_precompute(self, jid: str, p: dict) -> dict:
+        """The parts missing from the store, each split into chunk tasks over the cluster.
+
+        What is serial is kept short and overlapped (timeline in the stats):
+        - warm-up tasks start a worker process on every node and import the numerical modules
+          *while* this host loads the scene and names the parts;
+        - the loaded scene and the direction tree go into the object store once (``ray.put``)
+          and every task reads them from there (NumPy arrays without a copy): no task re-reads
+          or re-verifies a blob, parses a mesh or builds the tree;
+        - the chunks of every missing part are submitted at once, so a part's assembly overlaps
+          the next part's tasks; a part is assembled as soon as its own chunks are back.
+        """
+        w_job = time.time()
+        scene_p = p["scene"]
+        kind = scene_p.get("renderer") or "cuts"
+        cpus = max(1, int(ray.cluster_resources().get("CPU", 1)))
+        warm = [warm_up.options(scheduling_strategy="SPREAD").remote(kind) for _ in range(cpus)]
+        self._warm.join()
+        from worker.core.directions import get_tree
         from worker.renderers import get
 
         from .runner import DataCache
@@ -181,8 +210,6 @@ class SessionHost:
         if self._pre_cache is None:
             self._pre_cache = DataCache(self.settings.model_copy(update={"tmp_dir": self.settings.tmp_dir + "-pre"}))
         cache = self._pre_cache
-        scene_p = p["scene"]
-        kind = scene_p.get("renderer") or "cuts"
         _, pre = get(kind)
         sc = cache.scene(scene_p)
         options = scene_p.get("options") or {}
@@ -190,25 +217,34 @@ class SessionHost:
         total = max(1, sum(x.work for x in parts))
         with self._jobs_lock:
             self._jobs[jid] = [0, total, -1.0]
-        cpus = max(1, int(ray.cluster_resources().get("CPU", 1)))
         n = max(1, round(cpus * self.chunks_per_cpu))
         me = ray.get_runtime_context().current_actor
         t0 = time.perf_counter()
-        info, computed, ray_stats = {}, 0, {}
+        tl: dict = {"prepare": time.time() - w_job}
+        info, computed, ray_stats, todo, jobs = {}, 0, {}, [], []
         for part in parts:
             blob = cache.parts.get(part.key)
             if blob is not None:
                 info[part.key] = {"label": part.label, "cached": True, **pre.describe(sc, part, blob)}
                 self.tick(jid, part.work)
-                continue
-            t1 = time.perf_counter()
-            chunks = pre.chunks(sc, part, options, n)
-            refs = [compute_chunk.options(scheduling_strategy="SPREAD").remote(
-                self.settings, scene_p, kind, part, options, ch, me, jid) for ch in chunks]
+            else:
+                todo.append(part)
+        if todo:
+            w_sub = time.time()
+            shipped = [_scene_key(scene_p), ray.put(_portable(sc)), ray.put(get_tree())]
+            for part in todo:
+                chunks = guided(pre.chunks(sc, part, options, n), cpus)
+                jobs.append((part, chunks, [compute_chunk.options(scheduling_strategy="SPREAD").remote(
+                    shipped, kind, part, options, ch, me, jid) for ch in chunks]))
+            tl["submit"] = time.time() - w_sub
+        for part, chunks, refs in jobs:
             results = ray.get(refs)                 # in chunk order, whatever order they finished in
+            w_res = time.time()
             blob, stats = pre.assemble(sc, part, options, [r["result"] for r in results])
+            w_asm = time.time()
             cache.parts.put(part.key, blob)
-            wall = time.perf_counter() - t1
+            tl.update(_timeline(results, w_sub, w_res, w_asm))
+            wall = time.time() - w_sub              # from submission (all parts at once) to this part stored
             nodes = sorted({r["node_id"] for r in results})
             ray_stats = {"ray_chunks": len(chunks), "ray_nodes": len(nodes), "ray_cpus": cpus,
                          "seconds_wall": wall, "seconds_chunks_max": max(r["seconds"] for r in results),
@@ -219,62 +255,152 @@ class SessionHost:
             info[part.key] = {"label": part.label, "cached": False, "seconds": wall, "bytes": len(blob),
                               **stats, **ray_stats}
             computed += 1
+        try:             # which processes warmed up (never waited for: a busy cluster may still queue them)
+            done, _ = ray.wait(warm, num_returns=len(warm), timeout=0)
+            tl["warm_processes"] = len(set(ray.get(done)))
+        except Exception as e:                      # noqa: BLE001 -- a warm-up is no part of the result
+            tl["warm_error"] = f"{type(e).__name__}: {e}"
         manifest = {k: cache.parts.sha(k) for k in info}
         flat = {}
         for v in info.values():
             flat.update({k: x for k, x in v.items() if k != "label"})
+        tl["job"] = time.time() - w_job
         return {"kind": kind, "parts": manifest,
-                "stats": {**flat, "seconds": time.perf_counter() - t0, "computed": computed, "backend": "ray"}}
+                "stats": {**flat, "seconds": time.perf_counter() - t0, "computed": computed, "backend": "ray",
+                          "timeline": tl}}
+
+
+def guided(pieces: list, cpus: int) -> list:
+    """Consecutive pieces grouped into chunks of decreasing size (guided self-scheduling): each
+    chunk takes 1/(2·cpus) of the pieces left, at least one, so the first chunks are large (few
+    tasks) and the last ones single pieces (the nodes finish together). Ray hands the chunks, in
+    order, to whichever CPU is free. Only for pieces that are contiguous (start, stop) ranges,
+    as cut vertex ranges and GI tile ranges are; other chunk lists are returned as they are.
+    A group is the range (first start, last stop): for the cut renderer on batch boundaries, so
+    the same batches are traced and the assembly is the same bytes."""
+    ok = len(pieces) > 1 and all(isinstance(c, tuple) and len(c) == 2 and all(isinstance(x, int) for x in c)
+                                 for c in pieces) and all(a[1] == b[0] for a, b in itertools.pairwise(pieces))
+    if not ok:
+        return pieces
+    out, i = [], 0
+    while i < len(pieces):
+        k = max(1, (len(pieces) - i) // (2 * max(1, cpus)))
+        out.append((pieces[i][0], pieces[i + k - 1][1]))
+        i += k
+    return out
+
+
+def _host_warm_up() -> None:
+    """Imports a scene load needs (mesh and map readers: ~1 s in a fresh process) and the tree."""
+    import cv2  # noqa: F401
+    import OpenEXR  # noqa: F401
+    import trimesh  # noqa: F401
+
+    import worker.blobs
+    import worker.scene  # noqa: F401
+    from worker.core.directions import get_tree
+    from worker.renderers import get
+
+    get("cuts")
+    get_tree()
+
+
+def _timeline(results: list[dict], w_sub: float, w_res: float, w_asm: float) -> dict:
+    """Where a part's wall time went (seconds, from the tasks' and the host's wall clocks):
+    submission to the first task running (worker start), the tasks' set-up (first task of a
+    process: imports; every task: the scene from the object store) and compute, the gap between
+    the first and the last node finishing (imbalance), the last result to the end of assembly,
+    then storing."""
+    first = min(r["t"][0] for r in results)
+    ends: dict = {}
+    for r in results:
+        ends[r["node_id"]] = max(ends.get(r["node_id"], 0.0), r["t"][2])
+    return {"submit_to_first_task": first - w_sub,
+            "task_setup_max": max(r["t"][1] - r["t"][0] for r in results),
+            "task_setup_sum": sum(r["t"][1] - r["t"][0] for r in results),
+            "task_compute_sum": sum(r["t"][2] - r["t"][1] for r in results),
+            "tasks_span": max(ends.values()) - first,
+            "node_finish_spread": max(ends.values()) - min(ends.values()),
+            "last_task_to_results": w_res - max(ends.values()),
+            "assemble": w_asm - w_res, "store": time.time() - w_asm,
+            "processes": len({(r["node_id"], r["pid"]) for r in results})}
 
 
 # -- chunk tasks ----------------------------------------------------------------------------------
-_task_caches: dict[str, object] = {}
+def _scene_key(scene_p: dict) -> str:
+    """Content key of a scene payload (its spec and its files' hashes): the cache key of the
+    scene in a task process, stable across jobs (the GI precomputation keeps per-scene set-up)."""
+    body = json.dumps({"spec": scene_p["spec"], "files": scene_p.get("files")}, sort_keys=True, default=str)
+    return hashlib.sha256(body.encode()).hexdigest()
 
 
-def _task_cache(settings: WorkerSettings):
-    """One DataCache per Ray worker process and blob store (task processes are reused, so a scene
-    loaded by one chunk is there for the next); its scratch folder is local to the node."""
-    from .runner import DataCache
+def _portable(sc):
+    """The loaded scene without its blob resolver (a closure over this host's cache), for the
+    object store; tasks never resolve files."""
+    from worker.scene import LoadedScene
 
-    c = _task_caches.get(settings.blob_root)
-    if c is None:
-        # Ray ends its worker processes without running atexit, so each process's folder is named
-        # by its pid and the folders of processes that are gone are removed here
-        base = Path(tempfile.gettempdir())
-        for old in base.glob("glint-task-*"):
-            pid = old.name.split("-")[2]                  # glint-task-<pid>-<n>
-            if pid.isdigit() and not _alive(int(pid)):
-                shutil.rmtree(old, ignore_errors=True)
-        tmp = base / f"glint-task-{os.getpid()}-{len(_task_caches)}"
-        atexit.register(shutil.rmtree, tmp, True)
-        c = _task_caches[settings.blob_root] = DataCache(settings.model_copy(update={"tmp_dir": str(tmp)}))
+    c = LoadedScene.__new__(LoadedScene)
+    c.__dict__.update(sc.__dict__)
+    c._resolver = None
     return c
 
 
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
+_task_scenes: OrderedDict = OrderedDict()          # scene content key -> LoadedScene, in a task process
+_task_lock = threading.Lock()
 
 
-@ray.remote(num_cpus=1, max_retries=1)
-def compute_chunk(settings: WorkerSettings, scene_p: dict, kind: str, part, options: dict, chunk, host, jid: str) -> dict:
-    """One chunk of a part, on one CPU of whichever node Ray chose; progress goes to ``host``
-    at most a few times a second. Returns {"result": what Precomputation.assemble takes,
-    "node_id", "seconds"}."""
+def _task_scene(shipped: list):
+    """The job's scene and tree in this task process: fetched from the object store by the first
+    chunk of the process, then kept (a few, least recently used first out) so that every chunk
+    of a process shares one scene object (renderers cache set-up per scene object)."""
+    from worker.core.directions import adopt_tree
+
+    key, scene_ref, tree_ref = shipped
+    with _task_lock:
+        sc = _task_scenes.get(key)
+        if sc is None:
+            sc, tree = ray.get([scene_ref, tree_ref])
+            adopt_tree(tree)
+            _task_scenes[key] = sc
+            while len(_task_scenes) > 2:
+                _task_scenes.popitem(last=False)
+        else:
+            _task_scenes.move_to_end(key)
+        return sc
+
+
+def _task_imports():
     os.environ["OPENBLAS_NUM_THREADS"] = "1"         # before NumPy loads in a fresh task process
     from worker import native
     from worker.renderers import get
 
     native.set_threads(1)                            # one CPU per task: no OpenMP oversubscription
+    return get
+
+
+@ray.remote(num_cpus=1, max_retries=0)
+def warm_up(kind: str) -> tuple:
+    """Start a task process on a node and import what chunks of a ``kind`` precomputation need
+    (while the host loads the scene). Returns (node id, pid)."""
+    _task_imports()(kind)
+    import worker.trace.embree  # noqa: F401
+
+    return ray.get_runtime_context().get_node_id(), os.getpid()
+
+
+@ray.remote(num_cpus=1, max_retries=1)
+def compute_chunk(shipped: list, kind: str, part, options: dict, chunk, host, jid: str) -> dict:
+    """One chunk of a part, on one CPU of whichever node Ray chose; progress goes to ``host``
+    at most a few times a second. ``shipped``: [scene content key, ObjectRef of the scene,
+    ObjectRef of the direction tree] (refs inside a list: fetched only by a process that lacks
+    them). Returns {"result": what Precomputation.assemble takes, "node_id", "seconds",
+    "cpu_seconds", "pid", "t": wall-clock (start, ready, end)}."""
+    w0 = time.time()
+    get = _task_imports()
     t0, c0 = time.perf_counter(), time.process_time()
-    cache = _task_cache(settings)
     _, pre = get(kind)
-    sc = cache.scene(scene_p)
+    sc = _task_scene(shipped)
+    w1 = time.time()
     pending = [0, time.monotonic()]
     lock = threading.Lock()
 
@@ -290,4 +416,4 @@ def compute_chunk(settings: WorkerSettings, scene_p: dict, kind: str, part, opti
     if pending[0]:
         host.tick.remote(jid, pending[0])
     return {"result": res, "node_id": ray.get_runtime_context().get_node_id(), "seconds": time.perf_counter() - t0,
-            "cpu_seconds": time.process_time() - c0}
+            "cpu_seconds": time.process_time() - c0, "pid": os.getpid(), "t": (w0, w1, time.time())}
