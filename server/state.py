@@ -82,6 +82,9 @@ class AppState:
     def session_payload(self, sid: str) -> dict:
         """Everything a worker needs to (re)build a session: scene, state, strokes (those of the
         current epoch that are neither dropped from the redo stack nor rejected)."""
+        from .routes.sessions import flush_session
+
+        flush_session(self, sid)         # what the stream holds but has not written yet
         with self.db() as s:
             row = s.get(Session, sid)
             if row is None:

@@ -16,6 +16,7 @@ import hmac
 import json
 import logging
 import threading
+import time
 
 from fastapi import APIRouter, Header, HTTPException, Query, Request, WebSocket, WebSocketDisconnect
 from fastapi.concurrency import run_in_threadpool
@@ -82,6 +83,9 @@ def get_session(sid: str, st: State, db: DB, x_session_token: str | None = Heade
         raise HTTPException(404, f"no session {sid!r}")
     if not _authorised(row, x_session_token):
         raise HTTPException(403, "wrong or missing session token (X-Session-Token header)")
+    if has_unsaved(sid):
+        flush_session(st, sid)
+        db.refresh(row)
     return SessionOut(id=row.id, scene_id=row.scene_id, stream=_stream_url(sid), state=row.state,
                       strokes=_strokes(db, row), closed=row.closed,
                       worker_pid=st.pool.worker_of(sid) if hasattr(st.pool, "worker_of") else None)
@@ -100,6 +104,11 @@ def close_session(sid: str, st: State, db: DB, x_session_token: str | None = Hea
 # -- persistence of client messages ---------------------------------------------------------------
 _locks: dict[str, threading.Lock] = {}
 _locks_guard = threading.Lock()
+# the state of each session whose stream this process serves: (SessionState, monotonic time of
+# its first change not yet written, or None); read and written under _lock(sid)
+_states: dict[str, tuple[SessionState, float | None]] = {}
+EPHEMERAL = frozenset({"view", "light", "move", "display"})
+FLUSH_S = 0.5            # the longest a camera, light or object move stays unwritten
 
 
 def _lock(sid: str) -> threading.Lock:
@@ -132,24 +141,75 @@ def persist(st, sid: str, msg) -> tuple[dict | None, dict | None]:
 
 
 def persist_batch(st, sid: str, msgs: list) -> list[tuple[dict | None, dict | None]]:
-    """``persist`` for messages in order, in one transaction: the state is read, validated and
-    written once however many messages arrived meanwhile (a camera dragged at 60 Hz by eight
-    designers is hundreds of messages a second; one transaction each made the stream fall
-    seconds behind, issue 9). Returns (error event, forwarded message) per message."""
+    """``persist`` for messages in order: (error event, forwarded message) per message.
+
+    Issue 9: a camera dragged at 60 Hz by eight designers is hundreds of messages a second, and a
+    transaction for each (reading, validating and rewriting the state, ~30 KB with a fitted
+    srbf) made the server the bottleneck. So a batch is one transaction, and the state of a
+    session with an open stream is kept here (``_states``): a batch of view, light, move and
+    display messages only (EPHEMERAL) changes that copy and is written at most FLUSH_S later
+    (by the next batch, the stream's idle timer, its end, a worker event or a restore). Any
+    other message is written, with everything before it, before it is forwarded. A server crash
+    can lose at most FLUSH_S of camera moves; never a stroke, a material or a save."""
     out = []
-    with _lock(sid), st.db() as s, s.begin():
-        row = _row(s, sid)
-        state = _load_state(s, row)
-        for msg in msgs:
-            err, fwd, state = _apply_one(s, sid, state, msg)
-            out.append((err, fwd))
-        row.state = state.model_dump(mode="json")
-        row.last_active = now()
+    with _lock(sid):
+        cached = _states.get(sid)
+        if cached is not None and all(m.type in EPHEMERAL for m in msgs):
+            state, since = cached
+            for msg in msgs:
+                err, fwd, state = _apply_one(None, sid, state, msg)
+                out.append((err, fwd))
+            since = since if since is not None else time.monotonic()
+            _states[sid] = (state, since)
+            if time.monotonic() - since >= FLUSH_S:
+                _write_locked(st, sid)
+            return out
+        with st.db() as s, s.begin():
+            row = _row(s, sid)
+            state = cached[0] if cached is not None else _load_state(s, row)
+            for msg in msgs:
+                err, fwd, state = _apply_one(s, sid, state, msg)
+                out.append((err, fwd))
+            row.state = state.model_dump(mode="json")
+            row.last_active = now()
+        _states[sid] = (state, None)
     return out
 
 
+def _write_locked(st, sid: str) -> None:
+    """Write a session's unsaved state (the caller holds ``_lock(sid)``)."""
+    cached = _states.get(sid)
+    if cached is None or cached[1] is None:
+        return
+    with st.db() as s, s.begin():
+        row = _row(s, sid)
+        if row is not None:
+            row.state = cached[0].model_dump(mode="json")
+            row.last_active = now()
+    _states[sid] = (cached[0], None)
+
+
+def flush_session(st, sid: str) -> None:
+    """Write what a session's stream has not written yet (before anything reads its row)."""
+    with _lock(sid):
+        _write_locked(st, sid)
+
+
+def forget_session(st, sid: str) -> None:
+    """The stream ended: write its unsaved state and drop the copy."""
+    with _lock(sid):
+        _write_locked(st, sid)
+        _states.pop(sid, None)
+
+
+def has_unsaved(sid: str) -> bool:
+    c = _states.get(sid)
+    return c is not None and c[1] is not None
+
+
 def _apply_one(s, sid: str, before: SessionState, msg):
-    """One message against the state: (error event, None, before) or (None, forwarded, after)."""
+    """One message against the state: (error event, None, before) or (None, forwarded, after).
+    s : the database session (None for EPHEMERAL messages, which touch no other row)."""
     if msg.type == "environment" and msg.asset_id is not None:
         # an uploaded map (e.g. a capture): the stored file goes into the state as a preset
         a = s.get(Asset, msg.asset_id)
@@ -189,6 +249,8 @@ def on_worker_event(st, sid: str, ev: dict) -> dict | None:
     t = ev.get("type")
     if t in ("fit", "paint") and "material" in ev:
         with _lock(sid), st.db() as s, s.begin():
+            _write_locked(st, sid)
+            _states.pop(sid, None)          # the row changes below: read it again next time
             row = _row(s, sid)
             state = dict(row.state)
             names = state.get("objects") or [o["name"] for o in s.get(Scene, row.scene_id).spec["objects"]]
@@ -212,6 +274,8 @@ def on_worker_event(st, sid: str, ev: dict) -> dict | None:
 def _store_save(st, sid: str, ev: dict) -> dict:
     seq = ev.get("seq")
     with _lock(sid), st.db() as s, s.begin():
+        _write_locked(st, sid)
+        _states.pop(sid, None)              # the row changes below: read it again next time
         row = _row(s, sid)
         state = dict(row.state)
         pending = [p for p in state.get("pending_saves", []) if p.get("seq") != seq]
@@ -324,7 +388,15 @@ async def stream(ws: WebSocket, sid: str, token: str | None = Query(None)):
         ending = False
         try:
             while not ending:
-                batch = [await inbox.get()]
+                if has_unsaved(sid):
+                    try:
+                        first = await asyncio.wait_for(inbox.get(), FLUSH_S)
+                    except asyncio.TimeoutError:
+                        await run_in_threadpool(flush_session, st, sid)
+                        continue
+                else:
+                    first = await inbox.get()
+                batch = [first]
                 while not inbox.empty() and len(batch) < MAX_BATCH:
                     batch.append(inbox.get_nowait())
                 ending = batch[-1] is None
@@ -408,6 +480,7 @@ async def stream(ws: WebSocket, sid: str, token: str | None = Query(None)):
         st.streams.pop(sid, None)
         st.pool.close_session(sid)
         st.metrics.session_ended(sid)
+        await run_in_threadpool(forget_session, st, sid)
         await run_in_threadpool(_ended, st, sid)
 
 

@@ -223,3 +223,38 @@ def test_openapi_yaml_is_current():
     from worker.cli import openapi_yaml
 
     assert (ROOT / "openapi.yaml").read_text() == openapi_yaml(), "openapi.yaml drifted: run `glint openapi --out openapi.yaml`"
+
+
+@pytest.mark.both_databases
+def test_camera_moves_are_kept_though_written_in_batches(server, client, bunny_scene):
+    """Issue 9: view messages change a copy of the state the stream holds, written at most
+    0.5 s later (FLUSH_S), not one transaction each. Nothing is lost: a GET, a restore after the
+    worker dies, and a reconnect all see the latest camera."""
+    ses = client.post("/v1/sessions", json={"scene_id": bunny_scene}).json()
+    sid, token = ses["id"], ses["token"]
+    eye = lambda k: [round(0.02 * k, 3), 0.6, 3.2]            # noqa: E731
+
+    def stored_eye():
+        return client.get(f"/v1/sessions/{sid}", headers={"X-Session-Token": token}).json()["state"]["camera"]["eye"]
+
+    async def go():
+        async with connect(server, ses["stream"], token) as ws:
+            await ws.recv()
+            await next_frame(ws)
+            for k in range(1, 21):
+                await ws.send(json.dumps({"seq": k, "type": "view", "eye": eye(k), "drag": True}))
+            await next_frame(ws, 20)
+            assert stored_eye() == eye(20)
+            await ws.send(json.dumps({"seq": 21, "type": "view", "eye": eye(21), "drag": True}))
+            await next_frame(ws, 21)
+            pid = client.get(f"/v1/sessions/{sid}", headers={"X-Session-Token": token}).json()["worker_pid"]
+            os.kill(pid, signal.SIGKILL)
+            ev = []
+            await ws.send(json.dumps({"seq": 22, "type": "view", "eye": eye(22), "drag": False}))
+            await next_frame(ws, 22, ev, timeout=120)
+            assert stored_eye() == eye(22)
+        async with connect(server, ses["stream"], token) as ws:
+            hello = json.loads(await ws.recv())
+            assert hello["state"]["camera"]["eye"] == eye(22) and hello["state"]["last_seq"] == 22, hello["state"]
+
+    asyncio.run(go())
