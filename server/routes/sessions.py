@@ -1,8 +1,9 @@
 """Interactive sessions: created over REST (id and secret token), streamed over a WebSocket
 (DESIGN.md §5). Every client message is validated and applied to the stored state by the same
-``apply`` the worker renders with (worker/jobs/state.py), persisted, then forwarded to the
-worker holding the session, so a worker crash loses nothing: the pool re-opens the session from
-here.
+``apply`` the worker renders with (worker/jobs/state.py), persisted in batches
+(``persist_batch``: camera, light and object moves at most 0.5 s later, anything else before
+it is forwarded), then forwarded to the worker holding the session, so a worker crash loses
+nothing: the pool re-opens the session from here.
 
 The stream's first message authenticates it: ``{"type": "auth", "token": …}`` (a token in the
 URL, ``?token=``, is still accepted but is kept out of the access log). Streams are bounded per
@@ -133,15 +134,10 @@ def _load_state(s, row: Session) -> SessionState:
     return state
 
 
-def persist(st, sid: str, msg) -> tuple[dict | None, dict | None]:
-    """Apply a validated message to the stored state and record it before the worker sees it.
-    Returns (error event, None) when it cannot apply (nothing is stored or forwarded), else
-    (None, the message to forward)."""
-    return persist_batch(st, sid, [msg])[0]
-
-
 def persist_batch(st, sid: str, msgs: list) -> list[tuple[dict | None, dict | None]]:
-    """``persist`` for messages in order: (error event, forwarded message) per message.
+    """Apply validated messages in order to the stored state and record them before the worker
+    sees them: (error event, None) for one that cannot apply (nothing stored or forwarded), else
+    (None, the message to forward).
 
     Issue 9: a camera dragged at 60 Hz by eight designers is hundreds of messages a second, and a
     transaction for each (reading, validating and rewriting the state, ~30 KB with a fitted
