@@ -2,7 +2,8 @@
 (DESIGN.md §5). Every client message is validated and applied to the stored state by the same
 ``apply`` the worker renders with (worker/jobs/state.py), persisted in batches
 (``persist_batch``: camera, light and object moves at most 0.5 s later, anything else before
-it is forwarded), then forwarded to the worker holding the session, so a worker crash loses
+it is forwarded; a fit's material, derived from the stored strokes, also at most 0.5 s later),
+then forwarded to the worker holding the session, so a worker crash loses
 nothing: the pool re-opens the session from here.
 
 The stream's first message authenticates it: ``{"type": "auth", "token": …}`` (a token in the
@@ -26,6 +27,7 @@ from sqlalchemy import select
 
 from worker.jobs.state import (EnvPreset, ErrorEvent, HelloEvent, SavedEvent, SessionState, StateError, apply,
                                client_msg, encode_frame, new_state, restore_state)
+from worker.models import parse_material
 
 from ..db import Asset, MaterialDesign, Scene, Session, SessionSave, StrokeRow, new_secret, now, token_hash
 from ..deps import DB, Client, State, check_host, check_origin, client_key
@@ -109,6 +111,10 @@ _locks_guard = threading.Lock()
 # its first change not yet written, or None); read and written under _lock(sid)
 _states: dict[str, tuple[SessionState, float | None]] = {}
 EPHEMERAL = frozenset({"view", "light", "move", "display"})
+# messages whose lasting effect is a row of their own (strokes, their undone flags): the row is
+# written before the message is forwarded, the session's state (only its last seq changes)
+# like a camera move
+ROWS_ONLY = frozenset({"stroke", "undo", "redo"})
 FLUSH_S = 0.5            # the longest a camera, light or object move stays unwritten
 
 
@@ -144,17 +150,28 @@ def persist_batch(st, sid: str, msgs: list) -> list[tuple[dict | None, dict | No
     srbf) made the server the bottleneck. So a batch is one transaction, and the state of a
     session with an open stream is kept here (``_states``): a batch of view, light, move and
     display messages only (EPHEMERAL) changes that copy and is written at most FLUSH_S later
-    (by the next batch, the stream's idle timer, its end, a worker event or a restore). Any
-    other message is written, with everything before it, before it is forwarded. A server crash
-    can lose at most FLUSH_S of camera moves; never a stroke, a material or a save."""
+    (by the next batch, the stream's idle timer, its end, a worker event or a restore). A batch
+    that also holds strokes, undo or redo (ROWS_ONLY) writes their rows in one transaction
+    before they are forwarded, and leaves the state to the same timer: rewriting it put 10-70 ms
+    on every stroke under load. Any other message is written, with everything before it, before
+    it is forwarded. A server crash can lose at most FLUSH_S of camera moves (and a fit, which
+    the replayed strokes redo); never a stroke, a material or a save."""
     out = []
     with _lock(sid):
         cached = _states.get(sid)
-        if cached is not None and all(m.type in EPHEMERAL for m in msgs):
+        if cached is not None and all(m.type in EPHEMERAL or m.type in ROWS_ONLY for m in msgs):
             state, since = cached
-            for msg in msgs:
-                err, fwd, state = _apply_one(None, sid, state, msg)
-                out.append((err, fwd))
+            if any(m.type in ROWS_ONLY for m in msgs):
+                # strokes, undo and redo are their rows (written now, in one transaction);
+                # the state they leave is the state before them
+                with st.db() as s, s.begin():
+                    for msg in msgs:
+                        err, fwd, state = _apply_one(s, sid, state, msg)
+                        out.append((err, fwd))
+            else:
+                for msg in msgs:
+                    err, fwd, state = _apply_one(None, sid, state, msg)
+                    out.append((err, fwd))
             since = since if since is not None else time.monotonic()
             _states[sid] = (state, since)
             if time.monotonic() - since >= FLUSH_S:
@@ -243,6 +260,20 @@ def on_worker_event(st, sid: str, ev: dict) -> dict | None:
     rejected stroke is never replayed, a save stores a material version (once per seq, even when
     a restarted worker runs it again). Returns the event for the client (None: nothing)."""
     t = ev.get("type")
+    if t == "fit" and "material" in ev:
+        # a fit is derived from the stored strokes (a restore replays them and fits again), so
+        # with the stream's copy of the state here it is written like a camera move, at most
+        # FLUSH_S later: the stroke's frame, which follows this event, does not wait for a
+        # transaction that rewrites the ~30 KB state
+        with _lock(sid):
+            cached = _states.get(sid)
+            if cached is not None and ev.get("object") in cached[0].objects:
+                state, since = cached
+                mats = list(state.materials)
+                mats[state.objects.index(ev["object"])] = parse_material(ev["material"])
+                _states[sid] = (state.model_copy(update={"materials": mats}),
+                                since if since is not None else time.monotonic())
+                return ev
     if t in ("fit", "paint") and "material" in ev:
         with _lock(sid), st.db() as s, s.begin():
             _write_locked(st, sid)
@@ -384,14 +415,14 @@ async def stream(ws: WebSocket, sid: str, token: str | None = Query(None)):
         ending = False
         try:
             while not ending:
-                if has_unsaved(sid):
-                    try:
-                        first = await asyncio.wait_for(inbox.get(), FLUSH_S)
-                    except asyncio.TimeoutError:
+                # waits at most FLUSH_S: a worker event (a fit) may leave the state unwritten
+                # while no message comes
+                try:
+                    first = await asyncio.wait_for(inbox.get(), FLUSH_S)
+                except asyncio.TimeoutError:
+                    if has_unsaved(sid):
                         await run_in_threadpool(flush_session, st, sid)
-                        continue
-                else:
-                    first = await inbox.get()
+                    continue
                 batch = [first]
                 while not inbox.empty() and len(batch) < MAX_BATCH:
                     batch.append(inbox.get_nowait())

@@ -258,3 +258,51 @@ def test_camera_moves_are_kept_though_written_in_batches(server, client, bunny_s
             assert hello["state"]["camera"]["eye"] == eye(22) and hello["state"]["last_seq"] == 22, hello["state"]
 
     asyncio.run(go())
+
+
+@pytest.mark.both_databases
+def test_a_stroke_is_its_row_and_its_fit_is_kept_with_the_camera(server, client, bunny_scene):
+    """Issue 9: a stroke is stored as its row before the worker sees it, the session's state
+    (its last seq, the fit's material) like a camera move, at most 0.5 s later. A GET sees the
+    fitted material at once, a restore after the worker dies applies the stroke once, and the
+    material and the stroke survive a reconnect."""
+    ses = client.post("/v1/sessions", json={"scene_id": bunny_scene}).json()
+    sid, token = ses["id"], ses["token"]
+    get = lambda: client.get(f"/v1/sessions/{sid}", headers={"X-Session-Token": token}).json()   # noqa: E731
+    stroke = {"points": [[62, 63], [88, 64]], "color": [2.5, 2.5, 2.5], "diameter": 8}
+
+    async def go():
+        async with connect(server, ses["stream"], token) as ws:
+            await ws.recv()
+            await next_frame(ws)
+            await ws.send(json.dumps({"seq": 1, "type": "view", "eye": [0.05, 0.6, 3.2], "drag": False}))
+            await ws.send(json.dumps({"seq": 2, "type": "stroke", "stroke": stroke}))
+            ev = []
+            await next_frame(ws, 2, ev)
+            fit = [e for e in ev if e["type"] == "fit"]
+            assert fit, ev
+            now = get()
+            assert len(now["strokes"]) == 1 and now["state"]["last_seq"] == 2, now["state"]["last_seq"]
+            assert now["state"]["materials"][0] == fit[-1]["material"]
+            os.kill(now["worker_pid"], signal.SIGKILL)
+            await ws.send(json.dumps({"seq": 3, "type": "view", "eye": [0.06, 0.6, 3.2], "drag": False}))
+            await next_frame(ws, 3, timeout=120)
+            # the restored worker holds the stroke once: a second one makes two
+            await ws.send(json.dumps({"seq": 4, "type": "stroke", "stroke": {**stroke, "points": [[62, 70], [88, 71]]}}))
+            ev = []
+            await next_frame(ws, 4, ev)
+            refit = [e for e in ev if e["type"] == "fit"]
+            assert refit and refit[-1]["stats"]["strokes"] == 2, [e.get("stats") for e in refit]
+            return refit[-1]["material"]
+
+    material = asyncio.run(go())
+    s = get()
+    assert len(s["strokes"]) == 2 and s["state"]["last_seq"] == 4
+    assert s["state"]["materials"][0] == material
+
+    async def reconnect():
+        async with connect(server, ses["stream"], token) as ws:
+            hello = json.loads(await ws.recv())
+            assert hello["strokes"] == 2 and hello["state"]["materials"][0] == material
+
+    asyncio.run(reconnect())
