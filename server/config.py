@@ -19,8 +19,12 @@ class Settings(BaseModel):
     host: str = "127.0.0.1"
     port: int = 8000
     workers: int = Field(default_factory=lambda: os.cpu_count() or 1, ge=1, le=64)
-    worker_threads: int = Field(0, ge=0, description="OpenMP threads per worker; 0 = cores / workers")
+    worker_threads: int = Field(0, ge=0, description="threads of a worker's jobs (precomputation's ray tracing); 0 = cores / "
+                                "workers. Interactive sessions' kernels share the machine's cores among its busy "
+                                "sessions instead (worker/jobs/runner.py Priority.kernel_threads)")
     kernels: str | None = Field(None, description="native, numpy, or unset (native when built)")
+    worker_nice: int = Field(5, ge=0, le=19, description="scheduling niceness added to worker processes: under "
+                             "load the server's message handling and frame sending go before rendering")
     allow_anonymous_loopback: bool = True
     # DNS rebinding: requests must name one of these hosts (any port); the bind host is added
     allowed_hosts: list[str] = Field(default_factory=lambda: ["127.0.0.1", "localhost", "::1"])
@@ -70,7 +74,7 @@ class Settings(BaseModel):
         from worker.jobs.runner import WorkerSettings
 
         return WorkerSettings(blob_root=str(self.data_dir / "blobs"), tmp_dir=str(self.data_dir / "tmp" / f"worker-{slot}"),
-                              threads=self.threads_per_worker(), kernels=self.kernels)
+                              threads=self.threads_per_worker(), kernels=self.kernels, nice=self.worker_nice)
 
     @classmethod
     def from_env(cls, **overrides) -> "Settings":

@@ -79,14 +79,14 @@ class _Worker:
     queues hold named semaphores, which a killed worker leaves behind (the resource tracker's
     'leaked semaphore' warnings at every shutdown); a pipe holds nothing but two descriptors."""
 
-    def __init__(self, slot: int, ctx, settings):
+    def __init__(self, slot: int, ctx, settings, urgent=None):
         from worker.jobs.runner import PipeOut, worker_main
 
         self.slot = slot
         self.settings = settings
         req_r, req_w = ctx.Pipe(duplex=False)
         rep_r, rep_w = ctx.Pipe(duplex=False)
-        self.proc = ctx.Process(target=worker_main, args=(slot, req_r, rep_w, settings),
+        self.proc = ctx.Process(target=worker_main, args=(slot, req_r, rep_w, settings, urgent),
                                 name=f"glint-worker-{slot}", daemon=True)
         self.proc.start()
         req_r.close()                   # the child's ends: closed here so EOF means it is gone
@@ -117,6 +117,10 @@ class LocalWorkerPool(WorkerPool):
         self.make_settings = settings
         self.restore = restore
         self.ctx = mp.get_context("spawn")
+        # the workers' stroke counts, for strokes before frames across the machine's cores
+        # (worker/jobs/runner.py Priority): shared memory without a lock, so nothing is left
+        # behind when a worker is killed
+        self.urgent = self.ctx.RawArray("i", 2 * n)     # strokes, then busy sessions, per worker
         self.workers: list[_Worker] = []
         self.loop: asyncio.AbstractEventLoop | None = None
         self.session_queues: dict[str, SessionQueue] = {}
@@ -141,7 +145,9 @@ class LocalWorkerPool(WorkerPool):
     def _spawn(self, slot: int) -> _Worker:
         settings = self.make_settings(slot)
         shutil.rmtree(settings.tmp_dir, ignore_errors=True)      # what a dead worker left behind
-        w = _Worker(slot, self.ctx, settings)
+        self.urgent[slot] = 0           # a worker killed during a stroke must not hold the others
+        self.urgent[self.n + slot] = 0
+        w = _Worker(slot, self.ctx, settings, self.urgent)
         if slot < len(self.workers):
             self.workers[slot] = w
         else:

@@ -130,18 +130,26 @@ class Server:
         return out
 
     def memory(self) -> dict:
-        """Resident memory now and at peak (VmRSS, VmHWM), MiB, summed over server and workers."""
+        """Resident memory now and at peak (VmRSS, VmHWM), MiB, summed over server and workers,
+        and now per process (``rss_mib_server``, ``rss_mib_workers``: one figure per worker)."""
         rss = hwm = 0
+        server, workers = 0.0, []
         for pid in self.pids():
             try:
                 for line in Path(f"/proc/{pid}/status").read_text().splitlines():
                     if line.startswith("VmRSS:"):
-                        rss += int(line.split()[1])
+                        kib = int(line.split()[1])
+                        rss += kib
+                        if pid == self.proc.pid:
+                            server = kib / 1024
+                        else:
+                            workers.append(kib / 1024)
                     elif line.startswith("VmHWM:"):
                         hwm += int(line.split()[1])
             except OSError:
                 pass
-        return {"rss_mib": rss / 1024, "peak_rss_mib": hwm / 1024}
+        return {"rss_mib": rss / 1024, "peak_rss_mib": hwm / 1024, "rss_mib_server": server,
+                "rss_mib_workers": sorted(workers)}
 
     def close(self) -> None:
         if self.proc is not None:
@@ -337,15 +345,26 @@ async def _load_session(port: int, ses: dict, seconds: float, index: int) -> dic
                 await s.wait_ack(pending[-1], timeout=120)
             except asyncio.TimeoutError:
                 pass
+        parts = {k: [] for k in ("wait", "apply", "fit", "render", "encode", "other")}
         for seq in pending:
             hit = [(t, h) for t, h in s.frames if h["ack"] >= seq]
             if hit:
-                strokes.append((hit[0][0] - s.sent[seq]) * 1e3)
+                t, h = hit[0]
+                strokes.append((t - s.sent[seq]) * 1e3)
+                inside = 0.0
+                for k in ("wait", "apply", "fit", "render", "encode"):
+                    parts[k].append(h.get("ms_" + k, 0.0))
+                    inside += parts[k][-1]
+                parts["other"].append(strokes[-1] - inside)     # the server, pipes, the client
         got = [f for f in s.frames[n0:] if f[0] <= t_start + dur]
         vl = [v for v in s.view_latencies(got) if v is not None]
         return {"fps": len(got) / dur, "frames": len(got), "view_p50_ms": pct(vl, 50), "view_p95_ms": pct(vl, 95),
                 "stroke_p50_ms": pct(strokes, 50), "stroke_p95_ms": pct(strokes, 95), "strokes": len(pending),
                 "strokes_framed": len(strokes), "errors": len(s.errors),
+                # where a stroke's time goes, from its frame's header: waiting in the worker,
+                # applying (the fit view), the fit, rendering, encoding, and the rest (server, pipes)
+                "stroke_parts_p50_ms": {k: pct(v, 50) for k, v in parts.items()},
+                "stroke_parts_p95_ms": {k: pct(v, 95) for k, v in parts.items()},
                 "error_messages": [e.get("message") for e in s.errors][:3]}
     finally:
         await s.close()
@@ -356,7 +375,8 @@ def bench_load(sessions: int = 8, seconds: float = 20.0, runs: int = 2, port: in
     srv = Server(port, data_dir, quiet, workers)
     try:
         scene = srv.demo(quiet)
-        out = {"sessions_per_run": sessions, "seconds": seconds, "runs": []}
+        out = {"sessions_per_run": sessions, "seconds": seconds, "runs": [],
+               "rss_mib_start": srv.memory()["rss_mib"]}     # before any session
         for run in range(runs):
             ses = [srv.session(scene) for _ in range(sessions)]
 
@@ -378,11 +398,16 @@ def bench_load(sessions: int = 8, seconds: float = 20.0, runs: int = 2, port: in
                                 "mean_fps": statistics.mean(x["fps"] for x in per),
                                 "view_p95_ms": max((x["view_p95_ms"] or 0) for x in per),
                                 "stroke_p95_ms": max(strokes) if strokes else None,
-                                "errors": sum(x["errors"] for x in per), **mem})
+                                "errors": sum(x["errors"] for x in per),
+                                "stroke_parts_p50_ms": {k: statistics.median(v) for k in per[0]["stroke_parts_p50_ms"]
+                                                        if (v := [x["stroke_parts_p50_ms"][k] for x in per
+                                                                  if x["stroke_parts_p50_ms"][k] is not None])},
+                                **mem})
             if not quiet:
                 r = out["runs"][-1]
                 print(f"run {run + 1}: min fps {r['min_fps']:.1f}, stroke p95 {r['stroke_p95_ms']} ms, "
-                      f"errors {r['errors']}, rss {r['rss_mib']:.0f} MiB", file=sys.stderr)
+                      f"errors {r['errors']}, rss {r['rss_mib']:.0f} MiB (server {r['rss_mib_server']:.0f}, "
+                      f"workers {', '.join(f'{w:.0f}' for w in r['rss_mib_workers'])})", file=sys.stderr)
         last = out["runs"][-1]
         out.update({k: last[k] for k in ("min_fps", "mean_fps", "view_p95_ms", "stroke_p95_ms", "errors",
                                          "rss_mib", "peak_rss_mib", "cpu_s_server", "cpu_s_workers", "frames",

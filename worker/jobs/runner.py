@@ -26,6 +26,7 @@ import os
 import queue
 import shutil
 import threading
+import time
 from contextlib import contextmanager
 import traceback
 from collections import OrderedDict, deque
@@ -39,11 +40,13 @@ class WorkerSettings(BaseModel):
 
     blob_root : the blob store. tmp_dir : this worker's scratch folder (removed on exit).
     threads : OpenMP threads per kernel call (0: one per core). kernels : "native", "numpy"
-    or None (native when built). scenes : loaded scenes kept (LRU)."""
+    or None (native when built). scenes : loaded scenes kept (LRU). nice : niceness added to
+    the process (the API server's messages and frames go first under load)."""
     blob_root: str
     tmp_dir: str
     threads: int = 0
     kernels: str | None = None
+    nice: int = 0
     scenes: int = 4
 
 
@@ -316,31 +319,78 @@ PROGRESS_JOBS = {"precompute": _precompute, "capture": _capture}
 
 
 class Priority:
-    """Strokes before frames (issue 9): while a session of this worker process handles a
-    stroke, undo or redo (a fit the designer is waiting for), the other sessions' frames wait
-    for it, at most MAX_WAIT_S each time. Under load a stroke otherwise got a quarter of a core
-    beside three orbiting sessions and reached its frame in ~1 s; the frames it delays are
-    each one of many a second."""
+    """Strokes before frames (issue 9): while a session handles a stroke, undo or redo (a fit
+    the designer is waiting for), the other sessions' frames wait for it, at most MAX_WAIT_S
+    each time. Under load a stroke otherwise got a quarter of a core beside three orbiting
+    sessions and reached its frame in ~1 s; the frames it delays are each one of many a second.
+
+    Within a worker process this is a condition variable. The local pool's workers share the
+    machine's cores, so they also share their counts (``share``: one slot per worker in shared
+    memory, each written only by its own worker, so no lock crosses processes): a frame waits
+    for strokes in any worker, polling the others every POLL_S. With per-process priority only,
+    a stroke's kernels still ran beside the other worker's frames at half the machine."""
     MAX_WAIT_S = 0.25
+    POLL_S = 0.004
 
     def __init__(self):
         self.cv = threading.Condition()
         self.urgent = 0
+        self.counts = None          # the local pool's shared array (multiprocessing RawArray "i")
+        self.slot = -1
+
+    def share(self, counts, slot: int) -> None:
+        """Take part in the machine-wide priority: counts[slot] is this process's stroke count,
+        counts[n + slot] its busy sessions (n workers; ``kernel_threads``)."""
+        self.counts, self.slot = counts, slot
+        counts[slot] = self.urgent
+
+    def kernel_threads(self, busy_here: int, urgent: bool) -> int:
+        """OpenMP threads for one session step's kernels: every core for a stroke (the other
+        sessions' frames wait for it), else the cores shared among the sessions that are busy
+        on this machine (this worker's ``busy_here`` and the other workers' published counts).
+        One session alone gets every core; eight share two without 16 threads competing."""
+        cores = os.cpu_count() or 1
+        c = self.counts
+        if c is None:
+            return cores
+        n = len(c) // 2
+        c[n + self.slot] = busy_here
+        if urgent:
+            return cores
+        busy = sum(c[n + i] for i in range(n))
+        return max(1, cores // max(1, busy))
+
+    def _others(self) -> int:
+        c = self.counts
+        return 0 if c is None else sum(c[i] for i in range(len(c) // 2) if i != self.slot)
 
     @contextmanager
     def first(self):
         with self.cv:
             self.urgent += 1
+            if self.counts is not None:
+                self.counts[self.slot] = self.urgent
         try:
             yield
         finally:
             with self.cv:
                 self.urgent -= 1
+                if self.counts is not None:
+                    self.counts[self.slot] = self.urgent
                 self.cv.notify_all()
 
-    def wait_turn(self) -> None:
+    def wait_turn(self, interrupt=None) -> None:
+        """Wait while a stroke is handled anywhere, at most MAX_WAIT_S; interrupt : a function
+        that ends the wait early when it returns True (polled every POLL_S)."""
+        deadline = time.monotonic() + self.MAX_WAIT_S
+        poll = self.counts is not None or interrupt is not None
         with self.cv:
-            self.cv.wait_for(lambda: self.urgent == 0, timeout=self.MAX_WAIT_S)
+            while self.urgent or self._others():
+                left = deadline - time.monotonic()
+                if left <= 0 or (interrupt is not None and interrupt()):
+                    return
+                # a local stroke's end notifies; another worker's, or the interrupt, is polled
+                self.cv.wait(min(left, self.POLL_S) if poll else left)
 
 
 PRIORITY = Priority()
@@ -351,6 +401,33 @@ URGENT = frozenset({"stroke", "undo", "redo", "fit"})
 # stroking or nudging a slider in quick succession does not wait behind a still they would
 # never see (they come ~100 ms apart); one that stops sees it a moment later
 STILL_DELAY_S = 0.12
+
+
+def _libc():
+    import ctypes
+    import ctypes.util
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        return libc if hasattr(libc, "malloc_trim") else None     # glibc only
+    except OSError:
+        return None
+
+
+_LIBC = _libc()
+
+
+def release_memory() -> None:
+    """Give the memory freed by a closed session back to the system (glibc's malloc_trim).
+    Issue 9: resident memory grew ~100 MiB per worker from one run of eight sessions to the
+    next while Python's own allocations (tracemalloc) stayed flat to 0.2 MiB: the kernels'
+    per-thread scratch and the sessions' arrays were freed into malloc's per-thread arenas,
+    which keep them until trimmed."""
+    import gc
+
+    gc.collect()
+    if _LIBC is not None:
+        _LIBC.malloc_trim(0)
 
 
 class SessionThread(threading.Thread):
@@ -366,6 +443,7 @@ class SessionThread(threading.Thread):
         self.cv = threading.Condition()
         self.stopping = False
         self.poked = False              # a background build for this session has finished
+        self.oldest = 0.0               # perf_counter() when the oldest message in the inbox arrived
 
     def poke(self) -> None:
         with self.cv:
@@ -374,8 +452,14 @@ class SessionThread(threading.Thread):
 
     def post(self, msg: dict) -> None:
         with self.cv:
+            if not self.inbox:
+                self.oldest = time.perf_counter()      # the frame header's ms_wait
             self.inbox.append(msg)
             self.cv.notify()
+
+    def _urgent_waiting(self) -> bool:
+        with self.cv:
+            return self.stopping or any(m.get("type") in URGENT for m in self.inbox)
 
     def stop(self) -> None:
         with self.cv:
@@ -392,7 +476,8 @@ class SessionThread(threading.Thread):
             return not self.inbox and not self.stopping
 
     def run(self) -> None:
-        from worker.jobs.session import SessionRuntime, error_event
+        from worker import native
+        from worker.jobs.session import SessionRuntime, busy_sessions, error_event
         from worker.renderers.base import FrameCancelled
 
         rt = None
@@ -415,6 +500,7 @@ class SessionThread(threading.Thread):
                     msgs = list(self.inbox)
                     self.inbox.clear()
                     self.poked = False
+                    arrived = self.oldest
                 # background results (completed fit views, the vertex transfer): a new frame
                 # only when they change it
                 changed = rt.absorb()
@@ -425,12 +511,21 @@ class SessionThread(threading.Thread):
                         rt.prefetch()
                     continue
                 urgent = any(m.get("type") in URGENT for m in msgs)
+                if not urgent:
+                    # a stroke of this session arriving meanwhile ends the wait: it is taken
+                    # into this step (it waited up to MAX_WAIT_S behind others' strokes before)
+                    PRIORITY.wait_turn(interrupt=self._urgent_waiting)
+                    with self.cv:
+                        msgs += list(self.inbox)
+                        self.inbox.clear()
+                    urgent = any(m.get("type") in URGENT for m in msgs)
+                # OpenMP's thread count is per calling thread (libgomp): set for this step
+                native.set_threads(PRIORITY.kernel_threads(busy_sessions(time.monotonic()), urgent))
                 if urgent:
                     with PRIORITY.first():
-                        ack = self._step(rt, msgs, ack)
+                        ack = self._step(rt, msgs, ack, arrived)
                 else:
-                    PRIORITY.wait_turn()
-                    ack = self._step(rt, msgs, ack)
+                    ack = self._step(rt, msgs, ack, arrived)
                 with self.cv:
                     idle = not self.inbox
                 if idle:
@@ -453,12 +548,15 @@ class SessionThread(threading.Thread):
                 traceback.print_exc()
         finally:
             del rt
+            release_memory()
             self.outq.put(("closed", self.sid, None))
 
-    def _step(self, rt, msgs: list, ack: int) -> int:
-        """Apply messages, fit if needed, send the frame; returns the new ack."""
+    def _step(self, rt, msgs: list, ack: int, arrived: float = 0.0) -> int:
+        """Apply messages, fit if needed, send the frame; returns the new ack. arrived :
+        perf_counter() when the oldest of msgs reached this worker (0: not known)."""
         from worker.jobs.session import error_event
 
+        t0 = time.perf_counter()
         for m in msgs:
             try:
                 for e in rt.handle(m):
@@ -466,22 +564,39 @@ class SessionThread(threading.Thread):
             except Exception as ex:
                 self._event(error_event(ex, m.get("seq")))
             ack = max(ack, int(m.get("seq", -1)))
+        t1 = time.perf_counter()
         try:
             for e in rt.fit_if_needed() + rt.take_events():
                 self._event(e)
         except Exception as ex:
             self._event(error_event(ex, ack) | {"message": f"fit failed: {error_event(ex)['message']}"})
+        t2 = time.perf_counter()
         try:
-            self.outq.put(("frame", self.sid, rt.frame(ack, skipped=max(0, len(msgs) - 1))))
+            hdr, jpeg = rt.frame(ack, skipped=max(0, len(msgs) - 1))
+            hdr.update(ms_wait=round(max(0.0, t0 - arrived) * 1e3, 2) if arrived else 0.0,
+                       ms_apply=round((t1 - t0) * 1e3, 2), ms_fit=round((t2 - t1) * 1e3, 2))
+            self.outq.put(("frame", self.sid, (hdr, jpeg)))
         except Exception as ex:
             self._event(error_event(ex, ack) | {"message": f"render failed: {error_event(ex)['message']}"})
         return ack
 
 
-def worker_main(wid: int, requests, replies, settings: WorkerSettings) -> None:
+def worker_main(wid: int, requests, replies, settings: WorkerSettings, urgent=None) -> None:
     """Entry point of a worker process (multiprocessing, spawn): requests and replies are the
-    two pipe ends (multiprocessing.connection.Connection)."""
+    two pipe ends (multiprocessing.connection.Connection); urgent : the local pool's shared
+    stroke counts (a RawArray "i", one slot per worker; Priority), or None."""
     outq = PipeOut(replies)
+    if urgent is not None:
+        PRIORITY.share(urgent, wid)
+    if _LIBC is not None:
+        # a few malloc arenas, not eight per core: the session threads' and OpenMP threads'
+        # freed memory stays in fewer places, and release_memory returns more of it
+        _LIBC.mallopt(-8, 2)            # M_ARENA_MAX
+    if settings.nice:
+        # issue 9: with rendering at the server's priority, a stroke's message and its frame
+        # waited ~30 ms (p50) behind frames in the server's event loop and the pipes
+        os.nice(settings.nice)
+
     # before NumPy loads: BLAS must not spawn threads beside the OpenMP kernels (DESIGN.md §7)
     os.environ["OPENBLAS_NUM_THREADS"] = "1"
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")

@@ -562,6 +562,10 @@ class FrameHeader(BaseModel):
     shadow: bool | None = Field(None, description="the ground shadow is drawn; null: the scene has no ground")
     ms_render: float
     ms_encode: float
+    ms_wait: float = Field(0.0, description="how long the oldest message this frame answers waited in the worker "
+                                             "before it was handled (other sessions' work, this session's previous frame)")
+    ms_apply: float = Field(0.0, description="applying the messages (a stroke's fit view is built here)")
+    ms_fit: float = Field(0.0, description="the BRDF fit the messages asked for (0: none)")
     skipped: int = Field(0, description="client messages folded into this frame without a frame of their own")
 
 
