@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import datetime as dt
 import secrets
+import sqlite3
+import threading
 import uuid
 
 from sqlalchemy import (JSON, Boolean, DateTime, Float, ForeignKey, Integer, String, UniqueConstraint, false,
@@ -165,12 +167,74 @@ class ApiToken(Base):
     created: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now)
 
 
+# One writer at a time in this process, queued here rather than in SQLite. SQLite lets one
+# connection write; another that tries gets SQLITE_BUSY and its busy handler sleeps 1, 2, 5, 10,
+# ... up to 100 ms between retries, so under load (eight sessions' strokes and state writes) a
+# write could sleep tens of ms after the lock was free: 70-85 ms on a stroke's row (issue 9).
+# Writers of other processes (the CLI) still meet the busy timeout.
+_WRITE_LOCK = threading.RLock()
+_READS = ("SELECT", "PRAGMA", "EXPLAIN")
+
+
+class _WriterCursor(sqlite3.Cursor):
+    """Takes the process's write lock at a connection's first statement that writes."""
+
+    def execute(self, sql, *args):
+        self.connection._writing(sql)
+        return super().execute(sql, *args)
+
+    def executemany(self, sql, *args):
+        self.connection._writing(sql)
+        return super().executemany(sql, *args)
+
+
+class _WriterConnection(sqlite3.Connection):
+    """An SQLite connection that holds ``_WRITE_LOCK`` from its first write to its commit or
+    rollback (the transaction SQLite would hold its own write lock for)."""
+    holds = False
+
+    def cursor(self, factory=_WriterCursor):
+        return super().cursor(factory)
+
+    def _writing(self, sql: str) -> None:
+        if not self.holds and not sql.lstrip()[:7].upper().startswith(_READS):
+            # past the timeout SQLite's own busy handling decides, as before
+            self.holds = _WRITE_LOCK.acquire(timeout=30)
+
+    def _done(self) -> None:
+        if self.holds:
+            self.holds = False
+            try:
+                _WRITE_LOCK.release()
+            except RuntimeError:         # closed by another thread (a collected connection)
+                pass
+
+    def commit(self):
+        try:
+            return super().commit()
+        finally:
+            self._done()
+
+    def rollback(self):
+        try:
+            return super().rollback()
+        finally:
+            self._done()
+
+    def close(self):
+        try:
+            return super().close()
+        finally:
+            self._done()
+
+
 def make_engine(url: str):
     """SQLAlchemy engine. SQLite gets WAL and a busy timeout so the server's threads and the CLI
-    can share the file; PostgreSQL a pool that checks connections before use."""
+    can share the file, and its writers in this process queue on a lock (``_WriterConnection``);
+    PostgreSQL a pool that checks connections before use."""
     kw = {}
     if url.startswith("sqlite"):
-        kw["connect_args"] = {"check_same_thread": False, "timeout": 30}
+        kw["connect_args"] = {"check_same_thread": False, "timeout": 30, "factory": _WriterConnection}
     else:
         kw["pool_pre_ping"] = True
     engine = create_engine(url, **kw)

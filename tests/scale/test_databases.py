@@ -234,3 +234,62 @@ def test_versions_are_numbered_one_after_the_other_under_contention(empty_db, mo
         versions = sorted(s.scalars(select(MaterialVersion.version).where(MaterialVersion.design_id == did)))
     Session_.kw["bind"].dispose()
     assert not errors and versions == list(range(1, 10)), (errors[:2], versions)
+
+
+def test_sqlite_writers_of_one_process_queue_on_a_lock_not_in_sqlite(tmp_path):
+    """Issue 9: SQLite's busy handler sleeps 1, 2, 5, … up to 100 ms between retries, which
+    put 50-180 ms on strokes' rows under load. A second writer in the process now waits on the
+    process's write lock, which the first releases at its commit or rollback; reads do not take
+    it."""
+    from server.db import _WRITE_LOCK, ApiToken, make_sessionmaker
+
+    S = make_sessionmaker(f"sqlite:///{tmp_path / 'glint.db'}")
+    order, started = [], threading.Event()
+
+    def free() -> bool:
+        """Whether another thread could take the write lock now (it is re-entrant here)."""
+        got = []
+
+        def probe():
+            got.append(_WRITE_LOCK.acquire(blocking=False))
+            if got[0]:
+                _WRITE_LOCK.release()
+
+        t = threading.Thread(target=probe)
+        t.start()
+        t.join()
+        return got[0]
+
+    def second_writer():
+        started.set()
+        with S() as s, s.begin():
+            s.add(ApiToken(name="second", token_sha256="b" * 64))
+        order.append("second committed")
+
+    with S() as r:
+        r.scalars(select(ApiToken)).all()
+        assert free(), "a read took the write lock"
+    with S() as s:
+        with s.begin():
+            s.add(ApiToken(name="first", token_sha256="a" * 64))
+            s.flush()                                   # the INSERT: this connection writes
+            assert not free(), "a writing connection does not hold the write lock"
+            t = threading.Thread(target=second_writer)
+            t.start()
+            started.wait()
+            time.sleep(0.2)
+            assert order == [], "the second writer did not wait for the first"
+            order.append("first committing")
+        t.join(30)
+    assert order == ["first committing", "second committed"]
+    with S() as s:
+        try:
+            with s.begin():
+                s.add(ApiToken(name="third", token_sha256="c" * 64))
+                s.flush()
+                raise RuntimeError("rolled back")
+        except RuntimeError:
+            pass
+    assert free(), "a rollback left the write lock held"
+    with S() as s:
+        assert sorted(s.scalars(select(ApiToken.name))) == ["first", "second"]
