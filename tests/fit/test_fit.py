@@ -258,3 +258,36 @@ def test_a_quick_view_fits_close_to_the_full_one(fitter, across):
     rel = float(np.sqrt(((a - b) ** 2).mean()) / np.sqrt((b ** 2).mean()))
     assert rel < 0.05, f"quick-view fit differs from the full fit by {rel:.3f} (relative RMS over the view)"
     assert out.achieved > 0.5 * ref.achieved, (out.achieved, ref.achieved)
+
+
+def test_a_quick_view_on_coarse_cuts_fits_close_to_the_full_one(fitter, across):
+    """Issue 9: a session's quick view is built on the drag level's cuts (half the transfer's
+    cost). Its base rendering is on the same cuts, so nothing unpainted looks changed to the
+    fit; the fit predicts, on the full view, nearly what the full fit does."""
+    from worker.fit.fitter import Fitter, quick_select
+
+    C = 2.0 * float(fitter.views[0].base.max())
+    st = Stroke(points=across(fitter), color=(C, C, C), diameter=8)
+    fitter.add_stroke(st)
+    ref = fitter.fit()
+    fq = Fitter(fitter.renderer, "bunny", base_material=fitter.base_material, fit_scale=1.0)
+    fq.views.append(fq.build_view(select=quick_select(st, rows=300), coarse=True))
+    v = fq.views[0]
+    assert v.coarse and v.provisional
+    full_rows = fitter.views[0]
+    idx = np.searchsorted(full_rows.pix, v.pix)
+    # the rows differ (other cuts), but by a few per cent only
+    dT = float(np.linalg.norm(v.T - full_rows.T[:, idx]) / np.linalg.norm(full_rows.T[:, idx]))
+    dB = float(np.linalg.norm(v.base - full_rows.base[idx]) / np.linalg.norm(full_rows.base[idx]))
+    assert 0 < dT < 0.08 and dB < 0.05, (dT, dB)
+    # rows added under a later stroke are on the same cuts
+    fq.extend_view(v)
+    assert not v.partial and v.coarse and v.provisional
+    np.testing.assert_allclose(v.base, fq._shade_base(v), rtol=1e-6)
+    fq.add_stroke(st)
+    out = fq.fit()
+    a = fitter.predicted(out.solve.coefficients)
+    b = fitter.predicted(ref.solve.coefficients)
+    rel = float(np.sqrt(((a - b) ** 2).mean()) / np.sqrt((b ** 2).mean()))
+    assert rel < 0.05, f"coarse quick-view fit differs from the full fit by {rel:.3f} (relative RMS over the view)"
+    assert out.achieved > 0.5 * ref.achieved, (out.achieved, ref.achieved)

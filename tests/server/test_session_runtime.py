@@ -58,9 +58,9 @@ def test_stroke_frames_use_the_vertex_transfer_once_built(bunny_renderer):
 
 def test_a_stroke_mid_drag_gets_a_quick_view_completed_after(bunny_renderer):
     """Issue 9 (load) and 11 (first stroke after an orbit): a stroke painted in a view not
-    built yet is fitted on a quick view (its pixels and a sparse grid); the full view is built
-    in the background once the user stops dragging and replaces it, and the design is then
-    exactly what a restore from the stored strokes gives."""
+    built yet is fitted on a quick view (its pixels and a sparse grid, on the drag level's
+    cuts); the full view is built in the background once the user stops dragging and replaces
+    it, and the design is then exactly what a restore from the stored strokes gives."""
     rt = _runtime(bunny_renderer)
     rt.quick_rows = 40
     woke = []
@@ -69,7 +69,7 @@ def test_a_stroke_mid_drag_gets_a_quick_view_completed_after(bunny_renderer):
     ev = rt.handle({"seq": 2, "type": "stroke", "stroke": STROKE})
     assert not ev[0]["rejected"], ev
     v = rt.fitter.views[0]
-    assert v.partial and v.n < v.n_object / 2, (v.n, v.n_object)
+    assert v.partial and v.coarse and v.n < v.n_object / 2, (v.n, v.n_object)
     quick = rt.fit_if_needed()[0]["stats"]
     assert quick["painted"] > 0
     rt.prefetch()
@@ -79,7 +79,7 @@ def test_a_stroke_mid_drag_gets_a_quick_view_completed_after(bunny_renderer):
     rt.handle({"seq": 4, "type": "display", "exposure": 0.5})     # messages meanwhile keep it coming
     fut = rt._completions[0][2]
     fut.result(timeout=120)
-    assert woke and rt.absorb() and not rt.fitter.views[0].partial
+    assert woke and rt.absorb() and not rt.fitter.views[0].provisional
     full = rt.fit_if_needed()[0]["stats"]
     assert full["pixels"] == v.n_object > quick["pixels"]
     cam = rt.state.camera.model_dump()
@@ -96,7 +96,7 @@ def _complete_views(rt):
     for _, _, fut in list(rt._completions.values()):
         fut.result(timeout=120)
     rt.absorb()
-    assert not any(v.partial for v in rt.fitter.views)
+    assert not any(v.provisional for v in rt.fitter.views)
 
 
 def test_replay_rebuilds_the_same_design(bunny_renderer):

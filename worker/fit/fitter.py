@@ -96,10 +96,18 @@ class FitView:
     cand_samples: object = field(repr=False, default=None)
     cand_xy: np.ndarray | None = field(repr=False, default=None)
     unbuilt: np.ndarray | None = field(repr=False, default=None)
+    # rows on the renderer's drag-level (coarser) cuts: a quick view's, at about half the
+    # transfer's cost, replaced by a full build like a partial view (``provisional``)
+    coarse: bool = False
 
     @property
     def partial(self) -> bool:
         return self.unbuilt is not None and len(self.unbuilt) > 0
+
+    @property
+    def provisional(self) -> bool:
+        """A quick view, partial or on coarse cuts: the session builds it in full later."""
+        return self.partial or self.coarse
 
     @property
     def n_object(self) -> int:
@@ -206,14 +214,18 @@ class Fitter:
         return len(self.views) - 1
 
     def build_view(self, camera: Camera | None = None, rotation_deg: float | None = None,
-                   intensity: float | None = None, select=None) -> FitView:
+                   intensity: float | None = None, select=None, coarse: bool = False) -> FitView:
         """A view's fit rows (transfer, Gram, base rendering) without saving it: safe to run
         on a background thread while the fitter is in use.
 
         select : None (every object pixel of the fit grid) or a function (xy (M, 2) view-image
             pixel centres, footprint) -> (M,) bool choosing the rows to build now: a partial
             view, completed later by ``extend_view`` (its unpainted rows weigh for the unbuilt
-            ones meanwhile, see ``fit``)."""
+            ones meanwhile, see ``fit``).
+        coarse : build the rows (these and any added by ``extend_view``) on the renderer's
+            drag-level cuts (renderers.cuts.renderer.DRAG_TAU): the transfer at about half the
+            cost and 3% from the full cuts' (BENCHMARKS.md), for a stroke's first frame while the
+            full view is built later."""
         spec = self.renderer.scene.spec
         camera = camera or spec.camera
         rot = spec.environment.rotation_deg if rotation_deg is None else float(rotation_deg)
@@ -235,7 +247,7 @@ class Fitter:
         J = self.basis.J
         view = FitView(camera, rot, inten, (fw, fh), pix[:0], xy[:0], np.zeros((3, 0, J), np.float32),
                        np.zeros((0, 3), np.float32), np.zeros((0, 3)), np.zeros((3, J, J)), 0.0,
-                       _take(smp, np.zeros(0, np.int64)))
+                       _take(smp, np.zeros(0, np.int64)), coarse=coarse)
         first = np.arange(len(pix))
         if select is not None:
             keep = np.asarray(select(xy, view.footprint), bool)
@@ -270,8 +282,11 @@ class Fitter:
 
     def _add_rows(self, view: FitView, smp, xy: np.ndarray) -> None:
         """Transfer, Gram and base rendering of more pixels of a view, appended to its rows."""
-        T, E = self.renderer.transfer(smp, self.basis, view.lighting)
-        base = self.renderer.shade_samples(smp, self.base_material, self.obj, view.lighting)
+        # a coarse view's base rendering is on the same cuts as its transfer: the fit then sees
+        # no difference between the two where nothing is painted
+        kw = {"coarse": True} if view.coarse else {}
+        T, E = self.renderer.transfer(smp, self.basis, view.lighting, **kw)
+        base = self.renderer.shade_samples(smp, self.base_material, self.obj, view.lighting, **kw)
         view.pix = np.concatenate([view.pix, smp.pix])
         view.xy = np.concatenate([view.xy, xy])
         view.T = np.concatenate([view.T, T], axis=1) if view.T.shape[1] else T
@@ -284,7 +299,8 @@ class Fitter:
     def _shade_base(self, view: FitView) -> np.ndarray:
         """B' (N, 3): the base material at the view's fit pixels, shaded like the renderer's
         pixel mode (each corner's cut with the pixel's normal, blended by barycentric weight)."""
-        return self.renderer.shade_samples(view.samples, self.base_material, self.obj, view.lighting)
+        kw = {"coarse": True} if view.coarse else {}
+        return self.renderer.shade_samples(view.samples, self.base_material, self.obj, view.lighting, **kw)
 
     def set_base_material(self, material: Material, albedo=None) -> None:
         """Strokes now paint over this material's appearance (bases are re-shaded)."""

@@ -200,9 +200,10 @@ class SessionRuntime:
     def _view_index(self, camera: Camera, rot: float, inten: float, stroke: dict | None = None) -> int:
         """The saved fit view of a camera and light, built if needed. For a live stroke
         (``stroke`` given) a view not built yet is a quick one (fit/fitter.py QUICK_ROWS): the
-        stroke's pixels and a sparse grid of the rest, completed in the background once the
-        user stops dragging (``_complete``); a partial view is extended under each new stroke,
-        so painted pixels are always fitted. Replayed strokes get full views."""
+        stroke's pixels and a sparse grid of the rest, on the drag level's cuts (half the
+        transfer's cost), built in full in the background once the user stops dragging
+        (``_complete``); a partial view is extended under each new stroke, so painted pixels
+        are always fitted. Replayed strokes get full views."""
         fx = self._ensure_fitter()
         sel = None if stroke is None else Stroke.model_validate({**stroke, "view": 0})
         for i, v in enumerate(fx.views):
@@ -220,15 +221,15 @@ class SessionRuntime:
             fut = None
         elif sel is not None:
             # under load the quick view shares the worker too: fewer rows, the rest comes with
-            # the completion (tests/fit: 2.7% from the full fit at 300 rows on the bunny)
+            # the completion (tests/fit: a few % from the full fit at 300 rows on the bunny)
             rows = max(min(self.quick_rows, QUICK_ROWS_MIN), self.quick_rows // busy_sessions(time.monotonic()))
-            view = fx.build_view(camera, rot, inten, select=quick_select(sel, rows))
+            view = fx.build_view(camera, rot, inten, select=quick_select(sel, rows), coarse=True)
         else:
             view = fx.build_view(camera, rot, inten)
         fx.views.append(view)
         i = len(fx.views) - 1
         self._view_moves[i] = self._moves
-        if view.partial:
+        if view.provisional:
             if fut is not None and not fut.cancelled():
                 self._adopt(i, fut)       # the full view already on its way completes it
             elif not self._drag:
@@ -236,8 +237,8 @@ class SessionRuntime:
         return i
 
     def _complete(self, i: int) -> None:
-        """Build view i in full on the background builder; it replaces the partial view when
-        it is ready (``absorb``)."""
+        """Build view i in full on the background builder; it replaces the provisional (partial
+        or coarse) view when it is ready (``absorb``)."""
         fx, moves, _ = self._completions.get(i, (None, None, None))
         if fx is self.fitter and moves == self._moves:
             return                          # on its way
@@ -249,8 +250,8 @@ class SessionRuntime:
         fut.add_done_callback(lambda _f: self.wake())
 
     def absorb(self) -> bool:
-        """Background results the session can take now: completed views replace their partial
-        ones (the fit is re-run). Returns whether anything changed. Runs on the session's thread."""
+        """Background results the session can take now: completed views replace their
+        provisional ones (the fit is re-run). Returns whether anything changed. Runs on the session's thread."""
         changed = False
         for i, (fx, moves, fut) in list(self._completions.items()):
             if not fut.done():
@@ -259,7 +260,7 @@ class SessionRuntime:
             view = None if fut.cancelled() else fut.result()
             if fx is not self.fitter or moves != self._moves or isinstance(view, Exception) or view is None:
                 continue
-            if i < len(fx.views) and fx.views[i].partial:
+            if i < len(fx.views) and fx.views[i].provisional:
                 fx.views[i] = view
                 self._needs_fit = bool(len(fx.history))
                 changed = True
@@ -424,8 +425,8 @@ class SessionRuntime:
 
     # -- background work ----------------------------------------------------------------------------
     def prefetch(self) -> None:
-        """When the session is idle and the user is not dragging: complete the partial fit
-        views (strokes painted mid-drag got quick ones), and prepare what a stroke in the
+        """When the session is idle and the user is not dragging: build the quick fit
+        views in full (strokes painted mid-drag got them), and prepare what a stroke in the
         current view and light will need (its fit view; the per-vertex transfer of the edited
         object once the user paints a second time in one view), on the process's background
         builder. Only for sessions that paint (a fitter exists in this epoch)."""
@@ -434,7 +435,7 @@ class SessionRuntime:
         cam, rot, inten = self.state.camera, self.state.rotation_deg, self.state.intensity
         fx = self.fitter
         for i, v in enumerate(fx.views):
-            if v.partial and self._view_moves.get(i, 0) == self._moves:
+            if v.provisional and self._view_moves.get(i, 0) == self._moves:
                 self._complete(i)
         if not any(v.camera == cam and v.rotation_deg == rot and v.intensity == inten and
                    self._view_moves.get(i, 0) == self._moves for i, v in enumerate(fx.views)):

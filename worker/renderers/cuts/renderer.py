@@ -507,14 +507,22 @@ class CutRenderer(Renderer):
         return Samples(ids, vx[ids], vn[ids], wo.astype(np.float32),
                        np.repeat(ids[:, None], 3, axis=1), bary)
 
-    def transfer(self, samples: Samples, basis, lighting: Lighting):
+    def transfer(self, samples: Samples, basis, lighting: Lighting, coarse: bool = False):
         """SRBF transfer rows at samples (fit/transfer.py, inverse-brdf-modeling eq. 21):
-        (T (3, N, J) float32, E (N, 3) float32)."""
+        (T (3, N, J) float32, E (N, 3) float32). coarse : on the drag level's cuts
+        (``_fit_cuts``)."""
         from ...fit.transfer import transfer
 
         nrm, wo, (node_l, node_w) = self._in_frame(samples, lighting)
-        return transfer(nrm, wo, samples.verts, samples.bary, self.cuts, node_l, node_w,
+        return transfer(nrm, wo, samples.verts, samples.bary, self._fit_cuts(coarse), node_l, node_w,
                         self.tree, basis, self.k)
+
+    def _fit_cuts(self, coarse: bool) -> cutmod.CutSet:
+        """The cuts for fit rows: the drag level's (DRAG_TAU) for a quick view, except in a
+        scene with movable objects, whose drag-level cuts belong to the frame being drawn."""
+        if coarse and self._moving is None:
+            return self.data.coarse(DRAG_TAU, self.k)
+        return self.cuts
 
     def _in_frame(self, s: Samples, lighting: Lighting):
         """(normals, wo, node lighting) of samples of one object in the frame of its cuts: the
@@ -525,15 +533,17 @@ class CutRenderer(Renderer):
             return s.normals, s.wo, self.light(lighting)
         return ((s.normals @ q).astype(np.float32), (s.wo @ q).astype(np.float32), self._frame_light(q, lighting))
 
-    def shade_samples(self, samples: Samples, material, object_index: int, lighting: Lighting) -> np.ndarray:
-        """(N, 3) float64 radiance of the samples under a material, shaded like pixel mode."""
+    def shade_samples(self, samples: Samples, material, object_index: int, lighting: Lighting,
+                      coarse: bool = False) -> np.ndarray:
+        """(N, 3) float64 radiance of the samples under a material, shaded like pixel mode
+        (coarse : on the cuts ``transfer`` uses for a quick view)."""
         with self._lock:
             nrm, wo, (node_l, node_w) = self._in_frame(samples, lighting)
             # the packed node records belong to the world frame's tables only
             node8 = self._node8 if self._node_light is not None and node_l is self._node_light[0] else None
         mats = MaterialTable([material.pack()])
         s = Samples(samples.pix, samples.positions, nrm, wo, samples.verts, samples.bary)
-        return self._shade(s, self.cuts, node_l, node_w, mats, None, node8).astype(np.float64)
+        return self._shade(s, self._fit_cuts(coarse), node_l, node_w, mats, None, node8).astype(np.float64)
 
     def _shade(self, s: Samples, cuts, node_l, node_w, mats, mat_of_vertex, node8=None) -> np.ndarray:
         n = len(s)
