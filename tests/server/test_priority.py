@@ -162,3 +162,78 @@ def test_openmp_threads_are_set_per_calling_thread():
     t.join()
     assert got == [before, 1], got
     assert native.lib.glk_max_threads() == before, "another thread's setting changed this one's"
+
+
+def test_a_frame_under_way_stands_aside_for_a_stroke_and_is_dropped_for_its_own():
+    """A session's frame that answers no stroke calls its checkpoint between parts: it waits
+    while a stroke is handled (here in this worker), and is given up at once when a stroke of
+    its own session arrives (that stroke's frame shows the same messages one step later)."""
+    from worker.jobs.runner import MAX_PAUSE_S, PRIORITY, SessionThread
+
+    th = SessionThread("s1", {}, None, None)
+    th.pause_left = MAX_PAUSE_S                                 # as a step sets it per frame
+    assert th._checkpoint(th._urgent_waiting) is False          # nothing else going on
+
+    def stroke_elsewhere(hold_s: float):
+        holding, released = threading.Event(), []
+
+        def other_stroke():
+            with PRIORITY.first():
+                holding.set()
+                time.sleep(hold_s)
+                released.append(time.monotonic())
+
+        t = threading.Thread(target=other_stroke)
+        t.start()
+        holding.wait()
+        t0 = time.monotonic()
+        assert th._checkpoint(th._urgent_waiting) is False
+        return t, t0, time.monotonic(), released
+
+    t, _, returned, released = stroke_elsewhere(0.5 * MAX_PAUSE_S)
+    t.join()
+    assert released and returned >= released[0], "the frame went on while the stroke was handled"
+    # a slow stroke holds a frame for what is left of its MAX_PAUSE_S, not longer
+    th.pause_left = MAX_PAUSE_S
+    t, t0, returned, released = stroke_elsewhere(10 * MAX_PAUSE_S)
+    assert not released, "the frame waited for the whole of a slow stroke"
+    assert returned - t0 >= 0.99 * MAX_PAUSE_S, f"paused {returned - t0:.3f} s, not for the stroke"
+    assert th.pause_left <= 0
+    assert th._checkpoint(th._urgent_waiting) is False          # spent: no second pause
+    assert not released
+    t.join()
+    th.post({"seq": 5, "type": "view", "eye": [0, 0, 3]})
+    assert th._checkpoint(th._urgent_waiting) is False          # a camera move does not drop it
+    assert th._checkpoint(th._any_waiting) is True               # ... but does drop a still
+    th.post({"seq": 6, "type": "stroke", "stroke": {}})
+    assert th._checkpoint(th._urgent_waiting) is True
+
+
+def test_frames_queue_for_a_slot_and_give_way_to_their_own_stroke():
+    """A worker draws at most one stroke-less frame per slot at once; a frame waiting for a
+    slot is given up (FrameCancelled) when its own session's stroke arrives."""
+    from worker.jobs.runner import FrameSlots
+    from worker.renderers.base import FrameCancelled
+
+    slots = FrameSlots(1)
+    inside, release = threading.Event(), threading.Event()
+
+    def drawing():
+        with slots.take(lambda: False):
+            inside.set()
+            release.wait(30)
+
+    t = threading.Thread(target=drawing)
+    t.start()
+    inside.wait()
+    polls = []
+    try:
+        with pytest.raises(FrameCancelled):
+            with slots.take(lambda: polls.append(1) or len(polls) >= 3):
+                pytest.fail("a second frame got the only slot")
+        assert len(polls) == 3
+    finally:
+        release.set()
+        t.join()
+    with slots.take(lambda: True):          # a free slot is taken at once
+        pass

@@ -298,3 +298,34 @@ def test_apply_never_changes_the_state_it_is_given(bunny_renderer):
         applied += 1
         st = after
     assert applied >= 10, applied
+
+
+def test_a_frame_that_may_give_way_reports_its_pause_apart(bunny_renderer):
+    """Issue 9: a frame answering no stroke stands aside at its checkpoints while strokes are
+    handled elsewhere; the pause is the header's ms_paused, not render time (which sets the
+    level of detail), and a checkpoint saying the frame is not wanted drops it unchanged."""
+    import time
+
+    from worker.renderers.base import FrameCancelled
+
+    rt = _runtime(bunny_renderer)
+    rt.handle({"seq": 1, "type": "view", "eye": [0.3, 0.6, 3.1], "drag": True})
+    calls = []
+
+    def pause_once() -> bool:
+        calls.append(1)
+        if len(calls) == 1:
+            time.sleep(0.2)         # a stroke elsewhere
+        return False
+
+    t0 = time.perf_counter()
+    hdr, jpeg = rt.frame(1, cancelled=pause_once)
+    wall = (time.perf_counter() - t0) * 1e3
+    assert len(calls) >= 1 and jpeg
+    assert hdr["ms_paused"] >= 200, hdr
+    assert hdr["ms_render"] + hdr["ms_encode"] + hdr["ms_paused"] <= wall + 1.0, (hdr, wall)
+    assert hdr["ms_render"] <= wall - 199, (hdr, wall)
+    n = rt.frame_no
+    with pytest.raises(FrameCancelled):
+        rt.frame(2, cancelled=lambda: True)         # the session's own stroke came
+    assert rt.frame_no == n

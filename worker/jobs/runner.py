@@ -27,7 +27,7 @@ import queue
 import shutil
 import threading
 import time
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 import traceback
 from collections import OrderedDict, deque
 from pathlib import Path
@@ -380,10 +380,11 @@ class Priority:
                     self.counts[self.slot] = self.urgent
                 self.cv.notify_all()
 
-    def wait_turn(self, interrupt=None) -> None:
-        """Wait while a stroke is handled anywhere, at most MAX_WAIT_S; interrupt : a function
-        that ends the wait early when it returns True (polled every POLL_S)."""
-        deadline = time.monotonic() + self.MAX_WAIT_S
+    def wait_turn(self, interrupt=None, max_wait: float | None = None) -> None:
+        """Wait while a stroke is handled anywhere, at most MAX_WAIT_S (or ``max_wait`` if
+        less); interrupt : a function that ends the wait early when it returns True (polled
+        every POLL_S)."""
+        deadline = time.monotonic() + min(self.MAX_WAIT_S, self.MAX_WAIT_S if max_wait is None else max_wait)
         poll = self.counts is not None or interrupt is not None
         with self.cv:
             while self.urgent or self._others():
@@ -396,6 +397,39 @@ class Priority:
 
 PRIORITY = Priority()
 URGENT = frozenset({"stroke", "undo", "redo", "fit"})
+# what a frame under way pauses at most for strokes elsewhere (SessionThread._checkpoint): a
+# stroke's step takes ~60-100 ms under load; a slow one (a cold worker's first, ~0.5 s) must
+# not stop every other session's frames for as long
+MAX_PAUSE_S = 0.12
+
+
+class FrameSlots:
+    """At most one frame that answers no stroke per core drawn at once in a worker; the other
+    sessions' frames queue for a slot instead of being time-sliced against each other. Issue
+    9: eight session threads of one process drawing drag frames on two cores drew 257 frames
+    a second in all, 345 two at a time (each frame's CPU 5.6 → 4.6 ms: caches and the GIL);
+    under ``bench load`` the slowest session's fps rose too (BENCHMARKS.md). A stroke's step
+    takes no slot, and a frame waiting for one gives way to its own session's stroke."""
+
+    def __init__(self, n: int | None = None):
+        self.sem = threading.Semaphore(n or os.cpu_count() or 1)
+
+    @contextmanager
+    def take(self, given_up):
+        """Hold a slot for one frame; raises renderers.base.FrameCancelled when ``given_up()``
+        turns True while waiting (polled every Priority.POLL_S)."""
+        from worker.renderers.base import FrameCancelled
+
+        while not self.sem.acquire(timeout=Priority.POLL_S):
+            if given_up():
+                raise FrameCancelled()
+        try:
+            yield
+        finally:
+            self.sem.release()
+
+
+FRAME_SLOTS = FrameSlots()
 
 
 # the anti-aliased still frame waits this long for the session to stay idle: a designer
@@ -445,6 +479,9 @@ class SessionThread(threading.Thread):
         self.stopping = False
         self.poked = False              # a background build for this session has finished
         self.oldest = 0.0               # perf_counter() when the oldest message in the inbox arrived
+        self.oldest_urgent = 0.0        # … and the oldest stroke, undo, redo or fit in it
+        self.dropped = 0                # messages of frames given up for a stroke (_step)
+        self.pause_left = 0.0           # what the frame being drawn may still pause (_checkpoint)
 
     def poke(self) -> None:
         with self.cv:
@@ -455,12 +492,34 @@ class SessionThread(threading.Thread):
         with self.cv:
             if not self.inbox:
                 self.oldest = time.perf_counter()      # the frame header's ms_wait
+            if msg.get("type") in URGENT and not any(m.get("type") in URGENT for m in self.inbox):
+                self.oldest_urgent = time.perf_counter()
             self.inbox.append(msg)
             self.cv.notify()
 
     def _urgent_waiting(self) -> bool:
         with self.cv:
             return self.stopping or any(m.get("type") in URGENT for m in self.inbox)
+
+    def _any_waiting(self) -> bool:
+        with self.cv:
+            return self.stopping or bool(self.inbox)
+
+    def _checkpoint(self, wanted_until) -> bool:
+        """Between parts of a frame that answers no stroke (renderers.base.FrameRequest.cancelled):
+        stand aside while a stroke is handled anywhere on the machine, at most MAX_PAUSE_S per
+        frame (``pause_left``, set by the step), then say whether the frame is still wanted
+        (``wanted_until`` turns True when it is not: this session's own stroke, or any new
+        message for a still). Issue 9: a stroke waited for the frames already under way in
+        every session, ~50 ms at p50 and 100-170 ms at p95 with eight sessions on two cores;
+        frames only gave way between steps."""
+        if wanted_until():
+            return True
+        if self.pause_left > 0:
+            t0 = time.monotonic()
+            PRIORITY.wait_turn(interrupt=wanted_until, max_wait=self.pause_left)
+            self.pause_left -= time.monotonic() - t0
+        return wanted_until()
 
     def stop(self) -> None:
         with self.cv:
@@ -501,7 +560,7 @@ class SessionThread(threading.Thread):
                     msgs = list(self.inbox)
                     self.inbox.clear()
                     self.poked = False
-                    arrived = self.oldest
+                    arrived, arrived_urgent = self.oldest, self.oldest_urgent
                 # background results (completed fit views, the vertex transfer): a new frame
                 # only when they change it
                 changed = rt.absorb()
@@ -519,14 +578,18 @@ class SessionThread(threading.Thread):
                     with self.cv:
                         msgs += list(self.inbox)
                         self.inbox.clear()
+                        arrived_urgent = self.oldest_urgent
                     urgent = any(m.get("type") in URGENT for m in msgs)
+                if urgent:
+                    arrived = arrived_urgent    # a stroke's frame says how long the stroke waited
                 # OpenMP's thread count is per calling thread (libgomp): set for this step
                 native.set_threads(PRIORITY.kernel_threads(busy_sessions(time.monotonic()), urgent))
                 if urgent:
                     with PRIORITY.first():
                         ack = self._step(rt, msgs, ack, arrived)
                 else:
-                    ack = self._step(rt, msgs, ack, arrived)
+                    ack = self._step(rt, msgs, ack, arrived,
+                                     checkpoint=lambda: self._checkpoint(self._urgent_waiting))
                 with self.cv:
                     idle = not self.inbox
                 if idle:
@@ -534,10 +597,12 @@ class SessionThread(threading.Thread):
                     if rt.needs_still_frame() and self._quiet_for(STILL_DELAY_S):
                         # the settled, anti-aliased image of the same state
                         PRIORITY.wait_turn()
+                        self.pause_left = MAX_PAUSE_S
                         try:
                             # given up as soon as a message arrives: that one's frame comes first
-                            self.outq.put(("frame", self.sid, rt.frame(
-                                ack, cancelled=lambda: bool(self.inbox) or self.stopping)))
+                            with FRAME_SLOTS.take(self._any_waiting):
+                                self.outq.put(("frame", self.sid, rt.frame(
+                                    ack, cancelled=lambda: self._checkpoint(self._any_waiting))))
                         except FrameCancelled:
                             pass
                         except Exception as ex:
@@ -552,10 +617,14 @@ class SessionThread(threading.Thread):
             release_memory()
             self.outq.put(("closed", self.sid, None))
 
-    def _step(self, rt, msgs: list, ack: int, arrived: float = 0.0) -> int:
+    def _step(self, rt, msgs: list, ack: int, arrived: float = 0.0, checkpoint=None) -> int:
         """Apply messages, fit if needed, send the frame; returns the new ack. arrived :
-        perf_counter() when the oldest of msgs reached this worker (0: not known)."""
+        perf_counter() when the oldest of msgs reached this worker (0: not known). checkpoint :
+        for a step that answers no stroke, the frame's (``_checkpoint``): the frame gives way
+        to strokes elsewhere, and is dropped for a stroke of this session (whose frame, one
+        step later, shows these messages too)."""
         from worker.jobs.session import error_event
+        from worker.renderers.base import FrameCancelled
 
         t0 = time.perf_counter()
         for m in msgs:
@@ -573,10 +642,15 @@ class SessionThread(threading.Thread):
             self._event(error_event(ex, ack) | {"message": f"fit failed: {error_event(ex)['message']}"})
         t2 = time.perf_counter()
         try:
-            hdr, jpeg = rt.frame(ack, skipped=max(0, len(msgs) - 1))
+            self.pause_left = MAX_PAUSE_S
+            with FRAME_SLOTS.take(self._urgent_waiting) if checkpoint is not None else nullcontext():
+                hdr, jpeg = rt.frame(ack, skipped=max(0, len(msgs) - 1) + self.dropped, cancelled=checkpoint)
+            self.dropped = 0
             hdr.update(ms_wait=round(max(0.0, t0 - arrived) * 1e3, 2) if arrived else 0.0,
                        ms_apply=round((t1 - t0) * 1e3, 2), ms_fit=round((t2 - t1) * 1e3, 2))
             self.outq.put(("frame", self.sid, (hdr, jpeg)))
+        except FrameCancelled:
+            self.dropped += len(msgs)       # counted as skipped by the next frame
         except Exception as ex:
             self._event(error_event(ex, ack) | {"message": f"render failed: {error_event(ex)['message']}"})
         return ack

@@ -562,10 +562,23 @@ class SessionRuntime:
         return self._last is not None and not self._drag and self._last[4] < STILL_SAMPLES
 
     def frame(self, ack: int, skipped: int = 0, cancelled=None) -> tuple[dict, bytes]:
-        """The current frame: (header (FrameHeader fields), JPEG bytes). cancelled : for an
-        optional frame (the still), a function saying it is no longer wanted; the renderer may
-        then raise renderers.base.FrameCancelled (nothing changes)."""
+        """The current frame: (header (FrameHeader fields), JPEG bytes). cancelled : for a frame
+        that may give way (renderers.base.FrameRequest.cancelled), a checkpoint that may block
+        while strokes elsewhere go first (the header's ``ms_paused``, not counted in the frame's
+        own times, which set the level of detail) and says when the frame is no longer wanted;
+        the renderer may then raise renderers.base.FrameCancelled (nothing changes)."""
         t0 = time.perf_counter()
+        paused = 0.0
+        if cancelled is not None:
+            checkpoint = cancelled
+
+            def cancelled():
+                nonlocal paused
+                c0 = time.perf_counter()
+                try:
+                    return checkpoint()
+                finally:
+                    paused += time.perf_counter() - c0
         st = self.state
         change = self._change()
         lod, samples = self.level_of_detail()
@@ -589,11 +602,11 @@ class SessionRuntime:
                            vertex_radiance=None if self._drag else self._override())
         out = self.renderer.render(req)
         rgb = tonemap(out.radiance, st.exposure, st.tone)
-        t1 = time.perf_counter()
+        t1 = time.perf_counter() - paused
         buf = io.BytesIO()
         # lower quality while the user drags (DESIGN.md §5), full quality when still
         Image.fromarray(rgb).save(buf, format="JPEG", quality=min(st.quality, 60) if self._drag else st.quality)
-        t2 = time.perf_counter()
+        t2 = time.perf_counter() - paused
         if lod == "drag":
             self._drag_ms[self.drag_scale].append((t2 - t0) * 1e3)
             if self.drag_scale == DRAG_SCALES[0]:
@@ -609,7 +622,7 @@ class SessionRuntime:
         h, w = rgb.shape[:2]
         hdr = {"frame": self.frame_no, "ack": ack, "width": w, "height": h, "format": "jpeg",
                "ms_render": round((t1 - t0) * 1e3, 2), "lod": lod == "drag", "quick": lod == "quick", "samples": int(out.info.get("samples", 1)),
-               "shadow": out.info.get("ground_shadow"), "ms_encode": round((t2 - t1) * 1e3, 2), "skipped": skipped}
+               "shadow": out.info.get("ground_shadow"), "ms_encode": round((t2 - t1) * 1e3, 2), "ms_paused": round(paused * 1e3, 2), "skipped": skipped}
         return hdr, buf.getvalue()
 
 

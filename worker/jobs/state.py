@@ -560,10 +560,13 @@ class FrameHeader(BaseModel):
                                            "of the camera): one sample, highlights slightly blurred; the anti-aliased "
                                            "still of the same state follows when the session is idle")
     shadow: bool | None = Field(None, description="the ground shadow is drawn; null: the scene has no ground")
-    ms_render: float
+    ms_render: float = Field(description="rendering, not counting ms_paused")
     ms_encode: float
-    ms_wait: float = Field(0.0, description="how long the oldest message this frame answers waited in the worker "
-                                             "before it was handled (other sessions' work, this session's previous frame)")
+    ms_paused: float = Field(0.0, description="how long the rendering stood aside for strokes being handled "
+                                               "elsewhere on the machine (strokes go before frames)")
+    ms_wait: float = Field(0.0, description="how long the message this frame answers waited in the worker before it "
+                                             "was handled (other sessions' work, this session's previous frame): its "
+                                             "oldest stroke, undo, redo or fit if it has one, else its oldest message")
     ms_apply: float = Field(0.0, description="applying the messages (a stroke's fit view is built here)")
     ms_fit: float = Field(0.0, description="the BRDF fit the messages asked for (0: none)")
     skipped: int = Field(0, description="client messages folded into this frame without a frame of their own")

@@ -78,9 +78,11 @@ class FrameRequest:
     ground_intensity : its strength k in [0, 1] (None: the scene's ``ground.intensity``).
     drag_scale : at the drag level of detail, the resolution divisor (2: half, 4: a quarter,
         chosen by the session under load); renderers may ignore it.
-    cancelled : for an optional frame (a session's anti-aliased still): a function that says
-        it is no longer wanted (a new message came); renderers may check it between parts of
-        their work and raise FrameCancelled, so the new message is not kept waiting.
+    cancelled : a checkpoint for a frame that may give way (a session's frame that answers no
+        stroke): renderers may call it between parts of their work. It may block while more
+        urgent work runs (a stroke elsewhere on the machine) and returns True when the frame is
+        no longer wanted (a new message for it came): the renderer then raises FrameCancelled,
+        so the new message is not kept waiting.
     """
     camera: Any
     lighting: Lighting = Lighting()

@@ -60,7 +60,7 @@ from ..base import FrameCancelled, FrameRequest, Lighting, Rendered, Renderer, U
 from .precompute import CutData
 
 DRAG_REFINE = 0.1   # drag level of detail: clusters refined to no finer than 0.1 rad (a GGX α = 0.05's)
-CANCEL_CHUNK = 1024  # vertices shaded between checks of FrameRequest.cancelled (~10 ms of a fitted srbf, one core)
+CANCEL_CHUNK = 1024  # vertices shaded between checkpoints (FrameRequest.cancelled): ~10 ms of a fitted srbf, one core
 DRAG_TAU = 16.0     # drag level of detail: cuts coarsened to τ = 16 (0.4% image change on the demo chair)
 _pool = None
 
@@ -376,7 +376,7 @@ class CutRenderer(Renderer):
             if req.cancelled is None:
                 rad = shade_points(mesh.normals[vi], wo, vi, mat_of, cuts, node_l, node_w, self.tree, mats, self.k,
                                    node8=node8)
-            else:                       # an optional frame: in parts, given up when no longer wanted
+            else:                       # a frame that may give way: in parts, a checkpoint between them
                 rad = np.empty((len(vi), 3), np.float32)
                 for a in range(0, len(vi), CANCEL_CHUNK):
                     if req.cancelled():
