@@ -146,11 +146,14 @@ class SessionRuntime:
         if self.state.renderer != renderer.kind:
             self._switch_renderer(self.state.renderer)
         self._apply_environment()
-        # pay the basis's one-time costs (energy rows, solver import) at open, not on the first stroke
+        # pay the basis's one-time costs (energy rows, solver import, the fitted material's
+        # table basis: ~35 ms, issue 9's cold first strokes) at open, not on the first stroke
         if not self.state.readonly:
             from ..fit import solve  # noqa: F401
             from ..fit.basis import default_basis, static_alpha_for
-            default_basis(static_alpha=static_alpha_for(self.state.base_material)).energy_rows()
+            b = default_basis(static_alpha=static_alpha_for(self.state.base_material))
+            b.energy_rows()
+            SRBF.model_validate(b.to_material(np.zeros((b.J, 3)), (0.0, 0.0, 0.0))).pack()
         if hasattr(renderer, "coarse_cuts"):
             renderer.coarse_cuts()           # the drag-time level of detail
         # replay the stored strokes (undone ones form the redo stack, most recent undone last)
