@@ -308,9 +308,11 @@ def cmd_serve(a) -> int:
     import signal
 
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
-    # proxy headers (X-Forwarded-For) are believed only from proxies named in GLINT_TRUSTED_PROXIES
+    # proxy headers (X-Forwarded-For) are believed only from proxies named in GLINT_TRUSTED_PROXIES.
+    # No per-message deflate on the WebSockets: the frames are JPEG (incompressible) and the
+    # messages a few hundred bytes, so zlib only cost both ends CPU (issue 9: ~100 frames/s)
     uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level="info",
-                ws_max_size=4 * 1024 * 1024, proxy_headers=bool(settings.trusted_proxies),
+                ws_max_size=4 * 1024 * 1024, ws_per_message_deflate=False, proxy_headers=bool(settings.trusted_proxies),
                 forwarded_allow_ips=",".join(settings.trusted_proxies) or None, log_config=None)
     return 0
 
