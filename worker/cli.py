@@ -308,6 +308,9 @@ def cmd_serve(a) -> int:
     import signal
 
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
+    from .jobs.runner import cap_malloc_arenas
+
+    cap_malloc_arenas()         # the threadpool's freed memory in a few arenas (trimmed as streams end)
     # proxy headers (X-Forwarded-For) are believed only from proxies named in GLINT_TRUSTED_PROXIES.
     # No per-message deflate on the WebSockets: the frames are JPEG (incompressible) and the
     # messages a few hundred bytes, so zlib only cost both ends CPU (issue 9: ~100 frames/s)

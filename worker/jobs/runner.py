@@ -452,6 +452,19 @@ def _libc():
 _LIBC = _libc()
 
 
+def trim_malloc() -> None:
+    """Return the free memory at the top of malloc's heaps to the system (glibc only)."""
+    if _LIBC is not None:
+        _LIBC.malloc_trim(0)
+
+
+def cap_malloc_arenas(n: int = 2) -> None:
+    """A few malloc arenas, not eight per core: the memory freed by many threads stays in fewer
+    places, and trim_malloc returns more of it (glibc only)."""
+    if _LIBC is not None:
+        _LIBC.mallopt(-8, n)            # M_ARENA_MAX
+
+
 def release_memory() -> None:
     """Give the memory freed by a closed session back to the system (glibc's malloc_trim).
     Issue 9: resident memory grew ~100 MiB per worker from one run of eight sessions to the
@@ -461,8 +474,7 @@ def release_memory() -> None:
     import gc
 
     gc.collect()
-    if _LIBC is not None:
-        _LIBC.malloc_trim(0)
+    trim_malloc()
 
 
 class SessionThread(threading.Thread):
@@ -680,10 +692,8 @@ def worker_main(wid: int, requests, replies, settings: WorkerSettings, urgent=No
     outq = PipeOut(replies)
     if urgent is not None:
         PRIORITY.share(urgent, wid)
-    if _LIBC is not None:
-        # a few malloc arenas, not eight per core: the session threads' and OpenMP threads'
-        # freed memory stays in fewer places, and release_memory returns more of it
-        _LIBC.mallopt(-8, 2)            # M_ARENA_MAX
+    # the session threads' and OpenMP threads' freed memory in a few arenas (release_memory)
+    cap_malloc_arenas()
     if settings.nice:
         # issue 9: with rendering at the server's priority, a stroke's message and its frame
         # waited ~30 ms (p50) behind frames in the server's event loop and the pipes
