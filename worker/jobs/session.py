@@ -147,7 +147,8 @@ class SessionRuntime:
             self._switch_renderer(self.state.renderer)
         self._apply_environment()
         # pay the basis's one-time costs (energy rows, solver import, the fitted material's
-        # table basis: ~35 ms, issue 9's cold first strokes) at open, not on the first stroke
+        # srbf table: ~190 ms the first time in a process, on issue 9's cold first strokes) at
+        # open, not on the first stroke
         if not self.state.readonly:
             from ..fit import solve  # noqa: F401
             from ..fit.basis import default_basis, static_alpha_for
