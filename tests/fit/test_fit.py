@@ -238,6 +238,18 @@ def test_a_partial_view_extends_to_the_full_view(fitter, across):
     np.testing.assert_allclose(quick.gram, full.gram, rtol=1e-4, atol=1e-6 * float(np.abs(full.gram).max()))
 
 
+def _fits_close_to(fitter, ref, fq, st, what: str) -> None:
+    """fq (a fitter on a quick view) fitted to stroke st predicts, on fitter's full view,
+    within 5% RMS of ref (the full fit), achieving at least half as much of the stroke."""
+    fq.add_stroke(st)
+    out = fq.fit()
+    a = fitter.predicted(out.solve.coefficients)
+    b = fitter.predicted(ref.solve.coefficients)
+    rel = float(np.sqrt(((a - b) ** 2).mean()) / np.sqrt((b ** 2).mean()))
+    assert rel < 0.05, f"{what} fit differs from the full fit by {rel:.3f} (relative RMS over the view)"
+    assert out.achieved > 0.5 * ref.achieved, (out.achieved, ref.achieved)
+
+
 def test_a_quick_view_fits_close_to_the_full_one(fitter, across):
     """A stroke fitted on a quick view (painted pixels plus a sparse grid, unpainted rows
     weighted for the unbuilt ones) predicts, on the full view, nearly what the full fit does
@@ -251,13 +263,7 @@ def test_a_quick_view_fits_close_to_the_full_one(fitter, across):
     fq = Fitter(fitter.renderer, "bunny", base_material=fitter.base_material, fit_scale=1.0)
     fq.views.append(fq.build_view(select=quick_select(st, rows=300)))
     assert fq.views[0].partial
-    fq.add_stroke(st)
-    out = fq.fit()
-    a = fitter.predicted(out.solve.coefficients)
-    b = fitter.predicted(ref.solve.coefficients)
-    rel = float(np.sqrt(((a - b) ** 2).mean()) / np.sqrt((b ** 2).mean()))
-    assert rel < 0.05, f"quick-view fit differs from the full fit by {rel:.3f} (relative RMS over the view)"
-    assert out.achieved > 0.5 * ref.achieved, (out.achieved, ref.achieved)
+    _fits_close_to(fitter, ref, fq, st, "quick-view")
 
 
 def test_a_quick_view_on_coarse_cuts_fits_close_to_the_full_one(fitter, across):
@@ -284,10 +290,4 @@ def test_a_quick_view_on_coarse_cuts_fits_close_to_the_full_one(fitter, across):
     fq.extend_view(v)
     assert not v.partial and v.coarse and v.provisional
     np.testing.assert_allclose(v.base, fq._shade_base(v), rtol=1e-6)
-    fq.add_stroke(st)
-    out = fq.fit()
-    a = fitter.predicted(out.solve.coefficients)
-    b = fitter.predicted(ref.solve.coefficients)
-    rel = float(np.sqrt(((a - b) ** 2).mean()) / np.sqrt((b ** 2).mean()))
-    assert rel < 0.05, f"coarse quick-view fit differs from the full fit by {rel:.3f} (relative RMS over the view)"
-    assert out.achieved > 0.5 * ref.achieved, (out.achieved, ref.achieved)
+    _fits_close_to(fitter, ref, fq, st, "coarse quick-view")

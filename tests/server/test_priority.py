@@ -8,6 +8,7 @@ import multiprocessing as mp
 import os
 import threading
 import time
+from contextlib import contextmanager
 
 import pytest
 
@@ -23,6 +24,26 @@ def _hold_stroke(counts, slot: int, hold_s: float, conn) -> None:
         time.sleep(hold_s)
         ended = time.monotonic()
     conn.send(("ended", ended))
+
+
+@contextmanager
+def _held_elsewhere(cm):
+    """Enter cm on another thread and keep it entered while the with-block runs."""
+    inside, release = threading.Event(), threading.Event()
+
+    def hold():
+        with cm:
+            inside.set()
+            release.wait(30)
+
+    t = threading.Thread(target=hold)
+    t.start()
+    inside.wait()
+    try:
+        yield
+    finally:
+        release.set()
+        t.join()
 
 
 def test_a_frame_waits_for_a_stroke_in_the_same_worker():
@@ -101,30 +122,17 @@ def test_the_pool_resets_a_slot_when_it_starts_a_worker_in_it(tmp_path):
 def test_a_stroke_of_the_waiting_session_ends_its_wait():
     """A session waiting its turn with a camera move takes its own new stroke at once."""
     p = Priority()
-    holding, release = threading.Event(), threading.Event()
-
-    def other_stroke():
-        with p.first():
-            holding.set()
-            release.wait(30)
-
-    t = threading.Thread(target=other_stroke)
-    t.start()
-    holding.wait()
     calls = []
 
     def stroke_arrived() -> bool:          # true from its third poll on
         calls.append(1)
         return len(calls) >= 3
 
-    try:
+    with _held_elsewhere(p.first()):
         p.wait_turn(interrupt=stroke_arrived)
         # ended by the interrupt (a timeout ends the loop before calling it a third time)
         assert len(calls) == 3, f"the wait ended after {len(calls)} polls, not by the arriving stroke"
         assert p.urgent == 1, "the other stroke was still being handled"
-    finally:
-        release.set()
-        t.join()
 
 
 def test_kernel_threads_share_the_cores_among_busy_sessions():
@@ -216,24 +224,11 @@ def test_frames_queue_for_a_slot_and_give_way_to_their_own_stroke():
     from worker.renderers.base import FrameCancelled
 
     slots = FrameSlots(1)
-    inside, release = threading.Event(), threading.Event()
-
-    def drawing():
-        with slots.take(lambda: False):
-            inside.set()
-            release.wait(30)
-
-    t = threading.Thread(target=drawing)
-    t.start()
-    inside.wait()
     polls = []
-    try:
+    with _held_elsewhere(slots.take(lambda: False)):        # another session's frame
         with pytest.raises(FrameCancelled):
             with slots.take(lambda: polls.append(1) or len(polls) >= 3):
                 pytest.fail("a second frame got the only slot")
         assert len(polls) == 3
-    finally:
-        release.set()
-        t.join()
     with slots.take(lambda: True):          # a free slot is taken at once
         pass
