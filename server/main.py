@@ -12,7 +12,6 @@ from a browser must come from one of its origins; secrets in URLs never reach th
 from __future__ import annotations
 
 import asyncio
-import gc
 import datetime as dt
 import logging
 import re
@@ -23,6 +22,8 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import HTMLResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
+
+from worker.memory import freeze_start_up
 
 from .config import Settings
 from .deps import Client, check_host, check_origin
@@ -80,11 +81,9 @@ def create_app(settings: Settings | None = None, pool=None) -> FastAPI:
             if settings.allow_anonymous_loopback else "every client needs an API token (glint token create)"
         log.info("Glint %s: data in %s, database %s, %d worker(s); %s", VERSION, settings.data_dir,
                  settings.db_url.split("://")[0], settings.workers, who)
-        # what start-up made (modules, routes, models: ~10^6 objects) is kept for good: frozen,
-        # it is no longer walked by every full collection, which stopped the event loop (and
-        # every stream) for 50-170 ms at a time under load (issue 9, measured with gc.callbacks)
-        gc.collect()
-        gc.freeze()
+        # what start-up made (modules, routes, models) out of full collections, which stopped
+        # the event loop (and every stream) for 50-170 ms at a time under load (issue 9)
+        freeze_start_up()
         tasks = [asyncio.create_task(_janitor(st))]
         if settings.demo:
             from .demo import ensure_demo

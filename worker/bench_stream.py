@@ -375,13 +375,12 @@ async def _load_session(port: int, ses: dict, seconds: float, index: int) -> dic
 def _freeze_client() -> None:
     """The benchmark's own full garbage collections (its imports' objects) must not show as the
     service's latency: they are frozen out of them (as the server and workers do theirs)."""
-    import gc
-
     import httpx  # noqa: F401
     import websockets  # noqa: F401
 
-    gc.collect()
-    gc.freeze()
+    from .memory import freeze_start_up
+
+    freeze_start_up()
 
 
 def bench_load(sessions: int = 8, seconds: float = 20.0, runs: int = 2, port: int | None = None,

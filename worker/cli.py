@@ -308,7 +308,7 @@ def cmd_serve(a) -> int:
     import signal
 
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
-    from .jobs.runner import cap_malloc_arenas
+    from .memory import cap_malloc_arenas
 
     cap_malloc_arenas()         # the threadpool's freed memory in a few arenas (trimmed as streams end)
     # proxy headers (X-Forwarded-For) are believed only from proxies named in GLINT_TRUSTED_PROXIES.

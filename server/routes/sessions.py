@@ -27,7 +27,7 @@ from sqlalchemy import select
 
 from worker.jobs.state import (EnvPreset, ErrorEvent, HelloEvent, SavedEvent, SessionState, StateError, apply,
                                client_msg, encode_frame, new_state, restore_state)
-from worker.jobs.runner import trim_malloc
+from worker.memory import trim_malloc
 from worker.models import parse_material
 
 from ..db import Asset, MaterialDesign, Scene, Session, SessionSave, StrokeRow, new_secret, now, token_hash

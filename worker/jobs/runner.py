@@ -34,6 +34,8 @@ from pathlib import Path
 
 from pydantic import BaseModel
 
+from worker.memory import cap_malloc_arenas, release_memory
+
 
 class WorkerSettings(BaseModel):
     """What a worker process needs to know, passed explicitly by the pool.
@@ -384,7 +386,7 @@ class Priority:
         """Wait while a stroke is handled anywhere, at most MAX_WAIT_S (or ``max_wait`` if
         less); interrupt : a function that ends the wait early when it returns True (polled
         every POLL_S)."""
-        deadline = time.monotonic() + min(self.MAX_WAIT_S, self.MAX_WAIT_S if max_wait is None else max_wait)
+        deadline = time.monotonic() + (self.MAX_WAIT_S if max_wait is None else min(self.MAX_WAIT_S, max_wait))
         poll = self.counts is not None or interrupt is not None
         with self.cv:
             while self.urgent or self._others():
@@ -436,45 +438,6 @@ FRAME_SLOTS = FrameSlots()
 # stroking or nudging a slider in quick succession does not wait behind a still they would
 # never see (they come ~100 ms apart); one that stops sees it a moment later
 STILL_DELAY_S = 0.12
-
-
-def _libc():
-    import ctypes
-    import ctypes.util
-
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        return libc if hasattr(libc, "malloc_trim") else None     # glibc only
-    except OSError:
-        return None
-
-
-_LIBC = _libc()
-
-
-def trim_malloc() -> None:
-    """Return the free memory at the top of malloc's heaps to the system (glibc only)."""
-    if _LIBC is not None:
-        _LIBC.malloc_trim(0)
-
-
-def cap_malloc_arenas(n: int = 2) -> None:
-    """A few malloc arenas, not eight per core: the memory freed by many threads stays in fewer
-    places, and trim_malloc returns more of it (glibc only)."""
-    if _LIBC is not None:
-        _LIBC.mallopt(-8, n)            # M_ARENA_MAX
-
-
-def release_memory() -> None:
-    """Give the memory freed by a closed session back to the system (glibc's malloc_trim).
-    Issue 9: resident memory grew ~100 MiB per worker from one run of eight sessions to the
-    next while Python's own allocations (tracemalloc) stayed flat to 0.2 MiB: the kernels'
-    per-thread scratch and the sessions' arrays were freed into malloc's per-thread arenas,
-    which keep them until trimmed."""
-    import gc
-
-    gc.collect()
-    trim_malloc()
 
 
 class SessionThread(threading.Thread):
@@ -669,20 +632,15 @@ class SessionThread(threading.Thread):
 
 
 def _freeze_modules() -> None:
-    """Import what sessions and jobs use, then freeze what exists (gc.freeze): the modules'
-    objects are kept for good and no longer walked by every full collection, which held the
-    GIL, and so every session of the worker, for 40-90 ms at a time under load (issue 9,
-    measured with gc.callbacks). Objects made later (sessions, scenes) are collected as usual."""
-    import gc
-
+    """Import what sessions and jobs use, then freeze what exists (worker.memory.freeze_start_up)."""
     import worker.fit.fitter  # noqa: F401
     import worker.fit.solve  # noqa: F401
     import worker.jobs.session  # noqa: F401
     import worker.renderers.cuts  # noqa: F401
     import worker.scene  # noqa: F401
+    from worker.memory import freeze_start_up
 
-    gc.collect()
-    gc.freeze()
+    freeze_start_up()
 
 
 def worker_main(wid: int, requests, replies, settings: WorkerSettings, urgent=None) -> None:
