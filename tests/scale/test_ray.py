@@ -61,11 +61,10 @@ def test_health_names_the_cluster(ray_server):
     assert h["status"] == "ok", h
 
 
-def test_precomputation_split_across_both_nodes_is_byte_identical(ray_server, bunny_renderer):
-    """The cuts from vertex-range Ray tasks on two nodes are the bytes a local run stores."""
-    from worker.artifacts import DirStore
-    from worker.renderers import get
-
+@pytest.fixture(scope="module")
+def ray_precomputed(ray_server):
+    """(scene id, finished precomputation, progress values seen) of the bunny, precomputed on
+    the two-node cluster once for the module's tests, whichever of them runs first."""
     f, c = ray_server, ray_server["c"]
     scene = _scene(c, f)
     pre = c.post(f"/v1/scenes/{scene}/precompute").json()
@@ -78,6 +77,16 @@ def test_precomputation_split_across_both_nodes_is_byte_identical(ray_server, bu
             break
         time.sleep(0.3)
     assert p["status"] == "done", p
+    return scene, p, seen
+
+
+def test_precomputation_split_across_both_nodes_is_byte_identical(ray_server, ray_precomputed, bunny_renderer):
+    """The cuts from vertex-range Ray tasks on two nodes are the bytes a local run stores."""
+    from worker.artifacts import DirStore
+    from worker.renderers import get
+
+    f, c = ray_server, ray_server["c"]
+    scene, p, seen = ray_precomputed
     st = p["stats"]
     assert st["ray_nodes"] == 2 and st["ray_chunks"] >= 2 and st["backend"] == "ray", st
     assert st["vertices"] == 2826
@@ -92,19 +101,16 @@ def test_precomputation_split_across_both_nodes_is_byte_identical(ray_server, bu
     stored = (data / sha[:2] / sha).read_bytes()
     assert hashlib.sha256(stored).hexdigest() == hashlib.sha256(local).hexdigest(), \
         f"Ray assembly differs from the local run ({len(stored)} vs {len(local)} bytes)"
-    f["scene"] = scene
     # a REST render runs on a session host too
     r = c.post("/v1/renders", json={"scene_id": scene})
     assert r.status_code == 200 and r.headers["content-type"] == "image/png" and r.content[:4] == b"\x89PNG", r.text[:300]
 
 
-def test_session_and_a_killed_actor(ray_server):
+def test_session_and_a_killed_actor(ray_server, ray_precomputed):
     """A session paints and saves on a session host; SIGKILL of that actor's process brings a
     replacement that restores the session (stroke kept, once), and the restart is counted."""
     f, c = ray_server, ray_server["c"]
-    if "scene" not in f:
-        pytest.skip("needs the precomputation of the previous test")
-    ses = c.post("/v1/sessions", json={"scene_id": f["scene"]}).json()
+    ses = c.post("/v1/sessions", json={"scene_id": ray_precomputed[0]}).json()
     hdr = {"X-Session-Token": ses["token"]}
 
     async def go():
