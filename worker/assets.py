@@ -152,7 +152,7 @@ def data_dir() -> Path:
     return Path(os.environ.get("GLINT_DATA_DIR", Path.home() / ".cache" / "glint"))
 
 
-def test_asset_dir() -> Path:
+def repo_asset_dir() -> Path:
     """The clone's cache of the test/bench set (gitignored); tests/scenes and bench/ point into it."""
     return REPO / "tests" / ".cache" / "assets"
 
@@ -395,7 +395,7 @@ def _fetch_source(key: str, todo: list[Asset], dest: Path, log: Callable[[str], 
     names = ", ".join(a.path for a in todo[:3]) + (f" and {len(todo) - 3} more" if len(todo) > 3 else "")
     if src.registry == "code":
         for a in todo:
-            _put(a, cornell_box_obj(), dest, src)
+            write_checked(a, cornell_box_obj(), dest, src)
         log(f"glint assets: wrote {names} ({src.package})")
         return
     t0 = time.perf_counter()
@@ -422,11 +422,12 @@ def _fetch_source(key: str, todo: list[Asset], dest: Path, log: Callable[[str], 
                 zipfile.BadZipFile) as e:
             raise AssetError(f"{todo[0].path}: cannot fetch {src.describe()}: {type(e).__name__}: {e}") from e
     for a, data in datas:
-        _put(a, data, dest, src)
+        write_checked(a, data, dest, src)
     log(f"glint assets: {src.package}: {size / 1e6:.1f} MB in {time.perf_counter() - t0:.1f} s")
 
 
-def _put(a: Asset, data: bytes, dest: Path, src: Source) -> None:
+def write_checked(a: Asset, data: bytes, dest: Path, src: Source) -> None:
+    """dest/<a.path> := data, atomically, when data has the recorded SHA-256; else AssetError."""
     got = _sha(data)
     if got != a.sha256:
         raise AssetError(f"{a.path}: SHA-256 {got} from {src.describe()} differs from the recorded "
@@ -505,7 +506,7 @@ def ensure_scene(scene_path: Path, dest: Path, mirror: Path | None = None, log=N
 
 def fetch_set(name: str, dest: Path | None = None, mirror: Path | None = None, progress: bool = True) -> dict:
     """Fetch and verify an asset set ("demo" or "test") into dest; {"ok", "dir", …, "error"}."""
-    dest = Path(dest) if dest else (test_asset_dir() if name == "test" else data_dir() / "assets")
+    dest = Path(dest) if dest else (repo_asset_dir() if name == "test" else data_dir() / "assets")
     log = (lambda m: print(m, file=sys.stderr)) if progress else (lambda m: None)
     try:
         return {"ok": True, **ensure(SETS[name], dest, mirror, log)}
