@@ -11,7 +11,9 @@ from worker.cli import main
 
 @pytest.fixture(scope="module")
 def scene_file(tmp_path_factory, shared_assets):
-    s = json.loads((SCENES / "sofa.json").read_text())
+    from helpers import scene_file
+
+    s = json.loads(scene_file("gi/sofa.json").read_text())
     for o in s["objects"]:
         o["mesh"] = str((SCENES / o["mesh"]).resolve())
     s["environment"]["map"] = str((SCENES / s["environment"]["map"]).resolve())
