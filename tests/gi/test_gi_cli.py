@@ -11,9 +11,9 @@ from worker.cli import main
 
 @pytest.fixture(scope="module")
 def scene_file(tmp_path_factory, shared_assets):
-    from helpers import scene_file
+    import helpers    # its scene_file fetches the scene's assets (this fixture has that name too)
 
-    s = json.loads(scene_file("gi/sofa.json").read_text())
+    s = json.loads(helpers.scene_file("gi/sofa.json").read_text())
     for o in s["objects"]:
         o["mesh"] = str((SCENES / o["mesh"]).resolve())
     s["environment"]["map"] = str((SCENES / s["environment"]["map"]).resolve())
