@@ -504,6 +504,8 @@ def ensure_scene(scene_path: Path, dest: Path, mirror: Path | None = None, log=N
     meshes; other paths are left alone). Returns scene_path."""
     scene_path = Path(scene_path)
     spec = json.loads(scene_path.read_text())
+    if not isinstance(spec, dict):
+        return scene_path
     refs = [(spec.get("environment") or {}).get("map")] + [o.get("mesh") for o in spec.get("objects", [])]
     root, want = Path(dest).resolve(), []
     for r in refs:
@@ -515,6 +517,16 @@ def ensure_scene(scene_path: Path, dest: Path, mirror: Path | None = None, log=N
     if want:
         ensure(want, dest, mirror, log)
     return scene_path
+
+
+def ensure_repo_scene(scene_path) -> None:
+    """For a scene file that refers into the clone's test asset cache (those of bench/ and
+    tests/scenes), fetch what it names there; other scene files are left to the loader, and so
+    is a file that cannot be read or is not JSON (load_scene says what is wrong with it)."""
+    try:
+        ensure_scene(Path(scene_path), repo_asset_dir(), default_mirror())
+    except (OSError, ValueError, AttributeError, TypeError):
+        return
 
 
 def fetch_set(name: str, dest: Path | None = None, mirror: Path | None = None, progress: bool = True) -> dict:

@@ -24,8 +24,10 @@ def _progress(total: int, desc: str, quiet: bool):
 
 
 def _load(scene_path: str):
+    from .assets import ensure_repo_scene
     from .scene import load_scene
 
+    ensure_repo_scene(scene_path)   # bench/*.json point into tests/.cache/assets: fetched on first use
     return load_scene(scene_path)
 
 
@@ -566,6 +568,7 @@ COMMAND_MODULES: list[str] = [
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    from .assets import AssetError
     from .errors import GlintError
 
     try:
@@ -577,6 +580,9 @@ def main(argv=None) -> int:
     except (GlintError, FileNotFoundError) as e:
         print(f"glint: error: {e}", file=sys.stderr)
         return 2
+    except AssetError as e:   # an asset of bench/ that no registry gave
+        print(f"glint: error: {e}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("glint: interrupted", file=sys.stderr)
         return 130
