@@ -511,7 +511,7 @@ def ensure_scene(scene_path: Path, dest: Path, mirror: Path | None = None, log=N
     for r in refs:
         if not r:
             continue
-        p = Path(os.path.normpath(scene_path.parent.resolve() / r))
+        p = (scene_path.parent / r).resolve()    # both sides resolved: tests/.cache may be a symlink
         if p.is_relative_to(root) and p.relative_to(root).as_posix() in BY_PATH:
             want.append(p.relative_to(root).as_posix())
     if want:
