@@ -177,7 +177,7 @@ def _file_sha(path: Path) -> str | None:
             while chunk := f.read(1 << 20):
                 h.update(chunk)
             return h.hexdigest()
-    except (FileNotFoundError, NotADirectoryError, IsADirectoryError):
+    except OSError:     # missing or unreadable: fetched (or copied) again
         return None
 
 
