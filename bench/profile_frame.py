@@ -46,6 +46,7 @@ def main() -> None:
     ap.add_argument("--model", default="ggx", choices=["ggx", "srbf", "lambert"])
     a = ap.parse_args()
 
+    from worker.assets import ensure_repo_scene
     from worker.cli import open_renderer
     from worker.core.lighting import light_tables
     from worker.core.render import MaterialTable, background, resolve, shade_points
@@ -53,6 +54,7 @@ def main() -> None:
     from worker.renderers import FrameRequest, Lighting
     from worker.scene import load_scene
 
+    ensure_repo_scene(a.scene)   # its assets: tests/.cache/assets, fetched on first use
     scene = load_scene(a.scene)
     r, _ = open_renderer(scene, None, True)
     cam = scene.spec.camera

@@ -23,10 +23,12 @@ def main(scene_path: str, out: str) -> None:
     from worker.cli import open_renderer
     from worker.core.lighting import light_tables
     from worker.core.render import MaterialTable
+    from worker.assets import ensure_repo_scene
     from worker.scene import load_scene
 
     from profile_frame import material
 
+    ensure_repo_scene(scene_path)   # its assets: tests/.cache/assets, fetched on first use
     scene = load_scene(scene_path)
     r, _ = open_renderer(scene, None, True)
     v = r.view(scene.spec.camera)

@@ -12,21 +12,19 @@ from pathlib import Path
 
 import httpx
 import pytest
-from helpers import GlintServer, free_port, open_renderer  # noqa: F401
+from helpers import AssetDir, GlintServer, free_port, open_renderer, scene_file  # noqa: F401
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 ROOT = Path(__file__).resolve().parent.parent
-SHARED = ROOT.parent / "shared" / "assets"
 CACHE = ROOT / "tests" / ".cache"
 ARTIFACTS = ROOT / "test-artifacts"
 
 
 @pytest.fixture(scope="session")
-def shared_assets() -> Path:
-    if not SHARED.is_dir():
-        pytest.fail(f"real test assets not found at {SHARED} (../shared/assets beside the repository)")
-    return SHARED
+def shared_assets() -> AssetDir:
+    """The real test assets (tests/.cache/assets), each file fetched on first use (helpers.AssetDir)."""
+    return AssetDir()
 
 
 @pytest.fixture(scope="session")
@@ -46,7 +44,7 @@ def bunny_renderer(shared_assets, cache_dir):
     """The cut renderer of tests/scenes/bunny.json (cuts cached)."""
     from worker.scene import load_scene
 
-    return open_renderer(load_scene(ROOT / "tests" / "scenes" / "bunny.json"))
+    return open_renderer(load_scene(scene_file("bunny.json")))
 
 
 @pytest.fixture(scope="session")

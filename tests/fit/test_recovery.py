@@ -10,7 +10,6 @@ Time (2 cores, loaded machine): 10-15 s per case with the targets cached (two tr
 fit pixels for the fitted roughness, the independent energy check ~5-10 s, four renders); the
 first run adds ~5 s per target for the two Mitsuba renders. The paper's-model test runs two
 cases (13-24 s)."""
-from pathlib import Path
 
 import pytest
 
@@ -25,7 +24,7 @@ SPP = 256
 @pytest.fixture(scope="module")
 def bunny_env(shared_assets, cache_dir):
     """The cut renderer of the test bunny under an environment map, by name (cuts cached)."""
-    from helpers import open_renderer
+    from helpers import open_renderer, scene_file
 
     from worker.envmap import load_envmap
     from worker.scene import LoadedScene, load_scene
@@ -34,7 +33,7 @@ def bunny_env(shared_assets, cache_dir):
 
     def get(env):
         if env not in out:
-            sc = load_scene(Path(__file__).resolve().parents[1] / "scenes" / "bunny.json")
+            sc = load_scene(scene_file("bunny.json"))
             spec = sc.spec.model_copy(deep=True)
             spec.environment.map = str(shared_assets / "env" / env)
             out[env] = open_renderer(LoadedScene(spec, sc.root, envmap=load_envmap(shared_assets / "env" / env)))

@@ -24,7 +24,8 @@ SCENES = ROOT / "tests" / "scenes" / "gi"
 def scene_with(name: str, width: int, height: int, materials: dict | None = None):
     """A test scene at a resolution, with some objects' materials replaced."""
     from worker.scene import load_scene, LoadedScene
-    sc = load_scene(SCENES / f"{name}.json")
+    from helpers import scene_file
+    sc = load_scene(scene_file(f"gi/{name}.json"))
     spec = sc.spec.model_copy(deep=True)
     spec.camera.width, spec.camera.height = width, height
     for o in spec.objects:

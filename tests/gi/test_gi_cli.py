@@ -11,7 +11,9 @@ from worker.cli import main
 
 @pytest.fixture(scope="module")
 def scene_file(tmp_path_factory, shared_assets):
-    s = json.loads((SCENES / "sofa.json").read_text())
+    import helpers    # its scene_file fetches the scene's assets (this fixture has that name too)
+
+    s = json.loads(helpers.scene_file("gi/sofa.json").read_text())
     for o in s["objects"]:
         o["mesh"] = str((SCENES / o["mesh"]).resolve())
     s["environment"]["map"] = str((SCENES / s["environment"]["map"]).resolve())

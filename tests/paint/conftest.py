@@ -1,4 +1,4 @@
-"""Fixtures of the paint tests: real HDRIs from ../shared/assets, brute-force references cached
+"""Fixtures of the paint tests: real HDRIs (tests/.cache/assets), brute-force references cached
 content-addressed in tests/.cache/paint."""
 import hashlib
 from pathlib import Path
@@ -7,15 +7,14 @@ import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-ASSETS = ROOT.parent / "shared" / "assets"
 CACHE = ROOT / "tests" / ".cache" / "paint"
 
 
 @pytest.fixture(scope="session")
-def assets() -> Path:
-    if not ASSETS.is_dir():
-        pytest.fail(f"real test assets not found at {ASSETS}")
-    return ASSETS
+def assets():
+    """helpers.AssetDir: ``assets / "env" / "sunset.exr"`` fetches that file on first use."""
+    from helpers import AssetDir
+    return AssetDir()
 
 
 @pytest.fixture(scope="session")

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from helpers import open_renderer
+from helpers import open_renderer, scene_file
 
 from worker.renderers import FrameRequest
 from worker.scene import LoadedScene, parse_scene
@@ -93,7 +93,7 @@ def test_bunny_shadow_matches_mitsuba(shared_assets, cache_dir, artifacts):
     from worker.scene import load_scene
 
     pytest.importorskip("mitsuba")
-    s = load_scene(ROOT / "tests" / "scenes" / "bunny-ground.json")
+    s = load_scene(scene_file("bunny-ground.json"))
     r = open_renderer(s)
     cam, rot = s.spec.camera, s.spec.environment.rotation_deg
     on = r.render(FrameRequest(camera=cam, materials=s.materials, lighting=Lighting(rot)))

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from helpers import open_renderer
+from helpers import open_renderer, scene_file
 
 from worker.jobs import session as S
 from worker.jobs.session import SessionRuntime
@@ -84,7 +84,7 @@ def test_drag_level_of_detail_when_full_frames_do_not_fit(bunny_renderer, monkey
 def test_display_message_toggles_the_ground_shadow(cache_dir):
     from worker.scene import load_scene
 
-    r = open_renderer(load_scene(ROOT / "tests" / "scenes" / "bunny-ground.json"))
+    r = open_renderer(load_scene(scene_file("bunny-ground.json")))
     rt = _runtime(r)
     hdr, _ = rt.frame(0)
     assert hdr["shadow"] is True                        # the scene's default
@@ -163,7 +163,7 @@ def test_under_load_drag_frames_drop_to_a_quarter_of_the_resolution(cache_dir, m
     are drawn at a quarter, and half is tried again after REPROBE_S."""
     from worker.scene import load_scene
 
-    r = open_renderer(load_scene(ROOT / "tests" / "scenes" / "bunny.json"))
+    r = open_renderer(load_scene(scene_file("bunny.json")))
     cam = r.scene.spec.camera.model_copy(update={"width": 640, "height": 480})
     st = new_state(r.scene.spec, camera=cam.model_dump(mode="json"))
     rt = SessionRuntime(r.scene, CutRenderer(r.scene, r.data), {"state": st.model_dump(mode="json"), "strokes": []})

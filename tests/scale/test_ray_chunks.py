@@ -5,13 +5,13 @@ import pickle
 
 import numpy as np
 
-from helpers import ROOT
+from helpers import scene_file
 
 
 def _bunny():
     from worker.scene import load_scene
 
-    return load_scene(ROOT / "tests" / "scenes" / "bunny.json")
+    return load_scene(scene_file("bunny.json"))
 
 
 def test_guided_chunks_cover_the_part_in_decreasing_contiguous_ranges(shared_assets):

@@ -192,10 +192,10 @@ def test_studio_follows_the_demo_precomputation(browser, tmp_path, artifacts):
     """Issue 9: someone who opens the studio while the demo scene still precomputes sees its
     progress, and the demo opens by itself when it is ready (no reload). The demo here is the
     bunny (GLINT_DEMO_SCENE), precomputed by a fresh server."""
-    from helpers import ROOT, GlintServer
+    from helpers import GlintServer, scene_file
 
     srv = GlintServer(tmp_path / "data", workers=1, demo=True,
-                      env={"GLINT_DEMO_SCENE": str(ROOT / "tests" / "scenes" / "bunny.json")})
+                      env={"GLINT_DEMO_SCENE": str(scene_file("bunny.json"))})
     try:
         page = browser.new_page(viewport={"width": 1280, "height": 860})
         errors = []
