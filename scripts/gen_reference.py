@@ -4,6 +4,7 @@
 - docs/reference/cli.md     from the argparse parser of ``glint`` (worker.cli.build_parser)
 - docs/reference/rest.md    from openapi.yaml
 - docs/reference/stream.md  from stream-schema.json
+- docs/reference/settings.md from the service's Settings (server/config.py)
 
 ``make docs`` runs this, then ``mkdocs build --strict``; tests/test_docs.py does the same.
 Usage: python scripts/gen_reference.py [--out DIR]   (default: docs/reference)
@@ -246,6 +247,65 @@ def stream_page() -> str:
     return "".join(out)
 
 
+# -- settings -------------------------------------------------------------------------------------
+
+# defaults computed on the machine that runs the server: said in words, not as this machine's values
+_MACHINE_DEFAULTS = {"data_dir": "`$GLINT_DATA_DIR`, else `~/.cache/glint`", "workers": "the machine's cores",
+                     "web_dir": "the repository's `web/`"}
+
+
+def _field_comments(cls) -> dict[str, str]:
+    """The comment lines written just above each field in the class body."""
+    import inspect
+
+    lines, _ = inspect.getsourcelines(cls)
+    out, pending = {}, []
+    for line in lines:
+        t = line.strip()
+        if t.startswith("#"):
+            pending.append(t.lstrip("# "))
+            continue
+        name = t.split(":", 1)[0]
+        if ":" in t and name.isidentifier():
+            if pending:
+                out[name] = " ".join(pending)
+        pending = []
+    return out
+
+
+def settings_page() -> str:
+    sys.path.insert(0, str(ROOT))
+    from server.config import Settings
+
+    comments = _field_comments(Settings)
+    out = ["# Settings reference\n\n", NOTE.format(src="server/config.py (Settings)"),
+           "Every setting of the service. Each is read once, at start, from the environment variable "
+           "`GLINT_<NAME>` (lists as comma-separated values), and some also from `glint serve`'s flags "
+           "(`--host`, `--port`, `--data-dir`, `--workers`, `--no-demo`, `--backend`, `--ray-address`), "
+           "which win over the environment. Workers read no environment: they get what they need from the "
+           "server (`WorkerSettings`). The [settings guide](../deployment/settings.md) explains the "
+           "deployment ones.\n\n",
+           "| variable | type | default | what it does |\n|---|---|---|---|\n"]
+    for name, f in Settings.model_fields.items():
+        if name in _MACHINE_DEFAULTS:
+            default = _MACHINE_DEFAULTS[name]
+        elif f.default_factory is not None:
+            default = f"`{json.dumps(f.default_factory())}`"
+        elif f.default is None:
+            default = "unset"
+        else:
+            default = f"`{json.dumps(f.default, default=str)}`"
+        ann = getattr(f.annotation, "__name__", None) or str(f.annotation)
+        ann = ann.replace("typing.", "").replace("pathlib.", "")
+        if name.endswith("_bytes") and isinstance(f.default, int):
+            default += f" ({f.default / 2**20:g} MiB)"
+        # a comment above a field explains it when the field has no description (section labels
+        # above described fields are left out)
+        desc = f.description or comments.get(name, "")
+        out.append(f"| `GLINT_{name.upper()}` | {cell(ann)} | {cell(default)} | {cell(desc)} |\n")
+    return "".join(out)
+
+
 def scrub(text: str) -> str:
     """Drops "(issue N)" asides that some help strings and docstrings still carry: tracker
     numbers mean nothing to a reader of the docs (the capability is named in the text)."""
@@ -262,7 +322,8 @@ def main(argv=None) -> int:
         return 0
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    for name, fn in (("cli.md", cli_page), ("rest.md", rest_page), ("stream.md", stream_page)):
+    for name, fn in (("cli.md", cli_page), ("rest.md", rest_page), ("stream.md", stream_page),
+                     ("settings.md", settings_page)):
         text = scrub(fn())
         path = out / name
         if not path.exists() or path.read_text() != text:   # unchanged pages keep their mtime

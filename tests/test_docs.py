@@ -1,5 +1,5 @@
 """The docs site builds: the reference generators run (CLI parser, openapi.yaml,
-stream-schema.json) and `mkdocs build --strict` succeeds with no warning, as `make docs` does.
+stream-schema.json, server/config.py) and `mkdocs build --strict` succeeds with no warning, as `make docs` does.
 The generated pages must list every CLI command, REST path and stream message, so a generator
 that breaks, or a page that stops covering the code, fails here. About 10 s."""
 import json
@@ -47,13 +47,20 @@ def test_docs_build_strict_with_generated_references(tmp_path):
             assert f"| `{t}` |" in stream, t
     for field in schema["frame_header"]["properties"]:
         assert f"| `{field}` |" in stream, field
-    assert "issue " not in cli + rest + stream
+    settings = (REF / "settings.md").read_text()
+    sys.path.insert(0, str(ROOT))
+    try:
+        from server.config import Settings
+    finally:
+        sys.path.pop(0)
+    assert not [n for n in Settings.model_fields if f"`GLINT_{n.upper()}`" not in settings]
+    assert "issue " not in cli + rest + stream + settings
 
     site = tmp_path / "site"
     build = _run(["-m", "mkdocs", "build", "--strict", "--site-dir", str(site)])
     assert build.returncode == 0, build.stdout + build.stderr
     for page in ("index.html", "getting-started.html", "reference/cli.html", "reference/rest.html",
-                 "reference/stream.html", "science/bibliography.html", "benchmarks/index.html"):
+                 "reference/stream.html", "reference/settings.html", "science/bibliography.html", "benchmarks/index.html"):
         assert (site / page).is_file(), page
     # the Python reference was rendered from the docstrings (mkdocstrings found the modules)
     python = (site / "reference" / "python.html").read_text()
