@@ -4,12 +4,12 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install build browser postgres test-assets serve test bench bench-ray clean
+.PHONY: install build browser postgres test-assets serve test docs bench bench-ray clean
 
 $(STAMP): pyproject.toml setup.py $(wildcard worker/native/src/*.c worker/native/src/*.h)
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip setuptools wheel
-	$(PY) -m pip install -q -e '.[test]'
+	$(PY) -m pip install -q -e '.[test,docs]'
 	$(PY) setup.py -q build_ext --inplace
 	touch $(STAMP)
 
@@ -40,10 +40,16 @@ test-assets: install
 test: install browser postgres test-assets
 	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -ra --durations=15 $(PYTEST_ARGS)
 
+# The docs site: reference pages generated from the code (CLI parser, openapi.yaml,
+# stream-schema.json), then mkdocs build --strict into site/ (tests/test_docs.py does the same)
+docs: install
+	$(PY) scripts/gen_reference.py
+	NO_MKDOCS_2_WARNING=1 $(PY) -m mkdocs build --strict --site-dir site
+
 bench: install test-assets
 	$(VENV)/bin/glint bench render bench/oakChair.json --frames 40 --json
 	$(VENV)/bin/glint bench fit bench/oakChair.json --json
 	$(VENV)/bin/glint bench stream --json
 
 clean:
-	rm -rf build $(VENV) worker/native/*.so .pytest_cache tests/.cache
+	rm -rf build $(VENV) worker/native/*.so .pytest_cache tests/.cache site
