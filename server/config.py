@@ -48,7 +48,7 @@ class Settings(BaseModel):
                                           "closes the stream (1009); a 10 000-point stroke is ~250 KB")
     max_stream_message_depth: int = Field(32, ge=4, description="JSON nesting depth of a stream message (deeper: "
                                           "closed with 4400); the deepest valid message nests ~6")
-    viewer_sessions_per_minute: int = Field(30, ge=1, description="public viewer sessions one client address may "
+    viewer_sessions_per_minute: int = Field(60, ge=1, description="public viewer sessions one client address may "
                                             "create in any 60 s (moving window); more get 429")
     public_reads_per_minute: int = Field(600, ge=1, description="public publication reads per client address in "
                                          "any 60 s (moving window)")
