@@ -62,6 +62,22 @@ def check_frame_size(settings, camera: dict | None) -> None:
                                  "MiB for this one)")
 
 
+class _ClientUtf8Error(logging.Filter):
+    """uvicorn closes a text frame that is not UTF-8 with 1007, as it should, but logs the
+    client's mistake with a traceback, as if the server had failed: one line is enough."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.exc_info and str(record.msg).startswith("Invalid UTF-8 sequence received from client"):
+            record.exc_info = None
+            record.levelno, record.levelname = logging.INFO, "INFO"
+            record.msg = "a client sent a text frame that is not UTF-8: closed with 1007"
+        return True
+
+
+if not any(isinstance(f, _ClientUtf8Error) for f in logging.getLogger("uvicorn.error").filters):
+    logging.getLogger("uvicorn.error").addFilter(_ClientUtf8Error())
+
+
 def _stream_url(sid: str) -> str:
     return f"/v1/sessions/{sid}/stream"
 
