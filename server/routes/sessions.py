@@ -8,7 +8,10 @@ nothing: the pool re-opens the session from here.
 
 The stream's first message authenticates it: ``{"type": "auth", "token": …}`` (a token in the
 URL, ``?token=``, is still accepted but is kept out of the access log). Streams are bounded per
-client and in total, and closed when idle.
+client and in total (a slot reserved in one step as the stream opens), and closed when idle. A
+malformed message gets an error event (not JSON, not a valid message, a seq not above the last
+one) or closes the stream with its code (``receive_json``: 1003 binary, 1009 too big, 4400 too
+deeply nested; 4403 for any malformed auth message); nothing of it is stored.
 """
 from __future__ import annotations
 

@@ -482,9 +482,10 @@ class SessionRuntime:
     def close(self) -> None:
         """The session ended: its queued background builds are cancelled (a running one ends
         with its current view; none starts after), and the renderer's cached primary hits of a
-        big camera are dropped, so the worker goes back to resting memory (the caller then
-        releases memory, worker.memory.release_memory). Issue 4: after an 8192×8192 stream
-        closed its prefetch kept both cores busy ~60 s and the worker stayed at 7 GB."""
+        big camera are dropped (a build under way holds the fitter, so the renderer, until it
+        ends), so the worker goes back to resting memory (the caller then releases memory,
+        worker.memory.release_memory). Before, after an 8192×8192 stream closed its prefetch
+        kept both cores busy ~60 s and the worker stayed at 7 GB."""
         self.closed = True
         for fut in list(self._pending.values()) + [c[2] for c in self._completions.values()]:
             fut.cancel()

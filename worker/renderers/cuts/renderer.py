@@ -182,7 +182,8 @@ class CutRenderer(Renderer):
     def forget_views(self, min_pixels: int) -> int:
         """Drop the cached primary hits (and their backgrounds) of cameras of at least
         ``min_pixels`` (width × height): a closed session's big frame must not keep its worker
-        above resting memory (a 1920×1080 still's hits are ~0.8 GB). Returns how many went."""
+        above resting memory while a background build still holds this renderer (a 1920×1080
+        still's hits and their buffers are ~0.7 GB). Returns how many went."""
         with self._lock:
             keep = [v for v in self._views if v.camera.width * v.camera.height < min_pixels]
             n = len(self._views) - len(keep)
