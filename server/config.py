@@ -43,6 +43,21 @@ class Settings(BaseModel):
     max_sessions: int = Field(64, ge=1, description="open streams in total")
     max_sessions_per_client: int = Field(8, ge=1, description="open streams per client (token or address)")
     session_idle_seconds: float = Field(900.0, gt=0, description="a stream with no message for this long is closed")
+    # streams and public endpoints under abuse: message bounds, rate limits, viewer expiry, frame size
+    max_stream_message_bytes: int = Field(1024 * 1024, ge=1024, description="a stream text message larger than this "
+                                          "closes the stream (1009); a 10 000-point stroke is ~250 KB")
+    max_stream_message_depth: int = Field(32, ge=4, description="JSON nesting depth of a stream message (deeper: "
+                                          "closed with 4400); the deepest valid message nests ~6")
+    viewer_sessions_per_minute: int = Field(60, ge=1, description="public viewer sessions one client address may "
+                                            "create in any 60 s (moving window); more get 429")
+    public_reads_per_minute: int = Field(600, ge=1, description="public publication reads per client address in "
+                                         "any 60 s (moving window)")
+    viewer_session_seconds: float = Field(300.0, gt=0, description="a viewer session without a stream (never "
+                                          "opened, or ended) this long after its last activity is deleted")
+    janitor_seconds: float = Field(60.0, gt=0, description="how often idle sessions are expired")
+    max_frame_pixels: int = Field(2560 * 1600, ge=64 * 64, description="width × height of a session's camera at "
+                                  "most; a frame costs ~FRAME_BYTES_PER_PIXEL bytes a pixel in its worker "
+                                  "(server/routes/sessions.py)")
     # beyond one machine (issue 17): "local" worker processes, or a Ray cluster (server/ray_pool.py)
     backend: str = Field("local", pattern="^(local|ray)$", description="worker backend: local or ray")
     ray_address: str | None = Field(None, description="Ray cluster to join (host:port of its GCS); unset: start one in-process")

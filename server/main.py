@@ -192,15 +192,16 @@ async def _shutdown(st, tasks: list) -> None:
     st.pool.stop()
 
 
-async def _janitor(st, every: float = 60.0) -> None:
-    """Close editing sessions left without a stream for a day (their rows say so)."""
+async def _janitor(st) -> None:
+    """Every ``janitor_seconds``: close editing sessions left without a stream for a day (their
+    rows say so), delete unused viewer sessions (``sessions.expire_idle``)."""
     from fastapi.concurrency import run_in_threadpool
 
     while True:
         try:
             n = await run_in_threadpool(sessions.expire_idle, st, dt.timedelta(days=1))
             if n:
-                log.info("closed %d idle session(s)", n)
+                log.info("closed or deleted %d idle session(s)", n)
         except Exception as e:
             log.warning("session janitor: %s", e)
-        await asyncio.sleep(every)
+        await asyncio.sleep(st.settings.janitor_seconds)

@@ -308,6 +308,10 @@ class LocalWorkerPool(WorkerPool):
     def _restore(self, sid: str, nw: _Worker) -> None:
         try:
             payload = self.restore(sid) if self.restore else None
+            if payload is not None:
+                # the runtime sends the refit of the stored strokes at once (a fit event the
+                # server stores): what the dead worker fitted last may never have reached it
+                payload = {**payload, "restored": True}
         except Exception as e:  # the session cannot come back: tell its client
             log.error("cannot restore session %s: %s", sid, e)
             payload = None

@@ -101,7 +101,10 @@ def database(request):
 @pytest.fixture(scope="session")
 def server(tmp_path_factory, database):
     name, env = database
-    srv = GlintServer(tmp_path_factory.mktemp(f"glint-data-{name}"), env=env)
+    # the suite opens many viewer sessions from one address within a minute (test_resources:
+    # 40 in a row); the limit itself is tested on a server of its own (test_stream_abuse)
+    srv = GlintServer(tmp_path_factory.mktemp(f"glint-data-{name}"),
+                      env={"GLINT_VIEWER_SESSIONS_PER_MINUTE": "1000", **env})
     yield {**srv.as_dict(), "database": name}
     srv.stop()
 

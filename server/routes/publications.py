@@ -11,9 +11,11 @@ from sqlalchemy import select
 from ..db import Asset, MaterialDesign, MaterialVersion, Publication, Scene, Session, latest_version, new_secret, token_hash
 from worker.jobs.state import EnvironmentMsg, VariantMsg, apply, new_state
 
+from .. import ratelimit
 from ..deps import DB, Client, State, client_key
 from ..schemas import SessionOut
 from ..state import Conflict, NotFound
+from .sessions import check_frame_size
 
 router = APIRouter(prefix="/v1/publications", tags=["publications"])
 
@@ -88,17 +90,24 @@ def publish(req: PublicationCreate, db: DB, _: Client):
     return _out(p)
 
 
-@router.get("/{pub_id}", response_model=PublicationOut)
-def get_publication(pub_id: str, db: DB):
+RATE_LIMITED = {429: {"description": "too many requests from this address in the last 60 s: the message names "
+                                     "the limit, Retry-After the seconds to wait"}}
+
+
+@router.get("/{pub_id}", response_model=PublicationOut, responses=RATE_LIMITED)
+def get_publication(pub_id: str, request: Request, st: State, db: DB):
+    ratelimit.check(request, "public_reads_per_minute", st.settings.public_reads_per_minute)
     p = db.get(Publication, pub_id)
     if p is None:
         raise HTTPException(404, f"no publication {pub_id!r}")
     return _out(p)
 
 
-@router.post("/{pub_id}/sessions", response_model=SessionOut, status_code=201)
+@router.post("/{pub_id}/sessions", response_model=SessionOut, status_code=201, responses=RATE_LIMITED)
 def open_viewer(pub_id: str, request: Request, st: State, db: DB):
-    """A read-only session showing variant 0 under environment preset 0 (public)."""
+    """A read-only session showing variant 0 under environment preset 0 (public, so rate limited
+    per client address; deleted when unused for ``viewer_session_seconds``)."""
+    ratelimit.check(request, "viewer_sessions_per_minute", st.settings.viewer_sessions_per_minute)
     p = db.get(Publication, pub_id)
     if p is None:
         raise HTTPException(404, f"no publication {pub_id!r}")
@@ -107,6 +116,7 @@ def open_viewer(pub_id: str, request: Request, st: State, db: DB):
     except (Conflict, NotFound) as e:
         raise HTTPException(409, str(e)) from None
     sc = db.get(Scene, p.scene_id)
+    check_frame_size(st.settings, sc.spec["camera"])
     envs = []
     for e in p.environments:
         a = db.get(Asset, e["asset_id"])

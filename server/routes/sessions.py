@@ -8,7 +8,10 @@ nothing: the pool re-opens the session from here.
 
 The stream's first message authenticates it: ``{"type": "auth", "token": …}`` (a token in the
 URL, ``?token=``, is still accepted but is kept out of the access log). Streams are bounded per
-client and in total, and closed when idle.
+client and in total (a slot reserved in one step as the stream opens), and closed when idle. A
+malformed message gets an error event (not JSON, not a valid message, a seq not above the last
+one) or closes the stream with its code (``receive_json``: 1003 binary, 1009 too big, 4400 too
+deeply nested; 4403 for any malformed auth message); nothing of it is stored.
 """
 from __future__ import annotations
 
@@ -17,13 +20,14 @@ import datetime as dt
 import hmac
 import json
 import logging
+import re
 import threading
 import time
 
 from fastapi import APIRouter, Header, HTTPException, Query, Request, WebSocket, WebSocketDisconnect
 from fastapi.concurrency import run_in_threadpool
 from pydantic import ValidationError
-from sqlalchemy import select
+from sqlalchemy import delete, select
 
 from worker.jobs.state import (EnvPreset, ErrorEvent, HelloEvent, SavedEvent, SessionState, StateError, apply,
                                client_msg, encode_frame, new_state, restore_state)
@@ -41,6 +45,40 @@ log = logging.getLogger("glint")
 AUTH_SECONDS = 10.0      # a stream must authenticate within this
 MAX_BATCH = 256          # client messages stored in one transaction at most
 MAX_PENDING = 4096       # client messages waiting to be stored before the stream is refused
+# resident memory a frame costs its worker per pixel of the camera: measured with the bunny at
+# 1920×1080, an anti-aliased still (4 samples a pixel: primary hits, shading, tone mapping,
+# JPEG): the worker's peak grew from 176 to 988 MiB, ~410 bytes a pixel; so the default
+# max_frame_pixels (2560×1600) is ~1.7 GB, and 8192×8192 would be ~27 GB
+FRAME_BYTES_PER_PIXEL = 410
+
+
+def check_frame_size(settings, camera: dict | None) -> None:
+    """Refuse (422) a session camera of more than ``max_frame_pixels`` (width × height), before
+    any worker draws it. camera : a Camera dict (width, height in pixels), or None."""
+    if not camera:
+        return
+    w, h = int(camera.get("width", 640)), int(camera.get("height", 480))
+    if w * h > settings.max_frame_pixels:
+        raise HTTPException(422, f"camera: {w}×{h} = {w * h} pixels is over this server's limit of "
+                                 f"{settings.max_frame_pixels} pixels a frame (max_frame_pixels; a frame "
+                                 f"costs ~{FRAME_BYTES_PER_PIXEL} bytes a pixel, ~{w * h * FRAME_BYTES_PER_PIXEL >> 20} "
+                                 "MiB for this one)")
+
+
+class _ClientUtf8Error(logging.Filter):
+    """uvicorn closes a text frame that is not UTF-8 with 1007, as it should, but logs the
+    client's mistake with a traceback, as if the server had failed: one line is enough."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.exc_info and str(record.msg).startswith("Invalid UTF-8 sequence received from client"):
+            record.exc_info = None
+            record.levelno, record.levelname = logging.INFO, "INFO"
+            record.msg = "a client sent a text frame that is not UTF-8: closed with 1007"
+        return True
+
+
+if not any(isinstance(f, _ClientUtf8Error) for f in logging.getLogger("uvicorn.error").filters):
+    logging.getLogger("uvicorn.error").addFilter(_ClientUtf8Error())
 
 
 def _stream_url(sid: str) -> str:
@@ -64,8 +102,10 @@ def create_session(req: SessionCreate, request: Request, st: State, db: DB, clie
         raise HTTPException(409, str(e)) from None
     except NotFound as e:
         raise HTTPException(404, str(e)) from None
+    camera = req.camera.model_dump(mode="json") if req.camera else None
+    check_frame_size(st.settings, camera or sc.spec.get("camera"))
     try:
-        state = new_state(sc.spec, req.object, req.camera.model_dump(mode="json") if req.camera else None)
+        state = new_state(sc.spec, req.object, camera)
     except StateError as e:
         raise HTTPException(422, str(e)) from None
     token = new_secret()
@@ -224,6 +264,12 @@ def has_unsaved(sid: str) -> bool:
 def _apply_one(s, sid: str, before: SessionState, msg):
     """One message against the state: (error event, None, before) or (None, forwarded, after).
     s : the database session (None for EPHEMERAL messages, which touch no other row)."""
+    if msg.seq <= before.last_seq:
+        # refused before anything is stored: the worker would skip it (it treats such a seq as
+        # already applied), so storing it would bring it back, unseen, on the next restore
+        return ErrorEvent(seq=msg.seq, message=f"seq {msg.seq} is not above the last one, {before.last_seq}: "
+                                               "number messages on from the hello event's state.last_seq"
+                          ).model_dump(), None, before
     if msg.type == "environment" and msg.asset_id is not None:
         # an uploaded map (e.g. a capture): the stored file goes into the state as a preset
         a = s.get(Asset, msg.asset_id)
@@ -337,21 +383,118 @@ def _store_save(st, sid: str, ev: dict) -> dict:
 
 # -- the stream ---------------------------------------------------------------------------------
 async def _fail(ws: WebSocket, code: int, message: str, http: int) -> None:
-    await ws.send_text(json.dumps(ErrorEvent(message=message, fatal=True, code=http).model_dump()))
-    await ws.close(code=code)
-
-
-async def _authenticate(ws: WebSocket, token: str | None) -> str | None:
-    """The session token: from the first message ({"type": "auth", "token": …}), else ?token=."""
-    if token:
-        return token
+    """A fatal error event, then the close code; a client that already left is not an error."""
     try:
-        raw = json.loads(await asyncio.wait_for(ws.receive_text(), AUTH_SECONDS))
-    except (asyncio.TimeoutError, json.JSONDecodeError, WebSocketDisconnect, KeyError):
-        return None
+        await ws.send_text(json.dumps(ErrorEvent(message=message, fatal=True, code=http).model_dump()))
+        await ws.close(code=code)
+    except (WebSocketDisconnect, RuntimeError, OSError):
+        pass
+
+
+class BadFrame(Exception):
+    """A stream message that ends the stream: ``code`` the WebSocket close code, ``http`` the
+    error event's status, the message says what was wrong (with the limit and the measured value)."""
+
+    def __init__(self, code: int, message: str, http: int):
+        super().__init__(message)
+        self.code, self.http = code, http
+
+
+# a JSON string (its closing quote optional, so an unterminated one is consumed in one match and
+# nothing is scanned twice) or a bracket: what json_depth walks over, in linear time
+_JSON_TOKENS = re.compile(r'"(?:[^"\\]|\\.)*"?|[\[\]{}]', re.S)
+
+
+def json_depth(text: str, limit: int) -> int:
+    """How deep the arrays and objects of a JSON text nest (strings skipped), counted up to
+    ``limit + 1`` at most: json.loads recurses once a level, so a message nested 10^5 deep
+    raised RecursionError in the server before this was checked."""
+    d = deepest = 0
+    for m in _JSON_TOKENS.finditer(text):
+        c = m.group()
+        if c in "[{":
+            d += 1
+            if d > deepest:
+                deepest = d
+                if d > limit:
+                    break
+        elif c in "]}":
+            d -= 1
+    return deepest
+
+
+async def receive_json(ws: WebSocket, cfg, timeout: float):
+    """The next stream message, parsed: binary frames (1003), text over
+    ``max_stream_message_bytes`` (1009) and JSON nested deeper than ``max_stream_message_depth``
+    (4400) raise BadFrame; text that is not JSON raises json.JSONDecodeError (the stream can go
+    on); the client leaving raises WebSocketDisconnect; asyncio.TimeoutError after ``timeout`` s."""
+    m = await asyncio.wait_for(ws.receive(), timeout)
+    if m["type"] == "websocket.disconnect":
+        raise WebSocketDisconnect(m.get("code", 1000))
+    text = m.get("text")
+    if text is None:
+        n = len(m.get("bytes") or b"")
+        raise BadFrame(1003, f"a binary frame ({n} bytes) is not a stream message: send JSON text messages", 415)
+    limit = cfg.max_stream_message_bytes
+    if len(text) > limit or (4 * len(text) > limit and len(text.encode("utf-8", "surrogatepass")) > limit):
+        n = len(text.encode("utf-8", "surrogatepass"))
+        raise BadFrame(1009, f"a message of {n} bytes is over the limit of {limit} bytes (max_stream_message_bytes)", 413)
+    depth = json_depth(text, cfg.max_stream_message_depth)
+    if depth > cfg.max_stream_message_depth:
+        raise BadFrame(4400, f"a message nested more than {cfg.max_stream_message_depth} levels deep (at least "
+                             f"{depth}) is refused (max_stream_message_depth)", 400)
+    return json.loads(text)
+
+
+async def _authenticate(ws: WebSocket, token: str | None, cfg) -> tuple[str | None, str]:
+    """(the session token, why there is none): from the first message ({"type": "auth",
+    "token": …}), else ?token=. Any malformed first message is an authentication failure."""
+    if token:
+        return token, ""
+    try:
+        raw = await receive_json(ws, cfg, AUTH_SECONDS)
+    except asyncio.TimeoutError:
+        return None, f"no auth message within {AUTH_SECONDS:.0f} s"
+    except WebSocketDisconnect:
+        return None, "the client left before it authenticated"
+    except BadFrame as e:
+        return None, f"the auth message is malformed: {e}"
+    except json.JSONDecodeError as e:
+        return None, f"the auth message is not JSON ({e.msg})"
     if isinstance(raw, dict) and raw.get("type") == "auth" and isinstance(raw.get("token"), str):
-        return raw["token"]
+        return raw["token"], ""
+    return None, "the first message must be {\"type\": \"auth\", \"token\": \"<the session token>\"}"
+
+
+# the stream that owns each session's slot in st.streams (a reconnect replaces the one before)
+_owners: dict[str, object] = {}
+
+
+def _reserve(st, sid: str, client: str, me: object) -> tuple[int, str, int] | None:
+    """Check the stream limits and take a slot in one step, with no await in between (so
+    concurrent connects cannot all pass the check before any registers): None when taken, else
+    (close code, message, http status). A reconnect of the same session takes over its slot."""
+    cfg = st.settings
+    others = [c for k, c in st.streams.items() if k != sid]
+    if len(others) >= cfg.max_sessions:
+        return 4503, (f"the server is at its limit of {cfg.max_sessions} open session streams "
+                      f"({len(others)} open, max_sessions); try again later"), 503
+    mine = sum(c == client for c in others)
+    if mine >= cfg.max_sessions_per_client:
+        return 4429, (f"this client ({client}) already has {mine} open session streams, the limit is "
+                      f"{cfg.max_sessions_per_client} (max_sessions_per_client); close one first"), 429
+    st.streams[sid] = client
+    _owners[sid] = me
     return None
+
+
+def _release(st, sid: str, me: object) -> bool:
+    """Give the slot back if this stream still holds it; whether it did."""
+    if _owners.get(sid) is not me:
+        return False
+    del _owners[sid]
+    st.streams.pop(sid, None)
+    return True
 
 
 @router.websocket("/{sid}/stream")
@@ -360,26 +503,43 @@ async def stream(ws: WebSocket, sid: str, token: str | None = Query(None)):
     if not (check_host(st.settings, ws.headers) and check_origin(st.settings, ws.headers)):
         await ws.close(code=4403)          # a page from another origin cannot drive a session
         return
+    cfg = st.settings
     await ws.accept()
-    token = await _authenticate(ws, token)
+    token, why = await _authenticate(ws, token, cfg)
     row = await run_in_threadpool(lambda: _get(st, sid))
     if row is None or row.closed:
         return await _fail(ws, 4404, f"no open session {sid!r}", 404)
     if not _authorised(row, token):
-        return await _fail(ws, 4403, "wrong or missing session token (send {\"type\": \"auth\", \"token\": …} first)", 403)
+        return await _fail(ws, 4403, f"wrong or missing session token: {why or 'the token does not match'} "
+                                     "(send {\"type\": \"auth\", \"token\": …} first)", 403)
+    # viewer sessions need no API token and are made by anyone: they count against the address
+    # that streams them (a client could make them from many); editing ones against their owner
+    readonly = bool((row.state or {}).get("readonly"))
+    client = f"addr:{ws.client.host if ws.client else '?'}" if readonly else row.client
+    me = object()
+    refused = _reserve(st, sid, client, me)
+    if refused is not None:
+        return await _fail(ws, *refused)
+    try:
+        await _serve(ws, st, sid, row, me)
+    finally:
+        _release(st, sid, me)
+
+
+async def _serve(ws: WebSocket, st, sid: str, row: Session, me: object) -> None:
+    """The stream of an authenticated session that holds its slot (``_reserve``)."""
     cfg = st.settings
-    others = [c for k, c in st.streams.items() if k != sid]
-    if len(others) >= cfg.max_sessions:
-        return await _fail(ws, 4503, f"the server is at its limit of {cfg.max_sessions} open sessions; try again later", 503)
-    if sum(c == row.client for c in others) >= cfg.max_sessions_per_client:
-        return await _fail(ws, 4429, f"this client already has {cfg.max_sessions_per_client} open sessions; "
-                                     "close one first", 429)
     try:
         payload = await run_in_threadpool(st.session_payload, sid)
     except (Conflict, NotFound) as e:
         return await _fail(ws, 4409, str(e), 409)
+    try:
+        check_frame_size(cfg, (payload.get("state") or {}).get("camera"))
+    except HTTPException as e:           # a session stored before the limit, or a scene's camera
+        return await _fail(ws, 4413, str(e.detail), 422)
+    if _owners.get(sid) is not me:
+        return await _fail(ws, 4409, "this session was opened by another stream meanwhile", 409)
     st.pool.close_session(sid)      # one stream per session: a reconnect starts from the stored state
-    st.streams[sid] = row.client
     q = st.pool.open_session(sid, payload)
     state, notes = restore_state(payload["state"], payload["scene"]["spec"])
     await ws.send_text(json.dumps(HelloEvent(
@@ -462,12 +622,13 @@ async def stream(ws: WebSocket, sid: str, token: str | None = Query(None)):
     try:
         while True:
             try:
-                text = await asyncio.wait_for(ws.receive_text(), cfg.session_idle_seconds)
+                raw = await receive_json(ws, cfg, cfg.session_idle_seconds)
             except asyncio.TimeoutError:
                 await _fail(ws, 4408, f"closed after {cfg.session_idle_seconds:.0f} s without input; reconnect to go on", 408)
                 break
-            try:
-                raw = json.loads(text)
+            except BadFrame as e:       # nothing of it was applied or stored
+                await _fail(ws, e.code, str(e), e.http)
+                break
             except json.JSONDecodeError as e:
                 await ws.send_text(json.dumps(ErrorEvent(message=f"not JSON: {e.msg}").model_dump()))
                 continue
@@ -505,8 +666,8 @@ async def stream(ws: WebSocket, sid: str, token: str | None = Query(None)):
             await asyncio.wait_for(processor, 30.0)
         except (asyncio.TimeoutError, asyncio.CancelledError):
             processor.cancel()
-        st.streams.pop(sid, None)
-        st.pool.close_session(sid)
+        if _release(st, sid, me):       # a newer stream of this session keeps its worker session
+            st.pool.close_session(sid)
         st.metrics.session_ended(sid)
         await run_in_threadpool(forget_session, st, sid)
         await run_in_threadpool(_ended, st, sid)
@@ -534,19 +695,38 @@ def _ended(st, sid: str) -> None:
                 row.closed = True
 
 
-def expire_idle(st, older_than: dt.timedelta) -> int:
-    """Close editing sessions without a stream and without activity for ``older_than``."""
-    cutoff = now() - older_than
+def expire_idle(st, older_than: dt.timedelta, viewers_older_than: dt.timedelta | None = None) -> int:
+    """Close editing sessions without a stream and without activity for ``older_than``; delete
+    viewer (read-only) sessions without a stream (never opened, or ended) and without activity
+    for ``viewers_older_than`` (default: the ``viewer_session_seconds`` setting), with their
+    stroke rows: anyone may make them (publications are public), so they must not pile up.
+    Returns the sessions closed or deleted."""
+    if viewers_older_than is None:
+        viewers_older_than = dt.timedelta(seconds=st.settings.viewer_session_seconds)
+    t = now()
+    cutoff, viewer_cutoff = t - older_than, t - viewers_older_than
     n = 0
+
+    def idle(row, cut) -> bool:
+        last = row.last_active or row.updated or row.created
+        if last is not None and last.tzinfo is None:
+            last = last.replace(tzinfo=dt.timezone.utc)
+        return row.id not in st.streams and last is not None and last < cut
+
     with st.db() as s, s.begin():
         for row in s.scalars(select(Session).where(Session.closed.is_(False))):
-            last = row.last_active or row.updated or row.created
-            if last is not None and last.tzinfo is None:
-                last = last.replace(tzinfo=dt.timezone.utc)
-            if row.id not in st.streams and last is not None and last < cutoff:
+            if not (row.state or {}).get("readonly") and idle(row, cutoff):
                 row.closed = True
                 n += 1
-    return n
+        # viewer rows, open or closed, without reading their states
+        q = select(Session.id, Session.last_active, Session.updated, Session.created).where(
+            Session.state["readonly"].as_boolean().is_(True))
+        gone = [r.id for r in s.execute(q) if idle(r, viewer_cutoff)]
+        if gone:
+            s.execute(delete(StrokeRow).where(StrokeRow.session_id.in_(gone)))
+            s.execute(delete(SessionSave).where(SessionSave.session_id.in_(gone)))
+            s.execute(delete(Session).where(Session.id.in_(gone)))
+    return n + len(gone)
 
 
 def _get(st, sid):

@@ -57,7 +57,11 @@ export class SessionStream {
     };
     this.ws.onmessage = async (e) => {
       if (typeof e.data === "string") {
-        this.onEvent(JSON.parse(e.data));
+        const ev = JSON.parse(e.data);
+        // the server refuses a seq not above the session's last one: a reopened page (or a
+        // reconnect) numbers on from the stored state
+        if (ev.type === "hello") this.seq = Math.max(this.seq, ev.state?.last_seq ?? 0);
+        this.onEvent(ev);
         return;
       }
       const { header, image } = decodeFrame(e.data);

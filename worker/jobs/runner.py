@@ -588,6 +588,8 @@ class SessionThread(threading.Thread):
             if not isinstance(ex, (ValueError, KeyError)):
                 traceback.print_exc()
         finally:
+            if rt is not None:
+                rt.close()
             del rt
             release_memory()
             self.outq.put(("closed", self.sid, None))

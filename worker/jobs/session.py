@@ -29,6 +29,7 @@ import numpy as np
 from PIL import Image
 
 from ..core.tonemap import tonemap
+from ..memory import trim_malloc
 from ..errors import GlintError
 from ..fit.brush import Stroke
 from ..fit.fitter import QUICK_ROWS, FitError, Fitter, painted_select, quick_select
@@ -42,6 +43,10 @@ CURVE_SAMPLES = 91
 FRAME_BUDGET_MS = 33.0     # a frame while the user drags: 30 fps
 STILL_SAMPLES = 4          # anti-aliasing samples per pixel of a still frame
 REPROBE_S = 2.0            # while at the drag level of detail, try a full frame this often
+# a frame of at least this many pixels gives its transient memory back at once (trim_malloc),
+# and a closed session's cached primary hits of such a camera are dropped (``close``): at
+# ~410 bytes a pixel (server/routes/sessions.py FRAME_BYTES_PER_PIXEL) that is ~400 MB and up
+BIG_FRAME_PIXELS = 1024 * 1024
 # one background builder per worker process: views are prepared one at a time, at low priority
 _builder = ThreadPoolExecutor(max_workers=1, thread_name_prefix="glint-prefetch")
 
@@ -115,6 +120,11 @@ class SessionRuntime:
         self.renderers = {renderer.kind: renderer}
         self.renderer = renderer
         self.events: list[dict] = [NoteEvent(message=n).model_dump() for n in notes]
+        # re-opened on a new worker after one died (server/workers.py _restore): the refit of
+        # the stored strokes is sent (a fit event) before the first frame, so the server stores
+        # the material the strokes give, not the one it had before the crash
+        self._restored = bool(stored.get("restored"))
+        self.closed = False
         self.frame_no = 0
         self.fitter: Fitter | None = None
         self._needs_fit = False
@@ -247,7 +257,7 @@ class SessionRuntime:
         if fx is self.fitter and moves == self._moves:
             return                          # on its way
         v = self.fitter.views[i]
-        self._adopt(i, _builder.submit(self._build_view, self.fitter, v.camera, v.rotation_deg, v.intensity))
+        self._adopt(i, self._submit(self._build_view, self.fitter, v.camera, v.rotation_deg, v.intensity))
 
     def _adopt(self, i: int, fut: Future) -> None:
         self._completions[i] = (self.fitter, self._moves, fut)
@@ -393,6 +403,9 @@ class SessionRuntime:
     def take_events(self) -> list[dict]:
         """Events produced outside a message (restore notes, rejected replays, re-run saves)."""
         ev, self.events = self.events, []
+        if self._restored:
+            self._restored = False
+            ev += self.fit_if_needed()
         if self._resave:
             ev += self.fit_if_needed()
             ev += [self._save_request(p) for p in self._resave]
@@ -448,14 +461,43 @@ class SessionRuntime:
                 for k in [k for k in self._pending if k[0] == "view"]:
                     self._pending[k].cancel()           # only the latest view is worth building
                     del self._pending[k]
-                self._pending[key] = _builder.submit(self._build_view, fx, cam, rot, inten)
+                self._pending[key] = self._submit(self._build_view, fx, cam, rot, inten)
         vkey = ("vt", self._view_key(cam, rot, inten))
         if self._vt_wanted() and (self._vt is None or self._vt[0] != vkey[1]) and vkey not in self._pending:
             for k in [k for k in self._pending if k[0] == "vt"]:
                 self._pending[k].cancel()
                 del self._pending[k]
-            self._pending[vkey] = _builder.submit(self._build_vertex_transfer, cam, rot, inten)
+            self._pending[vkey] = self._submit(self._build_vertex_transfer, cam, rot, inten)
             self._pending[vkey].add_done_callback(lambda _f: self.wake())
+
+    def _submit(self, fn, *args) -> Future:
+        """Queue background work on the process's builder; work of a session closed before it
+        starts is not done (``close``)."""
+        def run():
+            if self.closed:
+                return RuntimeError("the session was closed")
+            return fn(*args)
+        return _builder.submit(run)
+
+    def close(self) -> None:
+        """The session ended: its queued background builds are cancelled (a running one ends
+        with its current view; none starts after), and the renderer's cached primary hits of a
+        big camera are dropped (a build under way holds the fitter, so the renderer, until it
+        ends), so the worker goes back to resting memory (the caller then releases memory,
+        worker.memory.release_memory). Before, after an 8192×8192 stream closed its prefetch
+        kept both cores busy ~60 s and the worker stayed at 7 GB."""
+        self.closed = True
+        for fut in list(self._pending.values()) + [c[2] for c in self._completions.values()]:
+            fut.cancel()
+        self._pending.clear()
+        self._completions.clear()
+        self._vt = None
+        self.fitter = None
+        cam = self.state.camera
+        if cam.width * cam.height >= BIG_FRAME_PIXELS:
+            for r in self.renderers.values():
+                if hasattr(r, "forget_views"):
+                    r.forget_views(BIG_FRAME_PIXELS)
 
     def _vt_wanted(self) -> bool:
         """Whether the per-vertex transfer of this view is worth its cost (about a second of
@@ -624,6 +666,9 @@ class SessionRuntime:
         self._last = (st.camera, st.rotation_deg, st.intensity, self._drag, samples)
         self.frame_no += 1
         h, w = rgb.shape[:2]
+        if w * h >= BIG_FRAME_PIXELS:
+            # the frame's scratch (shading, tone mapping, JPEG) was freed into malloc's arenas
+            trim_malloc()
         hdr = {"frame": self.frame_no, "ack": ack, "width": w, "height": h, "format": "jpeg",
                "ms_render": round((t1 - t0) * 1e3, 2), "lod": lod == "drag", "quick": lod == "quick", "samples": int(out.info.get("samples", 1)),
                "shadow": out.info.get("ground_shadow"), "ms_encode": round((t2 - t1) * 1e3, 2), "ms_paused": round(paused * 1e3, 2), "skipped": skipped}

@@ -211,7 +211,9 @@ class ClientMsg(BaseModel):
     """A client → server message. ``readonly_ok``: a shopper's read-only viewer may send it."""
     model_config = ConfigDict(extra="forbid")
     readonly_ok: ClassVar[bool] = False
-    seq: int = Field(ge=0, le=2**53)
+    # strict: "7" is not a seq (lax mode turned it into 7, and the server stored what the
+    # client may not have meant); the server refuses one not above the state's last_seq
+    seq: int = Field(ge=0, le=2**53, strict=True)
     type: str
 
     def apply(self, st: SessionState) -> Effect | None:

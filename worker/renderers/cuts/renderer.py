@@ -179,6 +179,19 @@ class CutRenderer(Renderer):
         with self._lock:
             return any(v.samples == samples and v.camera == camera for v in self._views)
 
+    def forget_views(self, min_pixels: int) -> int:
+        """Drop the cached primary hits (and their backgrounds) of cameras of at least
+        ``min_pixels`` (width × height): a closed session's big frame must not keep its worker
+        above resting memory while a background build still holds this renderer (a 1920×1080
+        still's hits and their buffers are ~0.7 GB). Returns how many went."""
+        with self._lock:
+            keep = [v for v in self._views if v.camera.width * v.camera.height < min_pixels]
+            n = len(self._views) - len(keep)
+            self._views = keep
+            if self._view is not None and self._view not in keep:
+                self._view = keep[0] if keep else None
+            return n
+
     def view(self, camera, samples: int = 1) -> View:
         """Primary hits of a camera with S samples per pixel (cached for the last few). With
         movable objects: one sample, the objects where the last frame had them."""
