@@ -216,14 +216,25 @@ class LocalWorkerPool(WorkerPool):
         return q
 
     def send(self, sid: str, msg: dict) -> None:
-        with self._lock:
-            if sid in self.held:
-                self.held[sid].append(msg)
+        while True:
+            with self._lock:
+                if sid in self.held:
+                    self.held[sid].append(msg)
+                    return
+                w = self.owner.get(sid)
+            if w is None:
+                raise KeyError(sid)
+            try:
+                w.inq.put(("msg", sid, msg))
                 return
-            w = self.owner.get(sid)
-        if w is None:
-            raise KeyError(sid)
-        w.inq.put(("msg", sid, msg))
+            except (OSError, ValueError):
+                # the worker died and the monitor (every 0.25 s) has not replaced it yet: its
+                # pipe is broken (or already closed). Hold the message as the monitor would; it
+                # goes to the replacement after the session is re-opened from the database
+                # (which already holds what the message changed, so it is applied once)
+                with self._lock:
+                    if self.owner.get(sid) is w and sid not in self.held:
+                        self.held[sid] = []
 
     def close_session(self, sid: str) -> None:
         with self._lock:
@@ -286,24 +297,30 @@ class LocalWorkerPool(WorkerPool):
             for slot, w in enumerate(list(self.workers)):
                 if w.proc.is_alive() or self._stopping:
                     continue
-                log.warning("worker %d (pid %s) died with exit code %s; replacing it", slot, w.proc.pid, w.proc.exitcode)
-                self.restarts += 1
-                with self._lock:
-                    nw = self._spawn(slot)
-                    lost_jobs = list(w.jobs)
-                    moved = list(w.sessions)
-                    for sid in moved:
-                        self.owner[sid] = nw
-                        nw.sessions.add(sid)
-                        self.held[sid] = []       # hold its messages until it is open again
-                w.close_queues()
-                for jid in lost_jobs:
-                    fut, _ = self.futures.get(jid, (None, None))
-                    if fut is not None:
-                        self.loop.call_soon_threadsafe(
-                            lambda f=fut: f.done() or f.set_exception(JobFailed("the worker running this job died; retry it", 503)))
-                for sid in moved:
-                    self._restore(sid, nw)
+                self._replace(slot, w)
+
+    def _replace(self, slot: int, w: _Worker) -> None:
+        """A dead worker: a new one in its slot, its jobs failed, its sessions restored."""
+        log.warning("worker %d (pid %s) died with exit code %s; replacing it", slot, w.proc.pid, w.proc.exitcode)
+        self.restarts += 1
+        with self._lock:
+            nw = self._spawn(slot)
+            lost_jobs = list(w.jobs)
+            moved = list(w.sessions)
+            for sid in moved:
+                self.owner[sid] = nw
+                nw.sessions.add(sid)
+                # hold its messages until it is open again (with those ``send`` already held
+                # when it found the dead worker's pipe broken)
+                self.held.setdefault(sid, [])
+        w.close_queues()
+        for jid in lost_jobs:
+            fut, _ = self.futures.get(jid, (None, None))
+            if fut is not None:
+                self.loop.call_soon_threadsafe(
+                    lambda f=fut: f.done() or f.set_exception(JobFailed("the worker running this job died; retry it", 503)))
+        for sid in moved:
+            self._restore(sid, nw)
 
     def _restore(self, sid: str, nw: _Worker) -> None:
         try:

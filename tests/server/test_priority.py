@@ -232,3 +232,46 @@ def test_frames_queue_for_a_slot_and_give_way_to_their_own_stroke():
         assert len(polls) == 3
     with slots.take(lambda: True):          # a free slot is taken at once
         pass
+
+
+def test_a_message_for_a_worker_that_just_died_is_held_for_its_replacement(tmp_path):
+    """Between a worker's death and the monitor noticing it (every 0.25 s) its pipe is broken:
+    a message sent then is held for the replacement, which gets it after the session is
+    re-opened (it was a stream closed with 1011 "could not store your input")."""
+    import asyncio
+    import signal
+
+    from server.workers import LocalWorkerPool
+    from worker.jobs.runner import WorkerSettings
+
+    seen = {}
+
+    def restore(sid):
+        seen["held"] = list(pool.held.get(sid, []))     # what waits for the re-opened session
+        return None                                     # (not re-opened here: no scene)
+
+    pool = LocalWorkerPool(1, lambda slot: WorkerSettings(blob_root=str(tmp_path / "blobs"),
+                                                          tmp_dir=str(tmp_path / f"w{slot}")), restore=restore)
+    pool.loop = asyncio.new_event_loop()                # the monitor is not started: no race
+    w = pool._spawn(0)
+    pool.owner["s1"] = w
+    w.sessions.add("s1")
+    msg = {"seq": 1, "type": "view", "eye": [0, 1, 3]}
+    nw = None
+    try:
+        os.kill(w.proc.pid, signal.SIGKILL)
+        w.proc.join(30)
+        pool.send("s1", msg)                            # raised BrokenPipeError
+        assert pool.held.get("s1") == [msg], pool.held
+        pool._replace(0, w)
+        nw = pool.workers[0]
+        assert nw is not w and pool.owner["s1"] is nw
+        assert seen["held"] == [msg], f"the monitor dropped the held message: {seen}"
+    finally:
+        for x in (w, nw):
+            if x is not None and x.proc.is_alive():
+                x.inq.put(("stop", None, None))
+                x.proc.join(30)
+            if x is not None:
+                x.close_queues()
+        pool.loop.close()
