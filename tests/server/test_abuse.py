@@ -1,0 +1,101 @@
+"""Large and hostile requests, bounded: the server stays responsive (health checks and streams
+go on while it validates a big scene), and refusals name the limit and the measured value."""
+import asyncio
+import json
+import threading
+import time
+from pathlib import Path
+
+import httpx
+
+from helpers import connect, next_frame
+
+ROOT = Path(__file__).resolve().parents[2]
+N_OBJECTS = 20_000                     # the default max_scene_objects: the largest scene accepted
+
+
+def _big_scene(client, bunny_scene, n):
+    spec = client.get(f"/v1/scenes/{bunny_scene}").json()["spec"]
+    o = spec["objects"][0]
+    spec["objects"] = [{"name": f"o{i}", "mesh": o["mesh"], "material": o["material"]} for i in range(n)]
+    return spec
+
+
+def test_a_large_scene_does_not_stall_health_checks_or_streams(server, client, bunny_scene):
+    spec = _big_scene(client, bunny_scene, N_OBJECTS)
+    body = json.dumps(spec).encode()
+    r = client.post("/v1/sessions", json={"scene_id": bunny_scene})
+    assert r.status_code == 201, r.text
+    ses = r.json()
+    done = threading.Event()
+    health: list[float] = []
+    frames: list[float] = []
+    window = [0.0, 0.0]
+
+    def poll():
+        with httpx.Client(base_url=server["base"], timeout=30) as c:
+            while not done.is_set():
+                t = time.perf_counter()
+                assert c.get("/healthz").status_code == 200
+                health.append(time.perf_counter() - t)
+                time.sleep(0.02)
+
+    async def stream():
+        async with connect(server, ses["stream"], ses["token"]) as ws:
+            await ws.recv()                                           # hello
+            await next_frame(ws)
+            started.set()
+            seq = 0
+            while not done.is_set():
+                seq += 1
+                await ws.send(json.dumps({"seq": seq, "type": "light", "rotation_deg": (7 * seq) % 360}))
+                await next_frame(ws, seq, timeout=30)
+                frames.append(time.perf_counter())
+
+    started = threading.Event()
+    streamer = threading.Thread(target=lambda: asyncio.run(stream()))
+    streamer.start()
+    assert started.wait(60), "the stream gave no first frame"
+    poller = threading.Thread(target=poll)
+    poller.start()
+    time.sleep(0.3)
+    try:
+        window[0] = time.perf_counter()
+        with httpx.Client(base_url=server["base"], timeout=600) as c:
+            created = c.post("/v1/scenes", content=body, params={"name": "big"},
+                             headers={"Content-Type": "application/json"})
+        window[1] = time.perf_counter()
+        time.sleep(0.3)
+    finally:
+        done.set()
+        poller.join(60)
+        streamer.join(60)
+    post_s = window[1] - window[0]
+    assert created.status_code == 201, created.text[:500]
+    assert len(created.json()["spec"]["objects"]) == N_OBJECTS
+    assert len(health) >= 5, health
+    worst = max(health)
+    assert worst < 0.1, (f"/healthz took up to {1000 * worst:.0f} ms (median {1000 * sorted(health)[len(health) // 2]:.0f} ms) "
+                         f"while a {N_OBJECTS}-object scene ({len(body)} bytes) was created in {post_s:.2f} s")
+    during = [t for t in frames if window[0] <= t <= window[1]]
+    gaps = [b - a for a, b in zip([window[0]] + during, during + [window[1]])]
+    assert max(gaps) < 1.0, f"frames stopped for {max(gaps):.2f} s during the {post_s:.2f} s POST ({len(during)} frames)"
+    # the list stays cheap with the big scene in it
+    t = time.perf_counter()
+    lst = client.get("/v1/scenes", params={"limit": 10})
+    list_s = time.perf_counter() - t
+    assert lst.status_code == 200 and len(lst.json()) <= 10
+    assert list_s < 2.0, f"GET /v1/scenes took {list_s:.2f} s"
+    print(f"POST {N_OBJECTS} objects: {post_s:.2f} s; /healthz worst {1000 * worst:.0f} ms over {len(health)}; "
+          f"{len(during)} frames during the POST, largest gap {max(gaps):.2f} s; GET /v1/scenes {list_s:.2f} s")
+
+
+def test_scene_over_the_object_limit_is_refused_naming_it(client, bunny_scene):
+    spec = _big_scene(client, bunny_scene, N_OBJECTS + 1)
+    r = client.post("/v1/scenes", json=spec)
+    assert r.status_code == 413, r.text[:500]
+    assert f"{N_OBJECTS + 1} objects" in r.json()["detail"] and f"limit of {N_OBJECTS}" in r.json()["detail"], r.text
+    dup = _big_scene(client, bunny_scene, 3)
+    dup["objects"][2]["name"] = "o0"
+    r = client.post("/v1/scenes", json=dup)
+    assert r.status_code == 422 and "o0" in r.json()["detail"], r.text
