@@ -27,7 +27,7 @@ from worker.memory import freeze_start_up
 
 from .config import Settings
 from .deps import Client, check_host, check_origin
-from .logs import RequestContext
+from .logs import RequestContext, redact_text
 from .metrics import CONTENT_TYPE, Metrics
 from .routes import assets, captures, materials, publications, renders, scenes, sessions
 from .state import AppState
@@ -38,14 +38,16 @@ SAFE_METHODS = {"GET", "HEAD", "OPTIONS"}
 
 
 class RedactSecrets(logging.Filter):
-    """Access-log lines never carry a token (``?token=…`` on a stream URL, for old clients)."""
-    _pat = re.compile(r"(token=)[^&\s\"']+", re.I)
+    """Log lines never carry a token (``?token=…`` on a stream URL, for old clients, in any
+    percent-encoding: server/logs.py redact_text)."""
 
     def filter(self, record: logging.LogRecord) -> bool:
         if record.args:
-            record.args = tuple(self._pat.sub(r"\1[redacted]", a) if isinstance(a, str) else a for a in record.args)
+            args = record.args if isinstance(record.args, tuple) else (record.args,)
+            if isinstance(record.args, tuple):
+                record.args = tuple(redact_text(a) if isinstance(a, str) else a for a in args)
         if isinstance(record.msg, str):
-            record.msg = self._pat.sub(r"\1[redacted]", record.msg)
+            record.msg = redact_text(record.msg)
         return True
 
 

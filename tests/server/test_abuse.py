@@ -99,3 +99,26 @@ def test_scene_over_the_object_limit_is_refused_naming_it(client, bunny_scene):
     dup["objects"][2]["name"] = "o0"
     r = client.post("/v1/scenes", json=dup)
     assert r.status_code == 422 and "o0" in r.json()["detail"], r.text
+
+
+def test_stream_tokens_never_reach_the_log_in_any_spelling(server, client, bunny_scene):
+    import websockets
+
+    r = client.post("/v1/sessions", json={"scene_id": bunny_scene})
+    ses = r.json()
+    token = ses["token"]
+    path = ses["stream"]
+
+    async def go():
+        # "%74oken" is "token" percent-encoded (the server decodes names, so it authenticates);
+        # "token%3D…" decodes to "token=…"; any case of the name
+        for query in (f"%74oken={token}", f"token%3D{token}", f"TOKEN={token}", f"x=1&%2574oken={token}"):
+            async with websockets.connect(f"ws://127.0.0.1:{server['port']}{path}?{query}", max_size=None) as ws:
+                await ws.send(json.dumps({"type": "auth", "token": token}))
+                first = json.loads(await ws.recv())
+                assert first["type"] == "hello", first
+    asyncio.run(go())
+    time.sleep(0.5)
+    log = server["server"].log()
+    assert path.split("?")[0] in log                       # the lines are there, without the token
+    assert token not in log, [ln for ln in log.splitlines() if token in ln][:3]
