@@ -122,3 +122,17 @@ def test_stream_tokens_never_reach_the_log_in_any_spelling(server, client, bunny
     log = server["server"].log()
     assert path.split("?")[0] in log                       # the lines are there, without the token
     assert token not in log, [ln for ln in log.splitlines() if token in ln][:3]
+
+
+def test_huge_or_negative_integers_in_paths_are_refused(client):
+    m = client.post("/v1/materials", json={"name": "ints", "material": {"model": "lambert", "albedo": [0.5, 0.5, 0.5]}})
+    assert m.status_code == 201, m.text
+    mid = m.json()["id"]
+    assert client.get(f"/v1/materials/{mid}/versions/1").status_code == 200
+    for v in ("9810356179484963864838144", str(2**31), "0", "-1"):
+        r = client.get(f"/v1/materials/{mid}/versions/{v}")
+        assert r.status_code == 422, (v, r.status_code, r.text)
+        assert "version" in r.json()["detail"], r.text
+    for q in ({"limit": 10**30}, {"offset": -1}, {"limit": 0}):
+        r = client.get("/v1/scenes", params=q)
+        assert r.status_code == 422, (q, r.text)
