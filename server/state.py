@@ -30,11 +30,23 @@ class AppState:
         settings.data_dir.mkdir(parents=True, exist_ok=True)
         self.db = make_sessionmaker(settings.db_url)
         self.blobs = BlobStore(settings.data_dir / "blobs")
+        self._sweep_temp()
         self.pool = pool or make_pool(settings, restore=self.session_payload)
         self.precompute_tasks: dict[str, object] = {}
         self.streams: dict[str, str] = {}        # open streams: session id -> client
         self.demo: dict = {"state": "off"}       # the demo scene's preparation, for the studio
         self._fail_interrupted()
+
+    def _sweep_temp(self) -> None:
+        """Partial uploads and worker scratch that crashed processes left behind (kept: a live
+        process's, and anything recent of another host's; worker/blobs.py sweep_temp)."""
+        from worker.blobs import sweep_folder
+
+        age = self.settings.stale_temp_seconds
+        n, freed = self.blobs.sweep_temp(age)
+        n2, freed2 = sweep_folder(self.settings.data_dir / "tmp", age)
+        if n + n2:
+            log.info("deleted %d leftover temporary file(s) or folder(s), %.1f MiB", n + n2, (freed + freed2) / 2**20)
 
     def _fail_interrupted(self) -> None:
         """Jobs of an earlier server process cannot finish: say so instead of showing them

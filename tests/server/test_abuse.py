@@ -136,3 +136,35 @@ def test_huge_or_negative_integers_in_paths_are_refused(client):
     for q in ({"limit": 10**30}, {"offset": -1}, {"limit": 0}):
         r = client.get("/v1/scenes", params=q)
         assert r.status_code == 422, (q, r.text)
+
+
+def test_leftover_partial_uploads_are_deleted_at_start(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    from helpers import GlintServer
+
+    host = "".join(c if c.isalnum() else "_" for c in os.uname().nodename)[:40]
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    tmp = tmp_path / "blobs" / "tmp"
+    tmp.mkdir(parents=True)
+    of_dead = tmp / f"up-{host}-{dead.pid}-abc"
+    of_live = tmp / f"up-{host}-{os.getpid()}-def"          # this test process: alive
+    old = tmp / "tmpq1w2e3"                                  # an unnamed one, two hours old
+    scratch = tmp_path / "tmp" / "ray-7"
+    scratch.mkdir(parents=True)
+    for f in (of_dead, of_live, old, scratch / "part.bin"):
+        f.write_bytes(b"\0" * 65536)
+    two_h = time.time() - 7200
+    os.utime(old, (two_h, two_h))
+    os.utime(scratch / "part.bin", (two_h, two_h))
+    os.utime(scratch, (two_h, two_h))
+    srv = GlintServer(tmp_path, workers=1)
+    try:
+        assert not of_dead.exists() and not old.exists() and not scratch.exists(), sorted(os.listdir(tmp))
+        assert of_live.exists(), "a live process's partial upload was deleted"
+        assert "leftover temporary" in srv.log()
+    finally:
+        srv.stop()
