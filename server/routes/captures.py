@@ -91,7 +91,7 @@ async def _run(st, cid: str) -> None:
             zsha = s.get(Capture, cid).zip_sha256
         await run_in_threadpool(update, status="running", message="starting")
         res = await st.pool.run_job({"type": "capture", "zip_sha256": zsha, "max_files": st.settings.max_capture_files,
-                                     "max_total_bytes": 4 * st.settings.max_capture_bytes}, on_progress=progress)
+                                     "max_total_bytes": st.settings.max_capture_unpacked_bytes}, on_progress=progress)
 
         def done():
             with st.db() as s, s.begin():

@@ -168,3 +168,31 @@ def test_leftover_partial_uploads_are_deleted_at_start(tmp_path):
         assert "leftover temporary" in srv.log()
     finally:
         srv.stop()
+
+
+def _wait_capture(client, cid, timeout=120):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        c = client.get(f"/v1/captures/{cid}").json()
+        if c["status"] in ("done", "failed"):
+            return c
+        time.sleep(0.2)
+    raise AssertionError(f"capture {cid} still {c['status']} after {timeout} s")
+
+
+def test_a_zip_bomb_capture_fails_fast_naming_the_ratio(client):
+    import io
+    import zipfile
+
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED, compresslevel=9) as z:
+        z.writestr("manifest.json", "{}")
+        z.writestr("bracket-0.jpg", b"\0" * (32 << 20))        # 32 MiB of zeros: ~32 KiB compressed
+    assert len(buf.getvalue()) < 100_000
+    t = time.perf_counter()
+    r = client.post("/v1/captures", content=buf.getvalue(), headers={"Content-Type": "application/zip"})
+    assert r.status_code == 202, r.text
+    c = _wait_capture(client, r.json()["id"])
+    assert c["status"] == "failed", c
+    assert "compression ratio" in c["message"] and "100:1" in c["message"] and "bracket-0.jpg" in c["message"], c
+    assert time.perf_counter() - t < 30
