@@ -111,6 +111,9 @@ class BlobStore:
         (files deleted, bytes freed)."""
         return sweep_folder(self.root / "tmp", max_age_s)
 
+    def _write(self, dest: Path, data: bytes) -> None:
+        atomic_write(dest, data)
+
 
 _HOST = "".join(c if c.isalnum() else "_" for c in (os.uname().nodename if hasattr(os, "uname") else "host"))[:40] or "host"
 
@@ -158,9 +161,6 @@ def sweep_folder(folder: Path, max_age_s: float) -> tuple[int, int]:
         except FileNotFoundError:
             continue                     # deleted meanwhile by its owner
     return n, freed
-
-    def _write(self, dest: Path, data: bytes) -> None:
-        atomic_write(dest, data)
 
 
 class PartStore:
