@@ -44,6 +44,9 @@ class Settings(BaseModel):
     max_scene_objects: int = Field(20_000, ge=1, description="objects in one scene")
     max_scene_body_bytes: int = Field(32 * 1024 * 1024, ge=1024, description="JSON body of POST /v1/scenes")
     max_capture_unpacked_bytes: int = Field(1024 ** 3, ge=1, description="a capture zip's files, uncompressed, in total")
+    # who may frame the published viewer (/view/{id}, meant to be embedded): CSP frame-ancestors
+    # sources ("*" anywhere, or origins such as https://blog.example); the studio only itself
+    embed_origins: list[str] = Field(default_factory=lambda: ["*"])
     stale_temp_seconds: float = Field(3600.0, ge=0, description="at start, partial uploads older than this (or of a "
                                       "dead process) are deleted from the temporary folders")
     inspect_seconds: float = Field(300.0, gt=0, description="time limit for reading one upload")
@@ -62,7 +65,7 @@ class Settings(BaseModel):
     demo_scene: Path | None = Field(None, description="scene file of the demo (default: the fetched oak chair)")
     web_dir: Path = Field(default_factory=lambda: Path(__file__).resolve().parent.parent / "web")
 
-    @field_validator("allowed_hosts", "allowed_origins", "trusted_proxies", mode="before")
+    @field_validator("allowed_hosts", "allowed_origins", "trusted_proxies", "embed_origins", mode="before")
     @classmethod
     def _split(cls, v):
         if isinstance(v, str):

@@ -51,6 +51,60 @@ class RedactSecrets(logging.Filter):
         return True
 
 
+class SecurityHeaders:
+    """ASGI middleware: security headers on every HTTP response. ``X-Content-Type-Options:
+    nosniff`` and ``Referrer-Policy: no-referrer`` everywhere; a Content-Security-Policy that
+    allows the studio what it uses (its own ES modules and stylesheet, frames drawn from blob
+    images, its WebSocket to this host) and nothing else: no inline script, no other origin.
+    The studio and the API may be framed by themselves only (also X-Frame-Options for old
+    browsers); the published viewer by ``embed_origins`` (all by default, it is meant to be
+    embedded). The interactive API docs (/docs, /redoc) load their scripts from a CDN."""
+
+    PAGE = ("default-src 'self'; script-src 'self'; style-src 'self'; img-src 'self' blob: data:; "
+            "font-src 'self'; connect-src 'self'{ws}; object-src 'none'; base-uri 'none'; form-action 'self'; "
+            "frame-ancestors {ancestors}")
+    API = "default-src 'none'; frame-ancestors 'self'; base-uri 'none'; form-action 'none'"
+    DOCS = ("default-src 'self'; script-src 'self' 'unsafe-inline' https://cdn.jsdelivr.net; "
+            "style-src 'self' 'unsafe-inline' https://cdn.jsdelivr.net https://fonts.googleapis.com; "
+            "font-src 'self' https://fonts.gstatic.com; img-src 'self' data: https://fastapi.tiangolo.com "
+            "https://cdn.redoc.ly; worker-src 'self' blob:; connect-src 'self'; object-src 'none'; base-uri 'none'; "
+            "frame-ancestors 'self'")
+
+    def __init__(self, app, embed_origins: list[str]):
+        self.app = app
+        self.embed = " ".join(embed_origins) or "'none'"
+
+    def _policy(self, scope) -> tuple[str, bool]:
+        """(CSP, whether X-Frame-Options: SAMEORIGIN applies)."""
+        path = scope.get("path", "")
+        host = next((v.decode("latin-1") for k, v in scope.get("headers") or () if k == b"host"), "")
+        ok_host = host and all(c.isalnum() or c in ".-:[]" for c in host)
+        ws = f" ws://{host} wss://{host}" if ok_host else ""
+        if path.startswith("/view/"):
+            return self.PAGE.format(ws=ws, ancestors=self.embed), False
+        if path == "/" or path.startswith("/web/"):
+            return self.PAGE.format(ws=ws, ancestors="'self'"), True
+        if path in ("/docs", "/redoc", "/docs/oauth2-redirect"):
+            return self.DOCS, True
+        return self.API, True
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        csp, same_origin = self._policy(scope)
+
+        async def send_with_headers(msg):
+            if msg["type"] == "http.response.start":
+                extra = [(b"content-security-policy", csp.encode()), (b"x-content-type-options", b"nosniff"),
+                         (b"referrer-policy", b"no-referrer")]
+                if same_origin:
+                    extra.append((b"x-frame-options", b"SAMEORIGIN"))
+                names = {k for k, _ in extra}
+                msg = {**msg, "headers": [h for h in msg.get("headers") or [] if h[0].lower() not in names] + extra}
+            await send(msg)
+        await self.app(scope, receive, send_with_headers)
+
+
 def install_log_redaction() -> None:
     for name in ("uvicorn.access", "uvicorn.error", "glint"):
         lg = logging.getLogger(name)
@@ -111,6 +165,7 @@ def create_app(settings: Settings | None = None, pool=None) -> FastAPI:
             return JSONResponse({"detail": "cross-origin request refused (GLINT_ALLOWED_ORIGINS)"}, status_code=403)
         return await call_next(request)
 
+    app.add_middleware(SecurityHeaders, embed_origins=settings.embed_origins)
     # outermost: a request id for every request and stream, its access line and its metrics
     app.add_middleware(RequestContext, observe=metrics.http)
 
