@@ -112,6 +112,33 @@ def install_log_redaction() -> None:
             lg.addFilter(RedactSecrets())
 
 
+DISK_FULL = ("the server's disk is full ({why}): nothing was stored and earlier data is intact; "
+             "free space on the server (its data folder) or ask its operator, then try again")
+
+
+def disk_full(exc: BaseException) -> str | None:
+    """Why, when an exception (or one it was raised from) means the disk or quota is full:
+    an OSError ENOSPC/EDQUOT (uploads, blobs), SQLite's SQLITE_FULL ("database or disk is full"),
+    PostgreSQL's disk_full (SQLSTATE 53100). None for anything else."""
+    import errno
+
+    seen = 0
+    while exc is not None and seen < 8:
+        seen += 1
+        if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            return exc.strerror or "no space left on device"
+        orig = getattr(exc, "orig", None)            # SQLAlchemy wraps the driver's error
+        for e in (exc, orig):
+            if e is None:
+                continue
+            if getattr(e, "sqlite_errorcode", None) == 13 or "database or disk is full" in str(e):
+                return "database or disk is full"
+            if getattr(e, "sqlstate", None) == "53100" or getattr(e, "pgcode", None) == "53100":
+                return "no space left for the database"
+        exc = orig if orig is not None and orig is not exc else (exc.__cause__ or exc.__context__)
+    return None
+
+
 def _validation_message(exc: RequestValidationError) -> str:
     parts = []
     for e in exc.errors()[:5]:
@@ -173,10 +200,24 @@ def create_app(settings: Settings | None = None, pool=None) -> FastAPI:
     async def _bad_request(request: Request, exc: RequestValidationError):
         return JSONResponse({"detail": _validation_message(exc)}, status_code=422)
 
+    def _server_error(request: Request, exc: Exception) -> JSONResponse:
+        why = disk_full(exc)
+        if why is not None:
+            log.error("disk full on %s %s: %s", request.method, request.url.path, exc)
+            return JSONResponse({"detail": DISK_FULL.format(why=why)}, status_code=507)
+        log.exception("unhandled error on %s %s", request.method, request.url.path, exc_info=exc)
+        return JSONResponse({"detail": f"internal error ({type(exc).__name__}); see the server log"}, status_code=500)
+
+    # OSError and database errors are handled inside the middleware stack (so a 507 carries the
+    # security headers and its access line); anything else reaches the outermost handler
+    from sqlalchemy.exc import DBAPIError
+
+    for kind in (OSError, DBAPIError):
+        app.add_exception_handler(kind, lambda request, exc: _server_error(request, exc))
+
     @app.exception_handler(Exception)
     async def _unexpected(request: Request, exc: Exception):
-        log.exception("unhandled error on %s %s", request.method, request.url.path)
-        return JSONResponse({"detail": f"internal error ({type(exc).__name__}); see the server log"}, status_code=500)
+        return _server_error(request, exc)
 
     @app.get("/healthz", tags=["health"])
     async def healthz(request: Request):

@@ -196,3 +196,60 @@ def test_a_zip_bomb_capture_fails_fast_naming_the_ratio(client):
     assert c["status"] == "failed", c
     assert "compression ratio" in c["message"] and "100:1" in c["message"] and "bracket-0.jpg" in c["message"], c
     assert time.perf_counter() - t < 30
+
+
+def test_a_full_disk_answers_507_and_keeps_earlier_data(tmp_path):
+    """The data folder on a 20 MiB tmpfs, filled by uploads: the one that does not fit is a 507
+    saying the disk is full; what was stored before stays listed, readable and intact."""
+    import hashlib
+    import io
+    import sqlite3
+    import subprocess
+
+    import numpy as np
+    import pytest
+    from PIL import Image
+
+    from helpers import GlintServer
+
+    data = tmp_path / "data"
+    data.mkdir()
+    m = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=20m", "tmpfs", str(data)], capture_output=True, text=True)
+    if m.returncode != 0:
+        pytest.skip(f"cannot mount a small tmpfs to fill (needs root or CAP_SYS_ADMIN): {m.stderr.strip()}")
+    srv = None
+    try:
+        srv = GlintServer(data, workers=1, log_path=tmp_path / "server.log")
+        rng = np.random.default_rng(5)
+        stored, full = [], None
+        with httpx.Client(base_url=srv.base, timeout=120) as c:
+            for k in range(20):
+                # incompressible noise, different every time (the store keeps one copy of equal files)
+                png = io.BytesIO()
+                Image.fromarray(rng.integers(0, 256, (900, 900, 3), dtype=np.uint8)).save(png, "PNG", compress_level=0)
+                r = c.post("/v1/assets/images", params={"filename": f"noise{k}.png"}, content=png.getvalue())
+                if r.status_code == 201:
+                    stored.append((r.json(), hashlib.sha256(png.getvalue()).hexdigest()))
+                    continue
+                full = r
+                break
+            assert full is not None, "20 uploads of 2.4 MB fitted on a 20 MiB disk"
+            assert full.status_code == 507, (full.status_code, full.text)
+            assert "disk is full" in full.json()["detail"], full.text
+            assert len(stored) >= 2, stored
+            for a, sha in stored:
+                g = c.get(f"/v1/assets/{a['id']}")
+                assert g.status_code == 200 and g.json()["sha256"] == sha
+                blob = data / "blobs" / sha[:2] / sha
+                assert hashlib.sha256(blob.read_bytes()).hexdigest() == sha
+            assert c.get("/healthz").status_code == 200
+        assert not list((data / "blobs" / "tmp").iterdir()), "the cut-off upload's temporary file was left"
+        srv.stop()
+        srv = None
+        with sqlite3.connect(data / "glint.db") as db:
+            assert db.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+            assert db.execute("SELECT count(*) FROM assets").fetchone()[0] == len(stored)
+    finally:
+        if srv is not None:
+            srv.stop()
+        subprocess.run(["umount", "-l", str(data)], capture_output=True)
