@@ -26,8 +26,11 @@ from .assets import receive_upload
 router = APIRouter(prefix="/v1/captures", tags=["captures"])
 log = logging.getLogger("glint")
 
+# Both media types the route accepts are declared: generated clients (openapi-python-client)
+# upload binary bodies as application/octet-stream only, and skipped the route when it named zip alone
+_BYTES = {"schema": {"type": "string", "format": "binary"}}
 ZIP_BODY = {"requestBody": {"required": True, "description": "a zip of manifest.json and the photos it names",
-                            "content": {"application/zip": {"schema": {"type": "string", "format": "binary"}}}}}
+                            "content": {"application/zip": _BYTES, "application/octet-stream": _BYTES}}}
 PNG = {"content": {"image/png": {"schema": {"type": "string", "format": "binary"}}}}
 
 
