@@ -43,6 +43,8 @@ class Settings(BaseModel):
     # 20 000-object scene: ~2.6 MB, ~0.3 s in a thread) and the refusal names the limit
     max_scene_objects: int = Field(20_000, ge=1, description="objects in one scene")
     max_scene_body_bytes: int = Field(32 * 1024 * 1024, ge=1024, description="JSON body of POST /v1/scenes")
+    max_json_body_bytes: int = Field(2 * 1024 * 1024, ge=1024, description="any other JSON request body (renders, fits, "
+                                     "materials, sessions), which is validated as it arrives")
     max_capture_unpacked_bytes: int = Field(1024 ** 3, ge=1, description="a capture zip's files, uncompressed, in total")
     # who may frame the published viewer (/view/{id}, meant to be embedded): CSP frame-ancestors
     # sources ("*" anywhere, or origins such as https://blog.example); the studio only itself

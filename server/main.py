@@ -105,6 +105,60 @@ class SecurityHeaders:
         await self.app(scope, receive, send_with_headers)
 
 
+class JsonBodyCap:
+    """ASGI middleware: a JSON request body (renders, fits, materials, sessions) is at most
+    ``limit`` bytes, refused with 413 naming the limit and the size before it is parsed: FastAPI
+    parses and validates such bodies on the event loop, which a large one stalls (every stream
+    with it). Scenes read their larger bodies themselves, in a thread (routes/scenes.py); uploads
+    are not JSON. A body without Content-Length is read up to the limit first, then passed on."""
+
+    def __init__(self, app, limit: int, exempt: tuple[str, ...] = ("/v1/scenes",)):
+        self.app = app
+        self.limit = limit
+        self.exempt = exempt
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http" or scope.get("method") not in ("POST", "PUT", "PATCH") or scope.get("path") in self.exempt:
+            return await self.app(scope, receive, send)
+        headers = dict(scope.get("headers") or ())
+        if b"json" not in headers.get(b"content-type", b"").lower():
+            return await self.app(scope, receive, send)
+        declared = headers.get(b"content-length", b"")
+        if declared.isdigit():
+            if int(declared) > self.limit:
+                return await self._refuse(send, f"a JSON body of {int(declared)} bytes is over the {self.limit}-byte "
+                                                "limit (GLINT_MAX_JSON_BODY_BYTES)")
+            return await self.app(scope, receive, send)
+        chunks, size = [], 0
+        while True:
+            msg = await receive()
+            if msg["type"] != "http.request":
+                return                                        # the client went away
+            size += len(msg.get("body", b""))
+            if size > self.limit:
+                return await self._refuse(send, f"a JSON body of more than {self.limit} bytes is over the "
+                                                f"{self.limit}-byte limit (GLINT_MAX_JSON_BODY_BYTES)")
+            chunks.append(msg.get("body", b""))
+            if not msg.get("more_body"):
+                break
+        body = [b"".join(chunks)]
+
+        async def replay():
+            if body:
+                return {"type": "http.request", "body": body.pop(), "more_body": False}
+            return await receive()
+        await self.app(scope, replay, send)
+
+    @staticmethod
+    async def _refuse(send, detail: str) -> None:
+        import json as _json
+
+        data = _json.dumps({"detail": detail}).encode()
+        await send({"type": "http.response.start", "status": 413,
+                    "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(data)).encode())]})
+        await send({"type": "http.response.body", "body": data})
+
+
 def install_log_redaction() -> None:
     for name in ("uvicorn.access", "uvicorn.error", "glint"):
         lg = logging.getLogger(name)
@@ -192,6 +246,7 @@ def create_app(settings: Settings | None = None, pool=None) -> FastAPI:
             return JSONResponse({"detail": "cross-origin request refused (GLINT_ALLOWED_ORIGINS)"}, status_code=403)
         return await call_next(request)
 
+    app.add_middleware(JsonBodyCap, limit=settings.max_json_body_bytes)
     app.add_middleware(SecurityHeaders, embed_origins=settings.embed_origins)
     # outermost: a request id for every request and stream, its access line and its metrics
     app.add_middleware(RequestContext, observe=metrics.http)

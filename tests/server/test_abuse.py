@@ -253,3 +253,22 @@ def test_a_full_disk_answers_507_and_keeps_earlier_data(tmp_path):
         if srv is not None:
             srv.stop()
         subprocess.run(["umount", "-l", str(data)], capture_output=True)
+
+
+def test_json_bodies_are_capped_before_parsing(client, bunny_scene):
+    strokes = [{"points": [[10.0 + k % 100, 20.0]] * 50, "color": [1.0, 1.0, 1.0]} for k in range(3000)]
+    body = json.dumps({"scene_id": bunny_scene, "object": "bunny", "strokes": strokes}).encode()
+    assert len(body) > 2 * 1024 * 1024
+    r = client.post("/v1/fits", content=body, headers={"Content-Type": "application/json"})
+    assert r.status_code == 413, r.text[:300]
+    assert f"{len(body)} bytes" in r.json()["detail"] and f"{2 * 1024 * 1024}-byte limit" in r.json()["detail"], r.text
+
+    def chunked():                      # no Content-Length: counted as it comes
+        for k in range(0, len(body), 65536):
+            yield body[k:k + 65536]
+    r = client.post("/v1/fits", content=chunked(), headers={"Content-Type": "application/json"})
+    assert r.status_code == 413 and "limit" in r.json()["detail"], r.text[:300]
+    # a small body passes through (here refused for what it says, not for its size)
+    r = client.post("/v1/fits", content=json.dumps({"scene_id": bunny_scene, "object": "nope", "strokes": strokes[:2]}),
+                    headers={"Content-Type": "application/json"})
+    assert r.status_code == 422 and "nope" in r.json()["detail"], r.text[:300]
