@@ -270,6 +270,14 @@ def create_app(settings: Settings | None = None, pool=None) -> FastAPI:
     for kind in (OSError, DBAPIError):
         app.add_exception_handler(kind, lambda request, exc: _server_error(request, exc))
 
+    def _out_of_range(request: Request, exc: OverflowError) -> JSONResponse:
+        # a client's integer beyond 64 bits reaches the database driver only where the schema
+        # gives no upper bound (path and query integers have one): the request is wrong, not us
+        log.warning("number out of range on %s %s: %s", request.method, request.url.path, exc)
+        return JSONResponse({"detail": f"a number in the request is out of range ({exc}); integers are at most "
+                                       f"{2**63 - 1}"}, status_code=422)
+    app.add_exception_handler(OverflowError, _out_of_range)
+
     @app.exception_handler(Exception)
     async def _unexpected(request: Request, exc: Exception):
         return _server_error(request, exc)

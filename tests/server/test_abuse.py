@@ -272,3 +272,10 @@ def test_json_bodies_are_capped_before_parsing(client, bunny_scene):
     r = client.post("/v1/fits", content=json.dumps({"scene_id": bunny_scene, "object": "nope", "strokes": strokes[:2]}),
                     headers={"Content-Type": "application/json"})
     assert r.status_code == 422 and "nope" in r.json()["detail"], r.text[:300]
+
+
+def test_a_huge_integer_in_a_body_is_refused_not_a_server_error(client, bunny_scene):
+    m = client.post("/v1/materials", json={"name": "big", "material": {"model": "lambert", "albedo": [0.5, 0.5, 0.5]}})
+    r = client.post("/v1/publications", json={"name": "p", "scene_id": bunny_scene, "object": "bunny",
+                                              "variants": [{"material_id": m.json()["id"], "version": 10**30}]})
+    assert r.status_code == 422 and "out of range" in r.json()["detail"], (r.status_code, r.text)
