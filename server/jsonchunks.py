@@ -21,7 +21,7 @@ PIECE = 256                        # list elements encoded per json.dumps call
 def loads(s: str | bytes, depth: int = 2):
     """``json.loads(s)``, walking the outer ``depth`` levels element by element. Raises
     json.JSONDecodeError (with line and column) as json.loads does."""
-    if isinstance(s, (bytes, bytearray)):
+    if isinstance(s, (bytes, bytearray, memoryview)):
         s = bytes(s).decode("utf-8")
     v, end = _value(s, _WS.match(s, 0).end(), depth)
     end = _WS.match(s, end).end()

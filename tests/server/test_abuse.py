@@ -279,3 +279,22 @@ def test_a_huge_integer_in_a_body_is_refused_not_a_server_error(client, bunny_sc
     r = client.post("/v1/publications", json={"name": "p", "scene_id": bunny_scene, "object": "bunny",
                                               "variants": [{"material_id": m.json()["id"], "version": 10**30}]})
     assert r.status_code == 422 and "out of range" in r.json()["detail"], (r.status_code, r.text)
+
+
+def test_json_in_pieces_is_json():
+    """server/jsonchunks.py reads and writes exactly what json does, errors included."""
+    import pytest
+
+    from server import jsonchunks
+
+    docs = [{"a": [1, 2, {"b": [3]}], "c": "x", "d": None}, [], {}, [[], [{}]], "s", 1.5, None,
+            {"objects": [{"name": f"o{i}", "m": [0.1, i]} for i in range(1000)]}]
+    for doc in docs:
+        for text in (json.dumps(doc), json.dumps(doc, indent=2)):
+            assert jsonchunks.loads(text) == doc == jsonchunks.loads(text.encode())
+        assert json.loads(jsonchunks.dumps(doc, depth=3)) == doc
+    for bad in ("{", "[1,]", '{"a" 1}', "[1 2]", '{"a": 1} x', "", "{'a': 1}"):
+        with pytest.raises(json.JSONDecodeError):
+            jsonchunks.loads(bad)
+        with pytest.raises(json.JSONDecodeError):
+            json.loads(bad)
