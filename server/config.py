@@ -39,6 +39,18 @@ class Settings(BaseModel):
     max_capture_bytes: int = Field(512 * 1024 * 1024, description="a capture zip (photos and manifest)")
     max_capture_files: int = Field(64, ge=2, description="files in a capture zip")
     max_mesh_faces: int = 8_000_000
+    # JSON bodies the server validates itself, bounded so that validating one stays short (a
+    # 20 000-object scene: ~2.6 MB, ~0.3 s in a thread) and the refusal names the limit
+    max_scene_objects: int = Field(20_000, ge=1, description="objects in one scene")
+    max_scene_body_bytes: int = Field(32 * 1024 * 1024, ge=1024, description="JSON body of POST /v1/scenes")
+    max_json_body_bytes: int = Field(2 * 1024 * 1024, ge=1024, description="any other JSON request body (renders, fits, "
+                                     "materials, sessions), which is validated as it arrives")
+    max_capture_unpacked_bytes: int = Field(1024 ** 3, ge=1, description="a capture zip's files, uncompressed, in total")
+    # who may frame the published viewer (/view/{id}, meant to be embedded): CSP frame-ancestors
+    # sources ("*" anywhere, or origins such as https://blog.example); the studio only itself
+    embed_origins: list[str] = Field(default_factory=lambda: ["*"])
+    stale_temp_seconds: float = Field(3600.0, ge=0, description="at start, partial uploads older than this (or of a "
+                                      "dead process) are deleted from the temporary folders")
     inspect_seconds: float = Field(300.0, gt=0, description="time limit for reading one upload")
     max_sessions: int = Field(64, ge=1, description="open streams in total")
     max_sessions_per_client: int = Field(8, ge=1, description="open streams per client (token or address)")
@@ -70,7 +82,7 @@ class Settings(BaseModel):
     demo_scene: Path | None = Field(None, description="scene file of the demo (default: the fetched oak chair)")
     web_dir: Path = Field(default_factory=lambda: Path(__file__).resolve().parent.parent / "web")
 
-    @field_validator("allowed_hosts", "allowed_origins", "trusted_proxies", mode="before")
+    @field_validator("allowed_hosts", "allowed_origins", "trusted_proxies", "embed_origins", mode="before")
     @classmethod
     def _split(cls, v):
         if isinstance(v, str):

@@ -237,7 +237,11 @@ def make_engine(url: str):
         kw["connect_args"] = {"check_same_thread": False, "timeout": 30, "factory": _WriterConnection}
     else:
         kw["pool_pre_ping"] = True
-    engine = create_engine(url, **kw)
+    # JSON columns in pieces: one json.loads/dumps of a 20 000-object scene spec held the GIL,
+    # and so stalled the event loop, for ~100 ms (server/jsonchunks.py)
+    from . import jsonchunks
+
+    engine = create_engine(url, json_serializer=jsonchunks.dumps, json_deserializer=jsonchunks.loads, **kw)
     if url.startswith("sqlite"):
         @event.listens_for(engine, "connect")
         def _pragmas(conn, _):

@@ -24,6 +24,44 @@ import time
 request_id: contextvars.ContextVar[str] = contextvars.ContextVar("glint_request_id", default="-")
 _SAFE_ID = re.compile(r"^[A-Za-z0-9._:-]{1,64}$")
 _TOKEN = re.compile(r"(token=)[^&\s\"']+", re.I)          # secrets in URLs never reach the log
+_QUERY_IN_TEXT = re.compile(r"\?([^\s\"']+)")
+
+
+def _decoded(text: str) -> str:
+    """Percent-decoded until it no longer changes (at most 3 rounds: %2574 is %74 is t)."""
+    from urllib.parse import unquote_plus
+
+    for _ in range(3):
+        d = unquote_plus(text)
+        if d == text:
+            break
+        text = d
+    return text
+
+
+def redact_query(qs: str) -> str:
+    """A query string with every secret replaced by ``[redacted]``: the value of any parameter
+    whose name decodes to ``token`` (any case: the server decodes names, so ``?%74oken=`` is
+    ``?token=``), and any parameter whose decoded text holds ``token=`` (``?token%3D…``)."""
+    out = []
+    for part in re.split(r"([&;])", qs):
+        if part in ("&", ";") or not part:
+            out.append(part)
+            continue
+        key, eq, _ = part.partition("=")
+        if _decoded(key).strip().lower() == "token":
+            out.append(f"{key}=[redacted]")
+        elif "token=" in _decoded(part).lower() or "token" in _decoded(key).lower():
+            out.append("[redacted]")
+        else:
+            out.append(part)
+    return "".join(out)
+
+
+def redact_text(text: str) -> str:
+    """Free text (a log message) with the secrets of any URL query in it redacted."""
+    text = _QUERY_IN_TEXT.sub(lambda m: "?" + redact_query(m.group(1)), text)
+    return _TOKEN.sub(r"\1[redacted]", text)
 access = logging.getLogger("glint.access")
 
 
@@ -95,7 +133,7 @@ class RequestContext:
         status = [0]
 
         qs = scope.get("query_string") or b""
-        target = scope.get("path", "") + ("?" + _TOKEN.sub(r"\1[redacted]", qs.decode("latin-1")) if qs else "")
+        target = scope.get("path", "") + ("?" + redact_query(qs.decode("latin-1")) if qs else "")
 
         async def send_with_id(msg):
             if msg["type"] == "http.response.start":

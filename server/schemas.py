@@ -4,11 +4,15 @@ from __future__ import annotations
 import datetime as dt
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from worker.fit.brush import Stroke
 from worker.fit.files import ViewSpec
 from worker.scene import Camera, Color, Material, SceneFile, Transform
+
+
+MAX_FIT_POINTS = 200_000          # stroke points of one POST /v1/fits, in all
+MAX_OBJECTS = 20_000              # per-object maps of a request: Settings.max_scene_objects' default
 
 
 class Strict(BaseModel):
@@ -50,8 +54,8 @@ class RenderRequest(Strict):
     camera: Camera | None = None
     rotation_deg: float | None = None
     intensity: float | None = Field(None, ge=0.0)
-    materials: dict[str, Material] = Field(default_factory=dict, description="per object name")
-    transforms: dict[str, Transform] = Field(default_factory=dict, description="per object name: where the scene's "
+    materials: dict[str, Material] = Field(default_factory=dict, max_length=MAX_OBJECTS, description="per object name")
+    transforms: dict[str, Transform] = Field(default_factory=dict, max_length=MAX_OBJECTS, description="per object name: where the scene's "
                                              "movable objects stand (\"movable\": true; nothing is precomputed again)")
     mode: Literal["vertex", "pixel"] = "vertex"
     format: Literal["png", "exr"] = "png"
@@ -62,7 +66,7 @@ class RenderRequest(Strict):
 class FitRequest(Strict):
     scene_id: str
     object: str
-    strokes: list[Stroke] = Field(default_factory=list, max_length=100_000)
+    strokes: list[Stroke] = Field(default_factory=list, max_length=10_000)
     views: list[ViewSpec] = Field(default_factory=list, max_length=64)
     target_asset: str | None = Field(None, description="an uploaded image asset (linear .npy/.exr/.hdr, sRGB .png)")
     mask_asset: str | None = None
@@ -72,6 +76,15 @@ class FitRequest(Strict):
     fresnel_f0: float | None = Field(None, ge=0.0, le=1.0)
     fit_scale: float | None = Field(None, gt=0.0, le=1.0)
     save_as: str | None = Field(None, max_length=200, description="save the result as a new material design")
+
+
+    @model_validator(mode="after")
+    def _points(self):
+        # each stroke may have 10 000 points: bounded in total too (the fit's time grows with them)
+        n = sum(len(s.points) for s in self.strokes)
+        if n > MAX_FIT_POINTS:
+            raise ValueError(f"strokes: {n} points in all is over the limit of {MAX_FIT_POINTS}")
+        return self
 
 
 class FitOut(BaseModel):

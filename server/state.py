@@ -30,11 +30,23 @@ class AppState:
         settings.data_dir.mkdir(parents=True, exist_ok=True)
         self.db = make_sessionmaker(settings.db_url)
         self.blobs = BlobStore(settings.data_dir / "blobs")
+        self._sweep_temp()
         self.pool = pool or make_pool(settings, restore=self.session_payload)
         self.precompute_tasks: dict[str, object] = {}
         self.streams: dict[str, str] = {}        # open streams: session id -> client
         self.demo: dict = {"state": "off"}       # the demo scene's preparation, for the studio
         self._fail_interrupted()
+
+    def _sweep_temp(self) -> None:
+        """Partial uploads and worker scratch that crashed processes left behind (kept: a live
+        process's, and anything recent of another host's; worker/blobs.py sweep_temp)."""
+        from worker.blobs import sweep_folder
+
+        age = self.settings.stale_temp_seconds
+        n, freed = self.blobs.sweep_temp(age)
+        n2, freed2 = sweep_folder(self.settings.data_dir / "tmp", age)
+        if n + n2:
+            log.info("deleted %d leftover temporary file(s) or folder(s), %.1f MiB", n + n2, (freed + freed2) / 2**20)
 
     def _fail_interrupted(self) -> None:
         """Jobs of an earlier server process cannot finish: say so instead of showing them
@@ -52,10 +64,14 @@ class AppState:
         sc = s.get(Scene, scene_id)
         if sc is None:
             raise NotFound(f"no scene {scene_id!r}")
-        refs = [sc.spec["environment"]["map"]] + [o["mesh"] for o in sc.spec["objects"]]
+        # distinct refs, looked up in bulk (a query per object was 20 000 for a 20 000-object scene)
+        refs = list(dict.fromkeys([sc.spec["environment"]["map"]] + [o["mesh"] for o in sc.spec["objects"]]))
+        found = {}
+        for k in range(0, len(refs), 500):
+            found.update({a.id: a for a in s.scalars(select(Asset).where(Asset.id.in_(refs[k:k + 500])))})
         files = {}
         for r in refs:
-            a = s.get(Asset, r)
+            a = found.get(r)
             if a is None:
                 raise NotFound(f"scene {scene_id!r} refers to a missing asset {r!r}")
             files[r] = {"sha256": a.sha256, "filename": a.filename}

@@ -66,13 +66,14 @@ def _stop_leftovers() -> None:
 class GlintServer:
     """A real ``glint serve`` in a subprocess on a free loopback port (stop() or use as a context)."""
 
-    def __init__(self, data: Path, workers: int = 2, demo: bool = False, env: dict | None = None, port: int | None = None):
+    def __init__(self, data: Path, workers: int = 2, demo: bool = False, env: dict | None = None, port: int | None = None,
+                 log_path: Path | None = None):
         self.data = Path(data)
         self.data.mkdir(parents=True, exist_ok=True)
         self.port = port or free_port()
         self.base = f"http://127.0.0.1:{self.port}"
         full = {**os.environ, "GLINT_MAX_MESH_BYTES": str(8 * 1024 * 1024), "PYTHONUNBUFFERED": "1", **(env or {})}
-        self.log_path = self.data / "server.log"
+        self.log_path = Path(log_path) if log_path else self.data / "server.log"
         self._log = open(self.log_path, "a")
         args = [sys.executable, "-m", "worker.cli", "serve", "--port", str(self.port), "--data-dir", str(self.data),
                 "--workers", str(workers)] + ([] if demo else ["--no-demo"])

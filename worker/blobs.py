@@ -98,13 +98,69 @@ class BlobStore:
         return p
 
     def temp_file(self):
-        """A named temporary file inside the store (same filesystem, so put_file can rename)."""
+        """A named temporary file inside the store (same filesystem, so put_file can rename),
+        named ``up-<host>-<pid>-…`` so that a later start can tell whose it was (sweep_temp)."""
         tmp = self.root / "tmp"
         tmp.mkdir(exist_ok=True)
-        return tempfile.NamedTemporaryFile(dir=tmp, delete=False)
+        return tempfile.NamedTemporaryFile(dir=tmp, delete=False, prefix=f"up-{_HOST}-{os.getpid()}-")
+
+    def sweep_temp(self, max_age_s: float = 3600.0) -> tuple[int, int]:
+        """Delete partial uploads a crash left in ``<root>/tmp``: those of a process of this host
+        that no longer runs, and any older than ``max_age_s`` (another host's, or unnamed). A
+        live process's recent file is kept (several servers may share the store). Returns
+        (files deleted, bytes freed)."""
+        return sweep_folder(self.root / "tmp", max_age_s)
 
     def _write(self, dest: Path, data: bytes) -> None:
         atomic_write(dest, data)
+
+
+_HOST = "".join(c if c.isalnum() else "_" for c in (os.uname().nodename if hasattr(os, "uname") else "host"))[:40] or "host"
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _owner_dead(name: str) -> bool:
+    """Whether a temp file named up-<host>-<pid>-… belongs to a dead process of this host."""
+    parts = name.split("-")
+    if len(parts) >= 4 and parts[0] == "up" and parts[1] == _HOST and parts[2].isdigit():
+        return not _pid_alive(int(parts[2]))
+    return False
+
+
+def sweep_folder(folder: Path, max_age_s: float) -> tuple[int, int]:
+    """sweep_temp for one folder: files and sub-folders (by their newest file's age)."""
+    import shutil
+    import time
+
+    n = freed = 0
+    if not folder.is_dir():
+        return 0, 0
+    now = time.time()
+    for p in folder.iterdir():
+        try:
+            if p.is_dir() and not p.is_symlink():
+                files = [f for f in p.rglob("*") if f.is_file()]
+                newest = max([f.stat().st_mtime for f in files] + [p.stat().st_mtime])
+                if now - newest > max_age_s:
+                    size = sum(f.stat().st_size for f in files)
+                    shutil.rmtree(p)
+                    n, freed = n + 1, freed + size
+            elif _owner_dead(p.name) or now - p.lstat().st_mtime > max_age_s:
+                size = p.lstat().st_size
+                p.unlink()
+                n, freed = n + 1, freed + size
+        except FileNotFoundError:
+            continue                     # deleted meanwhile by its owner
+    return n, freed
 
 
 class PartStore:

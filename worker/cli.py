@@ -318,7 +318,8 @@ def cmd_serve(a) -> int:
     # messages a few hundred bytes, so zlib only cost both ends CPU (issue 9: ~100 frames/s)
     uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level="info",
                 ws_max_size=4 * 1024 * 1024, ws_per_message_deflate=False, proxy_headers=bool(settings.trusted_proxies),
-                forwarded_allow_ips=",".join(settings.trusted_proxies) or None, log_config=None)
+                forwarded_allow_ips=",".join(settings.trusted_proxies) or None, log_config=None,
+                server_header=False)       # no "server: uvicorn": the software is nobody's business
     return 0
 
 

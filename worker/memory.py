@@ -52,3 +52,31 @@ def freeze_start_up() -> None:
     freeze the largest during a run took 23 and 12 ms. Objects made later are collected as usual."""
     gc.collect()
     gc.freeze()
+
+
+_paused = [0]
+_pause_lock = __import__("threading").Lock()
+
+
+class no_collections:
+    """``with no_collections():`` the cyclic garbage collector is off while a thread builds and
+    drops a large acyclic structure (a 20 000-object scene parsed and validated: ~1 M objects).
+    Measured: the collections it triggered held the GIL, and so the event loop, for up to 124 ms;
+    with them off the longest pause was 11 ms. Nested and concurrent uses share one count; the
+    collector is on again when the last one ends (it was on before)."""
+
+    def __enter__(self):
+        with _pause_lock:
+            if _paused[0] == 0:
+                self._was = gc.isenabled()
+                _paused.append(self._was)
+                gc.disable()
+            _paused[0] += 1
+        return self
+
+    def __exit__(self, *exc):
+        with _pause_lock:
+            _paused[0] -= 1
+            if _paused[0] == 0 and _paused.pop():
+                gc.enable()
+        return False

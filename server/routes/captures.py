@@ -26,8 +26,11 @@ from .assets import receive_upload
 router = APIRouter(prefix="/v1/captures", tags=["captures"])
 log = logging.getLogger("glint")
 
+# Both media types the route accepts are declared: generated clients (openapi-python-client)
+# upload binary bodies as application/octet-stream only, and skipped the route when it named zip alone
+_BYTES = {"schema": {"type": "string", "format": "binary"}}
 ZIP_BODY = {"requestBody": {"required": True, "description": "a zip of manifest.json and the photos it names",
-                            "content": {"application/zip": {"schema": {"type": "string", "format": "binary"}}}}}
+                            "content": {"application/zip": _BYTES, "application/octet-stream": _BYTES}}}
 PNG = {"content": {"image/png": {"schema": {"type": "string", "format": "binary"}}}}
 
 
@@ -91,7 +94,7 @@ async def _run(st, cid: str) -> None:
             zsha = s.get(Capture, cid).zip_sha256
         await run_in_threadpool(update, status="running", message="starting")
         res = await st.pool.run_job({"type": "capture", "zip_sha256": zsha, "max_files": st.settings.max_capture_files,
-                                     "max_total_bytes": 4 * st.settings.max_capture_bytes}, on_progress=progress)
+                                     "max_total_bytes": st.settings.max_capture_unpacked_bytes}, on_progress=progress)
 
         def done():
             with st.db() as s, s.begin():

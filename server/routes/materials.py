@@ -2,7 +2,7 @@
 deleting archives the design (its versions stay readable)."""
 from __future__ import annotations
 
-from fastapi import APIRouter, HTTPException, Query
+from fastapi import APIRouter, HTTPException, Path, Query
 from sqlalchemy import select, update
 
 from ..db import MaterialDesign, MaterialVersion, latest_version
@@ -10,6 +10,9 @@ from ..deps import DB, Client
 from ..schemas import MaterialCreate, MaterialOut, MaterialUpdate, VersionOut
 
 router = APIRouter(prefix="/v1/materials", tags=["materials"])
+# integers from clients are bounded in the schema: a larger one overflowed the database
+# driver's 64-bit integer (a 500) instead of being refused
+MAX_INT = 2**31 - 1
 
 
 def _out(d: MaterialDesign, v: MaterialVersion) -> MaterialOut:
@@ -79,7 +82,8 @@ def list_versions(material_id: str, db: DB, _: Client):
 
 
 @router.get("/{material_id}/versions/{version}", response_model=VersionOut)
-def get_version(material_id: str, version: int, db: DB, _: Client):
+def get_version(material_id: str, db: DB, _: Client,
+                version: int = Path(ge=1, le=MAX_INT, description="1, 2, … (the first save is 1)")):
     v = db.scalars(select(MaterialVersion).where(MaterialVersion.design_id == material_id,
                                                  MaterialVersion.version == version)).first()
     if v is None:

@@ -220,3 +220,24 @@ def test_an_upload_read_too_slowly_is_refused(tmp_path_factory):
             assert r.status_code == 422 and "within 0.05 s" in r.json()["detail"], r.text
     finally:
         srv.stop()
+
+
+def test_security_headers_and_no_server_header(server, client):
+    def csp(r):
+        return {d.split()[0]: d.split()[1:] for d in (x.strip() for x in r.headers["content-security-policy"].split(";")) if d}
+
+    studio = client.get("/")
+    assert studio.status_code == 200
+    p = csp(studio)
+    assert p["frame-ancestors"] == ["'self'"] and studio.headers["x-frame-options"] == "SAMEORIGIN"
+    assert p["script-src"] == ["'self'"] and p["style-src"] == ["'self'"]          # no inline script or style
+    assert "blob:" in p["img-src"] and f"ws://127.0.0.1:{server['port']}" in p["connect-src"]
+    viewer = client.get("/view/some-publication")
+    assert csp(viewer)["frame-ancestors"] == ["*"] and "x-frame-options" not in viewer.headers
+    for r in (studio, viewer, client.get("/healthz"), client.get("/web/js/studio.js"), client.get("/v1/scenes/nope"),
+              client.get("/openapi.json")):
+        assert r.headers["x-content-type-options"] == "nosniff", r.url
+        assert r.headers["referrer-policy"] == "no-referrer", r.url
+        assert "server" not in r.headers, (r.url, r.headers.get("server"))
+        assert "content-security-policy" in r.headers, r.url
+    assert csp(client.get("/healthz"))["default-src"] == ["'none'"]

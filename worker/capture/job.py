@@ -29,6 +29,11 @@ from pathlib import Path, PurePosixPath
 from .manifest import CaptureError
 
 CHUNK = 1 << 20
+# A zip bomb inflates a small upload a thousandfold (1 MiB of zip: 1 GiB of zeros). Photos and
+# manifests compress far less than 100:1; an entry may unpack past that ratio only up to
+# RATIO_FREE bytes (small files of repetitive text are harmless)
+MAX_RATIO = 100
+RATIO_FREE = 1 << 20
 
 
 def _is_junk(name: str) -> bool:
@@ -57,10 +62,19 @@ def _check_name(info: zipfile.ZipInfo) -> PurePosixPath:
     return p
 
 
+def _allowed(info: zipfile.ZipInfo, max_ratio: float) -> int:
+    """Bytes an entry may unpack to: MAX_RATIO × its compressed size (at least RATIO_FREE)."""
+    return max(RATIO_FREE, int(max_ratio * info.compress_size))
+
+
 def extract_capture_zip(zip_bytes_or_path: bytes | str | Path, dest: str | Path, max_files: int = 64,
-                        max_total_bytes: int = 512 * 1024 * 1024) -> Path:
+                        max_total_bytes: int = 512 * 1024 * 1024, max_ratio: float = MAX_RATIO) -> Path:
     """Safely extract an uploaded capture zip into ``dest`` (created; should be empty) and
     return the path of its manifest.
+
+    Sizes are checked twice: as the zip's directory declares them, before anything is written,
+    and as the bytes come out of the decompressor (declared sizes can lie): at most
+    ``max_total_bytes`` in all, and per entry at most ``max_ratio`` × its compressed size.
 
     Raises CaptureError (status 400 for a malformed or unsafe archive, 413 for one over the
     limits, 422 when the manifest is missing or ambiguous) naming the offending entry."""
@@ -90,7 +104,11 @@ def extract_capture_zip(zip_bytes_or_path: bytes | str | Path, dest: str | Path,
                 raise CaptureError(f"the zip holds more than {max_files} files", status=413)
             if declared > max_total_bytes:
                 raise CaptureError(f"the zip unpacks to more than {max_total_bytes} bytes "
-                                   f"(at {info.filename!r})", status=413)
+                                   f"(at {info.filename!r}: {declared} bytes declared)", status=413)
+            if info.file_size > _allowed(info, max_ratio):
+                raise CaptureError(f"zip entry {info.filename!r} declares {info.file_size} bytes from "
+                                   f"{info.compress_size} compressed: a compression ratio over the limit of "
+                                   f"{max_ratio:g}:1 (a zip bomb?)", status=413)
         manifests = [p for _, p in entries if p.suffix.lower() == ".json"]
         named = [p for p in manifests if p.name.lower() == "manifest.json"]
         if not manifests:
@@ -113,9 +131,16 @@ def extract_capture_zip(zip_bytes_or_path: bytes | str | Path, dest: str | Path,
                     while chunk := r.read(CHUNK):
                         n += len(chunk)
                         written += len(chunk)
-                        if n > info.file_size or written > max_total_bytes:
-                            raise CaptureError(f"zip entry {info.filename!r} unpacks to more than it declares",
-                                               status=413)
+                        if n > info.file_size:
+                            raise CaptureError(f"zip entry {info.filename!r} unpacks to more than the "
+                                               f"{info.file_size} bytes it declares", status=413)
+                        if n > _allowed(info, max_ratio):
+                            raise CaptureError(f"zip entry {info.filename!r} unpacks to more than {n - len(chunk)} "
+                                               f"bytes from {info.compress_size} compressed: a compression ratio "
+                                               f"over the limit of {max_ratio:g}:1", status=413)
+                        if written > max_total_bytes:
+                            raise CaptureError(f"the zip unpacks to more than {max_total_bytes} bytes "
+                                               f"(at {info.filename!r})", status=413)
                         w.write(chunk)
             except zipfile.BadZipFile as e:
                 raise CaptureError(f"zip entry {info.filename!r} is corrupt ({e})", status=400) from None
