@@ -124,10 +124,9 @@ def test_materials_a_client_sends_are_bounded(server, client, bunny_scene):
 
 @pytest.fixture(scope="module")
 def limited(tmp_path_factory, shared_assets):
-    """A server with small limits: 2 streams per client, 3 in total, 3 s idle, 1.5 s to read an upload."""
+    """A server with small limits: 2 streams per client, 3 in total, 3 s idle."""
     srv = GlintServer(tmp_path_factory.mktemp("limited"), workers=1, env={
-        "GLINT_MAX_SESSIONS_PER_CLIENT": "2", "GLINT_MAX_SESSIONS": "3", "GLINT_SESSION_IDLE_SECONDS": "3",
-        "GLINT_INSPECT_SECONDS": "1.5"})
+        "GLINT_MAX_SESSIONS_PER_CLIENT": "2", "GLINT_MAX_SESSIONS": "3", "GLINT_SESSION_IDLE_SECONDS": "3"})
     with httpx.Client(base_url=srv.base, timeout=120) as c:
         scene = _upload_scene(c, shared_assets)
         yield srv, c, scene
@@ -180,34 +179,34 @@ def _big_obj() -> bytes:
     return body.encode()
 
 
-def test_uploads_are_read_in_a_child(limited):
+def test_uploads_are_read_in_a_child(client):
     """While a child reads a big mesh the API answers other requests: no health check waits for
-    the upload (whether the read finishes inside this server's 1.5 s limit depends on the machine,
-    so either outcome is accepted here; the refusal is tested below with a limit no read can meet)."""
-    srv, c, _ = limited
+    the upload. On the shared server (the default 300 s read limit) the read always finishes, so
+    the upload is accepted and its triangles counted; the refusal is tested below with a limit
+    no read can meet."""
     body = _big_obj()
     lat = []
     done = threading.Event()
 
     def poll():
-        while not done.is_set():
-            t0 = time.perf_counter()
-            c.get("/healthz")
-            lat.append(time.perf_counter() - t0)
-            time.sleep(0.02)
+        with httpx.Client(base_url=str(client.base_url), timeout=60) as c:
+            while not done.is_set():
+                t0 = time.perf_counter()
+                c.get("/healthz")
+                lat.append(time.perf_counter() - t0)
+                time.sleep(0.02)
     t = threading.Thread(target=poll)
     t.start()
     t0 = time.perf_counter()
-    r = c.post("/v1/assets/meshes", params={"filename": "big.obj"}, content=body)
+    r = client.post("/v1/assets/meshes", params={"filename": "big.obj"}, content=body)
     took = time.perf_counter() - t0
     done.set()
     t.join()
-    assert r.status_code in (201, 422), r.text
-    if r.status_code == 422:
-        assert "within" in r.json()["detail"], r.text
-    else:
-        assert r.json()["meta"]["faces"] == 100_000
-    assert len(lat) >= 3 and max(lat) < 0.5 * took, (len(lat), max(lat), took)
+    assert r.status_code == 201, r.text
+    assert r.json()["meta"]["faces"] == 100_000, r.json()["meta"]
+    # the read took `took` seconds; a health check that waited for it would take as long
+    assert len(lat) >= 3 and max(lat) < 0.5 * took, \
+        f"{len(lat)} health checks during a {took:.2f} s upload, the slowest {max(lat or [0]):.3f} s"
 
 
 def test_an_upload_read_too_slowly_is_refused(tmp_path_factory):
