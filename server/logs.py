@@ -63,6 +63,8 @@ def redact_text(text: str) -> str:
     text = _QUERY_IN_TEXT.sub(lambda m: "?" + redact_query(m.group(1)), text)
     return _TOKEN.sub(r"\1[redacted]", text)
 access = logging.getLogger("glint.access")
+# routes that clients poll for progress (studio, scripts): successful answers are DEBUG lines
+POLLED_ROUTES = frozenset({"/v1/status", "/v1/scenes/{scene_id}", "/v1/precomputations/{pre_id}", "/v1/captures/{cid}"})
 
 
 class RequestIdFilter(logging.Filter):
@@ -159,7 +161,11 @@ class RequestContext:
             method = scope.get("method", "WS")
             if self.observe is not None:
                 self.observe(method, tmpl, status[0], secs)
-            access.info("%s %s %s %.1f ms", method, target, status[0], 1000 * secs,
-                        extra={"fields": {"method": method, "path": target, "route": tmpl,
-                                          "status": status[0], "ms": round(1000 * secs, 2)}})
+            # the studio polls progress every 0.7 s while a scene precomputes or a capture is
+            # processed: those answers are logged at DEBUG, so the log shows what happened rather
+            # than a line a second; their failures, and every other request, at INFO
+            quiet = method in ("GET", "HEAD") and 200 <= status[0] < 400 and tmpl in POLLED_ROUTES
+            access.log(logging.DEBUG if quiet else logging.INFO, "%s %s %s %.1f ms", method, target, status[0],
+                       1000 * secs, extra={"fields": {"method": method, "path": target, "route": tmpl,
+                                                      "status": status[0], "ms": round(1000 * secs, 2)}})
             request_id.reset(token)

@@ -330,6 +330,15 @@ def create_app(settings: Settings | None = None, pool=None) -> FastAPI:
     @app.get("/view/{pub_id}", include_in_schema=False)
     async def viewer(pub_id: str):
         return page("viewer.html")
+
+    @app.get("/favicon.ico", include_in_schema=False)
+    async def favicon():
+        # browsers ask for /favicon.ico before (or without) reading the pages' <link rel="icon">:
+        # the same SVG, so no page load logs a 404
+        f = web / "favicon.svg"
+        if not f.is_file():
+            return Response(status_code=404)
+        return Response(f.read_bytes(), media_type="image/svg+xml", headers={"Cache-Control": "public, max-age=86400"})
     return app
 
 
