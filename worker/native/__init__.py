@@ -6,6 +6,12 @@ signature reads like the C prototype it mirrors and a wrong call fails in ctypes
 NumPy references. The library's BRDF branch ids and packed layout are checked against
 worker/models when it loads (``model_id``), never copied by hand.
 ctypes releases the GIL during each call; OpenMP threads do the work.
+
+Angles: every C entry point that takes a rotation takes it in radians (``double``), about +Y
+for the environment (world φ reads map φ + rotation) and for a capture's yaw: glk_light_tables,
+glk_background, glk_env_lookup, glp_shade, glp_background, gi_sample, glk_fisheye_map. The
+Python side speaks degrees (scene files, lighting requests); the typed wrappers convert,
+and nothing else passes an angle to C.
 """
 from __future__ import annotations
 

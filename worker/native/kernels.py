@@ -9,7 +9,8 @@ they agree.
 A renderer keeps the backend it was built with; nothing below it asks again.
 
 Each C kernel has one typed wrapper here: it checks and converts the arrays (dtype,
-contiguity) and names the parameters as the C prototype does (``worker.native.bind``).
+contiguity), converts angles to the C side's radians, and names the parameters as the C
+prototype does (``worker.native.bind``).
 """
 from __future__ import annotations
 
@@ -91,18 +92,18 @@ class NativeKernels:
             tables=f32p, table_off=i64p, out=f32p)
         self._simd = bind("glk_shade_simd", i32, want=i32)
         self._light = bind(
-            "glk_light_tables", None, N=i64, indptr=i64p, prow=i32p, pcol=i32p, wts=f64p, map=f32p, Hm=i32, Wm=i32, s0=i64,
-            frac=f64, intensity=f64, H=i32, node_dir=f32p, scratch=f64p, node_l=f32p, node_w=f32p, node8=f32p)
+            "glk_light_tables", None, N=i64, indptr=i64p, prow=i32p, pcol=i32p, wts=f64p, map=f32p, Hm=i32, Wm=i32,
+            rot=f64, intensity=f64, H=i32, node_dir=f32p, scratch=f64p, node_l=f32p, node_w=f32p, node8=f32p)
         self._interp = bind("glk_interpolate", None, P=i64, tri=i32p, uv=f32p, faces=i32p, vert_rgb=f32p, out=f32p)
         self._background = bind(
-            "glk_background", None, n=i64, sample=i64p, dirs=f32p, uv0=f32p, map=f32p, Hm=i32, Wm=i32, rot_turns=f64,
+            "glk_background", None, n=i64, sample=i64p, dirs=f32p, uv0=f32p, map=f32p, Hm=i32, Wm=i32, rot=f64,
             intensity=f64, shadow=voidp, G=i32, gx0=f64, gz0=f64, gstep=f64, gy=f64, ex=f64, ey=f64, ez=f64, out=f32p)
         self._rotate = bind("glk_rotate_dirs", None, P=i64, src=f32p, basis=f32p, out=f32p)
         self._env_coords = bind("glk_env_coords", None, n=i64, dirs=f32p, out=f32p)
         self._resolve = bind("glk_resolve", None, P=i64, S=i32, tri=i32p, uv=f32p, faces=i32p, vert_rgb=f32p,
                              bg=f32p, out=f32p)
         self._env = bind("glk_env_lookup", None, P=i64, dirs=f32p, mask=voidp, map=f32p, Hm=i32, Wm=i32,
-                         rotation=f64, intensity=f64, out=f32p)
+                         rot=f64, intensity=f64, out=f32p)
         self._build = bind("glk_build_cuts", None, vals=f32p, B=i64, H=i32, tau=f64, heights=u8p, quant=u8p,
                            counts=i32p)
         self._coarsen = bind("glk_coarsen", None, V=i64, offsets=i64p, heights=u8p, quant=u8p, tau=f64,
@@ -128,14 +129,12 @@ class NativeKernels:
         indptr, prow, pcol, wts = lighting.csr()
         env = lighting.map
         hm, wm = env.shape[:2]
-        shift = (float(rotation_deg) / 360.0) * wm
-        s0 = int(np.floor(shift))
         m = len(tree.node_dir)
         node_l = np.empty((m, 3), np.float32)
         node_w = np.empty((m, 3), np.float32)
         node8 = np.empty((m, 8), np.float32)
         scratch = np.empty((m, 6), np.float64)
-        self._light(tree.n_leaves, indptr, prow, pcol, wts, c(env, np.float32), hm, wm, s0, shift - s0, float(intensity),
+        self._light(tree.n_leaves, indptr, prow, pcol, wts, c(env, np.float32), hm, wm, float(np.radians(rotation_deg)), float(intensity),
                     tree.height, tree.node_dir, scratch, node_l, node_w, node8)
         return node_l, node_w, node8
 
@@ -181,7 +180,7 @@ class NativeKernels:
             geo = tuple(float(x) for x in shadow[1])
             e = tuple(float(x) for x in eye)
         self._background(len(sample), c(sample, np.int64), c(dirs, np.float32), c(uv0, np.float32),
-                         c(envmap, np.float32), envmap.shape[0], envmap.shape[1], float(rotation_deg) / 360.0,
+                         c(envmap, np.float32), envmap.shape[0], envmap.shape[1], float(np.radians(rotation_deg)),
                          float(intensity), grid.ctypes.data if grid is not None else None,
                          grid.shape[0] if grid is not None else 0, *geo, *e, out)
         return out

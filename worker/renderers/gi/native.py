@@ -29,7 +29,7 @@ _ok = _lib is not None and hasattr(_lib, "gi_sample")
 if _ok:
     # parameters named and ordered as the prototypes in gi.c
     bind("gi_sample", None, R=i64, pos=f64p, ng=f64p, ns=f64p, wo=f64p, u=f64p, nu=i32, row_cdf=f64p,
-         col_cdf=f64p, tp=f64p, H=i32, W=i32, rot=f64, dl=f64p, db=f64p, pdf_ll=f64p, pdf_bl=f64p, pdf_bb=f64p,
+         col_cdf=f64p, tp=f64p, H=i32, W=i32, rot_rad=f64, dl=f64p, db=f64p, pdf_ll=f64p, pdf_bl=f64p, pdf_bb=f64p,
          pdf_lb=f64p, valid_l=u8p, valid_b=u8p)
     bind("gi_emit", None, P=i64, starts=i64p, k=i32, J=i32, J2=i32, layers=i32, oq=i32p, K1=i32, Tk=i64, W2=i64,
          Zs=i64, unit=i32p, obj=i32p, ns=f64p, wo=f64p, beta=f64p, p1b=i32p, p1w=f64p, p2c=i32p, p2b=i32p,
@@ -65,8 +65,8 @@ def sample(S, pos, ng, ns, wo, u):
     out = [np.empty((R, 3)), np.empty((R, 3))] + [np.empty(R) for _ in range(4)] + [np.empty(R, np.uint8) for _ in range(2)]
     e = S.env
     _lib.gi_sample(R, c(pos, np.float64), c(ng, np.float64), c(ns, np.float64), c(wo, np.float64), c(u, np.float64),
-                   u.shape[1], e.row_cdf, c(e.col_cdf, np.float64), c(e.texel_pdf, np.float64), e.H, e.W, e.rotation,
-                   *out)
+                   u.shape[1], e.row_cdf, c(e.col_cdf, np.float64), c(e.texel_pdf, np.float64), e.H, e.W,
+                   float(np.radians(S.rotation)), *out)
     dl, db, pdf_ll, pdf_bl, pdf_bb, pdf_lb, vl, vb = out
     return dl, db, pdf_ll, pdf_bl, pdf_bb, pdf_lb, vl.astype(bool), vb.astype(bool)
 
