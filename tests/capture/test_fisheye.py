@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from worker import native
+from worker.native.kernels import kernels
 from worker.capture.fisheye import Lens, yaw_matrix
 from worker.capture.stitch import fisheye_map, fisheye_map_numpy, overlap_deg, row_solid_angle
 
@@ -70,8 +71,8 @@ def test_equirect_map_matches_design_mapping(projection):
     lens = Lens(600, 400, projection, 190.0)
     h, w = 64, 128
     for yaw in (0.0, 180.0, 37.5):
-        c = fisheye_map(h, w, lens, yaw, use_native=True)
-        n = fisheye_map_numpy(h, w, lens, yaw)
+        c = fisheye_map(h, w, lens, yaw, kernels("native"))
+        n = fisheye_map(h, w, lens, yaw, kernels("numpy"))
         for a, b in zip(c, n):
             assert np.abs(a - b).max() < 1e-3, f"C and NumPy maps differ by {np.abs(a - b).max()} px"
     mx, my = fisheye_map_numpy(h, w, lens, 0.0)

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from worker import native
+from worker.native.kernels import kernels
 from worker.capture import hdr
 from worker.capture.fisheye import Lens
 from worker.capture.manifest import load_capture
@@ -99,8 +100,8 @@ def test_merge_c_matches_numpy(captures):
     valid &= lens.circle_mask()[None]
     resp = hdr.Response(np.stack([inverse_camera_curve(np.arange(256) / 255.0)] * 3, axis=1) + 1e-6, 0, 0.0)
     val, wt = hdr.merge_tables(resp, ex)
-    a, sa = hdr.merge(st, valid, val, wt, use_native=True)
-    b, sb = hdr.merge(st, valid, val, wt, use_native=False)
+    a, sa = hdr.merge(st, valid, val, wt, kernels("native"))
+    b, sb = hdr.merge(st, valid, val, wt, kernels("numpy"))
     np.testing.assert_allclose(a, b, rtol=2e-5, atol=1e-30)
     assert (sa == sb).all()
     assert set(np.unique(sa)) >= {0, 4}                   # merged pixels and the outside of the circle

@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 
 from worker.core.cuts import CutSet, build_cuts, decode_to_leaves
-from worker.renderers.cuts import _native
+from worker.native import available as native_built
+from worker.native.kernels import kernels
 from worker.renderers.cuts.combine import (
     Combiner,
     RotatedSamples,
-    combine_native,
     combine_numpy,
     lookup,
     skip_table,
@@ -18,7 +18,7 @@ from worker.renderers.cuts.grid import cell_corners
 from worker.renderers.cuts.rotate import LeafMap
 from worker.trace.embree import Tracer
 
-native = pytest.mark.skipif(not _native.available(), reason="C kernels not built")
+native = pytest.mark.skipif(not native_built(), reason="C kernels not built")
 
 
 def rot_y(deg):
@@ -69,9 +69,10 @@ def test_c_and_numpy_agree_for_cells_and_products(bunny_case, tree, hmin):
     cells, weights, pools_c, pools_n = [], [], [], []
     for m in occ:
         c, w, _ = lookup(bunny_case.field, np.linalg.inv(m), x, nrm)
-        a = RotatedSamples(bunny_case.field, LeafMap(tree, m[:3, :3] / np.cbrt(np.linalg.det(m[:3, :3]))), hmin)
-        b = RotatedSamples(bunny_case.field, a.lmap, hmin)
-        assert a.ensure_cells(c, use_native=True) == b.ensure_cells(c, use_native=False) > 0
+        a = RotatedSamples(bunny_case.field, LeafMap(tree, m[:3, :3] / np.cbrt(np.linalg.det(m[:3, :3]))), hmin,
+                           kernels("native"))
+        b = RotatedSamples(bunny_case.field, a.lmap, hmin, kernels("numpy"))
+        assert a.ensure_cells(c) == b.ensure_cells(c) > 0
         for cc in np.unique(c[c >= 0]):
             ra, rb = a.cells.rows(a.cells.slot[cc]), b.cells.rows(b.cells.slot[cc])
             assert all(np.array_equal(u, v) for u, v in zip(ra, rb)), f"cell {cc}"
@@ -79,17 +80,18 @@ def test_c_and_numpy_agree_for_cells_and_products(bunny_case, tree, hmin):
     cells, weights = np.stack(cells, 1), np.stack(weights, 1)
     assert (cells < 0).any() and (cells >= 0).any()             # culled and active occluders
     ids = np.arange(len(x), dtype=np.int32)
-    got = combine_native(base, ids, cells, weights, pools_c)
+    combine_c = kernels("native").fields.combine
+    got = combine_c(base, ids, cells, weights, pools_c)
     ref = combine_numpy(base, ids, cells, weights, pools_n)
     assert np.array_equal(got.offsets, ref.offsets) and np.array_equal(got.heights, ref.heights)
     assert np.abs(got.quant.astype(int) - ref.quant.astype(int)).max() <= 1
     assert got.n_nodes > base.sizes().sum()                     # the fields did refine the cuts
     # delta mode: what the fields take away, base − product, with the untouched parts as few
     # zero nodes; C and NumPy agree leaf by leaf
-    dg = combine_native(base, ids, cells, weights, pools_c, delta=True)
+    dg = combine_c(base, ids, cells, weights, pools_c, delta=True)
     dr = combine_numpy(base, ids, cells, weights, pools_n, delta=True)
     assert dg.n_nodes < 0.8 * got.n_nodes
-    ds = combine_native(base, ids, cells, weights, pools_c, delta=True, skip=skip_table(base))   # blocks skipped
+    ds = combine_c(base, ids, cells, weights, pools_c, delta=True, skip=skip_table(base))   # blocks skipped
     assert all(np.array_equal(getattr(ds, k), getattr(dg, k)) for k in ("offsets", "heights", "quant"))
     for v in range(len(x)):
         for d in (dg, dr):

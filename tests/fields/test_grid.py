@@ -4,7 +4,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from worker.renderers.cuts import _native
+from worker import native
+from worker.native.kernels import kernels
 from worker.renderers.cuts.combine import lookup
 from worker.renderers.cuts.grid import (
     FieldGrid,
@@ -49,7 +50,7 @@ def test_stencil_reproduces_samples_and_interpolates_positions():
     assert rel.max() < cell, (rel.max(), cell)
 
 
-@pytest.mark.skipif(not _native.available(), reason="C kernels not built")
+@pytest.mark.skipif(not native.available(), reason="C kernels not built")
 def test_c_lookup_agrees_with_numpy_including_culling():
     g = FieldGrid(np.array([10.0, 40.0, -5.0]), 60.0, GridSpec(24, 24))
     rng = np.random.default_rng(1)
@@ -61,8 +62,8 @@ def test_c_lookup_agrees_with_numpy_including_culling():
     m[:3, 3] = [30, -2, 11]
     clearance = rng.uniform(0, 300, g.n_samples).astype(np.float32)      # any values will do here
     f = SimpleNamespace(grid=g, clearance=clearance)
-    i1, w1, t1 = lookup(f, m, x, n, use_native=True)
-    i2, w2, t2 = lookup(f, m, x, n, use_native=False)
+    i1, w1, t1 = lookup(f, m, x, n, kernels("native"))
+    i2, w2, t2 = lookup(f, m, x, n, kernels("numpy"))
     assert np.array_equal(t1, t2) and 0 < np.count_nonzero(t1) < len(t1)
     culled = i2 < 0
     assert 0.05 < culled.mean() < 0.95          # both kinds of points occur

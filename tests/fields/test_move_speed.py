@@ -7,25 +7,24 @@ from test_combine import receivers, rot_y, similarity, vertex_cuts
 
 from worker.core.lighting import LeafLighting, pack_nodes
 from worker.envmap import load_envmap
+from worker.native import available as native_built
 from worker.native.kernels import kernels
-from worker.renderers.cuts import _native
 from worker.renderers.cuts.combine import (
     Combiner,
     RotatedSamples,
-    combine_native,
     combine_numpy,
     lookup,
 )
 from worker.renderers.cuts.fields import frame_light_tables, frame_lighting
 from worker.renderers.cuts.rotate import LeafMap
 
-native = pytest.mark.skipif(not _native.available(), reason="C kernels not built")
+native = pytest.mark.skipif(not native_built(), reason="C kernels not built")
 
 
 @pytest.mark.parametrize("backend", ["native", "numpy"])
 @pytest.mark.parametrize("q", [rot_y(-90.0), rot_y(33.0), rot_y(20.0) @ np.array([[1, 0, 0], [0, 0.8, -0.6], [0, 0.6, 0.8]])])
 def test_frame_light_tables_agree_with_frame_lighting(shared_assets, tree, backend, q):
-    if backend == "native" and not _native.available():
+    if backend == "native" and not native_built():
         pytest.skip("C kernels not built")
     env = LeafLighting(load_envmap(shared_assets / "env" / "sunset.exr"), tree)
     nl, nw = frame_lighting(env, q, 140.0, 1.3)
@@ -54,14 +53,14 @@ def test_blocked_stretches_pass_whole(bunny_case, tree):
     base = vertex_cuts(tree, nrm, seed=5)
     m = similarity(rot_y(15), (0.05, 0.0, -0.02))
     c, w, _ = lookup(bunny_case.field, np.linalg.inv(m), x, nrm)
-    a = RotatedSamples(bunny_case.field, LeafMap(tree, m[:3, :3]), 3)
-    b = RotatedSamples(bunny_case.field, a.lmap, 3)
-    a.ensure_cells(c); b.ensure_cells(c, use_native=False)
+    a = RotatedSamples(bunny_case.field, LeafMap(tree, m[:3, :3]), 3, kernels("native"))
+    b = RotatedSamples(bunny_case.field, a.lmap, 3, kernels("numpy"))
+    a.ensure_cells(c); b.ensure_cells(c)
     blocked = sum(int((a.cells.v[a.cells.off[s]:a.cells.off[s] + a.cells.cnt[s]] == 0).all(1).sum())
                   for s in a.cells.slot[np.unique(c[c >= 0])])
     assert blocked > 100, f"only {blocked} wholly blocked stretches"
     ids = np.arange(len(x), dtype=np.int32)
-    got = combine_native(base, ids, c[:, None], w[:, None], [a])
+    got = kernels("native").fields.combine(base, ids, c[:, None], w[:, None], [a])
     ref = combine_numpy(base, ids, c[:, None], w[:, None], [b])
     assert np.array_equal(got.offsets, ref.offsets) and np.array_equal(got.heights, ref.heights)
     assert np.abs(got.quant.astype(int) - ref.quant.astype(int)).max() <= 1

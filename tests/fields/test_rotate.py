@@ -5,7 +5,8 @@ import pytest
 from scipy.spatial import cKDTree
 
 from worker.core.cuts import decode_to_leaves
-from worker.renderers.cuts import _native
+from worker import native
+from worker.native.kernels import kernels
 from worker.renderers.cuts.combine import RotatedSamples
 from worker.renderers.cuts.rotate import (
     LeafMap,
@@ -56,15 +57,15 @@ def test_rotation_part_refuses_shear_and_mirror():
         rotation_part(np.diag([-1.0, 1.0, 1.0, 1.0]))
 
 
-@pytest.mark.skipif(not _native.available(), reason="C kernels not built")
+@pytest.mark.skipif(not native.available(), reason="C kernels not built")
 @pytest.mark.parametrize("hmin", [0, 3])
 @pytest.mark.parametrize("q", [np.eye(3), rot_y(71.0), rot_y(-15.0) @ rot_x(40.0)], ids=["identity", "yaw", "tilt"])
 def test_c_rotation_agrees_with_numpy(bunny_case, tree, hmin, q):
     f = bunny_case.field
     lm = LeafMap(tree, q)
     ids = np.random.default_rng(hmin).choice(f.n_samples, 60, replace=False)
-    a, b = RotatedSamples(f, lm, hmin), RotatedSamples(f, lm, hmin)
-    assert a.ensure(ids, use_native=True) == 60 and b.ensure(ids, use_native=False) == 60
+    a, b = RotatedSamples(f, lm, hmin, kernels("native")), RotatedSamples(f, lm, hmin, kernels("numpy"))
+    assert a.ensure(ids) == 60 and b.ensure(ids) == 60
     assert a.ensure(ids) == 0                                   # kept: nothing recomputed
     for i in ids:
         ha, qa = a.cut(i); hb, qb = b.cut(i)
@@ -128,4 +129,4 @@ def test_c_nearest_leaves_agree_with_numpy(tree):
     rng = np.random.default_rng(4)
     d = rng.normal(size=(20000, 3)); d /= np.linalg.norm(d, axis=1, keepdims=True)
     d = np.concatenate([d, tree.leaves.astype(np.float64) @ (rot_y(12.5) @ rot_x(3.0))])
-    assert np.array_equal(nearest_leaves(tree, d, use_native=True), nearest_leaves(tree, d, use_native=False))
+    assert np.array_equal(nearest_leaves(tree, d, kernels("native")), nearest_leaves(tree, d, kernels("numpy")))

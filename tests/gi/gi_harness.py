@@ -34,16 +34,18 @@ def scene_with(name: str, width: int, height: int, materials: dict | None = None
     return LoadedScene(spec, sc.root, envmap=sc.envmap)
 
 
-def gi_renderer(scene, options: dict, use_native: bool = True):
+def gi_renderer(scene, options: dict, backend: str | None = None, precompute: str | None = None):
+    """A GIRenderer on the kernel backend ``backend`` (None: the process's) over tensors from the
+    shared cache, traced (when missing) by the backend ``precompute`` (None: the process's; the
+    NumPy trace is exact but slow, so the test scenes precompute with the default)."""
     from worker.artifacts import DirStore
+    from worker.native.kernels import kernels
     from worker.renderers import ensure, load
     from worker.renderers.gi import GIPrecomputation, GIRenderer
-    pre = GIPrecomputation()
+    pre = GIPrecomputation(kernels(precompute))
     store = DirStore(CACHE, "gi")
     ensure(pre, scene, store, options)
-    from worker.native.kernels import kernels
-
-    return GIRenderer(scene, load(pre, scene, store, options), kernels=kernels("native" if use_native else "numpy"))
+    return GIRenderer(scene, load(pre, scene, store, options), kernels=kernels(backend))
 
 
 def mitsuba(scene, spp: int, seed: int, max_depth: int) -> np.ndarray:

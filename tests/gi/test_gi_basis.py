@@ -111,9 +111,11 @@ def test_anisotropic_factor_and_bands():
 
 
 def test_half_floats_match_numpy():
-    from worker.renderers.gi import native as gn
-    if not gn.available():
+    from worker import native
+    from worker.native.kernels import kernels
+    if not native.available():
         pytest.skip("C kernels not built")
+    gn = kernels("native").gi
     x = np.random.default_rng(0).random(200_000).astype(np.float32) * np.logspace(-12, 4.8, 200_000).astype(np.float32)
     np.testing.assert_array_equal(gn.to_half(x), x.astype(np.float16).view(np.uint16))
     h = x.astype(np.float16)

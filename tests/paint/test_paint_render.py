@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from worker import native
+from worker.native.kernels import kernels
 from worker.core.brdf import evaluate, to_local
 from worker.core.lighting import pixel_directions
 from worker.envmap import load_envmap
@@ -142,9 +143,21 @@ def test_c_shading_matches_numpy(setup):
     vsh = rng.uniform(0.2, 1.0, (500, 18)).astype(np.float32)
     for kw in ({"cosine": "albedo"}, {"cosine": "paper", "fresnel": True},
                {"vsh": vsh, "rotation_deg": 33.0, "intensity": 2.0}, {"rotation_deg": -71.0}):
-        a = shade(n, v, mid, rows, maps, **kw)
-        b = shade_numpy(n, v, mid, rows, maps, **kw)
+        a = shade(n, v, mid, rows, maps, kernels=kernels("native"), **kw)
+        b = shade(n, v, mid, rows, maps, kernels=kernels("numpy"), **kw)
         assert np.allclose(a, b, rtol=1e-4, atol=1e-6 * np.abs(b).max()), kw
+        assert np.array_equal(b, shade_numpy(n, v, mid, rows, maps, **kw))
+
+
+@pytest.mark.skipif(not native.available(), reason="C kernels not built")
+def test_c_background_matches_numpy(setup):
+    from worker.paint.render import background
+    env = setup[0]
+    uv = np.random.default_rng(3).random((4000, 2)).astype(np.float32)
+    for rot, inten in ((0.0, 1.0), (30.0, 2.0), (-271.5, 0.5)):
+        a = background(uv, env, rot, inten, kernels("native"))
+        b = background(uv, env, rot, inten, kernels("numpy"))
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6 * np.abs(b).max())
 
 
 def test_rotation_of_the_environment_is_a_lookup_offset(setup):
@@ -162,19 +175,22 @@ def test_rotation_of_the_environment_is_a_lookup_offset(setup):
     assert rel_rmse(a, b) < 2e-3, rel_rmse(a, b)
 
 
-@pytest.mark.parametrize("native_kernel", [True, False])
-def test_writing_into_an_image_equals_the_plain_output(setup, native_kernel):
+@pytest.mark.parametrize("backend", ["native", "numpy"])
+def test_writing_into_an_image_equals_the_plain_output(setup, backend):
     from worker.paint.render import background
+    if backend == "native" and not native.available():
+        pytest.skip("C kernels not built")
+    k = kernels(backend)
     env, exps, maps = setup
     nrm, v = sphere_view(16)
     rows = material_rows([designed_paint(exps)], exps)
     mid = np.zeros(len(nrm), np.int32)
     img = np.full((3 * len(nrm), 3), -1.0, np.float32)
     dst = np.arange(len(nrm), dtype=np.int64) * 3 + 1
-    shade(nrm, v, mid, rows, maps, out=img, dst=dst, use_native=native_kernel, rotation_deg=12.0)
-    assert np.allclose(img[dst], shade(nrm, v, mid, rows, maps, use_native=native_kernel, rotation_deg=12.0))
+    shade(nrm, v, mid, rows, maps, out=img, dst=dst, kernels=k, rotation_deg=12.0)
+    assert np.allclose(img[dst], shade(nrm, v, mid, rows, maps, kernels=k, rotation_deg=12.0))
     uv = np.random.default_rng(0).random((len(nrm), 2)).astype(np.float32)
     dst0 = dst - 1
-    background(uv, env, 30.0, 2.0, native_kernel, out=img, dst=dst0)
-    assert np.allclose(img[dst0], background(uv, env, 30.0, 2.0, native_kernel), rtol=1e-5)
+    background(uv, env, 30.0, 2.0, k, out=img, dst=dst0)
+    assert np.allclose(img[dst0], background(uv, env, 30.0, 2.0, k), rtol=1e-5)
     assert (img[dst + 1] == -1.0).all()                 # nothing else touched

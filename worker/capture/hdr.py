@@ -44,17 +44,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .. import native
 from .fisheye import Lens
 from .manifest import Capture, CaptureError, Photo
 
 Z_LO, Z_HI = 3, 250          # hat support: below is JPEG black, above clipping
 CLIP_Z = 245                 # the shortest exposure at or above this (any channel): clipped light
 MID_GREY = 0.21586050011389926   # sRGB decode of 128/255: the response's anchor
-
-_hdr_merge = native.bind("glk_hdr_merge", None, n=native.i64, K=native.i32, z=native.u8p, valid=native.voidp,
-                         val=native.f32p, wt=native.f32p, out=native.f32p, status=native.u8p)
-
 
 # --- reading ----------------------------------------------------------------------------------
 
@@ -417,19 +412,17 @@ def merge_numpy(z: np.ndarray, valid: np.ndarray | None, val: np.ndarray, wt: np
     return out.astype(np.float32), status
 
 
-def merge(z: np.ndarray, valid: np.ndarray | None, val: np.ndarray, wt: np.ndarray, use_native: bool = True):
-    """HDR merge (see merge_numpy for arrays); the C kernel when built."""
+def merge(z: np.ndarray, valid: np.ndarray | None, val: np.ndarray, wt: np.ndarray, kernels=None):
+    """HDR merge (see merge_numpy for arrays; z may be (K, H, W, 3), valid (K, H, W)) by the
+    backend ``kernels`` (glk_hdr_merge or merge_numpy; default: the process's)."""
+    from ..native.kernels import kernels as _kernels
+
     k_n = z.shape[0]
     z = np.ascontiguousarray(z.reshape(k_n, -1, 3), dtype=np.uint8)
     n = z.shape[1]
     v = None if valid is None else np.ascontiguousarray(valid.reshape(k_n, n), dtype=np.uint8)
-    if not (use_native and native.available()):
-        return merge_numpy(z, v, val, wt)
-    out = np.empty((n, 3), np.float32)
-    st = np.empty(n, np.uint8)
-    _hdr_merge(n, k_n, z, v.ctypes.data if v is not None else None, native.c(val, np.float32),
-                             native.c(wt, np.float32), out, st)
-    return out, st
+    return (kernels or _kernels()).capture.merge(z, v, np.ascontiguousarray(val, np.float32),
+                                                 np.ascontiguousarray(wt, np.float32))
 
 
 def merge_opencv(stack: np.ndarray, exposures: np.ndarray, resp: Response) -> np.ndarray:
@@ -485,11 +478,12 @@ def reference_exposure(cap: Capture) -> float:
     return float(np.median([p.exposure for s in cap.shots for p in s]))
 
 
-def merge_capture(cap: Capture, lens: Lens, progress=None, use_native: bool = True,
+def merge_capture(cap: Capture, lens: Lens, progress=None, kernels=None,
                   lam: float = 100.0) -> tuple[list[ShotHDR], Response]:
     """Read, align, calibrate and merge every shot of a capture.
 
-    progress : optional callable(fraction 0..1, message)."""
+    progress : optional callable(fraction 0..1, message); kernels : the backend (default: the
+    process's)."""
     tick = progress or (lambda f, m: None)
     circle = lens.circle_mask()
     inner = lens.pixel_radius() <= 0.9 * lens.radius
@@ -516,7 +510,7 @@ def merge_capture(cap: Capture, lens: Lens, progress=None, use_native: bool = Tr
         tick(0.45 + 0.15 * i / n_shots, f"merging shot {i + 1}/{n_shots}")
         ex = np.array([p.exposure for p in photos]) / e_ref
         val, wt = merge_tables(resp, ex)
-        rad, status = merge(stacks[i], valids[i], val, wt, use_native)
+        rad, status = merge(stacks[i], valids[i], val, wt, kernels)
         # clipped even in the shortest exposure (JPEG ringing keeps a clipped sun a few levels
         # under 255, so the merge may still call it measured): flag it, it is a lower bound
         short = (stacks[i][0].max(axis=-1) >= CLIP_Z) & valids[i][0]

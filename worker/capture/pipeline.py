@@ -51,7 +51,7 @@ def dynamic_range_stops(env: np.ndarray) -> float:
 
 
 def capture(manifest_path: str | Path, width: int | None = None, remove_frame: bool = True,
-            root: str | Path | None = None, progress=None, use_native: bool = True) -> CaptureResult:
+            root: str | Path | None = None, progress=None, kernels=None) -> CaptureResult:
     """Turn a capture manifest and its photos into an environment map.
 
     width : output width (height = width/2); default matches the photos' angular resolution
@@ -59,6 +59,7 @@ def capture(manifest_path: str | Path, width: int | None = None, remove_frame: b
     remove_frame : detect and remove the lens frame (default); False keeps it, for comparison.
     root : confine the photos to this folder (the service passes the upload's folder).
     progress : optional callable(fraction 0..1, message).
+    kernels : the backend for the merge and the reprojection (default: the process's).
     """
     t0 = time.perf_counter()
     tick = progress or (lambda f, m: None)
@@ -70,7 +71,7 @@ def capture(manifest_path: str | Path, width: int | None = None, remove_frame: b
     if width < 16 or width % 2:
         raise CaptureError(f"output width {width}: use an even number of at least 16")
     check_coverage(lens, [s.yaw_deg for s in m.shots])
-    shots, resp = merge_capture(cap, lens, tick, use_native)
+    shots, resp = merge_capture(cap, lens, tick, kernels)
     max_shift = max((abs(dx) + abs(dy) for s in shots for dx, dy in s.shifts), default=0)
     if remove_frame:
         tick(0.62, "finding the lens frame")
@@ -78,7 +79,7 @@ def capture(manifest_path: str | Path, width: int | None = None, remove_frame: b
         frame = fm.mask
     else:
         fm, frame = None, np.zeros((cap.height, cap.width), bool)
-    st = stitch(shots, lens, frame if remove_frame else None, width, tick)
+    st = stitch(shots, lens, frame if remove_frame else None, width, tick, kernels)
     tick(0.97, "statistics")
     env = st.envmap
     stats = {

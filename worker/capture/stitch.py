@@ -26,7 +26,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import native
 from ..core.lighting import pixel_directions
 from .fisheye import Lens
 from .manifest import CaptureError
@@ -119,10 +118,6 @@ def _inpaint_log(img: np.ndarray, hole: np.ndarray, max_width: int = 1024) -> np
     return out
 
 
-_fisheye_map = native.bind("glk_fisheye_map", None, h=native.i32, w=native.i32, yaw=native.f64, projection=native.i32,
-                           focal=native.f64, cx=native.f64, cy=native.f64, theta_max=native.f64, map_x=native.f32p,
-                           map_y=native.f32p)
-
 
 def fisheye_map_numpy(h: int, w: int, lens: Lens, yaw_deg: float) -> tuple[np.ndarray, np.ndarray]:
     """Reference of glk_fisheye_map: (map_x, map_y) (h, w) float32 cv2.remap coordinates in the
@@ -135,16 +130,12 @@ def fisheye_map_numpy(h: int, w: int, lens: Lens, yaw_deg: float) -> tuple[np.nd
     return mx, my
 
 
-def fisheye_map(h: int, w: int, lens: Lens, yaw_deg: float, use_native: bool = True):
-    """(map_x, map_y) as fisheye_map_numpy, by the C kernel when built."""
-    if not (use_native and native.available()):
-        return fisheye_map_numpy(h, w, lens, yaw_deg)
-    mx = np.empty((h, w), np.float32)
-    my = np.empty((h, w), np.float32)
-    cx, cy = lens.centre
-    _fisheye_map(h, w, float(np.radians(yaw_deg)), 0 if lens.projection == "equidistant" else 1,
-                               float(lens.focal), float(cx), float(cy), float(lens.theta_max), mx, my)
-    return mx, my
+def fisheye_map(h: int, w: int, lens: Lens, yaw_deg: float, kernels=None):
+    """(map_x, map_y) (h, w) float32 as fisheye_map_numpy (yaw in degrees), by the backend
+    ``kernels`` (glk_fisheye_map or the reference; default: the process's)."""
+    from ..native.kernels import kernels as _kernels
+
+    return (kernels or _kernels()).capture.fisheye_map(int(h), int(w), lens, float(yaw_deg))
 
 
 def check_coverage(lens: Lens, yaws: list[float]) -> float:
@@ -164,13 +155,14 @@ def check_coverage(lens: Lens, yaws: list[float]) -> float:
 
 
 def stitch(shots, lens: Lens, frame: np.ndarray | None, width: int, progress=None,
-           use_native: bool = True) -> StitchResult:
+           kernels=None) -> StitchResult:
     """Blend the merged shots into one equirectangular map.
 
     shots : list of hdr.ShotHDR (radiance (H, W, 3) float32 in the photos' grid, status bits,
         yaw_deg, shifts).
     frame : (H, W) bool lens-frame mask (same for every shot) or None to keep the frame.
     width : output width W (height W/2).
+    kernels : the backend (default: the process's).
     """
     import cv2
 
@@ -205,7 +197,7 @@ def stitch(shots, lens: Lens, frame: np.ndarray | None, width: int, progress=Non
             rad = rad / np.maximum(wgt, 1e-12)[..., None]
             clip_f = cv2.resize(clip_f, (ws, hs), interpolation=cv2.INTER_AREA)
             src_lens = Lens(ws, hs, lens.projection, lens.fov_deg)
-        mx, my = fisheye_map(h_out, w_out, src_lens, shot.yaw_deg, use_native)
+        mx, my = fisheye_map(h_out, w_out, src_lens, shot.yaw_deg, kernels)
         inside = mx > -5.0
         pre = np.ascontiguousarray(rad * wgt[..., None], dtype=np.float32)
         n_i = cv2.remap(pre, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)

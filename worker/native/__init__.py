@@ -6,6 +6,19 @@ signature reads like the C prototype it mirrors and a wrong call fails in ctypes
 NumPy references. The library's BRDF branch ids and packed layout are checked against
 worker/models when it loads (``model_id``), never copied by hand.
 ctypes releases the GIL during each call; OpenMP threads do the work.
+
+Nothing outside worker/native decides between the C kernels and the references: code asks the
+backend object (``worker.native.kernels.kernels()``, chosen once per process) and calls its
+methods, e.g. ``k.shade_points(...)``, ``k.fields.combine(...)``, ``k.gi.sample(...)``,
+``k.paint.prefilter(...)``, ``k.capture.merge(...)``. ``GLINT_NO_NATIVE=1`` in the environment
+leaves the library unloaded (``lib`` None), as if it had not been built: the process then runs
+the NumPy references only (tests use it to show a "numpy" backend never needs the library).
+
+Angles: every C entry point that takes a rotation takes it in radians (``double``), about +Y
+for the environment (world φ reads map φ + rotation) and for a capture's yaw: glk_light_tables,
+glk_background, glk_env_lookup, glp_shade, glp_background, gi_sample, glk_fisheye_map. The
+Python side speaks degrees (scene files, lighting requests); the typed wrappers of the
+backend convert, and nothing else passes an angle to C.
 """
 from __future__ import annotations
 
@@ -51,7 +64,8 @@ def _load():
     return None
 
 
-lib = _load()
+# GLINT_NO_NATIVE=1: behave as if the library were not built (the references run)
+lib = None if os.environ.get("GLINT_NO_NATIVE", "") not in ("", "0") else _load()
 
 
 def bind(cname: str, restype=None, **params):

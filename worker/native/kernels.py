@@ -1,26 +1,73 @@
 """The kernel backend, chosen once (as trimesh picks its Embree or its NumPy ray backend): the
 multithreaded C kernels when the library is built, else the NumPy references. Both backends
-have the same methods with the same arrays in and out; tests/core/test_native.py checks that
-they agree.
+have the same methods with the same arrays in and out; the tests check that they agree
+(tests/core/test_native.py, tests/perf/test_kernels.py, tests/fields, tests/gi, tests/paint,
+tests/capture, tests/fit).
 
     k = kernels()            # the process default: "native" when built, else "numpy"
     k = kernels("numpy")     # the references, e.g. to test or to debug
 
-A renderer keeps the backend it was built with; nothing below it asks again.
+The core kernels (shading, light tables, frame assembly, cuts, tonemap, fit transfer) are
+methods of the backend itself; the other families are sub-objects of the same backend, each
+with the backend's ``name``:
 
-Each C kernel has one typed wrapper here: it checks and converts the arrays (dtype,
-contiguity) and names the parameters as the C prototype does (``worker.native.bind``).
+    k.fields    cut fields of moving objects (src/fields.c; worker/native/fields.py)
+    k.gi        GI path tracing, freezing and frames (src/gi.c; worker/native/gi.py)
+    k.paint     paint prefiltering and shading (src/paint.c; worker/native/paint.py)
+    k.capture   HDR merge and fisheye maps (src/capture.c; worker/native/capture.py)
+    k.fit       SRBF transfer rows and energy rows (src/fit.c; the backend's own methods)
+
+A renderer or a precomputation keeps the backend it was built with and passes it on; nothing
+below it asks again, and no module decides on its own whether the library is there.
+
+Each C kernel has one typed wrapper: it checks and converts the arrays (dtype, contiguity),
+converts angles to the C side's radians, and names the parameters as the C prototype does
+(``worker.native.bind``).
 """
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cached_property, lru_cache
 
 import numpy as np
 
 from . import available, bind, c, f32p, f64, f64p, i32, i32p, i64, i64p, lib, model_id, u8p, voidp
 
 
-class NumpyKernels:
+class _Families:
+    """The per-family sub-objects, made on first use (a paint worker never imports the GI code)."""
+    name: str
+
+    @cached_property
+    def fields(self):
+        from . import fields
+        return fields.NativeFields() if self.name == "native" else fields.NumpyFields()
+
+    @cached_property
+    def gi(self):
+        from . import gi
+        return gi.NativeGI() if self.name == "native" else gi.NumpyGI()
+
+    @cached_property
+    def paint(self):
+        from . import paint
+        return paint.NativePaint() if self.name == "native" else paint.NumpyPaint()
+
+    @cached_property
+    def capture(self):
+        from . import capture
+        return capture.NativeCapture() if self.name == "native" else capture.NumpyCapture()
+
+    @property
+    def fit(self):
+        """The fit kernels (transfer, energy_rows) are the backend's own methods."""
+        return self
+
+    def families(self) -> dict:
+        """Every sub-object by family name (each has the backend's ``name``)."""
+        return {f: getattr(self, f) for f in ("fields", "gi", "paint", "capture", "fit")}
+
+
+class NumpyKernels(_Families):
     """The NumPy references (worker/core, worker/fit), one method per kernel."""
     name = "numpy"
 
@@ -77,7 +124,7 @@ class NumpyKernels:
         return tonemap_numpy(rgb, exposure, curve)
 
 
-class NativeKernels:
+class NativeKernels(_Families):
     """Typed wrappers of the C kernels in src/*.c (glintk.c, shade.c, lighting.c, frame.c, fit.c)."""
     name = "native"
 
@@ -91,18 +138,18 @@ class NativeKernels:
             tables=f32p, table_off=i64p, out=f32p)
         self._simd = bind("glk_shade_simd", i32, want=i32)
         self._light = bind(
-            "glk_light_tables", None, N=i64, indptr=i64p, prow=i32p, pcol=i32p, wts=f64p, map=f32p, Hm=i32, Wm=i32, s0=i64,
-            frac=f64, intensity=f64, H=i32, node_dir=f32p, scratch=f64p, node_l=f32p, node_w=f32p, node8=f32p)
+            "glk_light_tables", None, N=i64, indptr=i64p, prow=i32p, pcol=i32p, wts=f64p, map=f32p, Hm=i32, Wm=i32,
+            rot=f64, intensity=f64, H=i32, node_dir=f32p, scratch=f64p, node_l=f32p, node_w=f32p, node8=f32p)
         self._interp = bind("glk_interpolate", None, P=i64, tri=i32p, uv=f32p, faces=i32p, vert_rgb=f32p, out=f32p)
         self._background = bind(
-            "glk_background", None, n=i64, sample=i64p, dirs=f32p, uv0=f32p, map=f32p, Hm=i32, Wm=i32, rot_turns=f64,
+            "glk_background", None, n=i64, sample=i64p, dirs=f32p, uv0=f32p, map=f32p, Hm=i32, Wm=i32, rot=f64,
             intensity=f64, shadow=voidp, G=i32, gx0=f64, gz0=f64, gstep=f64, gy=f64, ex=f64, ey=f64, ez=f64, out=f32p)
         self._rotate = bind("glk_rotate_dirs", None, P=i64, src=f32p, basis=f32p, out=f32p)
         self._env_coords = bind("glk_env_coords", None, n=i64, dirs=f32p, out=f32p)
         self._resolve = bind("glk_resolve", None, P=i64, S=i32, tri=i32p, uv=f32p, faces=i32p, vert_rgb=f32p,
                              bg=f32p, out=f32p)
         self._env = bind("glk_env_lookup", None, P=i64, dirs=f32p, mask=voidp, map=f32p, Hm=i32, Wm=i32,
-                         rotation=f64, intensity=f64, out=f32p)
+                         rot=f64, intensity=f64, out=f32p)
         self._build = bind("glk_build_cuts", None, vals=f32p, B=i64, H=i32, tau=f64, heights=u8p, quant=u8p,
                            counts=i32p)
         self._coarsen = bind("glk_coarsen", None, V=i64, offsets=i64p, heights=u8p, quant=u8p, tau=f64,
@@ -128,14 +175,12 @@ class NativeKernels:
         indptr, prow, pcol, wts = lighting.csr()
         env = lighting.map
         hm, wm = env.shape[:2]
-        shift = (float(rotation_deg) / 360.0) * wm
-        s0 = int(np.floor(shift))
         m = len(tree.node_dir)
         node_l = np.empty((m, 3), np.float32)
         node_w = np.empty((m, 3), np.float32)
         node8 = np.empty((m, 8), np.float32)
         scratch = np.empty((m, 6), np.float64)
-        self._light(tree.n_leaves, indptr, prow, pcol, wts, c(env, np.float32), hm, wm, s0, shift - s0, float(intensity),
+        self._light(tree.n_leaves, indptr, prow, pcol, wts, c(env, np.float32), hm, wm, float(np.radians(rotation_deg)), float(intensity),
                     tree.height, tree.node_dir, scratch, node_l, node_w, node8)
         return node_l, node_w, node8
 
@@ -181,7 +226,7 @@ class NativeKernels:
             geo = tuple(float(x) for x in shadow[1])
             e = tuple(float(x) for x in eye)
         self._background(len(sample), c(sample, np.int64), c(dirs, np.float32), c(uv0, np.float32),
-                         c(envmap, np.float32), envmap.shape[0], envmap.shape[1], float(rotation_deg) / 360.0,
+                         c(envmap, np.float32), envmap.shape[0], envmap.shape[1], float(np.radians(rotation_deg)),
                          float(intensity), grid.ctypes.data if grid is not None else None,
                          grid.shape[0] if grid is not None else 0, *geo, *e, out)
         return out
@@ -298,11 +343,17 @@ def _node_cs(tree) -> np.ndarray:
     return _CS[id(tree)][1]
 
 
-@lru_cache(maxsize=None)
 def kernels(name: str | None = None):
-    """The backend: "native", "numpy", or None for the default (native when built)."""
+    """The backend: "native", "numpy", or None for the default (native when built); one object
+    per backend and process (kernels() is kernels("native") when the library is built)."""
     if name is None:
+        # the one place that asks whether the library is there
         name = "native" if available() else "numpy"
+    return _backend(name)
+
+
+@lru_cache(maxsize=None)
+def _backend(name: str):
     if name == "native":
         return NativeKernels()
     if name == "numpy":
@@ -310,9 +361,4 @@ def kernels(name: str | None = None):
     raise ValueError(f"unknown kernel backend {name!r} (native or numpy)")
 
 
-def backend(use_native: bool = True):
-    """kernels() for code that still speaks in booleans (``use_native=False`` → references)."""
-    return kernels(None if use_native else "numpy")
-
-
-__all__ = ["NativeKernels", "NumpyKernels", "kernels", "backend", "model_id"]
+__all__ = ["NativeKernels", "NumpyKernels", "kernels", "model_id"]

@@ -172,7 +172,7 @@ def cmd_bench(a) -> int:
     env = scene.spec.environment
     cam = scene.spec.camera
     t0, c0 = time.perf_counter(), time.process_time()
-    prefilter_all(scene.envmap, rnd.exponents)
+    prefilter_all(scene.envmap, rnd.exponents, rnd.k)
     ms_prefilter = 1e3 * (time.perf_counter() - t0)
     cpu_ms_prefilter = 1e3 * (time.process_time() - c0)
     t0 = time.perf_counter()
@@ -240,10 +240,7 @@ def cmd_bench_fit(a) -> int:
 
 def _threads() -> int:
     from .. import native
-    try:
-        return int(native.lib.glk_max_threads()) if native.lib is not None else 1
-    except AttributeError:
-        return 1
+    return native.max_threads()
 
 
 def _render_args(p):

@@ -33,32 +33,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import native
 from ..core.lighting import prepare_map
 
 SUPPORT = 1e-3           # kernel support: cos^E ≥ SUPPORT (must match GLP_SUPPORT in paint.c)
 MIN_ROWS = 64
 PIXELS_PER_SIGMA = 3.0
 
-# the paint kernels (worker/native/src/paint.c), parameters named and ordered as their prototypes;
-# the library is shared, these functions are this module's. vsh, dst and out are passed as
-# addresses (dst, vsh may be NULL), hence voidp.
-if native.lib is not None and hasattr(native.lib, "glp_prefilter"):
-    from ..native import bind, f32p, f64, i32, i32p, i64, i64p, voidp
-    bind("glp_prefilter", None, img=f32p, H=i32, W=i32, E=f64, out=f32p)
-    bind("glp_shade", None, P=i64, normals=f32p, views=f32p, mat_of=i32p, mats=f32p, n_mat=i32, M=i32,
-         maps=f32p, offs=i64p, hs=i32p, ws=i32p, vmaps=f32p, voffs=i64p, tables=f32p, T=i32, mode=i32,
-         expo=f32p, fresnel=i32, f0=f64, vsh=voidp, zonal=f32p, rot=f64, intensity=f64, dst=voidp, out=voidp)
-    bind("glp_background", None, P=i64, uv=f32p, map=f32p, Hm=i32, Wm=i32, rot=f64, intensity=f64, dst=voidp,
-         out=voidp)
-
-
 def _c(a, dtype) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=dtype)
-
-
-def _has_kernel() -> bool:
-    return native.lib is not None and hasattr(native.lib, "glp_prefilter")
 
 
 def downsample(img: np.ndarray) -> np.ndarray:
@@ -128,14 +110,15 @@ def prefilter_numpy(img: np.ndarray, exponent: float) -> np.ndarray:
     return out.astype(np.float32)
 
 
-def prefilter(img: np.ndarray, exponent: float, use_native: bool = True) -> np.ndarray:
-    """One prefiltered map (C kernel when built, else the NumPy reference)."""
-    if use_native and _has_kernel():
-        img = np.ascontiguousarray(img, np.float32)
-        out = np.zeros_like(img)
-        native.lib.glp_prefilter(img, img.shape[0], img.shape[1], float(exponent), out)
-        return out
-    return prefilter_numpy(img, exponent)
+def prefilter(img: np.ndarray, exponent: float, kernels=None) -> np.ndarray:
+    """One prefiltered map: img (H, W, 3) float32 -> (H, W, 3) float32 (glp_prefilter, or
+    prefilter_numpy; kernels: the backend, default the process's)."""
+    from ..native.kernels import kernels as _kernels
+
+    img = np.ascontiguousarray(img, np.float32)
+    if img.ndim != 3 or img.shape[-1] != 3:
+        raise ValueError("img must be an (H, W, 3) map")
+    return (kernels or _kernels()).paint.prefilter(img, float(exponent))
 
 
 VECTOR_MAX_E = 100.0     # lobes this wide also get vector maps (render.py, cosine="vector")
@@ -173,18 +156,19 @@ class LobeMaps:
         return LobeMaps(ex, [z[f"m{i}"] for i in range(len(ex))], vec)
 
 
-def prefilter_all(envmap: np.ndarray, exponents, use_native: bool = True, progress=None) -> LobeMaps:
-    """The diffuse map, every basis exponent's map, and the wide lobes' vector maps."""
+def prefilter_all(envmap: np.ndarray, exponents, kernels=None, progress=None) -> LobeMaps:
+    """The diffuse map, every basis exponent's map, and the wide lobes' vector maps (kernels:
+    the backend, default the process's)."""
     from ..core.lighting import pixel_directions
     levels = pyramid(envmap)
     ex = (1.0,) + tuple(float(e) for e in exponents)
     maps, vec = [], {}
     for i, e in enumerate(ex):
         img = levels[level_for(e, levels)]
-        maps.append(prefilter(img, e, use_native))
+        maps.append(prefilter(img, e, kernels))
         if i > 0 and e <= VECTOR_MAX_E:
             d, _ = pixel_directions(img.shape[0], img.shape[1], 1)
-            vec[i] = np.concatenate([prefilter(np.ascontiguousarray(img * d[..., c:c + 1], np.float32), e, use_native)
+            vec[i] = np.concatenate([prefilter(np.ascontiguousarray(img * d[..., c:c + 1], np.float32), e, kernels)
                                      for c in range(3)], axis=-1)
         if progress:
             progress(1)

@@ -40,8 +40,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from .. import native
-from .prefilter import LobeMaps, _c, _has_kernel
+from .prefilter import LobeMaps, _c
 
 F0 = 0.04
 TABLE_N = 64
@@ -191,17 +190,19 @@ def _into(out: np.ndarray | None, dst: np.ndarray | None, n: int):
 
 
 def background(uv: np.ndarray, envmap: np.ndarray, rotation_deg: float = 0.0, intensity: float = 1.0,
-               use_native: bool = True, out: np.ndarray | None = None, dst: np.ndarray | None = None) -> np.ndarray:
+               kernels=None, out: np.ndarray | None = None, dst: np.ndarray | None = None) -> np.ndarray:
     """(P, 3) float32 environment radiance at precomputed unrotated map coordinates uv (P, 2)
-    (a camera's background pixels: only the rotation changes between frames). With ``out``
-    (an image as (N, 3) float32) and ``dst`` (P,) pixel indices, written straight into it."""
+    (a camera's background pixels: only the rotation changes between frames; degrees about +Y).
+    With ``out`` (an image as (N, 3) float32) and ``dst`` (P,) pixel indices, written straight
+    into it. kernels: the backend (glp_background or background_numpy), default the process's."""
+    from ..native.kernels import kernels as _kernels
+
     buf, d = _into(out, dst, len(uv))
-    if use_native and _has_kernel():
-        envmap = _c(envmap, np.float32)
-        native.lib.glp_background(len(uv), _c(uv, np.float32), envmap, envmap.shape[0], envmap.shape[1],
-                                  float(np.radians(rotation_deg)), float(intensity),
-                                  None if d is None else d.ctypes.data, buf.ctypes.data)
-        return buf
+    return (kernels or _kernels()).paint.background(uv, envmap, float(rotation_deg), float(intensity), buf, d)
+
+
+def background_numpy(uv, envmap, rotation_deg: float, intensity: float, buf: np.ndarray, d) -> np.ndarray:
+    """Reference of glp_background (``background`` with its buffer and destination rows)."""
     uv = np.asarray(uv, np.float64)
     val = intensity * _bilerp(envmap, uv[:, 0], uv[:, 1], np.radians(rotation_deg))
     if d is None:
@@ -235,30 +236,15 @@ def _packed(maps: LobeMaps):
 
 
 def shade(normals, views, mat_of, rows, maps: LobeMaps, cosine: str = "vector", fresnel: bool = False,
-          vsh=None, rotation_deg: float = 0.0, intensity: float = 1.0, use_native: bool = True,
+          vsh=None, rotation_deg: float = 0.0, intensity: float = 1.0, kernels=None,
           out: np.ndarray | None = None, dst: np.ndarray | None = None) -> np.ndarray:
-    """(P, 3) float32 radiance (C kernel glp_shade when built, else shade_numpy). With ``out``
-    (an image as (N, 3) float32) and ``dst`` (P,) pixel indices, written straight into it."""
+    """(P, 3) float32 radiance (glp_shade or shade_numpy, by the backend ``kernels``, default
+    the process's; rotation in degrees about +Y). With ``out`` (an image as (N, 3) float32) and
+    ``dst`` (P,) pixel indices, written straight into it."""
+    from ..native.kernels import kernels as _kernels
+
     if cosine not in COSINE_MODES:
         raise ValueError(f"cosine must be one of {sorted(COSINE_MODES)}")
     buf, d = _into(out, dst, len(normals))
-    if not (use_native and _has_kernel()):
-        val = shade_numpy(normals, views, mat_of, rows, maps, cosine, fresnel, vsh, rotation_deg, intensity)
-        if d is None:
-            return val
-        buf.reshape(-1, 3)[d] = val
-        return buf
-    c = _c
-    ex = maps.exponents
-    flat, offs, hs, ws, tabs, zon, ex32, vflat, voffs = _packed(maps)
-    rows = c(rows, np.float32)
-    vptr = None
-    if vsh is not None:
-        vsh = c(vsh, np.float32)
-        vptr = vsh.ctypes.data
-    native.lib.glp_shade(len(normals), c(normals, np.float32), c(views, np.float32), c(mat_of, np.int32),
-                         rows, rows.shape[0], len(ex) - 1, flat, offs, hs, ws, vflat, voffs,
-                         tabs, TABLE_N, COSINE_MODES[cosine], ex32, int(bool(fresnel)), F0, vptr, zon,
-                         float(np.radians(rotation_deg)), float(intensity),
-                         None if d is None else d.ctypes.data, buf.ctypes.data)
-    return buf
+    return (kernels or _kernels()).paint.shade(normals, views, mat_of, rows, maps, cosine, fresnel, vsh,
+                                               float(rotation_deg), float(intensity), buf, d)

@@ -80,7 +80,19 @@ class PaintData:
 
 
 class PaintPrecomputation(Precomputation):
+    """Prefiltered lobe maps (and, optionally, per-vertex visibility); kernels: the backend that
+    prefilters (default: the process's, chosen when first needed)."""
     kind = "paint"
+
+    def __init__(self, kernels=None):
+        self._k = kernels
+
+    @property
+    def kernels(self):
+        if self._k is None:
+            from ..native.kernels import kernels
+            self._k = kernels()
+        return self._k
 
     def parts(self, scene, options):
         ex = basis_of(options)
@@ -94,7 +106,7 @@ class PaintPrecomputation(Precomputation):
 
     def compute(self, scene, part, options, chunk=None, progress=None, threads=2):
         if part.meta["what"] == "maps":
-            return prefilter_all(scene.envmap, basis_of(options), progress=progress).to_bytes()
+            return prefilter_all(scene.envmap, basis_of(options), self.kernels, progress=progress).to_bytes()
         from .visibility import vertex_visibility
         # progress counts vertices as the cut tracing does (nothing when the cuts are cached)
         vis = vertex_visibility(scene, options.get("cuts_dir"), progress=progress, threads=threads)
@@ -132,8 +144,10 @@ class PaintRenderer(Renderer):
 
     def __init__(self, scene, data: PaintData, kernels=None):
         super().__init__(scene, data, kernels)
-        # the process's kernel backend decides, as for every renderer (worker/native/kernels.py)
-        self.use_native = kernels is None or getattr(kernels, "name", "native") == "native"
+        from ..native.kernels import kernels as _kernels
+
+        # the backend it was built with (default: the process's), used for every kernel below
+        self.k = kernels or _kernels()
         from ..trace.embree import Tracer
         self.tracer = Tracer(scene.mesh.vertices, scene.mesh.faces)
         self.cosine = "vector"
@@ -149,7 +163,7 @@ class PaintRenderer(Renderer):
     def set_environment(self, envmap: np.ndarray) -> float:
         """Prefilter another environment (H, W, 3) float32; returns the seconds it took."""
         t0 = time.perf_counter()
-        self.data = PaintData(prefilter_all(envmap, self.exponents, self.use_native), self.data.vertex_vis)
+        self.data = PaintData(prefilter_all(envmap, self.exponents, self.k), self.data.vertex_vis)
         self.envmap = envmap
         return time.perf_counter() - t0
 
@@ -157,7 +171,8 @@ class PaintRenderer(Renderer):
         if self._view is not None and self._view.camera == camera:
             return self._view
         m = self.scene.mesh
-        o, d = camera_rays(camera.eye, camera.target, camera.up, camera.fov_y_deg, camera.width, camera.height)
+        o, d = camera_rays(camera.eye, camera.target, camera.up, camera.fov_y_deg, camera.width, camera.height,
+                           kernels=self.k)
         tri, uv, _ = self.tracer.first_hit(o, d)
         hit = np.nonzero(tri >= 0)[0].astype(np.int64)
         f = m.faces[tri[hit]]
@@ -194,10 +209,10 @@ class PaintRenderer(Renderer):
         # every pixel is either background or shaded: the kernels write the image in place
         img = np.empty((cam.width * cam.height, 3), np.float32)
         background(v.bg_uv, self.envmap, req.lighting.rotation_deg, req.lighting.intensity,
-                   self.use_native, out=img, dst=v.bg)
+                   self.k, out=img, dst=v.bg)
         shade(v.normals, v.views, v.obj, rows, self.data.maps, self.cosine, self.fresnel,
               v.vsh if self.visibility else None, req.lighting.rotation_deg, req.lighting.intensity,
-              self.use_native, out=img, dst=v.hit)
+              self.k, out=img, dst=v.hit)
         t3 = time.perf_counter()
         return Rendered(img.reshape(cam.height, cam.width, 3), v.object_id,
                         {"view": 1e3 * (t1 - t0), "materials": 1e3 * (t2 - t1), "shade": 1e3 * (t3 - t2)},

@@ -16,14 +16,14 @@
 
 /* n background samples: sample (n,) int64 index into out (rows of 3), dirs (n, 3) float32 unit
  * world ray directions, uv0 (n, 2) float32 map coordinates without rotation (u in [0, 1),
- * v = acos(y)/π); map (Hm, Wm, 3) float32; the environment rotated by rot_turns of a turn about
- * +Y and scaled by intensity (DESIGN.md §2, as glk_env_lookup). shadow: NULL, or a (G, G, 3)
+ * v = acos(y)/π); map (Hm, Wm, 3) float32; the environment rotated by rot radians about +Y
+ * and scaled by intensity (DESIGN.md §2, as glk_env_lookup). shadow: NULL, or a (G, G, 3)
  * float32 factor grid over the plane y = gy with node (i, j) at (gx0 + i·gstep, gy, gz0 + j·gstep),
  * applied (bilinear, 1 outside the grid) to rays from eye that go down through the plane. */
 void glk_background(int64_t n, const int64_t *sample, const float *dirs, const float *uv0, const float *map,
-                    int Hm, int Wm, double rot_turns, double intensity, const float *shadow, int G, double gx0,
+                    int Hm, int Wm, double rot, double intensity, const float *shadow, int G, double gx0,
                     double gz0, double gstep, double gy, double ex, double ey, double ez, float *out) {
-    const double rt = rot_turns - floor(rot_turns);
+    const double turns = rot / (2 * PI), rt = turns - floor(turns);
 #pragma omp parallel for schedule(static)
     for (int64_t i = 0; i < n; i++) {
         double u = uv0[2 * i] + rt;            /* both in [0, 1) */

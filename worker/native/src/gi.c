@@ -71,9 +71,10 @@ static inline double mix_pdf(v3 n, v3 wo, v3 d) {
 
 void gi_sample(int64_t R, const double *pos, const double *ng, const double *ns, const double *wo,
                const double *u, int nu, const double *row_cdf, const double *col_cdf, const double *tp,
-               int H, int W, double rot, double *dl, double *db, double *pdf_ll, double *pdf_bl,
+               int H, int W, double rot_rad, double *dl, double *db, double *pdf_ll, double *pdf_bl,
                double *pdf_bb, double *pdf_lb, uint8_t *valid_l, uint8_t *valid_b) {
     (void)pos; (void)ng;
+    const double rot = rot_rad / (2 * PI);      /* in turns, as the map's u */
 #pragma omp parallel for schedule(static)
     for (int64_t r = 0; r < R; r++) {
         const double *ur = u + r * nu;

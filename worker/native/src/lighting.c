@@ -17,16 +17,20 @@
 static const double LUMA_R = 0.2126, LUMA_G = 0.7152, LUMA_B = 0.0722;
 
 /* N leaves; indptr (N+1,) int64, prow, pcol (nnz,) int32 the pixel's row y and column x, wts (nnz, 4)
- * float64 (sr, sr·x, sr·y, sr·z); map (Hm, Wm, 3) float32; the environment rotated by
- * shift = s0 + frac columns (world column x reads map column x + shift), scaled by intensity.
+ * float64 (sr, sr·x, sr·y, sr·z); map (Hm, Wm, 3) float32; the environment rotated by rot
+ * radians about +Y, a shift of rot·Wm/2π columns (world column x reads map column x + shift),
+ * scaled by intensity.
  * Tree of height H over the N = 2^H leaves, node_dir (2N−1, 3) float32 the fallback directions.
  * Writes node_l, node_w (2N−1, 3) float32 (lighting.node_lighting) and node8 (2N−1, 8) float32,
  * the shading kernel's streaming layout: (l_r, l_g, l_b, w_x, w_y, w_z, 0, 0) per node.
  * scratch: (2N−1, 6) float64. */
 void glk_light_tables(int64_t N, const int64_t *indptr, const int32_t *prow, const int32_t *pcol, const double *wts,
-                      const float *map, int Hm, int Wm, int64_t s0, double frac, double intensity,
+                      const float *map, int Hm, int Wm, double rot, double intensity,
                       int H, const float *node_dir, double *scratch, float *node_l, float *node_w,
                       float *node8) {
+    const double shift = (rot / (2 * PI)) * Wm;
+    const int64_t s0 = (int64_t)floor(shift);
+    const double frac = shift - (double)s0;
     const int lerp = frac >= 1e-6;            /* rotate_map: an integer shift is a plain roll */
     const float f1 = (float)frac, f0 = 1.0f - f1;
     int64_t sh = s0 % Wm; if (sh < 0) sh += Wm;

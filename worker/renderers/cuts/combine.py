@@ -5,14 +5,15 @@ occluder i not culled (§V.B: its bounding sphere below the vertex's horizon, or
 outside the outermost shell), the eight field samples at the corners of the cell holding the
 vertex (in i's local frame) are blended trilinearly and multiplied into the vertex's cut.
 
-Three stages, each a C kernel (fields.c) with its NumPy reference here or in grid.py/rotate.py:
+Three stages, each a kernel of the backend's ``fields`` family (worker/native/fields.py: C in
+fields.c, NumPy references here or in grid.py/rotate.py):
   1. ``lookup`` (glf_lookup): the cell and the 8 corner weights of every vertex, or culled.
   2. ``RotatedSamples.ensure`` (glf_rotate): corner samples re-expressed over the receiver
      frame's leaves, kept as their non-free nodes; ``ensure_cells`` (glf_cells): the 8 corners
      of a cell merged once into stretches with 8 values each, shared by the vertices in it.
      Both are cached per (field, rotation, h_min): while an object is only translated, a
      sample or cell is computed once and reused by later frames.
-  3. ``combine_native`` (glf_combine): each vertex's cut copied node by node, scaled by
+  3. ``k.fields.combine`` (glf_combine; reference combine_numpy): each vertex's cut copied node by node, scaled by
      F = Π_i Σ_c w_ic v_ic / Σ_c w_ic where a cell stretch covers it, split at stretch bounds.
 """
 from __future__ import annotations
@@ -25,9 +26,10 @@ import numpy as np
 
 from ...core.cuts import CutSet, node_starts
 from ...core.directions import DirectionTree, get_tree
-from . import _native
+from ...native import c as _c
 from .field import Field
-from .grid import cell_corners, lookup_numpy
+from .grid import cell_corners
+from .grid import lookup_numpy as grid_lookup_numpy
 from .rotate import LeafMap, rotate_samples_numpy, rotation_part
 
 DEFAULT_HMIN = 3       # field cuts are kept to nodes of ≥ 8 leaves (see fields.py)
@@ -36,7 +38,7 @@ DEFAULT_HMIN = 3       # field cuts are kept to nodes of ≥ 8 leaves (see field
 # --- stencils ----------------------------------------------------------------------------------
 
 def lookup(field: Field, local_from_receiver: np.ndarray, positions: np.ndarray, normals: np.ndarray,
-           use_native: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+           kernels=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Trilinear stencils of receiver points in a field, with culling (§V.B).
 
     local_from_receiver : (4, 4) similarity from the receiver's frame to the field's.
@@ -46,23 +48,25 @@ def lookup(field: Field, local_from_receiver: np.ndarray, positions: np.ndarray,
     weight > 0 and lies beyond 0.9 × its clearance, so that the segment to it may cross the
     object (``validate`` traces those)). A point is culled when it lies outside the outermost
     shell or the bounding sphere is wholly below its horizon: n · (c − x) < −r.
+    kernels : the backend (worker/native/kernels.py; default: the process's).
     """
-    grid = field.grid
+    from ...native.kernels import kernels as _kernels
+
     m = np.ascontiguousarray(np.asarray(local_from_receiver, np.float64)[:3, :4])
-    pos = _native.c(positions, np.float32)
-    nrm = _native.c(normals, np.float32)
-    clr = None if field.clearance is None else _native.c(field.clearance, np.float32)
-    if use_native and _native.available():
-        cells = np.empty(len(pos), np.int32)
-        w = np.empty((len(pos), 8), np.float32)
-        test = np.empty(len(pos), np.uint8)
-        _native.lookup(len(pos), pos, nrm, m.reshape(-1).copy(), grid.params(), grid.directions, grid.radii,
-                       grid.face_table, None if clr is None else clr.ctypes.data, cells, w, test)
-        return cells, w, test
+    pos = _c(positions, np.float32)
+    nrm = _c(normals, np.float32)
+    clr = None if field.clearance is None else _c(field.clearance, np.float32)
+    return (kernels or _kernels()).fields.lookup(field, m, pos, nrm, clr)
+
+
+def lookup_numpy(field: Field, m: np.ndarray, pos: np.ndarray, nrm: np.ndarray, clr: np.ndarray | None):
+    """Reference of glf_lookup (``lookup`` with m (3, 4) float64 rows of local_from_receiver,
+    pos / nrm (P, 3) float32, clr the field's clearances (S,) float32 or None)."""
+    grid = field.grid
     xl = pos.astype(np.float64) @ m[:, :3].T + m[:, 3]
     nl = nrm.astype(np.float64) @ m[:, :3].T
     nl /= np.maximum(np.linalg.norm(nl, axis=1, keepdims=True), 1e-300)
-    cells, w, inside = lookup_numpy(grid, xl)
+    cells, w, inside = grid_lookup_numpy(grid, xl)
     culled = ~inside | ((nl * (grid.center - xl)).sum(1) < -grid.radius)
     cells[culled] = -1
     w[culled] = 0.0
@@ -174,14 +178,39 @@ def _placed(run, n: int, cap: int, arrays: dict):
         cap = int(used[0])
 
 
+def rotate_samples_into_numpy(rs: "RotatedSamples", need: np.ndarray) -> None:
+    """Reference of glf_rotate: samples need (n,) int32 of rs's field rotated (rotate_samples_numpy)
+    and kept in rs.samples."""
+    sp = rs.samples
+    cuts = rotate_samples_numpy(rs.field, need, rs.lmap, rs.hmin)
+    counts = np.array([len(h) for _, h, _ in cuts], np.int32)
+    dst = sp.reserve(need, counts)
+    for (st, h, q), d in zip(cuts, dst):
+        sp.s[d:d + len(h)], sp.h[d:d + len(h)], sp.q[d:d + len(h)] = st, h, q
+
+
+def merge_cells_into_numpy(rs: "RotatedSamples", need: np.ndarray, cslots: np.ndarray) -> None:
+    """Reference of glf_cells: cells need (n,) int32 merged from their corners' kept samples
+    (pool slots cslots (n, 8) int32, cells_numpy) and kept in rs.cells."""
+    sp, cp = rs.samples, rs.cells
+    items = [cells_numpy([sp.rows(s) for s in row]) for row in cslots]
+    counts = np.array([len(a) for a, _, _ in items], np.int32)
+    dst = cp.reserve(need, counts)
+    for (a, b, v), d in zip(items, dst):
+        cp.a[d:d + len(a)], cp.b[d:d + len(a)], cp.v[d:d + len(a)] = a, b, v
+
+
 class RotatedSamples:
     """One field seen from a receiver frame: its samples re-expressed over the frame's leaves
     (only their non-free nodes: first leaf s, height h, free fraction q·255), and its cells
     (stretches [a, b) where any of the 8 corners is inside a non-free node, with the 8 corner
     values v). Both are computed on demand and kept."""
 
-    def __init__(self, field: Field, lmap: LeafMap, hmin: int):
+    def __init__(self, field: Field, lmap: LeafMap, hmin: int, kernels=None):
+        from ...native.kernels import kernels as _kernels
+
         self.field, self.lmap, self.hmin = field, lmap, int(hmin)
+        self.k = kernels or _kernels()
         self.samples = _Pool(field.n_samples, {"s": (np.int32, ()), "h": (np.uint8, ()), "q": (np.uint8, ())})
         self.cells = _Pool(field.grid.n_cells, {"a": (np.int32, ()), "b": (np.int32, ()), "v": (np.uint8, (8,))})
 
@@ -189,7 +218,7 @@ class RotatedSamples:
     def nbytes(self) -> int:
         return self.samples.nbytes + self.cells.nbytes
 
-    def ensure(self, ids: np.ndarray, use_native: bool = True) -> int:
+    def ensure(self, ids: np.ndarray) -> int:
         """Rotate the samples among ids (any shape, −1 ignored) not yet kept; returns how many."""
         sp = self.samples
         ids = np.asarray(ids).reshape(-1)
@@ -197,25 +226,10 @@ class RotatedSamples:
         need = np.unique(ids[sp.slot[ids] < 0]).astype(np.int32)
         if len(need) == 0:
             return 0
-        f, H = self.field, self.field.height
-        if use_native and _native.available() and H >= 6:      # the kernel's bitset has 64-leaf words
-            def run(cap, b, pos, counts, used):
-                _native.rotate(len(need), need, f.offsets, f.hpacked, f.bits, H, self.hmin, int(self.lmap.identity),
-                               self.lmap.inv_off, self.lmap.inv_idx, cap, b["s"], b["h"], b["q"], pos, counts, used)
-            bufs, pos, counts = _placed(run, len(need), max(1 << 16, 256 * len(need)), {
-                "s": (np.int32, ()), "h": (np.uint8, ()), "q": (np.uint8, ())})
-            dst = sp.reserve(need, counts)
-            for k in sp.names:
-                _native.gather(pos, counts, bufs[k], dst, getattr(sp, k))
-        else:
-            cuts = rotate_samples_numpy(f, need, self.lmap, self.hmin)
-            counts = np.array([len(h) for _, h, _ in cuts], np.int32)
-            dst = sp.reserve(need, counts)
-            for (st, h, q), d in zip(cuts, dst):
-                sp.s[d:d + len(h)], sp.h[d:d + len(h)], sp.q[d:d + len(h)] = st, h, q
+        self.k.fields.rotate_samples(self, need)
         return len(need)
 
-    def ensure_cells(self, cells: np.ndarray, use_native: bool = True) -> int:
+    def ensure_cells(self, cells: np.ndarray) -> int:
         """Merge the cells among ``cells`` (−1 ignored) not yet kept (rotating their corner
         samples first); returns how many."""
         cp = self.cells
@@ -225,24 +239,9 @@ class RotatedSamples:
         if len(need) == 0:
             return 0
         corners = cell_corners(self.field.grid, need)
-        self.ensure(corners, use_native)
+        self.ensure(corners)
         cslots = np.ascontiguousarray(self.samples.slot[corners], np.int32)
-        sp = self.samples
-        if use_native and _native.available():
-            def run(cap, b, pos, counts, used):
-                _native.cells(len(need), cslots, sp.off, sp.cnt, sp.s, sp.h, sp.q, self.field.height, cap,
-                              b["a"], b["b"], b["v"], pos, counts, used)
-            bufs, pos, counts = _placed(run, len(need), max(1 << 16, 512 * len(need)), {
-                "a": (np.int32, ()), "b": (np.int32, ()), "v": (np.uint8, (8,))})
-            dst = cp.reserve(need, counts)
-            for k in cp.names:
-                _native.gather(pos, counts, bufs[k], dst, getattr(cp, k))
-        else:
-            items = [cells_numpy([sp.rows(s) for s in row]) for row in cslots]
-            counts = np.array([len(a) for a, _, _ in items], np.int32)
-            dst = cp.reserve(need, counts)
-            for (a, b, v), d in zip(items, dst):
-                cp.a[d:d + len(a)], cp.b[d:d + len(a)], cp.v[d:d + len(a)] = a, b, v
+        self.k.fields.merge_cells(self, need, cslots)
         return len(need)
 
     def nodes(self, sample: int):
@@ -405,38 +404,6 @@ def skip_table(cs: CutSet) -> np.ndarray:
     return np.concatenate([local[::SKIP], [0]]).astype(np.int32)
 
 
-def combine_native(base: CutSet, cut_of: np.ndarray, cells: np.ndarray, weights: np.ndarray,
-                   pools: list[RotatedSamples], cap_hint: int | None = None, delta: bool = False,
-                   skip: np.ndarray | None = None) -> CutSet:
-    """glf_combine (same arguments as combine_numpy; the pools' cells must be kept
-    (ensure_cells); cap_hint: expected total output nodes; skip: ``skip_table(base)``, which
-    lets the delta mode pass untouched base nodes a block at a time)."""
-    c = _native.c
-    V, O = cells.shape
-    cut_of = c(cut_of, np.int32)
-    cslot = np.full((V, O), -1, np.int32)
-    for o, p in enumerate(pools):
-        cslot[:, o] = np.where(cells[:, o] >= 0, p.cells.slot[np.maximum(cells[:, o], 0)], -1)
-    weights = c(weights, np.float32)
-    P = _native.pointers
-    cps = [p.cells for p in pools]
-
-    def run(cap, b, pos, counts, used):
-        _native.combine(V, cut_of, c(base.offsets, np.int64), c(base.heights, np.uint8), c(base.quant, np.uint8),
-                        skip.ctypes.data if (skip is not None and delta) else None, base.height, O, int(bool(delta)), cslot, weights, P([p.off for p in cps]), P([p.cnt for p in cps]),
-                        P([p.a for p in cps]), P([p.b for p in cps]), P([p.v for p in cps]),
-                        cap, b["h"], b["q"], pos, counts, used)
-    cap = int(cap_hint or int(1.5 * base.sizes()[cut_of].sum()) + 1024)
-    bufs, pos, counts = _placed(run, V, cap, {"h": (np.uint8, ()), "q": (np.uint8, ())})
-    off = np.zeros(V + 1, np.int64)
-    np.cumsum(counts, out=off[1:])
-    h = np.empty(off[-1], np.uint8)
-    q = np.empty(off[-1], np.uint8)
-    _native.gather(pos, counts, bufs["h"], off[:-1].copy(), h)
-    _native.gather(pos, counts, bufs["q"], off[:-1].copy(), q)
-    return CutSet(off, h, q, base.height)
-
-
 # --- the API the renderer calls ---------------------------------------------------------------
 
 class Combiner:
@@ -455,7 +422,7 @@ class Combiner:
                  max_pools: int = 8, pool_bytes: int = 512 << 20):
         from ...native.kernels import kernels as default_kernels
 
-        self.native = (kernels or default_kernels()).name == "native" and _native.available()
+        self.k = kernels or default_kernels()
         self.hmin = int(hmin)
         self.tree = tree or get_tree()
         self.max_pools = max_pools
@@ -471,7 +438,7 @@ class Combiner:
         key = (field.key or id(field), qk, self.hmin)
         p = self._pools.get(key)
         if p is None or p.nbytes > self.pool_bytes:
-            p = RotatedSamples(field, self.leaf_map(q, qk), self.hmin)
+            p = RotatedSamples(field, self.leaf_map(q, qk), self.hmin, self.k)
             self._pools[key] = p
         self._pools.move_to_end(key)
         while len(self._pools) > self.max_pools:
@@ -485,7 +452,7 @@ class Combiner:
         qk = qk or np.round(np.asarray(q, np.float64), 9).tobytes()
         m = self._maps.get(qk)
         if m is None:
-            m = self._maps[qk] = LeafMap(self.tree, q, self.native)
+            m = self._maps[qk] = LeafMap(self.tree, q, self.k)
         self._maps.move_to_end(qk)
         while len(self._maps) > 4:
             self._maps.popitem(last=False)
@@ -505,7 +472,7 @@ class Combiner:
         segments = 0
         for o, (fld, m) in enumerate(occluders):
             lfr = np.linalg.inv(np.asarray(m, np.float64))
-            cells[:, o], w, test = lookup(fld, lfr, positions, normals, self.native)
+            cells[:, o], w, test = lookup(fld, lfr, positions, normals, self.k)
             weights[:, o], n_seg = validate(fld, lfr, positions, cells[:, o], w, test)
             segments += n_seg
         return cells, weights, segments
@@ -526,7 +493,6 @@ class Combiner:
         ready for glk_shade_points with cut_of = arange(K). ``last_stats`` says what it cost.
         """
         t0 = time.perf_counter()
-        native = self.native
         cut_ids = np.asarray(cut_ids, np.int32)
         K = len(cut_ids)
         segments = 0
@@ -541,17 +507,14 @@ class Combiner:
             pool = self.pool(fld, q)
             t1 = time.perf_counter()
             before = pool.samples.n
-            merged += pool.ensure_cells(cells[:, o], native)
+            merged += pool.ensure_cells(cells[:, o])
             rot += pool.samples.n - before
             t_rot += time.perf_counter() - t1
             pools.append(pool)
         t2 = time.perf_counter()
-        if native:
-            est = int(1.5 * base.sizes()[cut_ids].sum()) + 1024
-            out = combine_native(base, cut_ids, cells, weights, pools, max(est, self._caps.get(tag, 0)), delta, skip)
-            self._caps[tag] = int(1.2 * out.n_nodes) + 1024
-        else:
-            out = combine_numpy(base, cut_ids, cells, weights, pools, delta)
+        est = int(1.5 * base.sizes()[cut_ids].sum()) + 1024
+        out = self.k.fields.combine(base, cut_ids, cells, weights, pools, delta, max(est, self._caps.get(tag, 0)), skip)
+        self._caps[tag] = int(1.2 * out.n_nodes) + 1024
         t3 = time.perf_counter()
         self.last_stats = {"ms_lookup": 1e3 * (t2 - t0 - t_rot), "ms_rotate_and_cells": 1e3 * t_rot,
                            "ms_product": 1e3 * (t3 - t2), "ms_total": 1e3 * (t3 - t0),

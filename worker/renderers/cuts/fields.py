@@ -249,8 +249,9 @@ def _grid_spec(options: Mapping[str, Any]) -> GridSpec:
 
 
 def compute_part(scene, part: Part, options: Mapping[str, Any] | None = None, progress=None,
-                 threads: int = 2) -> tuple[bytes, dict]:
-    """The bytes and stats of one part of ``field_parts``."""
+                 threads: int = 2, kernels=None) -> tuple[bytes, dict]:
+    """The bytes and stats of one part of ``field_parts`` (kernels: the backend that builds the
+    self cuts; default: the process's)."""
     from .precompute import precompute_cuts
 
     options = dict(options or {})
@@ -261,7 +262,8 @@ def compute_part(scene, part: Part, options: Mapping[str, Any] | None = None, pr
         return blob, {**f.stats, **f.storage(len(blob))}
     if part.meta["kind"] == "self_cuts":
         cs, rays, secs = precompute_cuts(shape.vertices, shape.faces, shape.normals,
-                                         tau=float(options.get("tau", DEFAULT_TAU)), threads=threads, progress=progress)
+                                         tau=float(options.get("tau", DEFAULT_TAU)), threads=threads, progress=progress,
+                                         kernels=kernels)
         blob = cutmod.encode(cs)
         return blob, {"seconds": secs, "vertices": cs.n_vertices, "rays_traced": rays,
                       "mean_cut_size": float(cs.sizes().mean()) if cs.n_vertices else 0.0, "bytes_height_encoded": len(blob)}

@@ -240,11 +240,11 @@ def cmd_bench_move(a) -> int:
         t0 = time.perf_counter()
         out = r.render(FrameRequest(camera=spec.camera, lighting=light, materials=scene.materials, lod=lod,
                                     transforms={a.object: tr}))
-        tonemap(out.radiance)
+        tonemap(out.radiance, kernels=r.k)
         return time.perf_counter() - t0, out
 
     res = {"scene": a.scene, "object": a.object, "frames": a.frames, "width": spec.camera.width,
-           "height": spec.camera.height, "vertices": len(scene.mesh.vertices), "native": native.available(),
+           "height": spec.camera.height, "vertices": len(scene.mesh.vertices), "native": r.k.name == "native",
            "threads": native.max_threads(), "precomputed_parts": ens["computed"]}
     for lod in ("full", "drag"):
         for _ in range(2):

@@ -139,7 +139,8 @@ def _movable_indices(scene) -> list[int]:
     return [i for i, o in enumerate(scene.spec.objects) if getattr(o, "movable", False)]
 
 
-def compute_moving(scene, part: Part, options, chunk=None, progress=None, threads: int = 2) -> dict:
+def compute_moving(scene, part: Part, options, chunk=None, progress=None, threads: int = 2, kernels=None) -> dict:
+    """One chunk of a moving scene's part (kernels: the precomputation's backend)."""
     from .precompute import precompute_cuts
 
     options = cut_options(scene, options)
@@ -147,10 +148,10 @@ def compute_moving(scene, part: Part, options, chunk=None, progress=None, thread
         sm = static_mesh(scene, movable_names(scene))
         s, e = chunk if chunk is not None else (0, len(sm.ids))
         cs, rays, secs = precompute_cuts(sm.vertices, sm.faces, sm.normals, tau=part.meta["tau"], threads=threads,
-                                         progress=progress, start=s, stop=e)
+                                         progress=progress, start=s, stop=e, kernels=kernels)
         return {"cuts": cs, "rays": rays, "seconds": secs}
     t0 = time.perf_counter()
-    blob, stats = compute_part(scene, part, options, progress, threads)
+    blob, stats = compute_part(scene, part, options, progress, threads, kernels)
     return {"blob": blob, "stats": {"seconds": time.perf_counter() - t0, **stats}}
 
 
@@ -402,7 +403,8 @@ class MovingFrames:
         if hit is not None:
             self._hits.move_to_end(key)
             return hit
-        o, d = camera_rays(camera.eye, camera.target, camera.up, camera.fov_y_deg, camera.width, camera.height)
+        o, d = camera_rays(camera.eye, camera.target, camera.up, camera.fov_y_deg, camera.width, camera.height,
+                           kernels=self.r.k)
         tr = self.d.static_tracer()
         if tr is None:
             tri = np.full(len(d), -1, np.int32)

@@ -168,9 +168,23 @@ class CutPrecomputation(Precomputation):
     """The cut set of the whole scene (options: ``tau``; ``ground``: False skips, True forces the
     ground-shadow part, which scenes with a ``ground`` field have by default). A scene with
     movable objects has other parts instead (moving.py: static cuts, self cuts, fields; options
-    also ``field_grid``), and no ground shadow yet: the ground's cuts would change as objects move."""
+    also ``field_grid``), and no ground shadow yet: the ground's cuts would change as objects move.
+
+    kernels : the backend that builds the cuts (worker/native/kernels.py; default: the
+        process's, chosen when first needed).
+    """
 
     kind = "cuts"
+
+    def __init__(self, kernels=None):
+        self._k = kernels
+
+    @property
+    def kernels(self):
+        if self._k is None:
+            from ...native.kernels import kernels
+            self._k = kernels()
+        return self._k
 
     def parts(self, scene, options) -> list[Part]:
         from .moving import movable_names, moving_parts
@@ -207,17 +221,17 @@ class CutPrecomputation(Precomputation):
         if "kind" in part.meta:
             from .moving import compute_moving
 
-            return compute_moving(scene, part, options, chunk, progress, threads)
+            return compute_moving(scene, part, options, chunk, progress, threads, self.kernels)
         m = scene.mesh
         if "ground" in part.meta:
             from .ground import precompute_ground
 
             cs, rays, secs = precompute_ground(Tracer(m.vertices, m.faces), part.meta["ground"], part.meta["tau"],
-                                               threads=threads, progress=progress)
+                                               threads=threads, progress=progress, kernels=self.kernels)
             return {"cuts": cs, "rays": rays, "seconds": secs}
         s, e = chunk if chunk is not None else (0, len(m.vertices))
         cs, rays, secs = precompute_cuts(m.vertices, m.faces, m.normals, tau=part.meta["tau"], threads=threads,
-                                         progress=progress, start=s, stop=e)
+                                         progress=progress, start=s, stop=e, kernels=self.kernels)
         return {"cuts": cs, "rays": rays, "seconds": secs}
 
     def assemble(self, scene, part, options, results):

@@ -47,20 +47,19 @@ def _leaf_neighbours(tree: DirectionTree, k: int = 10) -> np.ndarray:
     return idx.astype(np.int32)
 
 
-def nearest_leaves(tree: DirectionTree, dirs: np.ndarray, use_native: bool = True) -> np.ndarray:
+def nearest_leaves(tree: DirectionTree, dirs: np.ndarray, kernels=None) -> np.ndarray:
     """(P,) int32 leaf nearest to each unit direction (P, 3): the cube-map table's leaf for the
     direction's cell, then the nearest among that leaf and its neighbours (exact unless the
-    table is off by more than a neighbour, which a 0.35° cell cannot be). The C kernel
-    glf_nearest_leaves when built; this is its reference."""
-    from . import _native
+    table is off by more than a neighbour, which a 0.35° cell cannot be). kernels: the
+    backend (glf_nearest_leaves, or nearest_leaves_numpy); default: the process's."""
+    from ...native.kernels import kernels as _kernels
 
+    return (kernels or _kernels()).fields.nearest_leaves(tree, np.ascontiguousarray(dirs, np.float64))
+
+
+def nearest_leaves_numpy(tree: DirectionTree, dirs: np.ndarray) -> np.ndarray:
+    """Reference of glf_nearest_leaves (``nearest_leaves``; dirs (P, 3) float64)."""
     d = np.ascontiguousarray(dirs, np.float64)
-    if use_native and _native.available():
-        tab = _nearest_leaf_table(tree)
-        nb = _leaf_neighbours(tree)
-        out = np.empty(len(d), np.int32)
-        _native.nearest_leaves(len(d), d, tab, tab.shape[1], nb, nb.shape[1], tree.leaves, out)
-        return out
     tab = _nearest_leaf_table(tree)
     res = tab.shape[1]
     major = np.argmax(np.abs(d), axis=1)
@@ -100,9 +99,10 @@ class LeafMap:
     inv_off : (N+1,) int32, inv_idx : (N,) int32 — receiver leaves j with π(j) = l are
         inv_idx[inv_off[l]:inv_off[l+1]].
     identity : Q is the identity (perm is arange).
+    kernels : the backend that finds the nearest leaves (default: the process's).
     """
 
-    def __init__(self, tree: DirectionTree, q: np.ndarray, use_native: bool = True):
+    def __init__(self, tree: DirectionTree, q: np.ndarray, kernels=None):
         self.q = np.asarray(q, np.float64)
         self.identity = is_identity(self.q)
         n = tree.n_leaves
@@ -110,7 +110,7 @@ class LeafMap:
             self.perm = np.arange(n, dtype=np.int32)
         else:
             # receiver leaf j in the source frame: Q^T d_j (rows: d_j^T Q)
-            self.perm = nearest_leaves(tree, tree.leaves.astype(np.float64) @ self.q, use_native)
+            self.perm = nearest_leaves(tree, tree.leaves.astype(np.float64) @ self.q, kernels)
         order = np.argsort(self.perm, kind="stable")
         self.inv_idx = order.astype(np.int32)
         self.inv_off = np.zeros(n + 1, np.int32)

@@ -163,7 +163,7 @@ def cmd_bench(a) -> int:
     import numpy as np
 
     from ...core.tonemap import tonemap
-    from ...native import available, lib
+    from ... import native
     r = _renderer(a, a.json)
     u = r.layout.index(a.object)
     other = next((k for k in range(r.U) if k != u), None)
@@ -183,7 +183,7 @@ def cmd_bench(a) -> int:
         t0, c0 = time.perf_counter(), time.process_time()
         img = r.draw()
         t1, c1 = time.perf_counter(), time.process_time()
-        tonemap(img)
+        tonemap(img, kernels=r.k)
         t2 = time.perf_counter()
         if i >= 2:                                 # warm-up frames
             frames.append(t1 - t0); cpu.append(c1 - c0); tm.append(t2 - t1)
@@ -200,7 +200,7 @@ def cmd_bench(a) -> int:
            "live_pixels": int(len(fz.live)), "live_values": fz.live_values, "live_layout": "dense" if fz.dense is not None else "sparse",
            "live_powers": fz.NPe, "frozen_bytes": int(fz.nbytes),
            "tensor_bytes": r.data.nbytes, "series": list(r.opts.series), "bounces": r.N, "spp": r.opts.spp,
-           "native": available(), "threads": int(lib.glk_max_threads()) if available() else 1}
+           "native": r.k.name == "native", "threads": native.max_threads()}
     print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items()))
     return 0
 

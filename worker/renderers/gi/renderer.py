@@ -14,7 +14,6 @@ import numpy as np
 from ...errors import GlintError
 from ..base import FrameRequest, Part, Precomputation, Progress, Rendered, Renderer, Unsupported
 from . import freeze as fzm
-from . import native as gn
 from . import tensors
 from .basis import QUOTIENTS, THETA_NODES, Projection, fixed_projection, project, theta_interp
 from .options import GIOptions, UnitLayout, parse_options, tensor_key, unit_layout
@@ -35,19 +34,32 @@ def _label(opts: GIOptions) -> str:
 class GIPrecomputation(Precomputation):
     """One part: the tensors of all bounces, keyed by tensor_key (options.py). Chunks are
     ranges of tiles (trace.tile_pixels) with their own random streams, so any split assembles
-    into the same bytes. ``work`` counts pixels."""
+    into the same bytes. ``work`` counts pixels.
+
+    kernels : the backend that traces (worker/native/kernels.py; default: the process's, chosen
+        when first needed). With kernels("numpy") the whole precomputation runs the NumPy
+        references (exact, but far slower: for tiny scenes and tests).
+    """
 
     kind = KIND
 
-    def __init__(self):
+    def __init__(self, kernels=None):
         self._setups: dict[int, tuple[str, Any]] = {}
+        self._k = kernels
+
+    @property
+    def kernels(self):
+        if self._k is None:
+            from ...native.kernels import kernels
+            self._k = kernels()
+        return self._k
 
     def _setup(self, scene, opts: GIOptions, key: str):
         cached = self._setups.get(id(scene))
         if cached is not None and cached[0] == key:
             return cached[1]
         layout = unit_layout(scene, opts)
-        S = make_setup(scene, opts, layout, region_images(scene, opts))
+        S = make_setup(scene, opts, layout, region_images(scene, opts), kernels=self.kernels)
         self._setups = {id(scene): (key, S)}
         return S
 
@@ -74,7 +86,7 @@ class GIPrecomputation(Precomputation):
             progress(cam.width * cam.height - len(S.prim.pixel))    # background pixels
         out = []
         for t in range(a, b):
-            out.append(trace_tile(S, t, use_native=True, threads=threads))
+            out.append(trace_tile(S, t, self.kernels, threads=threads))
             if progress:
                 progress(min(S.tile, len(S.prim.pixel) - t * S.tile))
         return {"range": (a, b), "tiles": out}
@@ -142,8 +154,10 @@ class GIRenderer(Renderer):
 
     def __init__(self, scene, data: GIData, kernels=None, max_bounces: int | None = None):
         super().__init__(scene, data, kernels)
-        # the process's kernel backend decides, as for every renderer (worker/native/kernels.py)
-        self.use_native = kernels is None or getattr(kernels, "name", "native") == "native"
+        from ...native.kernels import kernels as _kernels
+
+        # the backend it was built with (default: the process's), used for every kernel below
+        self.k = kernels or _kernels()
         self.opts = data.opts
         self.layout: UnitLayout = unit_layout(scene, self.opts)
         m = data.meta
@@ -152,7 +166,7 @@ class GIRenderer(Renderer):
         self.K2 = 1 if self.J2 <= 1 else 1 + second_codes(self.J2)
         self.max_bounces = self.N if max_bounces is None else int(max_bounces)
         geo = Geometry(scene)
-        self.prim: Primary = primary_hits(geo, scene)
+        self.prim: Primary = primary_hits(geo, scene, self.k)
         if len(self.prim.pixel) != len(data.pixel) or not np.array_equal(self.prim.pixel, data.pixel):
             raise GlintError("GI tensors do not match the scene's camera hits (precompute again)", status=409)
         from .trace import Regions
@@ -207,10 +221,7 @@ class GIRenderer(Renderer):
         nb = self.max_bounces
         tables = fzm.tail_tables(i, nb, self.U, self.J2, d, second)
         bounces = self.data.bounces[:nb]
-        if self.use_native and gn.available():
-            self.frozen = gn.freeze(bounces, tables, self.pu, C1, i, self.K1, self.K2, self.N)
-        else:
-            self.frozen = fzm.freeze_numpy(bounces, tables, self.pu, C1, i, self.K1, self.K2, self.N)
+        self.frozen = self.k.gi.freeze(bounces, tables, self.pu, C1, i, self.K1, self.K2, self.N)
         self._frozen_mats = list(self.materials)
         self._frozen_bounces = nb
         return time.perf_counter() - t0
@@ -260,10 +271,7 @@ class GIRenderer(Renderer):
             C1i, d, ck = np.zeros((THETA_NODES, self.K1, 3), np.float32), np.zeros(3), np.ones((1, 3), np.float32)
         t2 = time.perf_counter()
         img = self._image                     # background pixels never change
-        if self.use_native and gn.available():
-            gn.frame(fz, self.pu, C1i, ck, d, self.K1, self.prim.pixel, img)
-        else:
-            img[self.prim.pixel] = fzm.frame_numpy(fz, self.pu, C1i, ck, d, self.K1)
+        self.k.gi.frame(fz, self.pu, C1i, ck, d, self.K1, self.prim.pixel, img)
         t3 = time.perf_counter()
         timings.update({"project": 1000 * (t2 - t1), "frame": 1000 * (t3 - t2), "total": 1000 * (time.perf_counter() - t0)})
         self.last_timings = timings

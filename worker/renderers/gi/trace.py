@@ -132,17 +132,19 @@ class Primary:
         return np.clip((self.ns * self.wo).sum(1), 0.0, 1.0)
 
 
-def primary_hits(geo: Geometry, scene) -> Primary:
+def primary_hits(geo: Geometry, scene, kernels=None) -> Primary:
+    """The camera's hits and background (kernels: the backend; default: the process's)."""
     cam = scene.spec.camera
     env = scene.spec.environment
-    o, d = camera_rays(cam.eye, cam.target, cam.up, cam.fov_y_deg, cam.width, cam.height)
+    o, d = camera_rays(cam.eye, cam.target, cam.up, cam.fov_y_deg, cam.width, cam.height, kernels=kernels)
     prim, uv = geo.trace(o, d, occluded=False)
     hit = np.nonzero(prim >= 0)[0]
     wo = -d[hit].astype(np.float64)
     pos, ng, ns, obj, ok = geo.surface(prim[hit], uv[hit], wo)
     oid = np.full(cam.width * cam.height, -1, np.int32)
     oid[hit] = obj
-    bg = env_lookup(d, scene.envmap, env.rotation_deg, env.intensity, mask=(prim < 0).astype(np.uint8))
+    bg = env_lookup(d, scene.envmap, env.rotation_deg, env.intensity, mask=(prim < 0).astype(np.uint8),
+                    kernels=kernels)
     return Primary(hit.astype(np.int64), obj, pos, ng, ns, wo, oid.reshape(cam.height, cam.width),
                    bg.reshape(cam.height, cam.width, 3))
 
@@ -291,9 +293,10 @@ def tile_pixels(spp: int) -> int:
     return int(min(max(t, 16), 2048))
 
 
-def make_setup(scene, opts: GIOptions, layout: UnitLayout, images: list[np.ndarray], geo: Geometry | None = None) -> Setup:
+def make_setup(scene, opts: GIOptions, layout: UnitLayout, images: list[np.ndarray], geo: Geometry | None = None,
+               kernels=None) -> Setup:
     geo = geo or Geometry(scene)
-    prim = primary_hits(geo, scene)
+    prim = primary_hits(geo, scene, kernels)
     reg = Regions(layout, opts.regions, geo, images)
     U = len(layout.units)
     J, J2 = opts.J, opts.J2
@@ -531,11 +534,15 @@ def offset_origins(S: Setup, st: PathState, d: np.ndarray, idx: np.ndarray) -> n
     return st.pos[idx] + ng * (sgn * S.geo.eps)
 
 
-def trace_tile(S: Setup, tile: int, use_native: bool = True, threads: int = 2) -> tuple[list[tuple], int]:
+def trace_tile(S: Setup, tile: int, kernels=None, threads: int = 2) -> tuple[list[tuple], int]:
     """The tensors of one tile of hit pixels: (per bounce (counts (P,) int32, slot (n,) uint16,
-    tail (n,) uint32, val (n, 3) float16, scale (P,) float32), rays traced)."""
-    from . import native as gn
-    native = use_native and gn.available()
+    tail (n,) uint32, val (n, 3) float16, scale (P,) float32), rays traced). kernels: the
+    backend whose ``gi`` family samples and accumulates (default: the process's); the "numpy"
+    references are exact but slow (a dense tile tensor), for tiny scenes and tests."""
+    from ...native.kernels import kernels as _kernels
+
+    k_ = kernels or _kernels()
+    gk = k_.gi
     p0 = tile * S.tile
     p1 = min(p0 + S.tile, len(S.prim.pixel))
     P, spp = p1 - p0, S.opts.spp
@@ -548,20 +555,14 @@ def trace_tile(S: Setup, tile: int, use_native: bool = True, threads: int = 2) -
                    pr.obj[idx], np.where(S.fixed[pr.obj[idx]], -1, 0).astype(np.int32), np.ones((R, 3)),
                    np.full(R, -1, np.int64), np.zeros((R, 3)), np.zeros(R, np.int64), np.full(R, -1, np.int64),
                    np.zeros((R, 3)), np.full((R, zspace.MAX_Z), zspace.EMPTY, np.int64), np.zeros(R, np.int64))
-    if native:
-        acc = [gn.HashTensor(P, S.K1, S.tails[k], spp) for k in range(S.N)]
-    else:
-        acc = [np.zeros((P, S.K1, S.tails[k], 3), np.float32) for k in range(S.N)]
+    acc = [gk.accumulator(P, S.K1, S.tails[k], spp) for k in range(S.N)]
     rays = 0
     for k in range(1, S.N + 1):
         u_all = rng.random((n_paths, N_UNIFORM))
         if len(st.pix) == 0:
             continue
         u = u_all[st.path]
-        if native:
-            dl, db, pdf_ll, pdf_bl, pdf_bb, pdf_lb, valid_l, valid_b = gn.sample(S, st.pos, st.ng, st.ns, st.wo, u)
-        else:
-            dl, db, pdf_ll, pdf_bl, pdf_bb, pdf_lb, valid_l, valid_b = sample_numpy(S, st.pos, st.ng, st.ns, st.wo, u)
+        dl, db, pdf_ll, pdf_bl, pdf_bb, pdf_lb, valid_l, valid_b = gk.sample(S, st.pos, st.ng, st.ns, st.wo, u)
         vis = np.zeros(len(dl), bool)
         il = np.nonzero(valid_l)[0]
         vis[il] = ~S.geo.trace(offset_origins(S, st, dl, il), dl[il], occluded=True, threads=threads)
@@ -572,16 +573,13 @@ def trace_tile(S: Setup, tile: int, use_native: bool = True, threads: int = 2) -
         esc = valid_b & (prim < 0)
         cont = valid_b & (prim >= 0)
         Ll = np.zeros((len(dl), 3)); Lb = np.zeros((len(db), 3))
-        Ll[vis] = env_lookup(dl[vis].astype(np.float32), S.envmap, S.rotation, S.intensity)
-        Lb[esc] = env_lookup(db[esc].astype(np.float32), S.envmap, S.rotation, S.intensity)
+        Ll[vis] = env_lookup(dl[vis].astype(np.float32), S.envmap, S.rotation, S.intensity, kernels=k_)
+        Lb[esc] = env_lookup(db[esc].astype(np.float32), S.envmap, S.rotation, S.intensity, kernels=k_)
         ev = {"dl": dl, "db": db, "Ll": Ll, "Lb": Lb, "pdf_bb": pdf_bb,
               "wl": np.where(vis, 1.0 / np.maximum(pdf_ll + pdf_bl, 1e-300), 0.0),   # balance heuristic:
               "wb": np.where(esc, 1.0 / np.maximum(pdf_bb + pdf_lb, 1e-300), 0.0),   # w/pdf = 1/(p_l + p_b)
               "fl": fixed_values(S, st, dl), "fb": fixed_values(S, st, db)}
-        if native:
-            nxt = gn.emit(S, k, st, ev, acc[k - 1])
-        else:
-            nxt = emit_numpy(S, k, st, ev, acc[k - 1])
+        nxt = gk.emit(S, k, st, ev, acc[k - 1])
         if k == S.N:
             break
         keep = np.nonzero(cont)[0]
@@ -592,9 +590,7 @@ def trace_tile(S: Setup, tile: int, use_native: bool = True, threads: int = 2) -
         nst = PathState(st.path[keep], st.pix[keep], pos, ng, ns, wo, obj, unit, beta, p1b, p1w, p2c, p2b, p2w, z, zc)
         st = nst.take(np.nonzero(ok)[0])
     inv = np.float32(1.0 / spp)                        # eq. 21: the mean over the pixel's paths
-    if native:
-        return [a.compact(inv) for a in acc], rays
-    return [compact(a * inv) for a in acc], rays
+    return [gk.compact(a, inv) for a in acc], rays
 
 
 def compact(dense: np.ndarray):

@@ -1,12 +1,16 @@
-"""ctypes bindings of the GI kernels in worker/native/src/gi.c, with typed wrappers. Their NumPy
-references: trace.sample_numpy, trace.emit_numpy, freeze.freeze_numpy, freeze.frame_numpy
-(tests/gi/test_native.py checks that they agree)."""
+"""The GI kernels (src/gi.c) behind the backend's ``gi`` family: ``k.gi.sample``,
+``accumulator`` / ``emit`` / ``compact`` (one tile's tensors), ``freeze`` and ``frame``, the same
+arrays in and out in both backends. The NumPy references: trace.sample_numpy, trace.emit_numpy
+with trace.compact, freeze.freeze_numpy, freeze.frame_numpy (tests/gi/test_gi_native.py checks
+that they agree). The C kernels accumulate a tile into per-pixel hash tables (HashTensor), the
+references into a dense tensor; ``compact`` gives the same sparse layout from either.
+"""
 from __future__ import annotations
 
 import numpy as np
 
-from ... import native as _n
-from ...native import (
+from . import lib as _lib
+from . import (
     bind,
     f32,
     f32p,
@@ -21,15 +25,13 @@ from ...native import (
     u32p,
     u64p,
 )
-from . import zspace
-from .freeze import Frozen, PixelUnits, padded_slots, sparse_bound, use_dense
+from ..renderers.gi import zspace
+from ..renderers.gi.freeze import Frozen, PixelUnits, padded_slots, sparse_bound, use_dense
 
-_lib = _n.lib
-_ok = _lib is not None and hasattr(_lib, "gi_sample")
-if _ok:
+if _lib is not None:
     # parameters named and ordered as the prototypes in gi.c
     bind("gi_sample", None, R=i64, pos=f64p, ng=f64p, ns=f64p, wo=f64p, u=f64p, nu=i32, row_cdf=f64p,
-         col_cdf=f64p, tp=f64p, H=i32, W=i32, rot=f64, dl=f64p, db=f64p, pdf_ll=f64p, pdf_bl=f64p, pdf_bb=f64p,
+         col_cdf=f64p, tp=f64p, H=i32, W=i32, rot_rad=f64, dl=f64p, db=f64p, pdf_ll=f64p, pdf_bl=f64p, pdf_bb=f64p,
          pdf_lb=f64p, valid_l=u8p, valid_b=u8p)
     bind("gi_emit", None, P=i64, starts=i64p, k=i32, J=i32, J2=i32, layers=i32, oq=i32p, K1=i32, Tk=i64, W2=i64,
          Zs=i64, unit=i32p, obj=i32p, ns=f64p, wo=f64p, beta=f64p, p1b=i32p, p1w=f64p, p2c=i32p, p2b=i32p,
@@ -51,12 +53,88 @@ if _ok:
     bind("gi_frame_dense", None, P=i64, NP=i32, V=f32p, ckn=f32p, qpos=i64p, NPe=i32, S=i32, Fd=u16p,
          fscale=f32p, hq=f32p, k0=i32p, tt=f32p, CT=f32p, dpow=f32p, pix=i64p, img=f32p)
 
-def available() -> bool:
-    return _ok
-
 
 def c(a, dt):
     return np.ascontiguousarray(a, dtype=dt)
+
+
+class NumpyGI:
+    """The references of the GI kernels."""
+    name = "numpy"
+
+    def sample(self, S, pos, ng, ns, wo, u):
+        """(dl, db (R, 3), pdf_ll, pdf_bl, pdf_bb, pdf_lb (R,) float64, valid_l, valid_b (R,) bool)
+        of R path vertices (trace.sample_numpy)."""
+        from ..renderers.gi.trace import sample_numpy
+        return sample_numpy(S, pos, ng, ns, wo, u)
+
+    def accumulator(self, P: int, K1: int, Tk: int, spp: int):
+        """A tile's bounce accumulator for ``emit``: dense (P, K1, Tk, 3) float32."""
+        return np.zeros((P, K1, Tk, 3), np.float32)
+
+    def emit(self, S, k: int, st, ev: dict, acc):
+        """Vertex k's light into acc; the continuing prefix (trace.emit_numpy)."""
+        from ..renderers.gi.trace import emit_numpy
+        return emit_numpy(S, k, st, ev, acc)
+
+    def compact(self, acc, inv_spp: float):
+        """(counts (P,) int32, slot (n,) uint16, tail (n,) uint32, val (n, 3) float16, scale (P,)
+        float32) of acc times inv_spp (trace.compact)."""
+        from ..renderers.gi.trace import compact
+        return compact(acc * np.float32(inv_spp))
+
+    def freeze(self, bounces, tables, pu, C1, i, K1, K2, NP):
+        """Frozen of unit i live (freeze.freeze_numpy)."""
+        from ..renderers.gi.freeze import freeze_numpy
+        return freeze_numpy(bounces, tables, pu, C1, i, K1, K2, NP)
+
+    def frame(self, fz, pu, C1i, ck, d, K1, pix, img):
+        """Writes the hit pixels' radiance into img (H·W, 3) float32 at pix (P,) int64; returns
+        img (freeze.frame_numpy)."""
+        from ..renderers.gi.freeze import frame_numpy
+        img[pix] = frame_numpy(fz, pu, C1i, ck, d, K1)
+        return img
+
+    def to_half(self, x):
+        """float32 -> float16 bits (uint16)."""
+        return c(x, np.float32).reshape(-1).astype(np.float16).view(np.uint16)
+
+    def from_half(self, h):
+        return c(h, np.uint16).reshape(-1).view(np.float16).astype(np.float32)
+
+
+class NativeGI:
+    """Typed wrappers of gi_* (gi.c)."""
+    name = "native"
+
+    def __init__(self):
+        if _lib is None:
+            raise RuntimeError("the C kernels are not built (make build)")
+
+    def sample(self, S, pos, ng, ns, wo, u):
+        return sample(S, pos, ng, ns, wo, u)
+
+    def accumulator(self, P: int, K1: int, Tk: int, spp: int):
+        """A tile's bounce accumulator for ``emit``: per-pixel hash tables (HashTensor)."""
+        return HashTensor(P, K1, Tk, spp)
+
+    def emit(self, S, k: int, st, ev: dict, acc):
+        return emit(S, k, st, ev, acc)
+
+    def compact(self, acc, inv_spp: float):
+        return acc.compact(inv_spp)
+
+    def freeze(self, bounces, tables, pu, C1, i, K1, K2, NP):
+        return freeze(bounces, tables, pu, C1, i, K1, K2, NP)
+
+    def frame(self, fz, pu, C1i, ck, d, K1, pix, img):
+        return frame(fz, pu, C1i, ck, d, K1, pix, img)
+
+    def to_half(self, x):
+        return to_half(x)
+
+    def from_half(self, h):
+        return from_half(h)
 
 
 def sample(S, pos, ng, ns, wo, u):
@@ -65,8 +143,8 @@ def sample(S, pos, ng, ns, wo, u):
     out = [np.empty((R, 3)), np.empty((R, 3))] + [np.empty(R) for _ in range(4)] + [np.empty(R, np.uint8) for _ in range(2)]
     e = S.env
     _lib.gi_sample(R, c(pos, np.float64), c(ng, np.float64), c(ns, np.float64), c(wo, np.float64), c(u, np.float64),
-                   u.shape[1], e.row_cdf, c(e.col_cdf, np.float64), c(e.texel_pdf, np.float64), e.H, e.W, e.rotation,
-                   *out)
+                   u.shape[1], e.row_cdf, c(e.col_cdf, np.float64), c(e.texel_pdf, np.float64), e.H, e.W,
+                   float(np.radians(S.rotation)), *out)
     dl, db, pdf_ll, pdf_bl, pdf_bb, pdf_lb, vl, vb = out
     return dl, db, pdf_ll, pdf_bl, pdf_bb, pdf_lb, vl.astype(bool), vb.astype(bool)
 
