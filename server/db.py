@@ -95,7 +95,10 @@ class Session(Base):
     id: Mapped[str] = mapped_column(String(32), primary_key=True, default=new_id)
     scene_id: Mapped[str] = mapped_column(ForeignKey("scenes.id"), index=True)
     token_sha256: Mapped[str] = mapped_column(String(64))
-    state: Mapped[dict] = mapped_column(JSON, default=dict)   # worker/jobs/state.py SessionState
+    state: Mapped[dict] = mapped_column(JSON, default=dict)   # worker/protocol/state.py SessionState
+    # bumped by every write of ``state`` (compare-and-set: server/sessions_store.py), so API
+    # processes sharing the database never overwrite a state newer than the one they read
+    version: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
     closed: Mapped[bool] = mapped_column(Boolean, default=False)
     # who opened it (API token id, or the client address of anonymous and viewer sessions), for limits
     client: Mapped[str] = mapped_column(String(64), default="", server_default="")

@@ -1,6 +1,6 @@
-"""What the routes share: settings, the database, the blob store, the worker pool, and the
-payloads the workers need (a scene with its files and precomputed parts; a session with its
-state and strokes)."""
+"""What the routes share: settings, the database, the blob store, the worker pool, the
+sessions' stored state (server/sessions_store.py), and the payloads the workers need (a scene
+with its files and precomputed parts; a session with its state and strokes)."""
 from __future__ import annotations
 
 import logging
@@ -11,6 +11,7 @@ from worker.blobs import BlobStore
 
 from .config import Settings
 from .db import Asset, Capture, Precomputation, Scene, Session, StrokeRow, make_sessionmaker
+from .sessions_store import SessionStore
 from .workers import WorkerPool, make_pool
 
 log = logging.getLogger("glint")
@@ -30,6 +31,8 @@ class AppState:
         settings.data_dir.mkdir(parents=True, exist_ok=True)
         self.db = make_sessionmaker(settings.db_url)
         self.blobs = BlobStore(settings.data_dir / "blobs")
+        # interactive sessions' stored state: the streams' write-behind cache and their locks
+        self.sessions = SessionStore(self.db)
         self._sweep_temp()
         self.pool = pool or make_pool(settings, restore=self.session_payload)
         self.precompute_tasks: dict[str, object] = {}
@@ -98,9 +101,7 @@ class AppState:
     def session_payload(self, sid: str) -> dict:
         """Everything a worker needs to (re)build a session: scene, state, strokes (those of the
         current epoch that are neither dropped from the redo stack nor rejected)."""
-        from .routes.sessions import flush_session
-
-        flush_session(self, sid)         # what the stream holds but has not written yet
+        self.sessions.flush(sid)         # what the stream holds but has not written yet
         with self.db() as s:
             row = s.get(Session, sid)
             if row is None:

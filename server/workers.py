@@ -21,6 +21,8 @@ import threading
 from pathlib import Path
 from typing import Callable
 
+from worker.jobs.ipc import Reply, Request
+
 log = logging.getLogger("glint.workers")
 
 
@@ -161,7 +163,7 @@ class LocalWorkerPool(WorkerPool):
         self._stopping = True
         for w in self.workers:
             try:
-                w.inq.put(("stop", None, None))
+                w.inq.put(Request("stop", None, None))
             except Exception:
                 pass
         for w in self.workers:
@@ -194,7 +196,7 @@ class LocalWorkerPool(WorkerPool):
             w = self._least_loaded()
             w.jobs.add(jid)
             self.futures[jid] = (fut, on_progress)
-        w.inq.put(("job", jid, job))
+        w.inq.put(Request("job", jid, job))
         try:
             return await fut
         finally:
@@ -212,7 +214,7 @@ class LocalWorkerPool(WorkerPool):
                 w = self._least_loaded()
                 w.sessions.add(sid)
                 self.owner[sid] = w
-        w.inq.put(("open", sid, payload))
+        w.inq.put(Request("open", sid, payload))
         return q
 
     def send(self, sid: str, msg: dict) -> None:
@@ -225,7 +227,7 @@ class LocalWorkerPool(WorkerPool):
             if w is None:
                 raise KeyError(sid)
             try:
-                w.inq.put(("msg", sid, msg))
+                w.inq.put(Request("msg", sid, msg))
                 return
             except (OSError, ValueError):
                 # the worker died and the monitor (every 0.25 s) has not replaced it yet: its
@@ -244,7 +246,7 @@ class LocalWorkerPool(WorkerPool):
             if w is not None:
                 w.sessions.discard(sid)
         if w is not None:
-            w.inq.put(("close", sid, None))
+            w.inq.put(Request("close", sid, None))
 
     def worker_of(self, sid: str) -> int | None:
         w = self.owner.get(sid)
@@ -335,14 +337,14 @@ class LocalWorkerPool(WorkerPool):
         with self._lock:
             held = self.held.pop(sid, [])
             if payload is not None and self.owner.get(sid) is nw:
-                nw.inq.put(("open", sid, payload))
+                nw.inq.put(Request("open", sid, payload))
                 for m in held:
-                    nw.inq.put(("msg", sid, m))
+                    nw.inq.put(Request("msg", sid, m))
         if payload is None:
-            self.loop.call_soon_threadsafe(self._dispatch, ("event", sid, {
+            self.loop.call_soon_threadsafe(self._dispatch, Reply("event", sid, {
                 "type": "error", "fatal": True, "message": "the session could not be restored"}))
             return
-        self.loop.call_soon_threadsafe(self._dispatch, ("event", sid, {
+        self.loop.call_soon_threadsafe(self._dispatch, Reply("event", sid, {
             "type": "note", "message": "the worker restarted; the session was restored"}))
 
 

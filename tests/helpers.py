@@ -16,7 +16,7 @@ import numpy as np
 import websockets
 from PIL import Image
 
-from worker.jobs.state import decode_frame, server_event
+from worker.protocol import decode_frame, server_event
 
 ROOT = Path(__file__).resolve().parent.parent
 CACHE = ROOT / "tests" / ".cache"

@@ -1,10 +1,11 @@
 """Interactive sessions: created over REST (id and secret token), streamed over a WebSocket
-(DESIGN.md §5). Every client message is validated and applied to the stored state by the same
-``apply`` the worker renders with (worker/jobs/state.py), persisted in batches
-(``persist_batch``: camera, light and object moves at most 0.5 s later, anything else before
-it is forwarded; a fit's material, derived from the stored strokes, also at most 0.5 s later),
-then forwarded to the worker holding the session, so a worker crash loses
-nothing: the pool re-opens the session from here.
+(DESIGN.md §5). Every client message is validated (worker/protocol) and applied to the stored
+state by the same ``apply`` the worker renders with, stored as its class declares by the
+session store (``st.sessions``, server/sessions_store.py: camera, light and object moves at
+most 0.5 s later, anything else before it is forwarded; a fit's material, derived from the
+stored strokes, also at most 0.5 s later), then forwarded to the worker holding the session, so
+a worker crash loses nothing: the pool re-opens the session from here. Worker events that
+change what is stored go through the same store (``apply_worker_event``).
 
 The stream's first message authenticates it: ``{"type": "auth", "token": …}`` (a token in the
 URL, ``?token=``, is still accepted but is kept out of the access log). Streams are bounded per
@@ -20,25 +21,21 @@ import datetime as dt
 import hmac
 import json
 import logging
-import re
-import threading
-import time
 
 from fastapi import APIRouter, Header, HTTPException, Query, Request, WebSocket, WebSocketDisconnect
 from fastapi.concurrency import run_in_threadpool
 from pydantic import ValidationError
 from sqlalchemy import delete, select
 
-from worker.jobs.state import (EnvPreset, ErrorEvent, HelloEvent, SavedEvent, SessionState, StateError, apply,
-                               client_msg, encode_frame, new_state, restore_state)
 from worker.memory import trim_malloc
-from worker.models import parse_material
+from worker.protocol import (BadMessage as BadFrame, ErrorEvent, HelloEvent, StateError, client_msg,  # noqa: F401
+                             encode_frame, json_depth, new_state, parse_message_text, restore_state)
 
-from ..db import Asset, MaterialDesign, Scene, Session, SessionSave, StrokeRow, new_secret, now, token_hash
+from ..db import Scene, Session, SessionSave, StrokeRow, new_secret, now, token_hash
 from ..deps import DB, Client, State, check_host, check_origin, client_key
 from ..schemas import SessionCreate, SessionOut
+from ..sessions_store import FLUSH_S
 from ..state import Conflict, NotFound
-from .materials import add_version
 
 router = APIRouter(prefix="/v1/sessions", tags=["sessions"])
 log = logging.getLogger("glint")
@@ -127,8 +124,8 @@ def get_session(sid: str, st: State, db: DB, x_session_token: str | None = Heade
         raise HTTPException(404, f"no session {sid!r}")
     if not _authorised(row, x_session_token):
         raise HTTPException(403, "wrong or missing session token (X-Session-Token header)")
-    if has_unsaved(sid):
-        flush_session(st, sid)
+    if st.sessions.has_unsaved(sid):
+        st.sessions.flush(sid)
         db.refresh(row)
     return SessionOut(id=row.id, scene_id=row.scene_id, stream=_stream_url(sid), state=row.state,
                       strokes=_strokes(db, row), closed=row.closed,
@@ -145,242 +142,6 @@ def close_session(sid: str, st: State, db: DB, x_session_token: str | None = Hea
     st.pool.close_session(sid)
 
 
-# -- persistence of client messages ---------------------------------------------------------------
-_locks: dict[str, threading.Lock] = {}
-_locks_guard = threading.Lock()
-# the state of each session whose stream this process serves: (SessionState, monotonic time of
-# its first change not yet written, or None); read and written under _lock(sid)
-_states: dict[str, tuple[SessionState, float | None]] = {}
-EPHEMERAL = frozenset({"view", "light", "move", "display"})
-# messages whose lasting effect is a row of their own (strokes, their undone flags): the row is
-# written before the message is forwarded, the session's state (only its last seq changes)
-# like a camera move
-ROWS_ONLY = frozenset({"stroke", "undo", "redo"})
-FLUSH_S = 0.5            # the longest a camera, light or object move stays unwritten
-
-
-def _lock(sid: str) -> threading.Lock:
-    """Read-modify-write of a session's state is serialised per session (the client's messages
-    and the worker's events arrive on different threads); the row is also locked FOR UPDATE
-    where the database supports it (PostgreSQL)."""
-    with _locks_guard:
-        lk = _locks.get(sid)
-        if lk is None:
-            if len(_locks) > 10_000:
-                _locks.clear()
-            lk = _locks[sid] = threading.Lock()
-        return lk
-
-
-def _row(s, sid: str) -> Session | None:
-    return s.get(Session, sid, with_for_update=True)
-
-
-def _load_state(s, row: Session) -> SessionState:
-    state, _ = restore_state(row.state, s.get(Scene, row.scene_id).spec)
-    return state
-
-
-def persist_batch(st, sid: str, msgs: list) -> list[tuple[dict | None, dict | None]]:
-    """Apply validated messages in order to the stored state and record them before the worker
-    sees them: (error event, None) for one that cannot apply (nothing stored or forwarded), else
-    (None, the message to forward).
-
-    Issue 9: a camera dragged at 60 Hz by eight designers is hundreds of messages a second, and a
-    transaction for each (reading, validating and rewriting the state, ~30 KB with a fitted
-    srbf) made the server the bottleneck. So a batch is one transaction, and the state of a
-    session with an open stream is kept here (``_states``): a batch of view, light, move and
-    display messages only (EPHEMERAL) changes that copy and is written at most FLUSH_S later
-    (by the next batch, the stream's idle timer, its end, a worker event or a restore). A batch
-    that also holds strokes, undo or redo (ROWS_ONLY) writes their rows in one transaction
-    before they are forwarded, and leaves the state to the same timer: rewriting it put 10-70 ms
-    on every stroke under load. Any other message is written, with everything before it, before
-    it is forwarded. A server crash can lose at most FLUSH_S of camera moves (and a fit, which
-    the replayed strokes redo); never a stroke, a material or a save."""
-    out = []
-    with _lock(sid):
-        cached = _states.get(sid)
-        if cached is not None and all(m.type in EPHEMERAL or m.type in ROWS_ONLY for m in msgs):
-            state, since = cached
-            if any(m.type in ROWS_ONLY for m in msgs):
-                # strokes, undo and redo are their rows (written now, in one transaction);
-                # the state they leave is the state before them
-                with st.db() as s, s.begin():
-                    for msg in msgs:
-                        err, fwd, state = _apply_one(s, sid, state, msg)
-                        out.append((err, fwd))
-            else:
-                for msg in msgs:
-                    err, fwd, state = _apply_one(None, sid, state, msg)
-                    out.append((err, fwd))
-            since = since if since is not None else time.monotonic()
-            _states[sid] = (state, since)
-            if time.monotonic() - since >= FLUSH_S:
-                _write_locked(st, sid)
-            return out
-        with st.db() as s, s.begin():
-            row = _row(s, sid)
-            state = cached[0] if cached is not None else _load_state(s, row)
-            for msg in msgs:
-                err, fwd, state = _apply_one(s, sid, state, msg)
-                out.append((err, fwd))
-            row.state = state.model_dump(mode="json")
-            row.last_active = now()
-        _states[sid] = (state, None)
-    return out
-
-
-def _write_locked(st, sid: str) -> None:
-    """Write a session's unsaved state (the caller holds ``_lock(sid)``)."""
-    cached = _states.get(sid)
-    if cached is None or cached[1] is None:
-        return
-    with st.db() as s, s.begin():
-        row = _row(s, sid)
-        if row is not None:
-            row.state = cached[0].model_dump(mode="json")
-            row.last_active = now()
-    _states[sid] = (cached[0], None)
-
-
-def flush_session(st, sid: str) -> None:
-    """Write what a session's stream has not written yet (before anything reads its row)."""
-    with _lock(sid):
-        _write_locked(st, sid)
-
-
-def forget_session(st, sid: str) -> None:
-    """The stream ended: write its unsaved state and drop the copy."""
-    with _lock(sid):
-        _write_locked(st, sid)
-        _states.pop(sid, None)
-
-
-def has_unsaved(sid: str) -> bool:
-    c = _states.get(sid)
-    return c is not None and c[1] is not None
-
-
-def _apply_one(s, sid: str, before: SessionState, msg):
-    """One message against the state: (error event, None, before) or (None, forwarded, after).
-    s : the database session (None for EPHEMERAL messages, which touch no other row)."""
-    if msg.seq <= before.last_seq:
-        # refused before anything is stored: the worker would skip it (it treats such a seq as
-        # already applied), so storing it would bring it back, unseen, on the next restore
-        return ErrorEvent(seq=msg.seq, message=f"seq {msg.seq} is not above the last one, {before.last_seq}: "
-                                               "number messages on from the hello event's state.last_seq"
-                          ).model_dump(), None, before
-    if msg.type == "environment" and msg.asset_id is not None:
-        # an uploaded map (e.g. a capture): the stored file goes into the state as a preset
-        a = s.get(Asset, msg.asset_id)
-        if a is None or a.kind != "envmap":
-            return ErrorEvent(seq=msg.seq, message=f"environment: {msg.asset_id!r} is not an uploaded "
-                                                   "environment map").model_dump(), None, before
-        msg = msg.model_copy(update={"asset_id": None, "preset": EnvPreset(
-            label=a.filename, sha256=a.sha256, filename=a.filename, rotation_deg=0.0)})
-    try:
-        state, eff = apply(before, msg)
-    except StateError as e:
-        return ErrorEvent(seq=msg.seq, message=str(e)).model_dump(), None, before
-    epoch = before.epoch
-    if eff.kind == "stroke":
-        # a new stroke drops the redo stack
-        for r in s.scalars(select(StrokeRow).where(StrokeRow.session_id == sid, StrokeRow.epoch == epoch,
-                                                   StrokeRow.undone.is_(True), StrokeRow.dropped.is_(False))):
-            r.dropped = True
-        s.add(StrokeRow(session_id=sid, epoch=epoch, seq=msg.seq, body=eff.stroke))
-        s.flush()
-    elif eff.kind in ("undo", "redo"):
-        q = select(StrokeRow).where(StrokeRow.session_id == sid, StrokeRow.epoch == epoch,
-                                    StrokeRow.dropped.is_(False), StrokeRow.rejected.is_(False),
-                                    StrokeRow.undone.is_(eff.kind == "redo"))
-        q = q.order_by(StrokeRow.seq.desc() if eff.kind == "undo" else StrokeRow.seq.asc())
-        r = s.scalars(q.limit(1)).first()
-        if r is not None:
-            r.undone = eff.kind == "undo"
-            s.flush()
-    return None, msg.model_dump(mode="json"), state
-
-
-def on_worker_event(st, sid: str, ev: dict) -> dict | None:
-    """Events that change what is stored: a fit result updates the session's material, a
-    rejected stroke is never replayed, a save stores a material version (once per seq, even when
-    a restarted worker runs it again). Returns the event for the client (None: nothing)."""
-    t = ev.get("type")
-    if t == "fit" and "material" in ev:
-        # a fit is derived from the stored strokes (a restore replays them and fits again), so
-        # with the stream's copy of the state here it is written like a camera move, at most
-        # FLUSH_S later: the stroke's frame, which follows this event, does not wait for a
-        # transaction that rewrites the ~30 KB state
-        with _lock(sid):
-            cached = _states.get(sid)
-            if cached is not None and ev.get("object") in cached[0].objects:
-                state, since = cached
-                mats = list(state.materials)
-                mats[state.objects.index(ev["object"])] = parse_material(ev["material"])
-                _states[sid] = (state.model_copy(update={"materials": mats}),
-                                since if since is not None else time.monotonic())
-                return ev
-    if t in ("fit", "paint") and "material" in ev:
-        with _lock(sid), st.db() as s, s.begin():
-            _write_locked(st, sid)
-            _states.pop(sid, None)          # the row changes below: read it again next time
-            row = _row(s, sid)
-            state = dict(row.state)
-            names = state.get("objects") or [o["name"] for o in s.get(Scene, row.scene_id).spec["objects"]]
-            mats = list(state["materials"])
-            mats[names.index(ev["object"])] = ev["material"]
-            state["materials"] = mats
-            if t == "paint" and ev["object"] == state.get("object"):
-                state["base_material"] = ev["material"]      # strokes now paint over the paint
-            row.state = state
-        return ev
-    if t == "stroke" and ev.get("rejected") and ev.get("seq") is not None:
-        with st.db() as s, s.begin():
-            for r in s.scalars(select(StrokeRow).where(StrokeRow.session_id == sid, StrokeRow.seq == ev["seq"])):
-                r.rejected = True
-        return ev
-    if t == "save":
-        return _store_save(st, sid, ev)
-    return ev
-
-
-def _store_save(st, sid: str, ev: dict) -> dict:
-    seq = ev.get("seq")
-    with _lock(sid), st.db() as s, s.begin():
-        _write_locked(st, sid)
-        _states.pop(sid, None)              # the row changes below: read it again next time
-        row = _row(s, sid)
-        state = dict(row.state)
-        pending = [p for p in state.get("pending_saves", []) if p.get("seq") != seq]
-        done = s.scalars(select(SessionSave).where(SessionSave.session_id == sid, SessionSave.seq == seq)).first()
-        if done is not None:                       # stored before the worker restarted
-            d = s.get(MaterialDesign, done.design_id)
-            state["pending_saves"] = pending
-            row.state = state
-            return SavedEvent(seq=seq, material_id=d.id, version=done.version, name=d.name).model_dump()
-        d = s.get(MaterialDesign, ev["material_id"]) if ev.get("material_id") else None
-        err = None
-        if ev.get("material_id") and d is None:
-            err = f"save: no material {ev['material_id']!r}"
-        elif d is not None and d.archived:
-            err = f"save: material {d.id!r} is archived (409): restore it or save under a new name"
-        if err:
-            state["pending_saves"] = pending
-            row.state = state
-            return ErrorEvent(seq=seq, message=err, code=409 if d is not None else 404).model_dump()
-        if d is None:
-            d = MaterialDesign(name=ev.get("name") or f"{ev['object']} design", scene_id=row.scene_id, object=ev["object"])
-            s.add(d)
-            s.flush()
-        v = add_version(s, d, ev["material"], note=f"saved from session {sid}")
-        s.flush()
-        s.add(SessionSave(session_id=sid, seq=seq, design_id=d.id, version=v.version))
-        state["pending_saves"] = pending
-        row.state = state
-        return SavedEvent(seq=seq, material_id=d.id, version=v.version, name=d.name).model_dump()
-
-
 # -- the stream ---------------------------------------------------------------------------------
 async def _fail(ws: WebSocket, code: int, message: str, http: int) -> None:
     """A fatal error event, then the close code; a client that already left is not an error."""
@@ -391,59 +152,16 @@ async def _fail(ws: WebSocket, code: int, message: str, http: int) -> None:
         pass
 
 
-class BadFrame(Exception):
-    """A stream message that ends the stream: ``code`` the WebSocket close code, ``http`` the
-    error event's status, the message says what was wrong (with the limit and the measured value)."""
-
-    def __init__(self, code: int, message: str, http: int):
-        super().__init__(message)
-        self.code, self.http = code, http
-
-
-# a JSON string (its closing quote optional, so an unterminated one is consumed in one match and
-# nothing is scanned twice) or a bracket: what json_depth walks over, in linear time
-_JSON_TOKENS = re.compile(r'"(?:[^"\\]|\\.)*"?|[\[\]{}]', re.S)
-
-
-def json_depth(text: str, limit: int) -> int:
-    """How deep the arrays and objects of a JSON text nest (strings skipped), counted up to
-    ``limit + 1`` at most: json.loads recurses once a level, so a message nested 10^5 deep
-    raised RecursionError in the server before this was checked."""
-    d = deepest = 0
-    for m in _JSON_TOKENS.finditer(text):
-        c = m.group()
-        if c in "[{":
-            d += 1
-            if d > deepest:
-                deepest = d
-                if d > limit:
-                    break
-        elif c in "]}":
-            d -= 1
-    return deepest
-
-
 async def receive_json(ws: WebSocket, cfg, timeout: float):
     """The next stream message, parsed: binary frames (1003), text over
     ``max_stream_message_bytes`` (1009) and JSON nested deeper than ``max_stream_message_depth``
-    (4400) raise BadFrame; text that is not JSON raises json.JSONDecodeError (the stream can go
-    on); the client leaving raises WebSocketDisconnect; asyncio.TimeoutError after ``timeout`` s."""
+    (4400) raise BadFrame (protocol/wire.py BadMessage); text that is not JSON raises
+    json.JSONDecodeError (the stream can go on); the client leaving raises WebSocketDisconnect; asyncio.TimeoutError after ``timeout`` s."""
     m = await asyncio.wait_for(ws.receive(), timeout)
     if m["type"] == "websocket.disconnect":
         raise WebSocketDisconnect(m.get("code", 1000))
-    text = m.get("text")
-    if text is None:
-        n = len(m.get("bytes") or b"")
-        raise BadFrame(1003, f"a binary frame ({n} bytes) is not a stream message: send JSON text messages", 415)
-    limit = cfg.max_stream_message_bytes
-    if len(text) > limit or (4 * len(text) > limit and len(text.encode("utf-8", "surrogatepass")) > limit):
-        n = len(text.encode("utf-8", "surrogatepass"))
-        raise BadFrame(1009, f"a message of {n} bytes is over the limit of {limit} bytes (max_stream_message_bytes)", 413)
-    depth = json_depth(text, cfg.max_stream_message_depth)
-    if depth > cfg.max_stream_message_depth:
-        raise BadFrame(4400, f"a message nested more than {cfg.max_stream_message_depth} levels deep (at least "
-                             f"{depth}) is refused (max_stream_message_depth)", 400)
-    return json.loads(text)
+    return parse_message_text(m.get("text"), len(m.get("bytes") or b""), cfg.max_stream_message_bytes,
+                              cfg.max_stream_message_depth)
 
 
 async def _authenticate(ws: WebSocket, token: str | None, cfg) -> tuple[str | None, str]:
@@ -558,7 +276,7 @@ async def _serve(ws: WebSocket, st, sid: str, row: Session, me: object) -> None:
                 await ws.send_bytes(encode_frame(hdr, img))
             else:
                 try:
-                    ev = await run_in_threadpool(on_worker_event, st, sid, p)
+                    ev = await run_in_threadpool(st.sessions.apply_worker_event, sid, p)
                 except Exception as e:       # storing it failed: say so, and keep streaming
                     log.exception("session %s: storing a %s event failed", sid, p.get("type"))
                     ev = ErrorEvent(seq=p.get("seq"), message=f"the server could not store the {p.get('type')} "
@@ -566,8 +284,8 @@ async def _serve(ws: WebSocket, st, sid: str, row: Session, me: object) -> None:
                 if ev is not None:
                     await ws.send_text(json.dumps(ev))
 
-    # messages are read as fast as they come and stored in batches (persist_batch): the socket
-    # never backs up behind the database, and the worker gets them in order
+    # messages are read as fast as they come and stored in batches (SessionStore.persist_batch):
+    # the socket never backs up behind the database, and the worker gets them in order
     inbox: asyncio.Queue = asyncio.Queue()
 
     async def process():
@@ -581,8 +299,8 @@ async def _serve(ws: WebSocket, st, sid: str, row: Session, me: object) -> None:
                 try:
                     first = await asyncio.wait_for(inbox.get(), FLUSH_S)
                 except asyncio.TimeoutError:
-                    if has_unsaved(sid):
-                        await run_in_threadpool(flush_session, st, sid)
+                    if st.sessions.has_unsaved(sid):
+                        await run_in_threadpool(st.sessions.flush, sid)
                     continue
                 batch = [first]
                 while not inbox.empty() and len(batch) < MAX_BATCH:
@@ -591,7 +309,7 @@ async def _serve(ws: WebSocket, st, sid: str, row: Session, me: object) -> None:
                 batch = [m for m in batch if m is not None]
                 if not batch:
                     continue
-                for err, fwd in await run_in_threadpool(persist_batch, st, sid, batch):
+                for err, fwd in await run_in_threadpool(st.sessions.persist_batch, sid, batch):
                     if ending:
                         continue            # the stream is over: stored, nobody to tell
                     if err is None:
@@ -669,7 +387,7 @@ async def _serve(ws: WebSocket, st, sid: str, row: Session, me: object) -> None:
         if _release(st, sid, me):       # a newer stream of this session keeps its worker session
             st.pool.close_session(sid)
         st.metrics.session_ended(sid)
-        await run_in_threadpool(forget_session, st, sid)
+        await run_in_threadpool(st.sessions.forget, sid)
         await run_in_threadpool(_ended, st, sid)
         # the stream's states, batches and frames were freed on the threadpool's threads:
         # give what malloc holds free back (the server's memory grew ~20 MiB per run of eight
@@ -687,8 +405,8 @@ def _controls(kind: str, readonly: bool) -> set[str]:
 def _ended(st, sid: str) -> None:
     """A stream ended: viewer sessions are over (a shopper gets a new one); editing sessions
     stay open to reconnect to, until closed or expired (``expire_idle``)."""
-    with _lock(sid), st.db() as s, s.begin():
-        row = _row(s, sid)
+    with st.sessions.lock(sid), st.db() as s, s.begin():
+        row = s.get(Session, sid, with_for_update=True)
         if row is not None:
             row.last_active = now()
             if (row.state or {}).get("readonly"):

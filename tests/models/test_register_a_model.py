@@ -38,7 +38,7 @@ def ward():
 
 
 def test_a_model_registered_from_a_test_renders(ward, bunny_renderer):
-    from worker.jobs.state import client_msg
+    from worker.protocol import client_msg
     from worker.models import describe
     from worker.scene import parse_scene
 

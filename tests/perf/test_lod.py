@@ -7,9 +7,9 @@ import pytest
 
 from helpers import open_renderer, scene_file
 
-from worker.jobs import session as S
-from worker.jobs.session import SessionRuntime
-from worker.jobs.state import new_state
+from worker.jobs import lod as S
+from worker.jobs.runtime import SessionRuntime
+from worker.protocol import new_state
 from worker.renderers.cuts import CutRenderer
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -54,7 +54,7 @@ def test_full_frames_while_dragging_when_they_fit_the_budget(bunny_renderer):
 def test_drag_level_of_detail_when_full_frames_do_not_fit(bunny_renderer, monkeypatch):
     rt = _runtime(bunny_renderer)
     rt.frame_budget_ms = 1e-3                           # nothing fits
-    rt._full_ms["view"].clear()
+    rt.lod.full_ms["view"].clear()
     h1 = _orbit(rt, 1)                                  # no full frame with a moving view measured yet
     assert h1["lod"] is False
     hdrs = [_orbit(rt, i) for i in range(2, 6)]
@@ -177,7 +177,7 @@ def test_under_load_drag_frames_drop_to_a_quarter_of_the_resolution(cache_dir, m
     assert h["lod"] is True and (h["width"], h["height"]) == (320, 240), h
     h = _orbit(rt, 3)                                   # half did not fit either: a quarter
     assert h["lod"] is True and (h["width"], h["height"]) == (160, 120), h
-    rt._last_half = -float("inf")                       # long since the last half frame: try it again
+    rt.lod.last_half = -float("inf")                       # long since the last half frame: try it again
     assert _orbit(rt, 4)["width"] == 320
     # the budget is shared: two busy sessions halve it
     other = SessionRuntime(r.scene, CutRenderer(r.scene, r.data), {"state": st.model_dump(mode="json"), "strokes": []})

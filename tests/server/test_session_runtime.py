@@ -4,8 +4,9 @@ makes stroke frames cheap, and the bound on a fit's size."""
 import numpy as np
 import pytest
 
-from worker.jobs.session import SessionRuntime, brdf_curve
-from worker.jobs.state import apply, client_msg, decode_frame, encode_frame, new_state
+from worker.jobs.curves import brdf_curve
+from worker.jobs.runtime import SessionRuntime
+from worker.protocol import NewMaterial, NoEffect, Save, apply, client_msg, decode_frame, encode_frame, new_state
 from worker.renderers import FrameRequest, Lighting
 from worker.renderers.cuts import CutRenderer
 from worker.scene import GGX, Lambert
@@ -194,10 +195,13 @@ def test_one_apply_for_server_and_worker():
     effects = []
     for m in msgs:
         st, eff = apply(st, client_msg.validate_python(m))
-        effects.append(eff.kind)
+        effects.append(eff)
     assert st.camera.eye == (1, 0, 3) and st.rotation_deg == 30 and st.materials[1].alpha == 0.1
     assert st.base_material.alpha == 0.3 and st.epoch == 1 and st.exposure == 1.0 and st.last_seq == 6
-    assert effects == [None, None, None, "rebase", None, "save"] and st.pending_saves[0].name == "x"
+    # one effect class per kind (worker/protocol/effects.py): only the edited object's new
+    # material rebases the strokes
+    assert effects[:5] == [NoEffect(), NoEffect(), NewMaterial("b", False), NewMaterial("a", True), NoEffect()]
+    assert isinstance(effects[5], Save) and effects[5].save.name == "x" and st.pending_saves[0].name == "x"
     ro = st.model_copy(update={"readonly": True})
     with pytest.raises(ValueError, match="read-only"):
         apply(ro, client_msg.validate_python({"seq": 7, "type": "stroke", "stroke": STROKE}))
@@ -237,7 +241,7 @@ def test_stream_schema_is_current():
     import json
     from pathlib import Path
 
-    from worker.jobs.state import stream_schema
+    from worker.protocol import stream_schema
 
     path = Path(__file__).resolve().parents[2] / "stream-schema.json"
     assert json.loads(path.read_text()) == json.loads(json.dumps(stream_schema())), \
@@ -272,7 +276,7 @@ def test_apply_never_changes_the_state_it_is_given(bunny_renderer):
     message type the input state dumps the same before and after."""
     import json
 
-    from worker.jobs.state import StateError, _MESSAGES
+    from worker.protocol import StateError, _MESSAGES
 
     sc = bunny_renderer.scene
     st = new_state(sc.spec)

@@ -1,0 +1,274 @@
+"""Fit orchestration of a session: the paint-to-BRDF fitter of the edited object, its fit views
+(quick ones built on the frame path for a live stroke, completed in full in the background),
+the background builds while the user orbits (``prefetch``), the per-vertex transfer of the edited
+object, and the fit itself (``fit_if_needed``).
+
+Cost per message is bounded: a fit holds at most Fitter.max_rows rows (fit/fitter.py), and what a
+stroke in a new view needs (the view's transfer rows, the per-vertex transfer of the edited
+object) is built in the background while the user is still orbiting (``prefetch``), so the
+first stroke after a camera or light change does not pay for it on the frame path.
+
+``FitDriver`` is a part of SessionRuntime (worker/jobs/runtime.py), which owns the state it
+reads: ``state``, ``renderer``, ``_drag``, ``closed`` and ``wake``.
+"""
+from __future__ import annotations
+
+import time
+from concurrent.futures import Future, ThreadPoolExecutor
+
+import numpy as np
+
+from ..errors import GlintError
+from ..fit.brush import Stroke
+from ..fit.fitter import QUICK_ROWS, FitError, Fitter, painted_select, quick_select
+from ..protocol import FitEvent, StrokeEvent
+from ..renderers.base import Lighting
+from ..scene import Camera
+from .curves import _dump, brdf_curve
+from .lod import STILL_SAMPLES, busy_sessions
+from .reporting import _msg
+
+QUICK_ROWS_MIN = 100        # a quick view's unpainted rows under load (QUICK_ROWS / busy sessions)
+# one background builder per worker process: views are prepared one at a time, at low priority
+_builder = ThreadPoolExecutor(max_workers=1, thread_name_prefix="glint-prefetch")
+
+
+class FitDriver:
+    """The fit of one session's edited object (a mixin of SessionRuntime)."""
+
+    def _init_fit(self) -> None:
+        self.fitter: Fitter | None = None
+        self._needs_fit = False
+        self._fitted = None       # the material the fitter produced last (identity)
+        self._quick_next = False  # the next frame shows a new fit: one sample first
+        self._vt = None           # per-vertex transfer of the edited object: (key, ids, T, E)
+        self._pending: dict = {}  # prefetch futures by what they build
+        self._completions: dict = {}   # view index -> (fitter, moves, future of its full build)
+        self.quick_rows = QUICK_ROWS
+        # movable objects (cut fields): the renderer answers the fitter where they now stand;
+        # fit views are valid for the placement they were built in (counted by moves)
+        self._moves = 0
+        self._view_moves: dict[int, int] = {}
+
+    def _drop_fit_work(self) -> None:
+        """Queued and finished background builds no longer apply (a new placement, epoch or renderer)."""
+        self._pending.clear()
+        self._completions.clear()
+
+    def _ensure_fitter(self) -> Fitter:
+        if self.fitter is None:
+            self._view_moves = {}
+            try:
+                self.fitter = Fitter(self.renderer, self.state.object, base_material=self.state.base_material,
+                                     fit_scale=0.25)
+            except FitError as e:
+                raise FitError(f"strokes cannot apply: {e}") from None
+        return self.fitter
+
+    def _view_key(self, camera, rot, inten):
+        return (camera.model_dump_json(), float(rot), float(inten))
+
+    def _view_index(self, camera: Camera, rot: float, inten: float, stroke: dict | None = None) -> int:
+        """The saved fit view of a camera and light, built if needed. For a live stroke
+        (``stroke`` given) a view not built yet is a quick one (fit/fitter.py QUICK_ROWS): the
+        stroke's pixels and a sparse grid of the rest, on the drag level's cuts (half the
+        transfer's cost), built in full in the background once the user stops dragging
+        (``_complete``); a partial view is extended under each new stroke, so painted pixels
+        are always fitted. Replayed strokes get full views."""
+        fx = self._ensure_fitter()
+        sel = None if stroke is None else Stroke.model_validate({**stroke, "view": 0})
+        for i, v in enumerate(fx.views):
+            if v.camera == camera and v.rotation_deg == rot and v.intensity == inten and \
+                    self._view_moves.get(i, 0) == self._moves:
+                if v.partial and sel is not None:
+                    fx.extend_view(v, painted_select(sel))
+                return i
+        key = ("view", self.state.epoch, self._moves, self._view_key(camera, rot, inten))
+        fut = self._pending.pop(key, None)
+        if fut is not None and not fut.cancelled() and (fut.done() or sel is None):
+            view = fut.result()           # prepared while the user orbited
+            if isinstance(view, Exception):
+                raise view
+            fut = None
+        elif sel is not None:
+            # under load the quick view shares the worker too: fewer rows, the rest comes with
+            # the completion (tests/fit: a few % from the full fit at 300 rows on the bunny)
+            rows = max(min(self.quick_rows, QUICK_ROWS_MIN), self.quick_rows // busy_sessions(time.monotonic()))
+            view = fx.build_view(camera, rot, inten, select=quick_select(sel, rows), coarse=True)
+        else:
+            view = fx.build_view(camera, rot, inten)
+        fx.views.append(view)
+        i = len(fx.views) - 1
+        self._view_moves[i] = self._moves
+        if view.provisional:
+            if fut is not None and not fut.cancelled():
+                self._adopt(i, fut)       # the full view already on its way completes it
+            elif not self._drag:
+                self._complete(i)
+        return i
+
+    def _complete(self, i: int) -> None:
+        """Build view i in full on the background builder; it replaces the provisional (partial
+        or coarse) view when it is ready (``absorb``)."""
+        fx, moves, _ = self._completions.get(i, (None, None, None))
+        if fx is self.fitter and moves == self._moves:
+            return                          # on its way
+        v = self.fitter.views[i]
+        self._adopt(i, self._submit(self._build_view, self.fitter, v.camera, v.rotation_deg, v.intensity))
+
+    def _adopt(self, i: int, fut: Future) -> None:
+        self._completions[i] = (self.fitter, self._moves, fut)
+        fut.add_done_callback(lambda _f: self.wake())
+
+    def absorb(self) -> bool:
+        """Background results the session can take now: completed views replace their
+        provisional ones (the fit is re-run). Returns whether anything changed. Runs on the session's thread."""
+        changed = False
+        for i, (fx, moves, fut) in list(self._completions.items()):
+            if not fut.done():
+                continue
+            del self._completions[i]
+            view = None if fut.cancelled() else fut.result()
+            if fx is not self.fitter or moves != self._moves or isinstance(view, Exception) or view is None:
+                continue
+            if i < len(fx.views) and fx.views[i].provisional:
+                fx.views[i] = view
+                self._needs_fit = bool(len(fx.history))
+                changed = True
+        return changed
+
+    def _add_stroke(self, rec: dict, live: bool = False) -> StrokeEvent:
+        """Add a stored or new (``live``) stroke record; a stroke that cannot apply is rejected
+        (reported, not raised: the session goes on, and the server stops replaying it)."""
+        seq = rec.get("seq")
+        try:
+            cam = Camera.model_validate(rec["camera"])
+            i = self._view_index(cam, float(rec["rotation_deg"]), float(rec["intensity"]),
+                                 rec["stroke"] if live else None)
+            st = Stroke.model_validate({**rec["stroke"], "view": i})
+            notes = self.fitter.add_stroke(st)
+            return StrokeEvent(seq=seq, strokes=len(self.fitter.history), notes=notes)
+        except (GlintError, ValueError, KeyError, TypeError) as e:
+            n = len(self.fitter.history) if self.fitter is not None else 0
+            return StrokeEvent(seq=seq, strokes=n, rejected=True, notes=[f"stroke rejected: {_msg(e)}"])
+
+    def fit_if_needed(self) -> list[dict]:
+        if not self._needs_fit:
+            return []
+        self._needs_fit = False
+        fx = self.fitter
+        i = self.state.object_index
+        if fx is None or len(fx.history) == 0:
+            self._set_material(i, self.state.base_material)
+            return [FitEvent(object=self.state.object, material=_dump(self.state.base_material),
+                             curve=brdf_curve(self.state.base_material), stats={"strokes": 0}).model_dump()]
+        out = fx.fit(constrained=self.state.constrained, unpainted_weight=self.state.unpainted_weight)
+        self._set_material(i, out.material)
+        self._fitted = out.material
+        self._quick_next = True
+        s = out.solve
+        bound = np.asarray(s.energy_bound, np.float64)
+        stats = {"strokes": len(fx.history), "pixels": out.pixels, "painted": out.painted,
+                 "views": len(fx.views), "rows_stride": fx.row_stride(),
+                 "ms_solve": s.seconds * 1e3, "ms_transfer": out.seconds_transfer * 1e3,
+                 "residual_rel": s.residual_rel, "energy_max": s.energy_max,
+                 "energy_bound": float(bound.min()), "constrained": s.constrained}
+        for k in ("achieved", "spill", "energy_per_channel"):
+            if getattr(out, k, None) is not None:
+                stats[k] = getattr(out, k)
+        stats.setdefault("energy_bound_per_channel", bound.tolist())
+        return [FitEvent(object=self.state.object, material=_dump(out.material), curve=brdf_curve(out.material),
+                         stats=stats, notes=out.notes).model_dump()]
+
+    # -- background work ----------------------------------------------------------------------------
+    def prefetch(self) -> None:
+        """When the session is idle and the user is not dragging: build the quick fit
+        views in full (strokes painted mid-drag got them), and prepare what a stroke in the
+        current view and light will need (its fit view; the per-vertex transfer of the edited
+        object once the user paints a second time in one view), on the process's background
+        builder. Only for sessions that paint (a fitter exists in this epoch)."""
+        if self.fitter is None or self._drag or self.state.readonly:
+            return
+        cam, rot, inten = self.state.camera, self.state.rotation_deg, self.state.intensity
+        fx = self.fitter
+        for i, v in enumerate(fx.views):
+            if v.provisional and self._view_moves.get(i, 0) == self._moves:
+                self._complete(i)
+        if not any(v.camera == cam and v.rotation_deg == rot and v.intensity == inten and
+                   self._view_moves.get(i, 0) == self._moves for i, v in enumerate(fx.views)):
+            key = ("view", self.state.epoch, self._moves, self._view_key(cam, rot, inten))
+            if key not in self._pending:
+                for k in [k for k in self._pending if k[0] == "view"]:
+                    self._pending[k].cancel()           # only the latest view is worth building
+                    del self._pending[k]
+                self._pending[key] = self._submit(self._build_view, fx, cam, rot, inten)
+        vkey = ("vt", self._view_key(cam, rot, inten))
+        if self._vt_wanted() and (self._vt is None or self._vt[0] != vkey[1]) and vkey not in self._pending:
+            for k in [k for k in self._pending if k[0] == "vt"]:
+                self._pending[k].cancel()
+                del self._pending[k]
+            self._pending[vkey] = self._submit(self._build_vertex_transfer, cam, rot, inten)
+            self._pending[vkey].add_done_callback(lambda _f: self.wake())
+
+    def _submit(self, fn, *args) -> Future:
+        """Queue background work on the process's builder; work of a session closed before it
+        starts is not done (``close``)."""
+        def run():
+            if self.closed:
+                return RuntimeError("the session was closed")
+            return fn(*args)
+        return _builder.submit(run)
+
+    def _vt_wanted(self) -> bool:
+        """Whether the per-vertex transfer of this view is worth its cost (about a second of
+        one core, ~50 ms saved per stroke frame): once two active strokes were painted in it."""
+        st, fx = self.state, self.fitter
+        n = 0
+        for s in fx.history.strokes:
+            v = fx.views[s.view]
+            n += v.camera == st.camera and v.rotation_deg == st.rotation_deg and v.intensity == st.intensity
+        return n >= 2
+
+    @staticmethod
+    def _build_view(fx: Fitter, cam, rot, inten):
+        try:
+            return fx.build_view(cam, rot, inten)
+        except Exception as e:               # reported when a stroke needs the view
+            return e
+
+    def _build_vertex_transfer(self, cam, rot, inten):
+        """Per-vertex transfer of the edited object's visible vertices for a view and light
+        (inverse-brdf-modeling eq. 22 with the basis): while only the fitted coefficients change
+        (strokes, undo, redo), a frame's shading of that object is one mat-vec."""
+        r = self.renderer
+        smp = r.vertex_samples(cam, self.state.object_index, samples=STILL_SAMPLES)   # stroke frames are still
+        T, E = r.transfer(smp, self.fitter.basis, Lighting(rot, inten))
+        return (self._view_key(cam, rot, inten), smp.pix, T, E)
+
+    def _vertex_transfer(self):
+        """The per-vertex transfer of the current view and light if it is ready, else None:
+        a frame never waits for it (it is built in the background, ``prefetch``)."""
+        key = self._view_key(self.state.camera, self.state.rotation_deg, self.state.intensity)
+        if self._vt is not None and self._vt[0] == key:
+            return self._vt
+        fut = self._pending.get(("vt", key))
+        if fut is not None and fut.done():
+            del self._pending[("vt", key)]
+            if not fut.cancelled() and fut.exception() is None:
+                self._vt = fut.result()
+                return self._vt
+        return None
+
+    def _override(self):
+        """Known radiance of the edited object's vertices when its material is the current fit:
+        {object index: (ids, radiance)} for the renderer, or None."""
+        i = self.state.object_index
+        if self._fitted is None or self.materials[i] is not self._fitted or not hasattr(self.renderer, "vertex_samples"):
+            return None
+        vt = self._vertex_transfer()
+        if vt is None:
+            return None
+        _, ids, T, E = vt
+        c = np.asarray(self._fitted.coefficients, np.float32)
+        rad = np.asarray(self._fitted.albedo, np.float32) * E + np.stack([T[k] @ c[:, k] for k in range(3)], axis=1)
+        return {i: (ids, rad.astype(np.float32))}

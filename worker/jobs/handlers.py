@@ -1,0 +1,161 @@
+"""The worker's job handlers (precompute, render, fit, capture), in one registry: ``JOBS``,
+job type -> handler(cache, payload, progress) -> result dict. progress : (fraction 0..1,
+message) -> None; a handler raises JobError (or GlintError, ValueError) for bad input."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from .data_cache import DataCache
+from .ipc import JobError
+
+
+def _render(cache: DataCache, p: dict) -> dict:
+    import io
+
+    import numpy as np
+    from PIL import Image
+
+    from worker.core.tonemap import tonemap
+    from worker.models import parse_material
+    from worker.renderers import FrameRequest, Lighting
+    from worker.scene import Camera, Transform
+
+    r = cache.renderer(p["scene"])
+    sc = r.scene
+    names = [o.name for o in sc.spec.objects]
+    mats = list(sc.materials)
+    for name, m in (p.get("materials") or {}).items():
+        if name not in names:
+            raise JobError(f"materials: no object {name!r} in the scene (objects: {', '.join(names)})")
+        mats[names.index(name)] = parse_material(m)
+    env = sc.spec.environment
+    cam = Camera.model_validate(p["camera"]) if p.get("camera") else sc.spec.camera
+    rot = env.rotation_deg if p.get("rotation_deg") is None else p["rotation_deg"]
+    inten = env.intensity if p.get("intensity") is None else p["intensity"]
+    transforms = {}
+    for name, t in (p.get("transforms") or {}).items():
+        if name not in names:
+            raise JobError(f"transforms: no object {name!r} in the scene (objects: {', '.join(names)})")
+        transforms[name] = Transform.model_validate(t)
+    out = r.render(FrameRequest(camera=cam, lighting=Lighting(rot, inten), materials=mats,
+                                shading=p.get("mode", "vertex"), transforms=transforms or None))
+    img = out.radiance
+    if p.get("format") == "exr":
+        import tempfile
+
+        from worker.envmap import save_exr
+
+        with tempfile.TemporaryDirectory(dir=cache.tmp) as d:
+            path = Path(d) / "r.exr"
+            save_exr(path, img.astype(np.float32))
+            return {"bytes": path.read_bytes(), "media_type": "image/x-exr"}
+    buf = io.BytesIO()
+    Image.fromarray(tonemap(img, p.get("exposure", 0.0), p.get("tone", "neutral"))).save(buf, format="PNG")
+    return {"bytes": buf.getvalue(), "media_type": "image/png"}
+
+
+def _fit(cache: DataCache, p: dict) -> dict:
+    import json
+
+    import numpy as np
+
+    from worker.fit.basis import default_basis
+    from worker.fit.files import ViewSpec, load_mask, load_target
+    from worker.fit.fitter import DEFAULT_UNPAINTED_WEIGHT, Fitter
+
+    r = cache.renderer(p["scene"])
+    req = p["request"]
+    f0 = req.get("fresnel_f0")
+    basis = default_basis(fresnel_f0=1.0 if f0 is None else f0)     # 0 means 0, not the default
+    fx = Fitter(r, req["object"], basis=basis, fit_scale=req.get("fit_scale") or 0.25, albedo=req.get("albedo"))
+    notes = []
+    if req.get("strokes"):
+        for v in req.get("views") or [{}]:
+            v = ViewSpec.model_validate(v)
+            fx.add_view(v.camera, v.rotation_deg, v.intensity)
+        for s in req["strokes"]:
+            notes += fx.add_stroke(s)
+        out = fx.fit(constrained=req.get("constrained", True),
+                     unpainted_weight=req.get("unpainted_weight", DEFAULT_UNPAINTED_WEIGHT))
+    else:
+        fx.add_view()
+        target = load_target(cache.linked(p["target"]))
+        mask = load_mask(cache.linked(p["mask"])) if p.get("mask") else None
+        out = fx.fit_targets([target], [mask], constrained=req.get("constrained", True))
+    s = out.solve
+    return {"material": json.loads(out.material.model_dump_json()),
+            "stats": {"seconds_transfer": out.seconds_transfer, "seconds_solve": s.seconds, "pixels": out.pixels,
+                      "painted": out.painted, "basis": fx.basis.J, "residual_rms": s.residual_rms,
+                      "residual_rel": s.residual_rel, "energy_max": s.energy_max,
+                      "energy_bound": float(np.min(s.energy_bound)), "constrained": s.constrained,
+                      "notes": list(dict.fromkeys(notes + out.notes))}}
+
+
+def _precompute(cache: DataCache, p: dict, progress) -> dict:
+    """Ensure a scene's precomputation in the blob store (parts already there are reused)."""
+    from worker.renderers import get
+
+    kind = p["scene"].get("renderer") or "cuts"
+    sc = cache.scene(p["scene"])
+    options = p["scene"].get("options") or {}
+    # the scene's renderer, and the cut renderer for every scene (a GI scene's way back to direct
+    # light and a free camera; the paint renderer's self-shadowing)
+    kinds = [kind] + (["cuts"] if kind != "cuts" else [])
+    pres = [get(k)[1] for k in kinds]
+    total = max(1, sum(x.work for pre in pres for x in pre.parts(sc, options if pre.kind == kind else {})))
+    done = [0, -1.0]
+
+    def tick(k):
+        done[0] += k
+        f = min(1.0, done[0] / total)
+        if f - done[1] >= 0.01 or done[0] >= total:
+            done[1] = f
+            progress(f, f"{done[0]}/{total}")
+
+    from worker.renderers import ensure
+
+    manifest, flat, seconds, computed = {}, {}, 0.0, 0
+    for pre in pres:
+        stats = ensure(pre, sc, cache.parts, options if pre.kind == kind else {}, tick,
+                       threads=cache.settings.threads or os.cpu_count() or 2)
+        manifest.update({k: cache.parts.sha(k) for k in stats["parts"]})
+        for info in stats["parts"].values():
+            if pre.kind == kind:          # the scene renderer's figures are the job's headline
+                flat.update({k: v for k, v in info.items() if k not in ("label",)})
+        seconds += stats["seconds"]
+        computed += stats["computed"]
+    return {"kind": kind, "parts": manifest, "stats": {**flat, "seconds": seconds, "computed": computed,
+                                                       "renderers": kinds}}
+
+
+def _capture(cache: DataCache, p: dict, progress) -> dict:
+    """A lighting capture (worker/capture): the uploaded zip extracted in this worker's scratch
+    folder (paths checked, sizes capped), processed, and the map and its preview stored as blobs."""
+    import shutil
+    import tempfile
+
+    from worker.capture.job import extract_capture_zip, run_capture
+
+    work = Path(tempfile.mkdtemp(prefix="capture-", dir=cache.tmp))
+    try:
+        manifest = extract_capture_zip(cache.blobs.verified_path(p["zip_sha256"]), work, p.get("max_files", 64),
+                                       p.get("max_total_bytes", 2 * 1024 ** 3))
+        exr, png, stats = run_capture(manifest, progress, root=work)
+        return {"exr_sha256": cache.blobs.put(exr), "exr_bytes": len(exr), "preview_sha256": cache.blobs.put(png),
+                "stats": stats}
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+JOBS = {"render": lambda cache, p, progress: _render(cache, p),
+        "fit": lambda cache, p, progress: _fit(cache, p),
+        "precompute": _precompute, "capture": _capture}
+
+
+def run_job(cache: DataCache, p: dict, progress) -> dict:
+    """The result of job payload ``p`` (its "type" picks the handler)."""
+    handler = JOBS.get(p["type"])
+    if handler is None:
+        raise JobError(f"unknown job type {p['type']!r}", 400)
+    return handler(cache, p, progress)

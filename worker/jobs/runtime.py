@@ -1,0 +1,360 @@
+"""One interactive design session inside a worker process: its state (worker/protocol), the
+scene's renderer, the fit of the edited object (fit_driver.py), and the level of detail of its
+frames (lod.py). ``SessionRuntime.handle`` applies a client message and carries out its effect
+through ``EFFECTS``, one handler per effect class (worker/protocol/effects.py).
+
+The runtime is rebuilt exactly from what the server stored (state + stroke rows), so a worker
+that dies loses nothing: ``SessionRuntime(...)`` on a new worker gives the same frames. It never
+fails to open because of what was stored: a stroke that cannot apply is reported as rejected
+(the server stops replaying it), a stored value that no longer validates falls back with a note.
+
+Messages go through ``protocol.apply`` (the same function the server persisted them with); the
+runtime then carries out the effect. A message whose seq the restored state already covers is
+skipped (it was persisted before the restore read the state).
+"""
+from __future__ import annotations
+
+import time
+from typing import Callable
+
+import numpy as np
+
+from ..fit.fitter import FitError
+from ..models import SRBF
+from ..protocol import (ClientMsg, FitPaint, Moved, NewMaterial, NoEffect, NoteEvent, RecordStroke, Redo, Refit,
+                        Relight, RendererEvent, Save, SaveRequest, SwitchRenderer, Undo, apply, client_msg,
+                        restore_state)
+from ..renderers.base import FrameRequest, Lighting
+from . import compose
+from .compose import BIG_FRAME_PIXELS
+from .curves import _dump, brdf_curve
+from .fit_driver import FitDriver
+from .lod import LevelOfDetail, mark_busy
+
+# effect class -> handler(runtime, message, effect) -> events; filled by ``handles`` below
+EFFECTS: dict[type, Callable[["SessionRuntime", ClientMsg, object], list[dict]]] = {}
+
+
+def handles(effect_cls):
+    """Decorator: the worker's handler of one effect class."""
+    def register(fn):
+        EFFECTS[effect_cls] = fn
+        return fn
+    return register
+
+
+class SessionRuntime(FitDriver):
+    """scene : LoadedScene; renderer : its Renderer; stored : {"state": dict, "strokes": [{"seq",
+    "stroke", "camera", "rotation_deg", "intensity", "undone"}, …]} in painting order, rejected
+    strokes left out (server/state.py session_payload); env_loader : EnvPreset -> (H, W, 3) map."""
+
+    def __init__(self, scene, renderer, stored: dict, env_loader=None, renderer_for=None):
+        self.scene = scene
+        self.env_loader = env_loader
+        self.renderer_for = renderer_for          # kind -> a renderer of this scene (another kind)
+        self.state, notes = restore_state(stored.get("state") or {}, scene.spec)
+        self.renderers = {renderer.kind: renderer}
+        self.renderer = renderer
+        self.events: list[dict] = [NoteEvent(message=n).model_dump() for n in notes]
+        # re-opened on a new worker after one died (server/workers.py _restore): the refit of
+        # the stored strokes is sent (a fit event) before the first frame, so the server stores
+        # the material the strokes give, not the one it had before the crash
+        self._restored = bool(stored.get("restored"))
+        self.closed = False
+        self.frame_no = 0
+        self._drag = False
+        self.wake = lambda: None  # called from the builder when a result is ready (SessionThread)
+        self._env_key = None
+        self.lod = LevelOfDetail()
+        self._init_fit()
+        if hasattr(renderer, "place"):
+            renderer.place(self.state.transforms or None)
+        if self.state.renderer != renderer.kind:
+            self._switch_renderer(self.state.renderer)
+        self._apply_environment()
+        # pay the basis's one-time costs (energy rows, solver import, the fitted material's
+        # srbf table: ~190 ms the first time in a process, on cold first strokes) at
+        # open, not on the first stroke
+        if not self.state.readonly:
+            from ..fit import solve  # noqa: F401
+            from ..fit.basis import default_basis, static_alpha_for
+            b = default_basis(static_alpha=static_alpha_for(self.state.base_material))
+            b.energy_rows()
+            SRBF.model_validate(b.to_material(np.zeros((b.J, 3)), (0.0, 0.0, 0.0))).pack()
+        if hasattr(renderer, "coarse_cuts"):
+            renderer.coarse_cuts()           # the drag-time level of detail
+        # replay the stored strokes (undone ones form the redo stack, most recent undone last)
+        strokes = stored.get("strokes") or []
+        active = [s for s in strokes if not s.get("undone")]
+        undone = [s for s in strokes if s.get("undone")]
+        kept_undone = 0
+        for s in active + undone:
+            ev = self._add_stroke(s)
+            if ev.rejected:
+                self.events.append(ev.model_dump())
+            elif s.get("undone"):
+                kept_undone += 1
+        for _ in range(kept_undone):
+            self.fitter.undo()
+        self._needs_fit = bool(self.fitter is not None and len(self.fitter.history))
+        # saves the server has not stored yet (the worker died before they were): run again
+        self._resave = list(self.state.pending_saves)
+
+    # -- the edited object ----------------------------------------------------------------------
+    @property
+    def names(self) -> list[str]:
+        return self.state.objects
+
+    @property
+    def materials(self) -> list:
+        return self.state.materials
+
+    def _set_material(self, i: int, m) -> None:
+        mats = list(self.state.materials)
+        mats[i] = m
+        self.state.materials = mats
+
+    def _switch_renderer(self, kind: str) -> None:
+        if kind not in self.renderers:
+            if self.renderer_for is None:
+                raise FitError(f"this worker cannot switch to the {kind} renderer")
+            self.renderers[kind] = self.renderer_for(kind)
+        self.renderer = self.renderers[kind]
+        if hasattr(self.renderer, "place"):       # movable objects where the session has them
+            self.renderer.place(self.state.transforms or None)
+        self.fitter = None                         # fit rows belong to a renderer
+        self._vt = None
+        self._pending.clear()
+        self._completions.clear()
+        self._env_key = ("switched",)            # the new renderer gets the session's map
+
+    def _paint(self, name: str, seq) -> list[dict]:
+        """The lobes material for the stored readings of an object (worker/paint/session.py)."""
+        from ..paint.session import apply_paint
+
+        mat, ev = apply_paint({**self.state.paint[name], "object": name, "seq": seq})
+        i = self.state.objects.index(name)
+        self._set_material(i, mat)
+        if name == self.state.object:
+            self.state.base_material = mat
+            self.fitter = None
+        return [ev]
+
+    def _apply_environment(self) -> None:
+        i = self.state.environment_index
+        key = None if i is None else (i, self.state.environments[i].sha256)
+        if key == self._env_key:
+            return
+        if not self.state.allows("environment"):
+            self._env_key = key                   # a fixed-light renderer keeps its precomputed map
+            return
+        if i is not None:
+            if self.env_loader is None:
+                raise FitError("environment presets need a worker that can load them")
+            self.renderer.set_environment(self.env_loader(self.state.environments[i]))
+        else:
+            self.renderer.set_environment(self.scene.envmap)
+        self._env_key = key
+        self._vt = None
+
+    # -- messages -----------------------------------------------------------------------------------
+    def handle(self, raw: dict) -> list[dict]:
+        """Apply one client message (a dict as the client sent it); returns events."""
+        msg = client_msg.validate_python(raw)
+        if msg.seq <= self.state.last_seq:
+            return []                      # already in the restored state
+        self.state, eff = apply(self.state, msg)
+        if msg.drags:
+            self._drag = msg.drag
+            mark_busy(id(self))
+        return EFFECTS[type(eff)](self, msg, eff)
+
+    def _save_request(self, p) -> dict:
+        mat = self.state.material_of(self.state.object)
+        return SaveRequest(seq=p.seq, object=self.state.object, name=p.name, material_id=p.material_id,
+                           material=_dump(mat)).model_dump()
+
+    def take_events(self) -> list[dict]:
+        """Events produced outside a message (restore notes, rejected replays, re-run saves)."""
+        ev, self.events = self.events, []
+        if self._restored:
+            self._restored = False
+            ev += self.fit_if_needed()
+        if self._resave:
+            ev += self.fit_if_needed()
+            ev += [self._save_request(p) for p in self._resave]
+            self._resave = []
+        return ev
+
+    def close(self) -> None:
+        """The session ended: its queued background builds are cancelled (a running one ends
+        with its current view; none starts after), and the renderer's cached primary hits of a
+        big camera are dropped (a build under way holds the fitter, so the renderer, until it
+        ends), so the worker goes back to resting memory (the caller then releases memory,
+        worker.memory.release_memory). Before, after an 8192×8192 stream closed its prefetch
+        kept both cores busy ~60 s and the worker stayed at 7 GB."""
+        self.closed = True
+        for fut in list(self._pending.values()) + [c[2] for c in self._completions.values()]:
+            fut.cancel()
+        self._pending.clear()
+        self._completions.clear()
+        self._vt = None
+        self.fitter = None
+        cam = self.state.camera
+        if cam.width * cam.height >= BIG_FRAME_PIXELS:
+            for r in self.renderers.values():
+                if hasattr(r, "forget_views"):
+                    r.forget_views(BIG_FRAME_PIXELS)
+
+    # -- frames -----------------------------------------------------------------------------------
+    @property
+    def frame_budget_ms(self) -> float:
+        return self.lod.frame_budget_ms
+
+    @frame_budget_ms.setter
+    def frame_budget_ms(self, ms: float) -> None:
+        self.lod.frame_budget_ms = ms
+
+    @property
+    def drag_scale(self) -> int:
+        return self.lod.drag_scale
+
+    def level_of_detail(self) -> tuple[str, int]:
+        """(lod, samples) of the next frame (lod.py LevelOfDetail.choose)."""
+        return self.lod.choose(self.state, self._drag)
+
+    def _still_view_ready(self, camera, samples: int) -> bool:
+        has = getattr(self.renderer, "has_view", None)
+        return has is None or has(camera, samples)
+
+    def needs_still_frame(self) -> bool:
+        """Whether the last frame was a moving one (one sample, or the drag level of detail) and
+        the session is not dragging: when no message is waiting, one more frame (``frame``) is
+        the settled, anti-aliased image of the same state."""
+        return self.lod.needs_still(self._drag)
+
+    def frame(self, ack: int, skipped: int = 0, cancelled=None) -> tuple[dict, bytes]:
+        """The current frame: (header (FrameHeader fields), JPEG bytes). cancelled : for a frame
+        that may give way (renderers.base.FrameRequest.cancelled), a checkpoint that may block
+        while strokes elsewhere go first (the header's ``ms_paused``, not counted in the frame's
+        own times, which set the level of detail) and says when the frame is no longer wanted;
+        the renderer may then raise renderers.base.FrameCancelled (nothing changes)."""
+        t0 = time.perf_counter()
+        clock = compose.PauseClock(cancelled)
+        st = self.state
+        change = self.lod.change(st)
+        lod, samples = self.level_of_detail()
+        camera, lighting = st.camera, Lighting(st.rotation_deg, st.intensity)
+        if not st.allows("camera"):          # a fixed-view renderer draws its own camera and light
+            camera = self.scene.spec.camera
+            lighting = Lighting(self.scene.spec.environment.rotation_deg, st.intensity)
+        # progressive: a new fit, or a camera whose anti-aliased primary hits are not traced yet
+        # (the user just let go), is shown at once with one sample; the anti-aliased frame
+        # follows when the session is idle (needs_still_frame, the worker's loop), and that one
+        # is not put off again
+        follow_up = self.lod.follows_moving_frame(st)
+        if samples > 1 and (self._quick_next or (not follow_up and not self._still_view_ready(camera, samples))):
+            lod, samples = "quick", 1
+        self._quick_next = False
+        req = FrameRequest(camera=camera, lighting=lighting, materials=st.materials, lod=lod, samples=samples,
+                           drag_scale=self.lod.drag_scale, cancelled=clock.cancelled,
+                           ground_shadow=st.shadow, transforms=st.transforms or None,
+                           # the per-vertex transfer is per view: built for still views, not per drag frame
+                           vertex_radiance=None if self._drag else self._override())
+        out = self.renderer.render(req)
+        rgb = compose.tone(out.radiance, st.exposure, st.tone)
+        t1 = clock.now()
+        w, h, jpeg = compose.jpeg(rgb, st.quality, self._drag)
+        t2 = clock.now()
+        self.lod.record(st, self._drag, lod, samples, change, (t2 - t0) * 1e3)
+        self.frame_no += 1
+        compose.release_scratch(w, h)
+        hdr = compose.header(self.frame_no, ack, w, h, lod, out.info, (t1 - t0) * 1e3, (t2 - t1) * 1e3,
+                             clock.paused * 1e3, skipped)
+        return hdr, jpeg
+
+
+# -- what each effect does in the worker ----------------------------------------------------------
+
+
+@handles(NoEffect)
+def _nothing(rt: SessionRuntime, msg, eff) -> list[dict]:
+    return []
+
+
+@handles(Moved)
+def _moved(rt: SessionRuntime, msg, eff: Moved) -> list[dict]:
+    # fit views and the vertex transfer were of the old placement
+    if hasattr(rt.renderer, "place"):
+        rt.renderer.place(rt.state.transforms or None)
+    rt._moves += 1
+    rt._vt = None
+    rt._drop_fit_work()
+    return []
+
+
+@handles(NewMaterial)
+def _new_material(rt: SessionRuntime, msg, eff: NewMaterial) -> list[dict]:
+    if eff.rebase:
+        rt.fitter = None             # strokes painted over the old material do not carry over
+        rt._needs_fit = False
+        rt._drop_fit_work()
+    return [{"type": "curve", "seq": msg.seq, "object": eff.object, "curve": brdf_curve(msg.material)}]
+
+
+@handles(RecordStroke)
+def _stroke(rt: SessionRuntime, msg, eff: RecordStroke) -> list[dict]:
+    se = rt._add_stroke({**eff.stroke, "seq": msg.seq}, live=True)
+    if not se.rejected:
+        rt._needs_fit = True
+    return [se.model_dump()]
+
+
+def _undo_redo(rt: SessionRuntime, msg, what: str) -> list[dict]:
+    fx = rt.fitter
+    if fx is not None and (fx.undo() if what == "undo" else fx.redo()) is not None:
+        rt._needs_fit = True
+        return []
+    return [NoteEvent(seq=msg.seq, message=f"nothing to {what}").model_dump()]
+
+
+@handles(Undo)
+def _undo(rt: SessionRuntime, msg, eff) -> list[dict]:
+    return _undo_redo(rt, msg, "undo")
+
+
+@handles(Redo)
+def _redo(rt: SessionRuntime, msg, eff) -> list[dict]:
+    return _undo_redo(rt, msg, "redo")
+
+
+@handles(Refit)
+def _refit(rt: SessionRuntime, msg, eff) -> list[dict]:
+    rt._needs_fit = True
+    return []
+
+
+@handles(Save)
+def _save(rt: SessionRuntime, msg, eff: Save) -> list[dict]:
+    return rt.fit_if_needed() + [rt._save_request(eff.save)]
+
+
+@handles(SwitchRenderer)
+def _switch(rt: SessionRuntime, msg, eff) -> list[dict]:
+    from ..renderers import controls
+
+    rt._switch_renderer(rt.state.renderer)
+    rt._apply_environment()
+    return [RendererEvent(seq=msg.seq, kind=rt.state.renderer,
+                          controls=sorted(controls(rt.state.renderer))).model_dump()]
+
+
+@handles(Relight)
+def _relight(rt: SessionRuntime, msg, eff) -> list[dict]:
+    rt._apply_environment()
+    return []
+
+
+@handles(FitPaint)
+def _fit_paint(rt: SessionRuntime, msg, eff: FitPaint) -> list[dict]:
+    return rt._paint(eff.object, msg.seq)

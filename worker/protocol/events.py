@@ -1,0 +1,173 @@
+"""The stream's events: what the server sends its client (``ServerEvent``), and what a worker
+sends the server about a session (``WorkerEvent``: a fit, a paint fit, a rejected stroke, a
+save to store).
+
+A worker event that changes what is stored says so on its class, like a client message
+(messages.py): ``storage`` (how the server writes the state it leaves) and ``apply`` (the new
+state and the effect for the server's store, effects.py); the server applies it with
+``apply_event`` to its copy of the stored state, the same way it applies client messages.
+"""
+from __future__ import annotations
+
+from typing import Annotated, ClassVar, Literal, Union
+
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
+
+from ..models import parse_material
+from .effects import NO_EFFECT, RejectStroke, StoreEffect, StoreSave
+from .messages import Storage
+from .state import SessionState, copy_state
+
+class _Event(BaseModel):
+    seq: int | None = Field(None, description="the client message this answers, if any")
+
+
+class _WorkerEvent(_Event):
+    """An event a worker sends that the server applies to the stored state (``apply_event``).
+    storage : as a client message's; "rows": it changes rows of its own only, never the state
+    (its ``apply`` is given None)."""
+    storage: ClassVar[Storage] = "state"
+
+    def apply(self, st: SessionState | None) -> StoreEffect | None:
+        """Change ``st`` (the caller's copy) and say what else the server stores (None: nothing)."""
+        raise NotImplementedError
+
+
+class HelloEvent(_Event):
+    type: Literal["hello"] = "hello"
+    session: str
+    state: dict
+    strokes: int = Field(description="active strokes")
+    renderer: str = "cuts"
+    renderers: list[str] = Field(default_factory=list, description="renderers the session may switch between")
+    controls: list[str] = Field(default_factory=list, description="what this session's renderer lets a client change")
+
+
+class StrokeEvent(_WorkerEvent):
+    storage: ClassVar[Storage] = "rows"
+    type: Literal["stroke"] = "stroke"
+    strokes: int
+    notes: list[str] = Field(default_factory=list)
+    rejected: bool = False
+
+    def apply(self, st):
+        # a rejected stroke's row is never replayed; the state does not change
+        return RejectStroke(self.seq) if self.rejected and self.seq is not None else None
+
+
+class FitStats(BaseModel):
+    model_config = ConfigDict(extra="allow")
+    strokes: int = 0
+
+
+class FitEvent(_WorkerEvent):
+    # a fit is derived from the stored strokes (a restore replays them and fits again), so it
+    # is written like a camera move, at most FLUSH_S later: the stroke's frame, which follows
+    # this event, does not wait for a transaction that rewrites the ~30 KB state
+    storage: ClassVar[Storage] = "batched"
+    type: Literal["fit"] = "fit"
+    object: str
+    material: dict
+    curve: dict
+    stats: FitStats
+    notes: list[str] = Field(default_factory=list)
+
+    def apply(self, st):
+        if self.object in st.objects:
+            mats = list(st.materials)
+            mats[st.objects.index(self.object)] = parse_material(self.material)
+            st.materials = mats
+        return None
+
+
+class CurveEvent(_Event):
+    type: Literal["curve"] = "curve"
+    object: str
+    curve: dict
+
+
+class SavedEvent(_Event):
+    type: Literal["saved"] = "saved"
+    material_id: str
+    version: int
+    name: str
+
+
+class NoteEvent(_Event):
+    type: Literal["note"] = "note"
+    message: str
+
+
+class ErrorEvent(_Event):
+    type: Literal["error"] = "error"
+    message: str
+    fatal: bool = False
+    code: int | None = None
+
+
+class PaintEvent(_WorkerEvent):
+    """The lobes material fitted to a ``paint`` message's readings (worker/paint/session.py)."""
+    type: Literal["paint"] = "paint"
+    object: str
+    material: dict
+    measured: dict = Field(description="the fitted material's readings: what the frame shows")
+    requested: dict
+    error_l1: float
+    error_max: float
+    flop_index: float | None = None
+    ms_fit: float
+
+    def apply(self, st):
+        if self.object in st.objects:
+            mat = parse_material(self.material)
+            mats = list(st.materials)
+            mats[st.objects.index(self.object)] = mat
+            st.materials = mats
+            if self.object == st.object:
+                st.base_material = mat          # strokes now paint over the paint
+        return None
+
+
+class RendererEvent(_Event):
+    """The session now draws with this renderer; ``controls`` is what a client may change."""
+    type: Literal["renderer"] = "renderer"
+    kind: str
+    controls: list[str]
+
+
+class SaveRequest(_WorkerEvent):
+    """Worker → server only: the material to store for a pending save."""
+    type: Literal["save"] = "save"
+    object: str
+    name: str | None = None
+    material_id: str | None = None
+    material: dict
+
+    def apply(self, st):
+        # no longer pending whatever the store makes of it (stored, or refused with an error)
+        st.pending_saves = [p for p in st.pending_saves if p.seq != self.seq]
+        return StoreSave(self.seq, self.object, self.name, self.material_id, self.material)
+
+
+ServerEvent = Annotated[Union[HelloEvent, StrokeEvent, FitEvent, CurveEvent, SavedEvent, NoteEvent, ErrorEvent,
+                              PaintEvent, RendererEvent],
+                        Field(discriminator="type")]
+server_event = TypeAdapter(ServerEvent)
+
+
+# worker → server events that change what is stored, by type; any other event is passed on
+WORKER_EVENTS: dict[str, type[_WorkerEvent]] = {c.model_fields["type"].default: c
+                                                for c in (StrokeEvent, FitEvent, PaintEvent, SaveRequest)}
+
+
+def worker_event(ev: dict) -> _WorkerEvent | None:
+    """The typed worker event of an event dict, or None for one the server only passes on."""
+    cls = WORKER_EVENTS.get(ev.get("type"))
+    return None if cls is None else cls.model_validate(ev)
+
+
+def apply_event(state: SessionState, ev: _WorkerEvent) -> tuple[SessionState, StoreEffect]:
+    """The stored state after a worker event and what else the server stores; the input state
+    is not modified (copy-on-write, as ``messages.apply``)."""
+    st = copy_state(state)
+    return st, ev.apply(st) or NO_EFFECT
