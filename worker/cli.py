@@ -90,25 +90,33 @@ def cmd_precompute(a) -> int:
 
 def load_material_overrides(scene, specs) -> list:
     """The scene's materials with ``--material OBJECT=MATERIAL.json`` overrides applied (e.g. the
-    output of ``glint fit``)."""
-    from pydantic import ValidationError
-
-    from .models import parse_material
+    output of ``glint fit``), applied by worker/overrides.py; the spec syntax, the file and the
+    wording of the errors are the command line's."""
+    from .overrides import InvalidMaterial, UnknownObject, apply_material_overrides
     from .scene import SceneError
 
     mats = list(scene.materials)
     names = [o.name for o in scene.spec.objects]
     for spec in specs or []:
         name, sep, path = spec.partition("=")
-        if not sep or name not in names:
-            raise SceneError(f"--material {spec!r}: expected OBJECT=FILE with OBJECT one of {', '.join(names)}")
         p = Path(path)
-        if not p.is_file():
-            raise SceneError(f"{p}: material file not found")
+
+        def read(p=p):
+            if not p.is_file():
+                raise SceneError(f"{p}: material file not found")
+            try:
+                return json.loads(p.read_text())
+            except ValueError as e:
+                raise SceneError(f"{p}: not a valid material ({str(e).splitlines()[0]})") from e
+        usage = f"--material {spec!r}: expected OBJECT=FILE with OBJECT one of {', '.join(names)}"
+        if not sep:
+            raise SceneError(usage)
         try:
-            mats[names.index(name)] = parse_material(json.loads(p.read_text()))
-        except (ValueError, ValidationError) as e:
-            raise SceneError(f"{p}: not a valid material ({str(e).splitlines()[0]})") from e
+            mats = apply_material_overrides(scene, [(name, read)], mats)
+        except UnknownObject:
+            raise SceneError(usage) from None
+        except InvalidMaterial as e:
+            raise SceneError(f"{p}: not a valid material ({e.reason})") from e
     return mats
 
 
