@@ -99,7 +99,7 @@ def test_a_release_0_3_database_is_upgraded_and_served(kind, tmp_path, request):
     eng = create_engine(url)
     assert "alembic_version" not in inspect(eng).get_table_names()
     eng.dispose()
-    out = subprocess.run([sys.executable, "-m", "worker.cli", "db", "upgrade", "--database-url", url,
+    out = subprocess.run([sys.executable, "-m", "glint", "db", "upgrade", "--database-url", url,
                           "--data-dir", str(tmp_path)], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     from server.migrate import head
