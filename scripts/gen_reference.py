@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Writes the generated reference pages of the docs site from the code, so they cannot go stale:
 
-- docs/reference/cli.md     from the argparse parser of ``glint`` (worker.cli.build_parser)
+- docs/reference/cli.md     from the argparse parser of ``glint`` (glint.cli.build_parser)
 - docs/reference/rest.md    from openapi.yaml
 - docs/reference/stream.md  from stream-schema.json
 - docs/reference/settings.md from the service's Settings (server/config.py)
@@ -45,7 +45,7 @@ def cli_commands() -> list[tuple[str, str | None, argparse.ArgumentParser]]:
     """Every command of ``glint`` as (full name, help, parser), the root first."""
     sys.path.insert(0, str(ROOT))
     os.environ["COLUMNS"] = "100"   # argparse wraps help to the terminal: keep the page stable
-    from worker.cli import build_parser
+    from glint.cli import build_parser
 
     return list(_walk(build_parser(), "glint", None))
 
@@ -56,7 +56,7 @@ def _leaf(parser: argparse.ArgumentParser) -> bool:
 
 def cli_page() -> str:
     cmds = cli_commands()
-    out = ["# Command-line reference\n\n", NOTE.format(src="worker/cli.py and the modules in its COMMAND_MODULES"),
+    out = ["# Command-line reference\n\n", NOTE.format(src="glint/cli.py: worker/cli.py and the modules in its COMMAND_MODULES, server/cli.py, bench/cli.py"),
            "Every `glint` command with its options, as `glint … --help` prints them. "
            "The [command-line overview](../guides/command-line.md) says what the main commands print.\n\n",
            "| command | what it does |\n|---|---|\n"]

@@ -75,7 +75,7 @@ class GlintServer:
         full = {**os.environ, "GLINT_MAX_MESH_BYTES": str(8 * 1024 * 1024), "PYTHONUNBUFFERED": "1", **(env or {})}
         self.log_path = Path(log_path) if log_path else self.data / "server.log"
         self._log = open(self.log_path, "a")
-        args = [sys.executable, "-m", "worker.cli", "serve", "--port", str(self.port), "--data-dir", str(self.data),
+        args = [sys.executable, "-m", "glint", "serve", "--port", str(self.port), "--data-dir", str(self.data),
                 "--workers", str(workers)] + ([] if demo else ["--no-demo"])
         self.proc = subprocess.Popen(args, cwd=ROOT, env=full, stdout=self._log, stderr=subprocess.STDOUT)
         _started.append(self.proc)

@@ -11,7 +11,7 @@ SCENE = str(ROOT / "tests" / "scenes" / "bunny.json")
 
 
 def glint(*args, check=True):
-    r = subprocess.run([sys.executable, "-m", "worker.cli", *args], capture_output=True, text=True, cwd=ROOT, timeout=600)
+    r = subprocess.run([sys.executable, "-m", "glint", *args], capture_output=True, text=True, cwd=ROOT, timeout=600)
     if check:
         assert r.returncode == 0, r.stderr
     return r

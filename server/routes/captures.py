@@ -11,20 +11,18 @@ from __future__ import annotations
 
 import asyncio
 import datetime as dt
-import logging
-from pathlib import Path
 
 from fastapi import APIRouter, HTTPException, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from pydantic import BaseModel
 
-from ..db import Asset, Capture
+from ..db import Capture
 from ..deps import DB, Client, State
-from ..workers import JobFailed
+from ..services import captures
 from .assets import receive_upload
+from .errors import http_errors
 
 router = APIRouter(prefix="/v1/captures", tags=["captures"])
-log = logging.getLogger("glint")
 
 # Both media types the route accepts are declared: generated clients (openapi-python-client)
 # upload binary bodies as application/octet-stream only, and skipped the route when it named zip alone
@@ -59,79 +57,24 @@ async def start_capture(request: Request, st: State, _: Client):
     if ctype.split(";")[0].strip() not in ("application/zip", "application/x-zip-compressed", "application/octet-stream"):
         raise HTTPException(415, "a capture is uploaded as application/zip (manifest.json and the photos)")
     tmp, sha, size = await receive_upload(request, st, st.settings.max_capture_bytes, "captures")
-    try:
-        sha = st.blobs.put_file(Path(tmp.name), sha)
-    finally:
-        Path(tmp.name).unlink(missing_ok=True)
+    sha = await run_in_threadpool(captures.store_zip, st.blobs, tmp.name, sha)
 
     def create():
         with st.db() as s, s.begin():
-            c = Capture(zip_sha256=sha, status="queued", stats={"zip_bytes": size})
-            s.add(c)
-            s.flush()
-            return c
+            return captures.create(s, sha, size)
     c = await run_in_threadpool(create)
-    st.precompute_tasks[f"capture-{c.id}"] = asyncio.create_task(_run(st, c.id))
+    st.precompute_tasks[f"capture-{c.id}"] = asyncio.create_task(captures.run(st, c.id))
     return _out(c)
-
-
-async def _run(st, cid: str) -> None:
-    def update(**kw):
-        with st.db() as s, s.begin():
-            c = s.get(Capture, cid)
-            for k, v in kw.items():
-                setattr(c, k, v)
-
-    last = [0.0]
-
-    def progress(f, msg):
-        if f - last[0] >= 0.02 or f >= 1.0:
-            last[0] = f
-            update(progress=float(f), message=str(msg)[:1000], status="running")
-
-    try:
-        with st.db() as s:
-            zsha = s.get(Capture, cid).zip_sha256
-        await run_in_threadpool(update, status="running", message="starting")
-        res = await st.pool.run_job({"type": "capture", "zip_sha256": zsha, "max_files": st.settings.max_capture_files,
-                                     "max_total_bytes": st.settings.max_capture_unpacked_bytes}, on_progress=progress)
-
-        def done():
-            with st.db() as s, s.begin():
-                a = Asset(kind="envmap", filename=f"capture-{cid}.exr", sha256=res["exr_sha256"], size=res["exr_bytes"],
-                          meta={"source": "capture", "capture_id": cid,
-                                "width": res["stats"].get("width"), "height": res["stats"].get("height")})
-                s.add(a)
-                s.flush()
-                c = s.get(Capture, cid)
-                c.status, c.progress, c.message = "done", 1.0, "done"
-                c.asset_id, c.preview_sha256 = a.id, res["preview_sha256"]
-                c.stats = {**(c.stats or {}), **res["stats"]}
-        await run_in_threadpool(done)
-    except asyncio.CancelledError:
-        await run_in_threadpool(update, status="failed", message="cancelled: the server stopped; upload it again")
-        raise
-    except JobFailed as e:
-        await run_in_threadpool(update, status="failed", message=str(e)[:1000], stats={"status": e.status})
-    except Exception as e:
-        log.exception("capture %s failed", cid)
-        await run_in_threadpool(update, status="failed", message=f"internal error ({type(e).__name__})")
-    finally:
-        st.precompute_tasks.pop(f"capture-{cid}", None)
 
 
 @router.get("/{cid}", response_model=CaptureOut)
 def get_capture(cid: str, db: DB, _: Client):
-    c = db.get(Capture, cid)
-    if c is None:
-        raise HTTPException(404, f"no capture {cid!r}")
-    return _out(c)
+    with http_errors():
+        return _out(captures.get(db, cid))
 
 
 @router.get("/{cid}/preview", response_class=Response, responses={200: PNG})
 def capture_preview(cid: str, st: State, db: DB, _: Client):
     """The stitched map, tone-mapped (PNG)."""
-    c = db.get(Capture, cid)
-    if c is None or not c.preview_sha256:
-        raise HTTPException(404, f"capture {cid!r} has no preview (yet)")
-    return Response(st.blobs.get(c.preview_sha256), media_type="image/png")
+    with http_errors():
+        return Response(captures.preview(db, st.blobs, cid), media_type="image/png")

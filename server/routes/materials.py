@@ -2,12 +2,14 @@
 deleting archives the design (its versions stay readable)."""
 from __future__ import annotations
 
-from fastapi import APIRouter, HTTPException, Path, Query
-from sqlalchemy import select, update
+from fastapi import APIRouter, Path, Query
 
-from ..db import MaterialDesign, MaterialVersion, latest_version
+from ..db import MaterialDesign, MaterialVersion
 from ..deps import DB, Client
 from ..schemas import MaterialCreate, MaterialOut, MaterialUpdate, VersionOut
+from ..services import materials
+from ..services.materials import add_version  # noqa: F401 -- routes/sessions.py saves versions through it
+from .errors import http_errors
 
 router = APIRouter(prefix="/v1/materials", tags=["materials"])
 # integers from clients are bounded in the schema: a larger one overflowed the database
@@ -20,80 +22,52 @@ def _out(d: MaterialDesign, v: MaterialVersion) -> MaterialOut:
                        object=d.object, archived=d.archived, created=v.created)
 
 
-def _design(db, material_id: str) -> MaterialDesign:
-    d = db.get(MaterialDesign, material_id)
-    if d is None:
-        raise HTTPException(404, f"no material {material_id!r}")
-    return d
-
-
-def add_version(db, d: MaterialDesign, body: dict, note: str = "") -> MaterialVersion:
-    # lock the design until commit, so that concurrent saves (sessions, REST) number their versions
-    # one after the other: a no-op UPDATE takes the row lock on PostgreSQL and the write lock on
-    # SQLite, whose driver runs the reads before a transaction's first write outside it
-    db.execute(update(MaterialDesign).where(MaterialDesign.id == d.id).values(archived=MaterialDesign.archived)
-               .execution_options(synchronize_session=False))
-    cur = latest_version(db, d.id)
-    v = MaterialVersion(design_id=d.id, version=(cur.version + 1) if cur else 1, body=body, note=note)
-    db.add(v)
-    return v
+def _version_out(v: MaterialVersion) -> VersionOut:
+    return VersionOut(version=v.version, material=v.body, note=v.note, created=v.created)
 
 
 @router.post("", response_model=MaterialOut, status_code=201)
 def create_material(req: MaterialCreate, db: DB, _: Client):
-    d = MaterialDesign(name=req.name, scene_id=req.scene_id, object=req.object)
-    db.add(d)
-    db.flush()
-    v = add_version(db, d, req.material.model_dump(mode="json"), req.note)
+    d, v = materials.create(db, req.name, req.scene_id, req.object, req.material.model_dump(mode="json"), req.note)
     db.commit()
     return _out(d, v)
 
 
 @router.get("", response_model=list[MaterialOut])
 def list_materials(db: DB, _: Client, include_archived: bool = Query(False)):
-    q = select(MaterialDesign).order_by(MaterialDesign.created.desc()).limit(500)
-    if not include_archived:
-        q = q.where(MaterialDesign.archived.is_(False))
-    return [_out(d, latest_version(db, d.id)) for d in db.scalars(q)]
+    return [_out(d, v) for d, v in materials.list_designs(db, include_archived)]
 
 
 @router.get("/{material_id}", response_model=MaterialOut)
 def get_material(material_id: str, db: DB, _: Client):
-    d = _design(db, material_id)
-    return _out(d, latest_version(db, d.id))
+    with http_errors():
+        return _out(*materials.get(db, material_id))
 
 
 @router.put("/{material_id}", response_model=MaterialOut)
 def update_material(material_id: str, req: MaterialUpdate, db: DB, _: Client):
-    d = _design(db, material_id)
-    if d.archived:
-        raise HTTPException(409, f"material {material_id!r} is archived")
-    v = add_version(db, d, req.material.model_dump(mode="json"), req.note)
+    with http_errors():
+        d, v = materials.save(db, material_id, req.material.model_dump(mode="json"), req.note)
     db.commit()
     return _out(d, v)
 
 
 @router.get("/{material_id}/versions", response_model=list[VersionOut])
 def list_versions(material_id: str, db: DB, _: Client):
-    _design(db, material_id)
-    rows = db.scalars(select(MaterialVersion).where(MaterialVersion.design_id == material_id)
-                      .order_by(MaterialVersion.version))
-    return [VersionOut(version=v.version, material=v.body, note=v.note, created=v.created) for v in rows]
+    with http_errors():
+        return [_version_out(v) for v in materials.versions(db, material_id)]
 
 
 @router.get("/{material_id}/versions/{version}", response_model=VersionOut)
 def get_version(material_id: str, db: DB, _: Client,
                 version: int = Path(ge=1, le=MAX_INT, description="1, 2, … (the first save is 1)")):
-    v = db.scalars(select(MaterialVersion).where(MaterialVersion.design_id == material_id,
-                                                 MaterialVersion.version == version)).first()
-    if v is None:
-        raise HTTPException(404, f"material {material_id!r} has no version {version}")
-    return VersionOut(version=v.version, material=v.body, note=v.note, created=v.created)
+    with http_errors():
+        return _version_out(materials.version(db, material_id, version))
 
 
 @router.delete("/{material_id}", response_model=MaterialOut)
 def archive_material(material_id: str, db: DB, _: Client):
-    d = _design(db, material_id)
-    d.archived = True
+    with http_errors():
+        d, v = materials.archive(db, material_id)
     db.commit()
-    return _out(d, latest_version(db, d.id))
+    return _out(d, v)

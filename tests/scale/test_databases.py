@@ -99,7 +99,7 @@ def test_a_release_0_3_database_is_upgraded_and_served(kind, tmp_path, request):
     eng = create_engine(url)
     assert "alembic_version" not in inspect(eng).get_table_names()
     eng.dispose()
-    out = subprocess.run([sys.executable, "-m", "worker.cli", "db", "upgrade", "--database-url", url,
+    out = subprocess.run([sys.executable, "-m", "glint", "db", "upgrade", "--database-url", url,
                           "--data-dir", str(tmp_path)], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     from server.migrate import head
@@ -198,7 +198,7 @@ def test_versions_are_numbered_one_after_the_other_under_contention(empty_db, mo
     """Eight threads add a version to one design at the same moment, each pausing between
     reading the latest version and inserting the next (the race window, widened): the lock on the
     design makes the versions 1…9 on SQLite and on PostgreSQL (without it, they collide)."""
-    import server.routes.materials as materials
+    import server.services.materials as materials
     from server.db import MaterialDesign, MaterialVersion, make_sessionmaker
 
     Session_ = make_sessionmaker(empty_db)

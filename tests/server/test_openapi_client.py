@@ -50,7 +50,7 @@ def test_generated_client_drives_the_automation_flow(server, glint_client, share
     from glint_client.models import FitRequest, RenderRequest, SceneFile, Stroke, UploadV1AssetsKindPostKind
     from glint_client.types import File
 
-    tok = subprocess.run([sys.executable, "-m", "worker.cli", "token", "create", "--name", "gen",
+    tok = subprocess.run([sys.executable, "-m", "glint", "token", "create", "--name", "gen",
                           "--data-dir", str(server["data"])], capture_output=True, text=True, cwd=ROOT, timeout=60)
     assert tok.returncode == 0, tok.stderr
     c = AuthenticatedClient(base_url=server["base"], token=tok.stdout.strip(), timeout=300)

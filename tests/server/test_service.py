@@ -210,7 +210,7 @@ def test_bad_input_gets_clear_4xx(server, client, shared_assets, tmp_path):
 def test_api_tokens(server, client):
     r = client.get("/v1/materials", headers={"Authorization": "Bearer nope"})
     assert r.status_code == 401
-    out = subprocess.run([sys.executable, "-m", "worker.cli", "token", "create", "--name", "ci", "--data-dir", str(server["data"])],
+    out = subprocess.run([sys.executable, "-m", "glint", "token", "create", "--name", "ci", "--data-dir", str(server["data"])],
                          capture_output=True, text=True, cwd=ROOT, timeout=60)
     assert out.returncode == 0, out.stderr
     token = out.stdout.strip()
@@ -220,7 +220,7 @@ def test_api_tokens(server, client):
 
 def test_openapi_yaml_is_current():
     """openapi.yaml at the repository root is generated from the app (glint openapi --out openapi.yaml)."""
-    from worker.cli import openapi_yaml
+    from server.cli import openapi_yaml
 
     assert (ROOT / "openapi.yaml").read_text() == openapi_yaml(), "openapi.yaml drifted: run `glint openapi --out openapi.yaml`"
 

@@ -59,7 +59,7 @@ class Server:
         self.proc = None
         if port is None:
             port = _free_port()
-            cmd = [sys.executable, "-m", "worker.cli", "serve", "--port", str(port)]
+            cmd = [sys.executable, "-m", "glint", "serve", "--port", str(port)]
             if data_dir:
                 cmd += ["--data-dir", data_dir]
             if workers:
@@ -187,7 +187,7 @@ class Stream:
         return s
 
     async def _recv(self):
-        from .jobs.state import decode_frame
+        from worker.jobs.state import decode_frame
 
         try:
             async for x in self.ws:
@@ -378,7 +378,7 @@ def _freeze_client() -> None:
     import httpx  # noqa: F401
     import websockets  # noqa: F401
 
-    from .memory import freeze_start_up
+    from worker.memory import freeze_start_up
 
     freeze_start_up()
 

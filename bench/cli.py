@@ -1,0 +1,153 @@
+"""The benchmarks of the ``glint`` command line: ``glint bench render | fit | stream | load`` and
+``glint bench-ray``. They live outside the runtime packages (worker/, server/): a benchmark
+measures the library or the running service from outside, as a user would, and ships with
+neither. ``glint bench stream`` and ``load`` start ``glint serve`` as a child process (or use a
+server already running), so this package imports no server module either.
+
+glint/cli.py registers them: ``add_bench_commands`` under ``glint bench`` (next to the
+capabilities' own, e.g. ``glint bench move``), ``add_commands`` for the top-level ones.
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+
+
+def cmd_bench_render(a) -> int:
+    """Frame time while the light and the BRDF change every frame, at full quality (the
+    precomputed τ, full resolution), at the drag level of detail, and as still frames
+    (full quality anti-aliased with 4 samples per pixel: ``_aa4``), after two warm-up frames
+    (hit buffer, lighting matrices) that a user's first frame pays once."""
+    import numpy as np
+
+    from worker import native
+    from worker.cli import _frame, _renderer
+    from worker.core.tonemap import tonemap
+    from worker.scene import GGX
+
+    r, _ = _renderer(a, quiet=a.json)
+    cam = r.scene.spec.camera
+    mode = "pixel" if a.per_pixel else "vertex"
+    n = len(r.scene.materials)
+    res = {"frames": a.frames, "width": cam.width, "height": cam.height, "mode": mode,
+           "vertices": int(len(r.scene.mesh.vertices)), "native": native.available(), "threads": native.max_threads(),
+           "simd": bool(r.k.simd()) if hasattr(r.k, "simd") else False,
+           "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY")}
+    for lod, samples in (("full", 1), ("drag", 1), ("full", 4)):
+        for _ in range(2):  # warm-up: hit buffer, lighting matrices, caches
+            tonemap(_frame(r, shading=mode, lod=lod, samples=samples).radiance)
+        times = []
+        for i in range(a.frames):
+            rot = (i * 360.0 / max(a.frames, 1)) % 360.0
+            # the BRDF changes every frame: a GGX whose roughness and colour sweep
+            mats = [GGX(alpha=0.1 + 0.3 * ((i * 0.37) % 1.0), specular=(0.9, 0.8, 0.6),
+                        albedo=(0.3, 0.2 + 0.1 * (i % 3), 0.1)) for _ in range(n)]
+            t0 = time.perf_counter()
+            out = _frame(r, mats, mode, rot, lod=lod, samples=samples)
+            tonemap(out.radiance)
+            times.append(time.perf_counter() - t0)
+        ms = float(np.median(times) * 1000)
+        sfx = "_aa4" if samples > 1 else ("" if lod == "full" else "_drag")
+        res.update({f"ms_per_frame{sfx}": ms, f"fps{sfx}": 1000.0 / ms, f"p95_ms{sfx}": float(np.percentile(times, 95) * 1000)})
+        if lod == "drag":
+            res.update(width_drag=out.info["width"], height_drag=out.info["height"], tau_drag=out.info["tau"])
+        elif samples == 1:
+            res.update(visible_vertices=out.info.get("visible_vertices"), tau=out.info["tau"])
+        if mode == "pixel":
+            break
+    res["mean_cut_size"] = float(r.cuts.sizes().mean())
+    print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items()))
+    return 0
+
+
+def cmd_bench_fit(a) -> int:
+    import numpy as np
+
+    from worker.cli import _fitter, _renderer
+    from worker.fit.brush import Stroke
+
+    r, _ = _renderer(a, quiet=a.json)
+    if a.object is None:
+        a.object = r.scene.spec.objects[0].name
+    fx = _fitter(r, a)
+    t_tr = []
+    for _ in range(a.repeat):
+        fx.views.clear()
+        t0 = time.perf_counter()
+        fx.add_view()
+        t_tr.append(time.perf_counter() - t0)
+    v = fx.views[0]
+    # a white stroke across the middle of the object, twice as bright as its brightest pixel
+    ys = v.xy[:, 1]
+    mid = np.abs(ys - np.median(ys)) < v.footprint * 2
+    xs = np.sort(v.xy[mid, 0])
+    y0 = float(np.median(ys))
+    c = float(v.base.max()) * 2.0
+    fx.add_stroke(Stroke(points=[(float(xs[len(xs) // 4]), y0), (float(xs[len(xs) // 2]), y0)],
+                         color=(c, c, c), diameter=6 * v.footprint, kappa=0.05))
+    cold, warm = [], []
+    for _ in range(a.repeat):
+        fx._last = None
+        cold.append(fx.fit().solve.seconds)
+        warm.append(fx.fit().solve.seconds)
+    res = {"ms_transfer": float(np.median(t_tr) * 1000), "ms_solve": float(np.median(cold) * 1000),
+           "ms_solve_warm": float(np.median(warm) * 1000), "pixels": v.n, "basis": fx.basis.J,
+           "energy_rows": len(fx.basis.energy_rows()), "fit_width": v.size[0], "fit_height": v.size[1],
+           "repeat": a.repeat, "object": a.object}
+    print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items()))
+    return 0
+
+
+def cmd_bench_stream(a) -> int:
+    from .stream import bench_stream
+
+    res = bench_stream(port=a.port, data_dir=a.data_dir, strokes=a.strokes, orbit_seconds=a.orbit_seconds,
+                       quiet=a.json)
+    print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items()))
+    return 0
+
+
+def cmd_bench_load(a) -> int:
+    from .stream import bench_load
+
+    res = bench_load(sessions=a.sessions, seconds=a.seconds, runs=a.runs, port=a.port, data_dir=a.data_dir,
+                     quiet=a.json, workers=a.workers)
+    print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items() if k != "runs"))
+    return 0
+
+
+def add_bench_commands(bsub) -> None:
+    """``glint bench render | fit | stream | load`` into the subparsers of ``glint bench``."""
+    from worker.cli import fit_options
+    from worker.core.cuts import DEFAULT_TAU
+
+    br = bsub.add_parser("render", help="frame time while light and BRDF change")
+    br.add_argument("scene"); br.add_argument("--frames", type=int, default=60); br.add_argument("--json", action="store_true")
+    br.add_argument("--per-pixel", action="store_true"); br.add_argument("--cuts"); br.add_argument("--tau", type=float, default=DEFAULT_TAU)
+    br.set_defaults(fn=cmd_bench_render)
+    bf = bsub.add_parser("fit", help="transfer-matrix and solve times at the default sizes")
+    bf.add_argument("scene"); bf.add_argument("--object", help="default: the first object")
+    bf.add_argument("--repeat", type=int, default=7); bf.add_argument("--json", action="store_true")
+    fit_options(bf)
+    bf.set_defaults(fn=cmd_bench_fit)
+
+    bs = bsub.add_parser("stream", help="stroke-to-frame latency and orbit fps over a real WebSocket")
+    bs.add_argument("--port", type=int, help="use the server already on this loopback port (default: start one)")
+    bs.add_argument("--data-dir", help="data directory of the server this starts (default: a temporary copy of nothing; the demo scene is fetched)")
+    bs.add_argument("--strokes", type=int, default=20); bs.add_argument("--orbit-seconds", type=float, default=5.0)
+    bs.add_argument("--json", action="store_true")
+    bs.set_defaults(fn=cmd_bench_stream)
+    bl = bsub.add_parser("load", help="N concurrent editing sessions (orbit at 30 Hz, a stroke every 3 s)")
+    bl.add_argument("--sessions", type=int, default=8); bl.add_argument("--seconds", type=float, default=20.0)
+    bl.add_argument("--runs", type=int, default=2, help="identical runs in a row (memory must stay flat)")
+    bl.add_argument("--port", type=int); bl.add_argument("--data-dir"); bl.add_argument("--workers", type=int)
+    bl.add_argument("--json", action="store_true")
+    bl.set_defaults(fn=cmd_bench_load)
+
+
+def add_commands(sub) -> None:
+    """The top-level benchmark commands (``glint bench-ray``) into the subparsers of ``glint``."""
+    from .ray_precompute import add_commands as add_ray
+
+    add_ray(sub)

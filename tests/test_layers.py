@@ -1,0 +1,65 @@
+"""The packages depend on each other one way: glint (the command line's composition) → server,
+bench → worker. worker importing server is tested in tests/server/test_session_runtime.py."""
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+IMPORT = r"^\s*(?:from|import)\s+({})\b"
+
+# every command `glint --help` listed before the command line was split into layers
+COMMANDS = {"precompute", "render", "fit", "bench", "serve", "token", "openapi", "schema", "db", "assets", "demo",
+            "gi", "paint", "capture", "capture-synth", "field", "bench-ray"}
+BENCHMARKS = {"render", "fit", "stream", "load", "move", "recovery", "strokes"}
+
+
+def _importers(package: str, names: list[str]) -> list[str]:
+    pat = re.compile(IMPORT.format("|".join(names)), re.M)
+    return [str(p.relative_to(ROOT)) for p in (ROOT / package).rglob("*.py") if pat.search(p.read_text())]
+
+
+def test_runtime_packages_import_neither_the_benchmarks_nor_the_composition():
+    assert not _importers("worker", ["bench", "glint"])
+    assert not _importers("server", ["bench", "glint"])
+
+
+def test_benchmarks_use_the_service_from_outside():
+    """bench stream and load start `glint serve` as a process: no server module is imported."""
+    assert not _importers("bench", ["server", "glint"])
+
+
+def _choices(parser, *path):
+    import argparse
+
+    for name in path:
+        parser = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices[name]
+    return set(next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices)
+
+
+def test_the_composed_command_has_every_command():
+    sys.path.insert(0, str(ROOT))
+    from glint.cli import build_parser
+    from worker.cli import build_parser as worker_parser
+
+    p = build_parser()
+    assert _choices(p) == COMMANDS
+    assert _choices(p, "bench") == BENCHMARKS
+    # worker's own parser (python -m worker.cli) has worker's commands only
+    w = _choices(worker_parser())
+    assert not w & {"serve", "token", "openapi", "db", "bench-ray"} and {"render", "gi", "capture"} <= w
+
+
+def test_building_the_parser_loads_no_web_framework():
+    """`glint --help` stays quick: the server's commands import FastAPI only when they run."""
+    code = "import sys; from glint.cli import build_parser; build_parser(); print('fastapi' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "False"
+
+
+def test_python_m_glint_is_the_glint_command():
+    out = subprocess.run([sys.executable, "-m", "glint", "--help"], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    for cmd in ("serve", "bench-ray", "render", "openapi"):
+        assert cmd in out.stdout
