@@ -187,7 +187,7 @@ class Stream:
         return s
 
     async def _recv(self):
-        from worker.jobs.state import decode_frame
+        from worker.protocol.wire import decode_frame
 
         try:
             async for x in self.ws:

@@ -218,7 +218,7 @@ def stream_page() -> str:
     out = ["# Stream protocol reference\n\n", NOTE.format(src="stream-schema.json"),
            f"{' '.join(s.get('description', '').split())}\n\n",
            "`stream-schema.json` is written by `glint schema --out stream-schema.json` from the message "
-           "classes in `worker/jobs/state.py`. The first client message, before any of those below, is "
+           "classes in `worker/protocol/messages.py`. The first client message, before any of those below, is "
            "`{\"type\": \"auth\", \"token\": …}` with the session's token. How the server and the worker "
            "treat the messages is described in [sessions, streams and workers](../architecture/sessions.md); "
            "the conventions behind the protocol are in [design conventions](../design/conventions.md).\n\n"]

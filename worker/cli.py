@@ -220,7 +220,7 @@ def cmd_fit(a) -> int:
 
 def cmd_schema(a) -> int:
     """The stream's JSON Schema (client messages, server events, frame header)."""
-    from .jobs.state import stream_schema
+    from .protocol.wire import stream_schema
 
     text = json.dumps(stream_schema(), indent=1, sort_keys=True) + "\n"
     if a.out:

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from sqlalchemy import select
 
-from worker.jobs.state import EnvironmentMsg, VariantMsg, apply, new_state
+from worker.protocol.messages import EnvironmentMsg, VariantMsg, apply
+from worker.protocol.state import new_state
 
 from ..db import Asset, MaterialDesign, MaterialVersion, Publication, Scene, Session, latest_version, new_secret, token_hash
 from .errors import Conflict, Invalid, NotFound
