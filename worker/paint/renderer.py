@@ -84,16 +84,6 @@ class PaintPrecomputation(Precomputation):
     prefilters (default: the process's, chosen when first needed)."""
     kind = "paint"
 
-    def __init__(self, kernels=None):
-        self._k = kernels
-
-    @property
-    def kernels(self):
-        if self._k is None:
-            from ..native.kernels import kernels
-            self._k = kernels()
-        return self._k
-
     def parts(self, scene, options):
         ex = basis_of(options)
         out = [Part(_hash(scene.envmap, np.asarray(ex), text=_maps_recipe() + ";maps"), "prefiltered lobe maps",

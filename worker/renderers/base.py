@@ -180,6 +180,19 @@ class Precomputation(ABC):
 
     kind: ClassVar[str]
 
+    def __init__(self, kernels=None):
+        self._k = kernels
+
+    @property
+    def kernels(self):
+        """The kernel backend this precomputation computes with (worker/native/kernels.py): the
+        one it was given, else the process's, chosen when first needed (so a precomputation made
+        at import time does not load the C library)."""
+        if self._k is None:
+            from ..native.kernels import kernels
+            self._k = kernels()
+        return self._k
+
     @abstractmethod
     def parts(self, scene, options: Mapping[str, Any]) -> list[Part]:
         """The parts this scene needs, each with its content key."""

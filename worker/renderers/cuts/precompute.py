@@ -176,16 +176,6 @@ class CutPrecomputation(Precomputation):
 
     kind = "cuts"
 
-    def __init__(self, kernels=None):
-        self._k = kernels
-
-    @property
-    def kernels(self):
-        if self._k is None:
-            from ...native.kernels import kernels
-            self._k = kernels()
-        return self._k
-
     def parts(self, scene, options) -> list[Part]:
         from .moving import movable_names, moving_parts
 

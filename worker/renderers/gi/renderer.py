@@ -44,15 +44,8 @@ class GIPrecomputation(Precomputation):
     kind = KIND
 
     def __init__(self, kernels=None):
+        super().__init__(kernels)
         self._setups: dict[int, tuple[str, Any]] = {}
-        self._k = kernels
-
-    @property
-    def kernels(self):
-        if self._k is None:
-            from ...native.kernels import kernels
-            self._k = kernels()
-        return self._k
 
     def _setup(self, scene, opts: GIOptions, key: str):
         cached = self._setups.get(id(scene))
