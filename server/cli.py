@@ -8,7 +8,6 @@ the parser (``glint --help``) loads neither FastAPI nor the database driver.
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 
 def cmd_serve(a) -> int:
@@ -78,13 +77,9 @@ def openapi_yaml() -> str:
 
 
 def cmd_openapi(a) -> int:
-    text = openapi_yaml()
-    if a.out:
-        Path(a.out).write_text(text)
-        print(f"wrote {a.out}", file=sys.stderr)
-    else:
-        sys.stdout.write(text)
-    return 0
+    from worker.cli import write_text_or_print
+
+    return write_text_or_print(openapi_yaml(), a.out)
 
 
 def add_commands(sub) -> None:

@@ -222,10 +222,14 @@ def cmd_schema(a) -> int:
     """The stream's JSON Schema (client messages, server events, frame header)."""
     from .protocol.wire import stream_schema
 
-    text = json.dumps(stream_schema(), indent=1, sort_keys=True) + "\n"
-    if a.out:
-        Path(a.out).write_text(text)
-        print(f"wrote {a.out}", file=sys.stderr)
+    return write_text_or_print(json.dumps(stream_schema(), indent=1, sort_keys=True) + "\n", a.out)
+
+
+def write_text_or_print(text: str, out: str | None) -> int:
+    """A generated document to the file ``out`` (saying so on stderr), or to stdout; exit code 0."""
+    if out:
+        Path(out).write_text(text)
+        print(f"wrote {out}", file=sys.stderr)
     else:
         sys.stdout.write(text)
     return 0

@@ -14,8 +14,8 @@ from typing import Literal
 
 from fastapi import APIRouter, HTTPException, Query, Request
 from fastapi.concurrency import run_in_threadpool
-from starlette.requests import ClientDisconnect
 
+from ..bodies import capped_chunks
 from ..db import Asset
 from ..deps import DB, Client, State
 from ..schemas import AssetOut
@@ -35,22 +35,17 @@ async def receive_upload(request: Request, st, limit: int, what: str):
     (the declared length is checked first, the bytes as they come). Returns (temporary file, its
     SHA-256, size); 413 over the cap, 400 for a body cut off, 422 for an empty one."""
     declared = request.headers.get("content-length")
-    if declared and declared.isdigit() and int(declared) > limit:
-        raise HTTPException(413, f"upload of {int(declared)} bytes is over the {limit}-byte limit for {what}")
     h = hashlib.sha256()
     size = 0
     tmp = st.blobs.temp_file()
     try:
         with tmp:
-            try:
-                async for chunk in request.stream():
-                    size += len(chunk)
-                    if size > limit:
-                        raise HTTPException(413, f"upload is over the {limit}-byte limit for {what}")
-                    h.update(chunk)
-                    tmp.write(chunk)
-            except ClientDisconnect:
-                raise HTTPException(400, "the upload was cut off before its end") from None
+            async for chunk in capped_chunks(request, limit, f"upload of {{n}} bytes is over the {limit}-byte limit for {what}",
+                                             f"upload is over the {limit}-byte limit for {what}",
+                                             "the upload was cut off before its end"):
+                size += len(chunk)
+                h.update(chunk)
+                tmp.write(chunk)
         if declared and declared.isdigit() and int(declared) != size:
             raise HTTPException(400, f"the upload is truncated: {size} of {declared} bytes arrived")
         if size == 0:

@@ -7,11 +7,11 @@ import json
 
 from fastapi import APIRouter, HTTPException, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
-from starlette.requests import ClientDisconnect
 
 from worker.memory import no_collections
 
 from .. import jsonchunks
+from ..bodies import capped_chunks
 from ..db import Precomputation, Scene
 from ..deps import DB, Client, State
 from ..schemas import PrecomputationOut, SceneOut
@@ -53,18 +53,10 @@ def validate_scene(s, body, max_objects: int | None = None) -> dict:
 async def read_json_body(request: Request, limit: int, setting: str):
     """The request body parsed as JSON, read with a size cap (413 naming the limit and the
     length) and parsed in a thread in pieces, so a large body never stalls the event loop."""
-    declared = request.headers.get("content-length")
-    if declared and declared.isdigit() and int(declared) > limit:
-        raise HTTPException(413, f"body of {int(declared)} bytes is over the {limit}-byte limit ({setting})")
-    buf, size = [], 0
-    try:
-        async for chunk in request.stream():
-            size += len(chunk)
-            if size > limit:
-                raise HTTPException(413, f"body of more than {limit} bytes is over the {limit}-byte limit ({setting})")
-            buf.append(chunk)
-    except ClientDisconnect:
-        raise HTTPException(400, "the request body was cut off before its end") from None
+    buf = [chunk async for chunk in capped_chunks(
+        request, limit, f"body of {{n}} bytes is over the {limit}-byte limit ({setting})",
+        f"body of more than {limit} bytes is over the {limit}-byte limit ({setting})",
+        "the request body was cut off before its end")]
 
     def parse():
         try:
