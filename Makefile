@@ -37,8 +37,12 @@ postgres:
 test-assets: install
 	$(VENV)/bin/glint assets fetch --set test
 
+# Two pytest processes (a file's tests stay in one, so its module fixtures are built once): much of
+# the suite waits on servers, browsers and subprocesses, so two keep both cores busy. PYTEST_WORKERS=0
+# runs it in one process.
+PYTEST_WORKERS ?= 2
 test: install browser postgres test-assets
-	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -ra --durations=15 $(PYTEST_ARGS)
+	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -ra --durations=15 -n $(PYTEST_WORKERS) --dist loadfile $(PYTEST_ARGS)
 
 # The docs site: reference pages generated from the code (CLI parser, openapi.yaml,
 # stream-schema.json), then mkdocs build --strict into site/ (tests/test_docs.py does the same)

@@ -22,6 +22,20 @@ ROOT = Path(__file__).resolve().parent.parent
 CACHE = ROOT / "tests" / ".cache"
 
 
+def cache_lock(*key) -> "filelock.FileLock":
+    """An inter-process lock for computing one cached fixture (``key``: any JSON-able parts, e.g. a
+    scene spec and a renderer kind). The suite runs in several pytest-xdist processes: without it two
+    of them would both pay for the same cold precomputation (or race on its temporary files). Hold
+    it around "look in the cache, else compute and store"."""
+    import hashlib
+
+    import filelock
+
+    name = hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()[:24]
+    (CACHE / "locks").mkdir(parents=True, exist_ok=True)
+    return filelock.FileLock(CACHE / "locks" / f"{name}.lock")
+
+
 def open_renderer(scene, kernels=None, kind=None):
     """A renderer for a loaded scene, its precomputation cached in tests/.cache (by content key)."""
     from worker.artifacts import DirStore
@@ -30,7 +44,8 @@ def open_renderer(scene, kernels=None, kind=None):
 
     CACHE.mkdir(parents=True, exist_ok=True)
     kind = kind or scene.spec.renderer
-    r, _ = prepare(scene, DirStore(CACHE, kind), kind, kernels=get_kernels(kernels))
+    with cache_lock("prepare", kind, scene.spec.model_dump(mode="json"), str(getattr(scene, "root", ""))):
+        r, _ = prepare(scene, DirStore(CACHE, kind), kind, kernels=get_kernels(kernels))
     return r
 
 

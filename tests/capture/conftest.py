@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import cache_lock
 
 ROOT = Path(__file__).resolve().parents[2]
 CAPTURE_SRC = ROOT / "worker" / "capture"
@@ -47,12 +48,13 @@ class Captures:
         for f in ("synth.py", "fisheye.py"):
             h.update((CAPTURE_SRC / f).read_bytes())
         d = self.cache / f"{Path(hdri).stem}-{h.hexdigest()[:16]}"
-        if not (d / "truth.json").is_file():
-            tmp = d.with_name(d.name + ".tmp")
-            shutil.rmtree(tmp, ignore_errors=True)
-            synthesize(load_small_hdri(hdri), tmp, **params)
-            shutil.rmtree(d, ignore_errors=True)
-            tmp.rename(d)
+        with cache_lock(str(d)):
+            if not (d / "truth.json").is_file():
+                tmp = d.with_name(d.name + ".tmp")
+                shutil.rmtree(tmp, ignore_errors=True)
+                synthesize(load_small_hdri(hdri), tmp, **params)
+                shutil.rmtree(d, ignore_errors=True)
+                tmp.rename(d)
         return {"dir": d, "manifest": d / "manifest.json", "frame": np.asarray(Image.open(d / "frame.png")) > 0,
                 "truth": json.loads((d / "truth.json").read_text())}
 

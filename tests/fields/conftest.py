@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import trimesh
 from fields_kit import SceneKit, box_mesh
+from helpers import cache_lock
 from fields_kit import floor as _floor_mesh
 
 from worker.artifacts import DirStore
@@ -36,15 +37,16 @@ def cached_field(cache_dir, vertices, faces, spec: GridSpec) -> Field:
     """The field of a mesh, from tests/.cache/cuts/<content key> or traced and stored there."""
     store = DirStore(cache_dir, "cuts")
     key = field_key(vertices, faces, spec, get_tree().height)
-    blob = store.get(key)
-    if blob is not None:
-        try:
-            return Field.decode(blob)
-        except ValueError:
-            store.discard(key)
-    f = trace_field(vertices, faces, spec, key=key)
-    store.put(key, f.encode())
-    return f
+    with cache_lock("field", key):
+        blob = store.get(key)
+        if blob is not None:
+            try:
+                return Field.decode(blob)
+            except ValueError:
+                store.discard(key)
+        f = trace_field(vertices, faces, spec, key=key)
+        store.put(key, f.encode())
+        return f
 
 
 class MeshCase:

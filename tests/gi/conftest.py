@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from gi_harness import CACHE, gi_renderer, scene_with
+from helpers import cache_lock
 
 
 @pytest.fixture(scope="session")
@@ -35,9 +36,12 @@ def sphere_scene(tmp_path_factory):
     d = CACHE / "gi-sphere"
     d.mkdir(parents=True, exist_ok=True)
     obj = d / "sphere.obj"
-    if not obj.is_file():
-        sph = trimesh.creation.icosphere(subdivisions=5, radius=1.0)
-        obj.write_text(trimesh.exchange.obj.export_obj(sph, include_normals=True))
+    with cache_lock(str(obj)):
+        if not obj.is_file():
+            sph = trimesh.creation.icosphere(subdivisions=5, radius=1.0)
+            tmp = obj.with_suffix(".tmp")
+            tmp.write_text(trimesh.exchange.obj.export_obj(sph, include_normals=True))
+            tmp.replace(obj)
 
     def make(material: dict, gi: dict, size: int = 40):
         spec = {"version": 1, "renderer": "gi", "environment": {"map": "constant"},

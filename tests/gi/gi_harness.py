@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy.ndimage import minimum_filter, maximum_filter
+from helpers import cache_lock
 
 ROOT = Path(__file__).resolve().parents[2]
 CACHE = ROOT / "tests" / ".cache"
@@ -44,7 +45,8 @@ def gi_renderer(scene, options: dict, backend: str | None = None, precompute: st
     from worker.renderers.gi import GIPrecomputation, GIRenderer
     pre = GIPrecomputation(kernels(precompute))
     store = DirStore(CACHE, "gi")
-    ensure(pre, scene, store, options)
+    with cache_lock("gi", scene.spec.model_dump(mode="json"), options, str(getattr(scene, "root", ""))):
+        ensure(pre, scene, store, options)
     return GIRenderer(scene, load(pre, scene, store, options), kernels=kernels(backend))
 
 
@@ -53,14 +55,15 @@ def mitsuba(scene, spp: int, seed: int, max_depth: int) -> np.ndarray:
     h = hashlib.sha256(json.dumps([scene.spec.model_dump(mode="json"), spp, seed, max_depth, "path2s"]).encode())
     h.update(np.ascontiguousarray(scene.envmap).tobytes())
     path = CACHE / "gi-mitsuba" / f"{h.hexdigest()[:32]}.npy"
-    if path.is_file():
-        return np.load(path)
-    img = render_mitsuba(scene, spp=spp, seed=seed, integrator="path", max_depth=max_depth, two_sided=True)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.npy")
-    np.save(tmp, img)
-    tmp.replace(path)
-    return img
+    with cache_lock(str(path)):
+        if path.is_file():
+            return np.load(path)
+        img = render_mitsuba(scene, spp=spp, seed=seed, integrator="path", max_depth=max_depth, two_sided=True)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp.npy")
+        np.save(tmp, img)
+        tmp.replace(path)
+        return img
 
 
 def inner_mask(renderer) -> np.ndarray:

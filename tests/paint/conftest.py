@@ -5,6 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import cache_lock
 
 ROOT = Path(__file__).resolve().parents[2]
 CACHE = ROOT / "tests" / ".cache" / "paint"
@@ -29,11 +30,12 @@ def _cached(name: str, key_parts, compute):
     for p in key_parts:
         h.update(np.ascontiguousarray(p).tobytes() if isinstance(p, np.ndarray) else repr(p).encode())
     path = CACHE / f"{name}-{h.hexdigest()[:20]}.npy"
-    if path.is_file():
-        return np.load(path)
-    val = compute()
-    CACHE.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.npy")
-    np.save(tmp, val)
-    tmp.replace(path)
-    return val
+    with cache_lock(str(path)):
+        if path.is_file():
+            return np.load(path)
+        val = compute()
+        CACHE.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp.npy")
+        np.save(tmp, val)
+        tmp.replace(path)
+        return val
