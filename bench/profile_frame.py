@@ -1,4 +1,4 @@
-"""Stage-by-stage cost of a full-quality frame of the cut renderer (issue 16's profile).
+"""Stage-by-stage cost of a full-quality frame of the cut renderer.
 
     .venv/bin/python bench/profile_frame.py bench/oakChair.json [--reps 15] [--model ggx|srbf|lambert]
 

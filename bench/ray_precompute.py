@@ -1,4 +1,4 @@
-"""``glint bench-ray``: a scene's precomputation on a Ray cluster, timed (issue 17).
+"""``glint bench-ray``: a scene's precomputation on a Ray cluster, timed.
 
 The scene's files go into a fresh blob store (so nothing is cached) at a path every node can
 read, and one ``SessionHost`` actor coordinates the precomputation exactly as the service does:

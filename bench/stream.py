@@ -11,7 +11,7 @@ scene (the oak chair, 640×480).
 * ``orbit_fps_drag``: frames received per second while ``view`` messages with ``drag: true``
   arrive at 60 Hz. The session draws each at full quality when recent full frames fit its frame
   budget and at the drag level of detail (``width_drag`` × ``height_drag``, coarsened cuts)
-  otherwise (issue 16): ``orbit_share_full_drag`` is the share of full-quality frames, with
+  otherwise: ``orbit_share_full_drag`` is the share of full-quality frames, with
   their render times ``orbit_frame_render_ms_p50_drag_full`` and ``…_drag_lod``;
 * ``orbit_fps_full``: the same with ``drag: false``, where every frame is a still frame (full
   quality, 640×480, anti-aliased with ``orbit_samples_full`` samples per pixel);

@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import re
 import sys
 from pathlib import Path
 
@@ -306,12 +305,6 @@ def settings_page() -> str:
     return "".join(out)
 
 
-def scrub(text: str) -> str:
-    """Drops "(issue N)" asides that some help strings and docstrings still carry: tracker
-    numbers mean nothing to a reader of the docs (the capability is named in the text)."""
-    return re.sub(r" \(issues? [0-9][^)]*\)", "", text)
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=str(ROOT / "docs" / "reference"))
@@ -324,7 +317,7 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     for name, fn in (("cli.md", cli_page), ("rest.md", rest_page), ("stream.md", stream_page),
                      ("settings.md", settings_page)):
-        text = scrub(fn())
+        text = fn()
         path = out / name
         if not path.exists() or path.read_text() != text:   # unchanged pages keep their mtime
             path.write_text(text)

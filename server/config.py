@@ -70,7 +70,7 @@ class Settings(BaseModel):
     max_frame_pixels: int = Field(2560 * 1600, ge=64 * 64, description="width × height of a session's camera at "
                                   "most; a frame costs ~FRAME_BYTES_PER_PIXEL bytes a pixel in its worker "
                                   "(server/routes/sessions.py)")
-    # beyond one machine (issue 17): "local" worker processes, or a Ray cluster (server/ray_pool.py)
+    # beyond one machine: "local" worker processes, or a Ray cluster (server/ray_pool.py)
     backend: str = Field("local", pattern="^(local|ray)$", description="worker backend: local or ray")
     ray_address: str | None = Field(None, description="Ray cluster to join (host:port of its GCS); unset: start one in-process")
     ray_node_ip: str | None = Field(None, description="this process's address as the Ray cluster sees it (e.g. 127.0.0.2 on loopback)")

@@ -173,7 +173,7 @@ class ApiToken(Base):
 # One writer at a time in this process, queued here rather than in SQLite. SQLite lets one
 # connection write; another that tries gets SQLITE_BUSY and its busy handler sleeps 1, 2, 5, 10,
 # ... up to 100 ms between retries, so under load (eight sessions' strokes and state writes) a
-# write could sleep tens of ms after the lock was free: 70-85 ms on a stroke's row (issue 9).
+# write could sleep tens of ms after the lock was free: 70-85 ms on a stroke's row.
 # Writers of other processes (the CLI) still meet the busy timeout.
 _WRITE_LOCK = threading.RLock()
 _READS = ("SELECT", "PRAGMA", "EXPLAIN")

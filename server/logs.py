@@ -1,4 +1,4 @@
-"""Structured logs with request ids (issue 17).
+"""Structured logs with request ids.
 
 Every HTTP request and every stream gets a request id: the client's ``X-Request-ID`` when it is a
 short token of safe characters (a proxy's id is kept, so one id follows a request through the

@@ -219,7 +219,7 @@ def create_app(settings: Settings | None = None, pool=None) -> FastAPI:
         log.info("Glint %s: data in %s, database %s, %d worker(s); %s", VERSION, settings.data_dir,
                  settings.db_url.split("://")[0], settings.workers, who)
         # what start-up made (modules, routes, models) out of full collections, which stopped
-        # the event loop (and every stream) for 50-170 ms at a time under load (issue 9)
+        # the event loop (and every stream) for 50-170 ms at a time under load
         freeze_start_up()
         tasks = [asyncio.create_task(_janitor(st))]
         if settings.demo:

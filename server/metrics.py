@@ -1,4 +1,4 @@
-"""Prometheus metrics (issue 17): ``GET /metrics`` in the text exposition format.
+"""Prometheus metrics: ``GET /metrics`` in the text exposition format.
 
 What an operator watches, all from this API process (workers report through frames and job
 results, so nothing has to be scraped from them):

@@ -1,4 +1,4 @@
-"""The worker pool on a Ray cluster (issue 17): ``glint serve --backend ray [--ray-address ADDR]``.
+"""The worker pool on a Ray cluster: ``glint serve --backend ray [--ray-address ADDR]``.
 
 Same interface and same behaviour as ``LocalWorkerPool`` (server/workers.py), whose routing,
 session restore and message holding this class inherits unchanged; only what a "worker" is

@@ -54,7 +54,7 @@ def bunny(bunny_renderer):
 
 
 
-# The service tests that also run against PostgreSQL (issue 17): sessions, strokes, saves and
+# The service tests that also run against PostgreSQL: sessions, strokes, saves and
 # material versions, i.e. what depends on the database's transactions and locks. Everything else
 # that uses ``server`` runs on SQLite only, so the suite does not double. A new test opts in with
 # @pytest.mark.both_databases.

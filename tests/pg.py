@@ -1,4 +1,4 @@
-"""A real PostgreSQL server for the tests (issue 17): Debian's ``postgresql`` binaries (installed by
+"""A real PostgreSQL server for the tests: Debian's ``postgresql`` binaries (installed by
 ``scripts/ensure-postgresql``, which ``make test`` runs), a cluster initialised in a temporary
 folder, listening on a free loopback port, trust authentication, fsync off (a test cluster: its
 durability is not under test). PostgreSQL refuses to run as root, so under root the cluster

@@ -1,4 +1,4 @@
-"""The README's two commands do all set-up on a fresh machine (issue 9: `make test` must not
+"""The README's two commands do all set-up on a fresh machine (`make test` must not
 depend on .ci/run having installed Chromium first)."""
 import re
 import subprocess

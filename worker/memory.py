@@ -36,7 +36,7 @@ def cap_malloc_arenas(n: int = 2) -> None:
 
 def release_memory() -> None:
     """Give the memory freed by a closed session back to the system: collect, then trim.
-    Issue 9: resident memory grew ~100 MiB per worker from one run of eight sessions to the
+    Resident memory grew ~100 MiB per worker from one run of eight sessions to the
     next while Python's own allocations (tracemalloc) stayed flat to 0.2 MiB: the kernels'
     per-thread scratch and the sessions' arrays were freed into malloc's per-thread arenas,
     which keep them until trimmed."""
@@ -46,7 +46,7 @@ def release_memory() -> None:
 
 def freeze_start_up() -> None:
     """Keep every object that exists now for good, out of full collections (gc.freeze), after a
-    last collection. Issue 9, measured with gc.callbacks under load: a full collection walked
+    last collection. Measured with gc.callbacks under load, a full collection walked
     every object the imports and start-up had made, holding the GIL (and so every stream or
     session of the process) for 50-170 ms in the server and 47-88 ms in a worker; after the
     freeze the largest during a run took 23 and 12 ms. Objects made later are collected as usual."""

@@ -88,7 +88,7 @@ class SceneObject(_Strict):
 
 
 class Ground(_Strict):
-    """An invisible shadow-catcher ground plane under the objects (issue 16): it darkens the
+    """An invisible shadow-catcher ground plane under the objects: it darkens the
     background where the objects occlude the environment from it, by the ratio of occluded to
     open-sky irradiance (worker/renderers/cuts/ground.py). ``shadow`` is the default a renderer
     option (and the studio and viewer toggle) can override; ``intensity`` k blends the darkening

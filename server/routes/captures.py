@@ -1,4 +1,4 @@
-"""Lighting captures (issue 15, cyber-worlds §IV): a zip of the capture manifest and its fisheye
+"""Lighting captures (cyber-worlds §IV): a zip of the capture manifest and its fisheye
 brackets (worker/capture) becomes an environment-map asset, as a job with progress.
 
 ``POST /v1/captures`` (``Content-Type: application/zip``, within ``max_capture_bytes``) stores the

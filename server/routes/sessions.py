@@ -391,7 +391,7 @@ async def _serve(ws: WebSocket, st, sid: str, row: Session, me: object) -> None:
         await run_in_threadpool(_ended, st, sid)
         # the stream's states, batches and frames were freed on the threadpool's threads:
         # give what malloc holds free back (the server's memory grew ~20 MiB per run of eight
-        # sessions without it, issue 9)
+        # sessions without it)
         await run_in_threadpool(trim_malloc)
 
 

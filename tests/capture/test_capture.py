@@ -1,4 +1,4 @@
-"""The proof of issue 15: photos synthesised from real HDRIs (fisheye views by the documented
+"""The capture pipeline end to end: photos synthesised from real HDRIs (fisheye views by the documented
 projection, a filmic camera curve, 8-bit JPEG brackets with EXIF exposure times, hand shake,
 a painted lens frame) go through the whole capture path, and the recovered map lights Glint's
 own renderer (the bunny, the cut renderer of tests/scenes/bunny.json) like the original:

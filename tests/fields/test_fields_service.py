@@ -68,7 +68,7 @@ def test_a_move_message_moves_the_object_in_the_session(server, client, crate_sc
             await ws.send(json.dumps({"seq": 1, "type": "move", "object": "box", "transform": MOVED, "drag": True}))
             hdr1, img1 = await next_frame(ws, 1, ev)
             # a drag frame is at the drag level of detail unless recent full frames fit the
-            # session's frame budget (issue 16's level of detail): the header says which
+            # session's frame budget (its level of detail): the header says which
             half = (hdr1["width"], hdr1["height"]) == (cam.width // 2, cam.height // 2)
             assert hdr1["lod"] == half and (half or (hdr1["width"], hdr1["height"]) == (cam.width, cam.height)), hdr1
             await ws.send(json.dumps({"seq": 2, "type": "move", "object": "box", "transform": MOVED}))

@@ -10,7 +10,7 @@ DULL = Lambert(albedo=(0.4, 0.4, 0.4))
 
 @pytest.fixture(scope="module")
 def bunny_view(bunny_renderer):
-    """(renderer, FitView): the bunny's view at 160×120 fit pixels (the issue's default fit size),
+    """(renderer, FitView): the bunny's view at 160×120 fit pixels (the default fit size),
     transfer built once per module."""
     from worker.fit.fitter import Fitter
 

@@ -215,7 +215,7 @@ def test_bad_targets_are_refused(fitter):
 
 
 def test_a_partial_view_extends_to_the_full_view(fitter, across):
-    """Quick views (issue 9, 11): a view built for a few pixels, then extended under a stroke and
+    """Quick views: a view built for a few pixels, then extended under a stroke and
     completed, holds exactly the rows of the view built at once (transfer, Gram, base)."""
     from worker.fit.fitter import painted_select, quick_select
 
@@ -267,7 +267,7 @@ def test_a_quick_view_fits_close_to_the_full_one(fitter, across):
 
 
 def test_a_quick_view_on_coarse_cuts_fits_close_to_the_full_one(fitter, across):
-    """Issue 9: a session's quick view is built on the drag level's cuts (half the transfer's
+    """A session's quick view is built on the drag level's cuts (half the transfer's
     cost). Its base rendering is on the same cuts, so nothing unpainted looks changed to the
     fit; the fit predicts, on the full view, nearly what the full fit does."""
     from worker.fit.fitter import Fitter, quick_select

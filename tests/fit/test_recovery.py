@@ -1,4 +1,4 @@
-"""Recovery of glossy GGX materials rendered by Mitsuba 3 (issue 11): the hardest cases of the
+"""Recovery of glossy GGX materials rendered by Mitsuba 3: the hardest cases of the
 benchmark matrix (BENCHMARKS.md "Paint to BRDF: recovery") at test size.
 
 The bunny at 160×120, fitted at full resolution, against the mean of two 256-spp Mitsuba
@@ -65,7 +65,7 @@ def test_sharp_gloss_under_a_sun(bunny_env, cache_dir):
 
 @pytest.mark.slow
 def test_coated_sharp_gloss_under_a_sky(bunny_env, cache_dir):
-    """α = 0.1 specular 0.5 over a coloured diffuse base, sunset sky: within the issue's 8%."""
+    """α = 0.1 specular 0.5 over a coloured diffuse base, sunset sky: within the 8% the recovery benchmark targets."""
     r = _run(bunny_env, cache_dir, "sunset.exr", 0.1, 0.5, (0.45, 0.3, 0.2))
     assert r["energy_ok"], r["energy"]
     assert r["rel_rmse"] < 0.08                        # measured 0.046 (Mitsuba noise 0.036)

@@ -64,7 +64,7 @@ def _run(case: str, series: list[int], artifacts):
 @pytest.mark.parametrize("case", ["cornell-diffuse", "cornell-glossy-wall", "sofa-glossy-floor"])
 def test_mostly_diffuse_further_bounces_within_5_percent(shared_assets, artifacts, case):
     """(64,1,1,1), 4 bounces, where further bounces hit mostly diffuse surfaces: within 5 % of
-    Mitsuba path after subtracting noise (the issue's target); measured 1-3 %. The direct term
+    Mitsuba path after subtracting noise (the target); measured 1-3 %. The direct term
     alone matches Mitsuba's direct light within 3 %; GI adds ≥ 10 % of the image."""
     res = _run(case, [64, 1, 1, 1], artifacts)
     assert res["gi"]["rel_rmse_corrected"] <= 0.05, res["gi"]

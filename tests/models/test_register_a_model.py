@@ -1,4 +1,4 @@
-"""A BRDF model registered from this file, without editing the package (issue 10): it validates
+"""A BRDF model registered from this file, without editing the package: it validates
 in scene files and stream messages, is listed for the studio, and renders through the NumPy
 reference (it has no C kernel branch), beside a model that has one."""
 from typing import ClassVar, Literal

@@ -1,4 +1,4 @@
-"""Anti-aliasing of still frames (issue 16): S samples per pixel for primary visibility, each
+"""Anti-aliasing of still frames: S samples per pixel for primary visibility, each
 pixel the mean of its samples' interpolated vertex radiance or background. Edges approach a
 supersampled reference; interiors do not change."""
 import numpy as np

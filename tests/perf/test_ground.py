@@ -1,4 +1,4 @@
-"""The ground shadow (issue 16): an invisible shadow catcher that darkens the background by the
+"""The ground shadow: an invisible shadow catcher that darkens the background by the
 ratio of occluded to open-sky irradiance (worker/renderers/cuts/ground.py)."""
 from pathlib import Path
 

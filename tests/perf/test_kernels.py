@@ -1,4 +1,4 @@
-"""The frame kernels of issue 16 agree with their NumPy references: light tables
+"""The frame kernels agree with their NumPy references: light tables
 (glk_light_tables), the shading kernel's vector and scalar paths (glk_shade_points), the
 background (glk_background) and the resolve (glk_resolve)."""
 import numpy as np

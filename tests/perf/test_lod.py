@@ -1,5 +1,5 @@
 """The session picks each frame's level of detail from the measured cost of recent full frames
-against its frame budget (issue 16), anti-aliases still frames, and toggles the ground shadow
+against its frame budget, anti-aliases still frames, and toggles the ground shadow
 from a ``display`` message; the frame header reports what it used."""
 from pathlib import Path
 
@@ -158,7 +158,7 @@ def test_drag_frames_refine_no_finer_than_the_drag_limit(bunny_renderer):
 
 
 def test_under_load_drag_frames_drop_to_a_quarter_of_the_resolution(cache_dir, monkeypatch):
-    """Issue 9: a session's frame budget is its share of the worker (sessions that moved
+    """A session's frame budget is its share of the worker (sessions that moved
     something in the last second); when even half-resolution drag frames do not fit it, they
     are drawn at a quarter, and half is tried again after REPROBE_S."""
     from worker.scene import load_scene

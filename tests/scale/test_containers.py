@@ -1,4 +1,4 @@
-"""Container files checked without a Docker daemon (issue 17): hadolint on the Dockerfile,
+"""Container files checked without a Docker daemon: hadolint on the Dockerfile,
 shellcheck on its entry point, the compose file against the Compose Specification's JSON schema
 (vendored in check-jsonschema, no network), and what no schema knows: build targets exist,
 every GLINT_* variable is a setting, every node mounts the blob store at the same path, the Ray

@@ -1,4 +1,4 @@
-"""The service database on SQLite and on a real PostgreSQL server (issue 17).
+"""The service database on SQLite and on a real PostgreSQL server.
 
 - Alembic: the models and the migrations agree (``compare_metadata`` finds no difference) on a
   new database and on one upgraded from release 0.3, on both databases.
@@ -237,7 +237,7 @@ def test_versions_are_numbered_one_after_the_other_under_contention(empty_db, mo
 
 
 def test_sqlite_writers_of_one_process_queue_on_a_lock_not_in_sqlite(tmp_path):
-    """Issue 9: SQLite's busy handler sleeps 1, 2, 5, … up to 100 ms between retries, which
+    """SQLite's busy handler sleeps 1, 2, 5, … up to 100 ms between retries, which
     put 50-180 ms on strokes' rows under load. A second writer in the process now waits on the
     process's write lock, which the first releases at its commit or rollback; reads do not take
     it."""

@@ -1,4 +1,4 @@
-"""Operations (issue 17): /healthz and /metrics (Prometheus text format), request ids in
+"""Operations: /healthz and /metrics (Prometheus text format), request ids in
 responses and log lines (text and JSON), and a SIGTERM during a precomputation: the server exits
 0 and the precomputation is already recorded as failed, with a message, before any restart.
 

@@ -1,4 +1,4 @@
-"""The Ray backend (issue 17) on a real two-node Ray cluster on loopback (127.0.0.2 and 127.0.0.3,
+"""The Ray backend on a real two-node Ray cluster on loopback (127.0.0.2 and 127.0.0.3,
 one CPU each): a precomputation split across both nodes assembles to the very bytes of a local
 run; a session streams frames, paints and saves through a session host actor; a host killed by
 SIGKILL is replaced and its session restored from the database."""

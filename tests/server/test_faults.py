@@ -1,4 +1,4 @@
-"""Faults (issue 9): nothing is lost when a worker is killed during a stroke, a save or a
+"""Faults: nothing is lost when a worker is killed during a stroke, a save or a
 precomputation, or when the server is stopped during a precomputation; a blob damaged on disk
 is detected and reported, never used.
 

@@ -1,4 +1,4 @@
-"""The API contract serves generated clients (issue 9): a Python client generated from
+"""The API contract serves generated clients: a Python client generated from
 openapi.yaml by openapi-python-client (with clients/openapi-python-client.yaml) uploads assets,
 creates a typed scene, precomputes, renders and fits, authenticating with a bearer token."""
 import importlib

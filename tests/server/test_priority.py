@@ -1,4 +1,4 @@
-"""Strokes before frames (worker/jobs/runner.py Priority, issue 9): a frame waits while a stroke
+"""Strokes before frames (worker/jobs/scheduling.py Priority): a frame waits while a stroke
 is handled in this worker or in another worker of the local pool, and never longer than
 MAX_WAIT_S. Only lower bounds on time are asserted (a wait that ended early is a defect
 whatever the machine's speed)."""

@@ -1,4 +1,4 @@
-"""Resources are returned (issue 9): viewer sessions that end are closed in the database and
+"""Resources are returned: viewer sessions that end are closed in the database and
 leave no memory behind in the workers (many sessions share one copy of a scene's data)."""
 import json
 import os
@@ -95,7 +95,7 @@ def _editing_session(server, client, scene: str, k: int) -> None:
 
 
 def test_editing_sessions_return_their_memory(server, client, bunny_scene):
-    """Issue 9: eight designers for 30 s, then eight more, grew the workers by ~100 MiB each,
+    """Eight designers for 30 s, then eight more, grew the workers by ~100 MiB each,
     while Python's allocations stayed flat: freed kernel scratch and session arrays stayed in
     malloc's per-thread arenas. A closed session's memory is now trimmed (runner.py
     release_memory). Rounds of three concurrent editing sessions: after two warm rounds, three
@@ -140,7 +140,7 @@ def _tracked_after(code: str, tmp_path) -> dict:
 
 
 def test_start_up_objects_are_frozen_out_of_full_collections(tmp_path):
-    """Issue 9: a full collection walked every object the imports made, holding the GIL for
+    """A full collection walked every object the imports made, holding the GIL for
     50-170 ms in the server and 40-90 ms in a worker under load (every stream of that process
     stood still). The server's start-up and a worker's start freeze what exists by then; a
     full collection then walks a small fraction of it."""

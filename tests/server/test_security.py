@@ -1,4 +1,4 @@
-"""Security of the embedded default (issue 9): DNS rebinding (Host), cross-site requests
+"""Security of the embedded default: DNS rebinding (Host), cross-site requests
 (Origin), secrets kept out of logs, bounded and expiring sessions, archived designs, uploads
 read in a child process with a time limit, and the REST fit's fresnel_f0."""
 import asyncio

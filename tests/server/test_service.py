@@ -227,7 +227,7 @@ def test_openapi_yaml_is_current():
 
 @pytest.mark.both_databases
 def test_camera_moves_are_kept_though_written_in_batches(server, client, bunny_scene):
-    """Issue 9: view messages change a copy of the state the stream holds, written at most
+    """View messages change a copy of the state the stream holds, written at most
     0.5 s later (FLUSH_S), not one transaction each. Nothing is lost: a GET, a restore after the
     worker dies, and a reconnect all see the latest camera."""
     ses = client.post("/v1/sessions", json={"scene_id": bunny_scene}).json()
@@ -262,7 +262,7 @@ def test_camera_moves_are_kept_though_written_in_batches(server, client, bunny_s
 
 @pytest.mark.both_databases
 def test_a_stroke_is_its_row_and_its_fit_is_kept_with_the_camera(server, client, bunny_scene):
-    """Issue 9: a stroke is stored as its row before the worker sees it, the session's state
+    """A stroke is stored as its row before the worker sees it, the session's state
     (its last seq, the fit's material) like a camera move, at most 0.5 s later. A GET sees the
     fitted material at once, a restore after the worker dies applies the stroke once, and the
     material and the stroke survive a reconnect."""

@@ -58,7 +58,7 @@ def test_stroke_frames_use_the_vertex_transfer_once_built(bunny_renderer):
 
 
 def test_a_stroke_mid_drag_gets_a_quick_view_completed_after(bunny_renderer):
-    """Issue 9 (load) and 11 (first stroke after an orbit): a stroke painted in a view not
+    """Under load, and for the first stroke after an orbit: a stroke painted in a view not
     built yet is fitted on a quick view (its pixels and a sparse grid, on the drag level's
     cuts); the full view is built in the background once the user stops dragging and replaces
     it, and the design is then exactly what a restore from the stored strokes gives."""
@@ -124,7 +124,7 @@ def test_replay_rebuilds_the_same_design(bunny_renderer):
 
 
 def test_a_stroke_that_cannot_apply_is_rejected_and_the_session_reopens(bunny_renderer):
-    """Issue 9: one bad stroke must not break a session for good. A stroke painted while the
+    """One bad stroke must not break a session for good. A stroke painted while the
     object is off screen is rejected (reported with its seq, so the server stops replaying it);
     a stored one that fails on replay is rejected too, and the session still opens."""
     rt = _runtime(bunny_renderer)
@@ -143,7 +143,7 @@ def test_a_stroke_that_cannot_apply_is_rejected_and_the_session_reopens(bunny_re
 
 
 def test_a_stored_material_over_todays_limits_does_not_block_restores(bunny_renderer):
-    """Issue 9: a persisted oversize material must not make restores fail forever."""
+    """A persisted oversize material must not make restores fail forever."""
     r = bunny_renderer
     stored = _stored(r.scene)
     n = 5000                                    # over srbf's 4,096 centres
@@ -157,7 +157,7 @@ def test_a_stored_material_over_todays_limits_does_not_block_restores(bunny_rend
 
 
 def test_messages_already_in_the_restored_state_are_skipped(bunny_renderer):
-    """Issue 9's restore race: a stroke persisted before the restore read the state arrives
+    """The restore race: a stroke persisted before the restore read the state arrives
     again as a message; it must not be applied twice."""
     rec = {"seq": 7, "stroke": STROKE, "camera": None, "rotation_deg": 0.0, "intensity": 1.0, "undone": False}
     r = bunny_renderer
@@ -171,7 +171,7 @@ def test_messages_already_in_the_restored_state_are_skipped(bunny_renderer):
 
 
 def test_a_pending_save_is_run_again_after_a_restore(bunny_renderer):
-    """Issue 9: a save in flight when the worker died is in the stored state; the new worker
+    """A save in flight when the worker died is in the stored state; the new worker
     asks the server to store it (the server's unique (session, seq) stores it once)."""
     rt = _runtime(bunny_renderer, pending_saves=[{"seq": 3, "name": "shiny"}], last_seq=3)
     evs = rt.take_events()
@@ -208,7 +208,7 @@ def test_one_apply_for_server_and_worker():
 
 
 def test_a_fit_is_bounded_in_rows(bunny_renderer):
-    """Issue 9: every view a stroke is painted in adds rows; past max_rows the fit keeps every
+    """Every view a stroke is painted in adds rows; past max_rows the fit keeps every
     s-th unpainted row (weighted s), so its cost stays bounded and it still matches the full fit."""
     from worker.fit.fitter import Fitter
 
@@ -249,7 +249,7 @@ def test_stream_schema_is_current():
 
 
 def test_the_api_process_loads_no_numerical_libraries():
-    """Issue 10: the server imports only worker's public modules; Embree, OpenCV and the QP solver
+    """The server imports only worker's public modules; Embree, OpenCV and the QP solver
     stay out of the API process."""
     import subprocess
     import sys
@@ -273,7 +273,7 @@ def test_worker_never_imports_server():
 
 
 def test_apply_never_changes_the_state_it_is_given(bunny_renderer):
-    """``apply`` copies the state shallowly (copy-on-write, issue 9: a deep copy per message
+    """``apply`` copies the state shallowly (copy-on-write: a deep copy per message
     was 12% of a worker under load), so no message may edit a nested value in place: for every
     message type the input state dumps the same before and after."""
     import json
@@ -307,7 +307,7 @@ def test_apply_never_changes_the_state_it_is_given(bunny_renderer):
 
 
 def test_a_frame_that_may_give_way_reports_its_pause_apart(bunny_renderer):
-    """Issue 9: a frame answering no stroke stands aside at its checkpoints while strokes are
+    """A frame answering no stroke stands aside at its checkpoints while strokes are
     handled elsewhere; the pause is the header's ms_paused, not render time (which sets the
     level of detail), and a checkpoint saying the frame is not wanted drops it unchanged."""
     import time

@@ -84,7 +84,7 @@ def test_studio_and_viewer(server, bunny_scene, browser, artifacts):
     # of their change (BENCHMARKS.md, "Strokes"); under the stroke must still change most
     rest = np.abs(g2 - g1)[mask].mean()
     assert under > 4 and under > 2 * rest, (under, rest)
-    # the designer is told what the stroke achieved and what spilled (issue 11)
+    # the designer is told what the stroke achieved and what spilled
     st = page.locator("#status").inner_text()
     assert "fit" in st and "achieved" in st and "spill" in st, st
 
@@ -189,7 +189,7 @@ def test_viewer_on_a_phone_and_read_only(server, bunny_scene, client, browser, a
 
 
 def test_studio_follows_the_demo_precomputation(browser, tmp_path, artifacts):
-    """Issue 9: someone who opens the studio while the demo scene still precomputes sees its
+    """Someone who opens the studio while the demo scene still precomputes sees its
     progress, and the demo opens by itself when it is ready (no reload). The demo here is the
     bunny (GLINT_DEMO_SCENE), precomputed by a fresh server."""
     from helpers import GlintServer, scene_file

@@ -1,4 +1,4 @@
-// "Capture lighting" panel (issue 15): bracketed fisheye photos → an environment map for the
+// "Capture lighting" panel: bracketed fisheye photos → an environment map for the
 // scene. The designer picks the photos (and optionally a manifest); the panel builds the capture
 // manifest v1 from them, zips everything in the browser, uploads it (POST /v1/captures,
 // application/zip), follows the job (GET /v1/captures/{id}), shows the stitched preview

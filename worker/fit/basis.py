@@ -43,7 +43,7 @@ ROW_TMAX = 36.0                 # λ(1 − h·ξ) covered by the energy rows: e^
 def hemisphere_centers(j: int) -> np.ndarray:
     """(J, 3) float64 well-spread unit vectors over the upper hemisphere (z > 0): a spherical
     Fibonacci set, equal-area in z. The paper uses a 3×7×7 hemicube's pixel directions; any
-    well-spread set serves (issue 3), and this one exists for every J."""
+    well-spread set serves, and this one exists for every J."""
     return cap_centers(j, np.pi / 2)
 
 

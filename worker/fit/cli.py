@@ -30,7 +30,7 @@ def _floats(text: str) -> list[float]:
 
 def add_commands(sub) -> None:
     bsub = _bench_subparsers(sub)
-    r = bsub.add_parser("recovery", help="fit srbf to Mitsuba renders of GGX materials and re-render (issue 11)")
+    r = bsub.add_parser("recovery", help="fit srbf to Mitsuba renders of GGX materials and re-render")
     r.add_argument("scenes", nargs="+", help="scene files: mesh, camera and object (material and map are replaced)")
     r.add_argument("--env", action="append", required=True, help="environment map (repeatable)")
     r.add_argument("--alpha", type=_floats, default=None, help="GGX α values (default 0.05,0.1,0.15,0.25,0.4)")

@@ -26,7 +26,7 @@ from .solve import FitRows, SolveResult, gram, solve
 MAX_FIT_ROWS = 4000     # the paper's largest N; see Fitter.row_stride
 # a quick view (Fitter.build_view with ``select``): the painted pixels plus about this many
 # unpainted ones spread over the object, so a stroke in a view not yet built reaches its frame
-# in a fraction of the full view's cost (issue 9, issue 11); the rest comes later (extend_view)
+# in a fraction of the full view's cost; the rest comes later (extend_view)
 QUICK_ROWS = 400
 DEFAULT_FIT_ALBEDO = False
 
@@ -396,7 +396,7 @@ class Fitter:
                           sum(v.seconds_transfer for v in self.views), achieved, spill)
 
     def row_stride(self) -> int:
-        """The bound on a fit's size (issue 9): a fit holds at most ``max_rows`` unpainted rows
+        """The bound on a fit's size: a fit holds at most ``max_rows`` unpainted rows
         over all its views, plus the painted ones. Beyond that, every view keeps every s-th row
         (s the same for all views), weighted s times, so each view still pulls with the weight of
         all its pixels and the solve's cost stays that of ``max_rows`` rows."""

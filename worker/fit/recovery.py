@@ -1,5 +1,5 @@
 """Recovery benchmark: fit ``srbf`` to an independent render of a known GGX material, re-render
-with Glint, and measure how close it comes (issue 11).
+with Glint, and measure how close it comes.
 
 For each case (scene, environment map, GGX α, specular, diffuse albedo):
 

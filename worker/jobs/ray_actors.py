@@ -1,4 +1,4 @@
-"""Worker-side Ray pieces (issue 17): the session host actor and the precomputation tasks.
+"""Worker-side Ray pieces: the session host actor and the precomputation tasks.
 
 ``SessionHost`` is a worker process whose two pipes are Ray calls: it runs the very same
 ``worker_main`` as a local worker (runner.py: jobs on a thread, every session on a thread of its

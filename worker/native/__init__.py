@@ -35,7 +35,7 @@ _here = Path(__file__).parent
 # Idle OpenMP threads sleep instead of spinning (libgomp reads this when the library loads): on
 # a shared machine spinning threads take the cores the other threads of a frame are waiting
 # for; measured on 2 loaded cores, the light tables took 128 ms spinning and 15 ms sleeping
-# (BENCHMARKS.md, issue 16). Set OMP_WAIT_POLICY=ACTIVE to spin.
+# (BENCHMARKS.md). Set OMP_WAIT_POLICY=ACTIVE to spin.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 # C parameter types, named like the C side

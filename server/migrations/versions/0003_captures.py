@@ -1,4 +1,4 @@
-"""Lighting captures (issue 15): a zip of fisheye brackets processed as a job into an
+"""Lighting captures: a zip of fisheye brackets processed as a job into an
 environment-map asset.
 
 Revision ID: 0003

@@ -10,7 +10,7 @@
  * parent's visibility but have their own light and direction, so glossy highlights stay sharp
  * (DESIGN.md §4).
  *
- * How it is fast (issue 16): each point first lists its clusters (node index, visibility) in a
+ * How it is fast: each point first lists its clusters (node index, visibility) in a
  * scalar pass over the height-encoded cut, then evaluates the BRDF over that list eight
  * clusters at a time (AVX2/FMA, node records of 8 floats gathered by index), when the CPU has
  * AVX2 and FMA (checked once at run time; glk_shade_simd forces the scalar path for tests).

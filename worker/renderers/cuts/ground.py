@@ -1,4 +1,4 @@
-"""The ground shadow: an invisible shadow-catcher plane under the objects (issue 16).
+"""The ground shadow: an invisible shadow-catcher plane under the objects.
 
 What a shopper knows from product viewers (model-viewer's ``shadow-intensity``): the object
 stands on an invisible floor that only darkens the background where the object shades it.

@@ -149,7 +149,7 @@ def geometry_key(vertices, faces, normals, tau: float, height: int) -> str:
 
 
 def storage_stats(cs: CutSet, blob_bytes: int, index_deflated: int | None = None) -> dict:
-    """Sizes of the stored cuts, like against like (issue 9): the raw height encoding (4-bit
+    """Sizes of the stored cuts, like against like: the raw height encoding (4-bit
     heights, 8-bit values, 2-byte counts) against the raw index encoding (2-byte node indices,
     8-bit values, 2-byte counts), and each deflated (the blob as stored is the deflated height
     encoding). The headline saving compares the deflated forms. ``index_deflated``: the
