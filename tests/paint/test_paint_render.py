@@ -81,6 +81,9 @@ def test_prefiltered_render_matches_brute_force(setup, cached):
     env, exps, maps = setup
     mat = designed_paint(exps)
     nrm, v = sphere_view()
+    # every third hit pixel (~340, spread over the whole sphere): the brute-force reference costs
+    # a full-map integral per pixel, and the RMSE needs no more pixels to resolve the 2% bound
+    nrm, v = nrm[::3], v[::3]
     ref = cached("brute-sphere", [env, nrm, v, repr(mat.model_dump()), "v1"], lambda: brute_force(mat, env, nrm, v))
     rows = material_rows([mat], exps)
     mid = np.zeros(len(nrm), np.int32)
