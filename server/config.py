@@ -66,6 +66,10 @@ class Settings(BaseModel):
                                          "any 60 s (moving window)")
     viewer_session_seconds: float = Field(300.0, gt=0, description="a viewer session without a stream (never "
                                           "opened, or ended) this long after its last activity is deleted")
+    session_retention_seconds: float = Field(14 * 86400.0, gt=0, description="an editing session left without a "
+                                             "stream for this long is closed (until then the studio's URL, a "
+                                             "reload or another tab reopens it with its strokes, undo history, "
+                                             "camera and material)")
     janitor_seconds: float = Field(60.0, gt=0, description="how often idle sessions are expired")
     max_frame_pixels: int = Field(2560 * 1600, ge=64 * 64, description="width × height of a session's camera at "
                                   "most; a frame costs ~FRAME_BYTES_PER_PIXEL bytes a pixel in its worker "

@@ -87,6 +87,10 @@ class MaterialVersion(Base):
     version: Mapped[int] = mapped_column(Integer)
     body: Mapped[dict] = mapped_column(JSON)                  # a scene-file material
     note: Mapped[str] = mapped_column(String(1000), default="")
+    # the designer's label for this version ("" for none); the design's name is the design's
+    name: Mapped[str] = mapped_column(String(255), default="", server_default="")
+    # a small JPEG of the frame it was saved from, in the blob store (None: saved over REST)
+    thumbnail_sha256: Mapped[str | None] = mapped_column(String(64), nullable=True)
     created: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now)
 
 

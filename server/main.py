@@ -287,7 +287,7 @@ def create_app(settings: Settings | None = None, pool=None) -> FastAPI:
         st = request.app.state.glint
         h = st.pool.health()
         ok = h.get("workers_alive", 0) == h.get("workers", 0)
-        return {"status": "ok" if ok else "degraded", "version": VERSION, **h, "streams": len(st.streams)}
+        return {"status": "ok" if ok else "degraded", "version": VERSION, **h, "streams": st.sessions.open_streams()}
 
     @app.get("/metrics", include_in_schema=False)
     async def prometheus_metrics(_: Client):
@@ -363,13 +363,15 @@ async def _shutdown(st, tasks: list) -> None:
 
 
 async def _janitor(st) -> None:
-    """Every ``janitor_seconds``: close editing sessions left without a stream for a day (their
-    rows say so), delete unused viewer sessions (``sessions.expire_idle``)."""
+    """Every ``janitor_seconds``: close editing sessions left without a stream for
+    ``session_retention_seconds`` (their rows say so; until then a reload, another tab or the
+    studio's URL reopens them), delete unused viewer sessions (``sessions.expire_idle``)."""
     from fastapi.concurrency import run_in_threadpool
 
     while True:
         try:
-            n = await run_in_threadpool(sessions.expire_idle, st, dt.timedelta(days=1))
+            n = await run_in_threadpool(sessions.expire_idle, st,
+                                        dt.timedelta(seconds=st.settings.session_retention_seconds))
             if n:
                 log.info("closed or deleted %d idle session(s)", n)
         except Exception as e:

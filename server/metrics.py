@@ -70,7 +70,7 @@ class _StateCollector:
             yield GaugeMetricFamily("glint_ray_nodes", "alive nodes of the Ray cluster", value=float(h["ray_nodes"]))
         yield CounterMetricFamily("glint_worker_restarts", "workers replaced after dying",
                                   value=float(h.get("worker_restarts", 0)))
-        yield GaugeMetricFamily("glint_sessions_open", "open session streams", value=float(len(st.streams)))
+        yield GaugeMetricFamily("glint_sessions_open", "open session streams", value=float(st.sessions.open_streams()))
         yield GaugeMetricFamily("glint_precomputations_running", "background precomputations in progress",
                                 value=float(len(st.precompute_tasks)))
 

@@ -116,6 +116,8 @@ class MaterialOut(BaseModel):
     object: str | None
     archived: bool
     created: dt.datetime
+    version_name: str = Field("", description="the latest version's name")
+    thumbnail: str | None = Field(None, description="URL of the latest version's thumbnail JPEG, if it has one")
 
 
 class VersionOut(BaseModel):
@@ -123,6 +125,9 @@ class VersionOut(BaseModel):
     material: dict
     note: str
     created: dt.datetime
+    name: str = Field("", description="the designer's label for this version")
+    thumbnail: str | None = Field(None, description="URL of a small JPEG of the frame this version was saved "
+                                                    "from (none for versions saved over REST)")
 
 
 class SessionCreate(Strict):

@@ -19,9 +19,17 @@ tabs behind a load balancer). Each row carries a ``version``, bumped by every wr
 process writes only over the version it read (compare-and-set); when another process wrote
 first, it reads the row again and re-applies the changes it has not written yet on top, so
 neither loses the other's: a camera one moved survives the light the other changed.
+
+The store also keeps the bookkeeping of the streams this process serves (``attach`` /
+``detach``): a session may have several streams at once (a reload, a second tab), which share
+its one worker session and all receive its frames and events; the limits on open streams are
+checked and a slot taken in one step. Each stream numbers its own messages; the store numbers
+them in the session (``persist_batch``: a message whose seq another stream already used is given
+the next one), so two tabs never refuse each other's input.
 """
 from __future__ import annotations
 
+import io
 import threading
 import time
 from contextlib import contextmanager
@@ -37,6 +45,33 @@ from .db import Asset, MaterialDesign, Scene, Session, SessionSave, StrokeRow, n
 
 FLUSH_S = 0.5            # the longest a batched change (camera, light, object move, fit) stays unwritten
 CAS_TRIES = 20           # compare-and-set attempts before a write gives up (another process keeps winning)
+# a design version's thumbnail: the session's last frame, shrunk to fit this box (pixels), as a
+# JPEG of at most THUMB_MAX_BYTES (a 192×144 JPEG of a render is 4-9 KB at quality 80)
+THUMB_BOX = (192, 144)
+THUMB_MAX_BYTES = 32 * 1024
+
+
+class StreamRefused(Exception):
+    """A stream over the limits: close code, message, HTTP status."""
+
+    def __init__(self, code: int, message: str, http: int):
+        super().__init__(message)
+        self.code, self.message, self.http = code, message, http
+
+
+@dataclass
+class SessionStreams:
+    """The open streams of one session in this process. conns : stream -> the client it counts
+    against (the session's owner, or the address of a viewer); pump : the task that fans the
+    worker session's frames and events out to them (set by the stream that opened it); ready :
+    set once that worker session is open (an asyncio.Event, made by the routes); failed : why it
+    could not be opened; last_frame : (header dict, JPEG bytes) of the newest frame, for a
+    stream that joins and for a saved version's thumbnail."""
+    conns: dict = field(default_factory=dict)
+    pump: object = None
+    ready: object = None
+    failed: str | None = None
+    last_frame: tuple[dict, bytes] | None = None
 
 
 class WriteConflict(RuntimeError):
@@ -69,14 +104,84 @@ class _Lock:
 
 
 class SessionStore:
-    """db : the sessionmaker (AppState.db)."""
+    """db : the sessionmaker (AppState.db); blobs : the BlobStore."""
 
-    def __init__(self, db):
+    def __init__(self, db, blobs=None):
         self.db = db
+        self.blobs = blobs          # for saved versions' thumbnails (None: none are stored)
         self._guard = threading.Lock()
         self._locks: dict[str, _Lock] = {}
         # sessions whose stream this process serves, from their first stored batch to their end
         self._entries: dict[str, _Entry] = {}
+        # the streams this process serves, by session (attach/detach run on the event loop's
+        # thread; the thumbnail's read of last_frame, on a worker thread, takes a reference)
+        self._streams: dict[str, SessionStreams] = {}
+
+    # -- streams ----------------------------------------------------------------------------------
+    def attach(self, sid: str, conn: object, client: str, max_total: int, max_per_client: int
+               ) -> tuple[SessionStreams, bool]:
+        """Check the stream limits and register ``conn`` as a stream of ``sid`` in one step (no
+        await between, so concurrent connects cannot all pass the check before any registers).
+        Returns (the session's streams, whether this one opens its worker session: the first);
+        raises StreamRefused over a limit (max_total streams in this process, max_per_client
+        of one client)."""
+        total = self.open_streams()
+        if total >= max_total:
+            raise StreamRefused(4503, f"the server is at its limit of {max_total} open session streams "
+                                      f"({total} open, max_sessions); try again later", 503)
+        mine = sum(c == client for ss in self._streams.values() for c in ss.conns.values())
+        if mine >= max_per_client:
+            raise StreamRefused(4429, f"this client ({client}) already has {mine} open session streams, the "
+                                      f"limit is {max_per_client} (max_sessions_per_client); close one first", 429)
+        ss = self._streams.get(sid)
+        first = ss is None
+        if first:
+            ss = self._streams[sid] = SessionStreams()
+        ss.conns[conn] = client
+        return ss, first
+
+    def detach(self, sid: str, conn: object) -> bool:
+        """Unregister a stream; whether it was the session's last here (its worker session and
+        cached state can go)."""
+        ss = self._streams.get(sid)
+        if ss is None or ss.conns.pop(conn, None) is None:
+            return False
+        if ss.conns:
+            return False
+        del self._streams[sid]
+        return True
+
+    def streams(self, sid: str) -> SessionStreams | None:
+        return self._streams.get(sid)
+
+    def is_streamed(self, sid: str) -> bool:
+        return sid in self._streams
+
+    def open_streams(self) -> int:
+        return sum(len(ss.conns) for ss in self._streams.values())
+
+    def keep_frame(self, sid: str, hdr: dict, jpeg: bytes) -> None:
+        ss = self._streams.get(sid)
+        if ss is not None:
+            ss.last_frame = (hdr, jpeg)
+
+    def thumbnail(self, sid: str) -> bytes | None:
+        """A small JPEG of the session's newest frame (None: no stream here has had one), at
+        most THUMB_BOX pixels and THUMB_MAX_BYTES."""
+        from PIL import Image
+
+        ss = self._streams.get(sid)
+        frame = ss.last_frame if ss is not None else None
+        if frame is None:
+            return None
+        im = Image.open(io.BytesIO(frame[1])).convert("RGB")
+        im.thumbnail(THUMB_BOX, Image.Resampling.LANCZOS)
+        for q in (80, 60, 40):
+            buf = io.BytesIO()
+            im.save(buf, "JPEG", quality=q, optimize=True)
+            if buf.tell() <= THUMB_MAX_BYTES:
+                return buf.getvalue()
+        return None
 
     # -- locks ------------------------------------------------------------------------------------
     @contextmanager
@@ -176,11 +281,13 @@ class SessionStore:
         return None if e is None else e.state
 
     # -- client messages --------------------------------------------------------------------------
-    def persist_batch(self, sid: str, msgs: list) -> list[tuple[dict | None, dict | None]]:
+    def persist_batch(self, sid: str, msgs: list, renumber: bool = False) -> list[tuple[dict | None, dict | None]]:
         """Apply validated messages in order to the stored state and record them before the
         worker sees them, each as its class's ``storage`` says (module docstring): (error event,
         None) for one that cannot apply (nothing stored or forwarded), else (None, the message
-        to forward)."""
+        to forward, with the seq it has in the session). renumber : a message whose seq is not
+        above the session's last one gets the next one (the stream checked that its seqs
+        increase; another stream of the session used these), instead of being refused."""
         out = []
         with self.lock(sid):
             e = self._entries.get(sid)
@@ -191,9 +298,9 @@ class SessionStore:
                 # state they leave is written like a camera move
                 if rows:
                     with self.db() as s, s.begin():
-                        out += [self._apply_one(s, sid, w, msg) for msg in msgs]
+                        out += [self._apply_one(s, sid, w, msg, renumber) for msg in msgs]
                 else:
-                    out += [self._apply_one(None, sid, w, msg) for msg in msgs]
+                    out += [self._apply_one(None, sid, w, msg, renumber) for msg in msgs]
                 self._entries[sid] = w
                 if w.since is not None and time.monotonic() - w.since >= FLUSH_S:
                     self._write_locked(sid)
@@ -204,17 +311,19 @@ class SessionStore:
                     if w is None:
                         raise LookupError(f"no session {sid!r}")
                 for msg in msgs:
-                    out.append(self._apply_one(s, sid, w, msg))
+                    out.append(self._apply_one(s, sid, w, msg, renumber))
                 if w.since is not None:
                     self._cas(s, sid, w)
             self._entries[sid] = w
         return out
 
-    def _apply_one(self, s, sid: str, e: _Entry, msg) -> tuple[dict | None, dict | None]:
+    def _apply_one(self, s, sid: str, e: _Entry, msg, renumber: bool = False) -> tuple[dict | None, dict | None]:
         """One message against the entry's state: (error event, None), or (None, forwarded) with
         the entry's state advanced. s : the database session (None for a batch of batched
         messages only, which touch no other row)."""
         before = e.state
+        if renumber and msg.seq <= before.last_seq:
+            msg = msg.model_copy(update={"seq": before.last_seq + 1})
         if msg.seq <= before.last_seq:
             # refused before anything is stored: the worker would skip it (it treats such a seq
             # as already applied), so storing it would bring it back, unseen, on the next restore
@@ -338,7 +447,10 @@ def _store_save(store: SessionStore, s, sid: str, eff: StoreSave) -> dict:
         d = MaterialDesign(name=eff.name or f"{eff.object} design", scene_id=scene_id, object=eff.object)
         s.add(d)
         s.flush()
-    v = add_version(s, d, eff.material, note=f"saved from session {sid}")
+    # the frame the designer saw when saving: the version list shows it
+    thumb = store.thumbnail(sid) if store.blobs is not None else None
+    v = add_version(s, d, eff.material, note=f"saved from session {sid}", name=eff.name or "",
+                    thumbnail_sha256=store.blobs.put(thumb) if thumb else None)
     s.flush()
     s.add(SessionSave(session_id=sid, seq=seq, design_id=d.id, version=v.version))
     return SavedEvent(seq=seq, material_id=d.id, version=v.version, name=d.name).model_dump()

@@ -32,11 +32,10 @@ class AppState:
         self.db = make_sessionmaker(settings.db_url)
         self.blobs = BlobStore(settings.data_dir / "blobs")
         # interactive sessions' stored state: the streams' write-behind cache and their locks
-        self.sessions = SessionStore(self.db)
+        self.sessions = SessionStore(self.db, self.blobs)
         self._sweep_temp()
         self.pool = pool or make_pool(settings, restore=self.session_payload)
         self.precompute_tasks: dict[str, object] = {}
-        self.streams: dict[str, str] = {}        # open streams: session id -> client
         self.demo: dict = {"state": "off"}       # the demo scene's preparation, for the studio
         self._fail_interrupted()
 

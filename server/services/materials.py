@@ -15,14 +15,18 @@ def design(db, material_id: str) -> MaterialDesign:
     return d
 
 
-def add_version(db, d: MaterialDesign, body: dict, note: str = "") -> MaterialVersion:
+def add_version(db, d: MaterialDesign, body: dict, note: str = "", name: str = "",
+                thumbnail_sha256: str | None = None) -> MaterialVersion:
+    """The design's next version. name : the version's label; thumbnail_sha256 : a JPEG in the
+    blob store (the frame it was saved from)."""
     # lock the design until commit, so that concurrent saves (sessions, REST) number their versions
     # one after the other: a no-op UPDATE takes the row lock on PostgreSQL and the write lock on
     # SQLite, whose driver runs the reads before a transaction's first write outside it
     db.execute(update(MaterialDesign).where(MaterialDesign.id == d.id).values(archived=MaterialDesign.archived)
                .execution_options(synchronize_session=False))
     cur = latest_version(db, d.id)
-    v = MaterialVersion(design_id=d.id, version=(cur.version + 1) if cur else 1, body=body, note=note)
+    v = MaterialVersion(design_id=d.id, version=(cur.version + 1) if cur else 1, body=body, note=note,
+                        name=name, thumbnail_sha256=thumbnail_sha256)
     db.add(v)
     return v
 
@@ -68,6 +72,14 @@ def version(db, material_id: str, number: int) -> MaterialVersion:
     if v is None:
         raise NotFound(f"material {material_id!r} has no version {number}")
     return v
+
+
+def thumbnail(db, blobs, material_id: str, number: int) -> bytes:
+    """A version's thumbnail JPEG (NotFound: the version has none: saved over REST)."""
+    v = version(db, material_id, number)
+    if v.thumbnail_sha256 is None:
+        raise NotFound(f"material {material_id!r} version {number} has no thumbnail (it was not saved from a session)")
+    return blobs.get(v.thumbnail_sha256)
 
 
 def archive(db, material_id: str):

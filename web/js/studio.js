@@ -8,12 +8,14 @@ import { orbit } from "./orbit.js";
 import { createLobeVisualiser, createPaintPanel, createSwatchPalette, downloadMeasurements } from "./paint.js";
 import { mountCapturePanel } from "./capture.js";
 import { MoveDrag, fullTransform } from "./move.js";
+import { applyPeer, forget, lastSession, remember, reopen, setUrl, urlState } from "./persist.js";
+import { mountDesigns } from "./designs.js";
+import { createStatus } from "./layout.js";
 
 const $ = (id) => document.getElementById(id);
-const status = (t) => { $("status").textContent = t; };
+const status = createStatus($("status"), $("status-panel"));
 
-let session = null, stream = null, state = null, material = null, designId = null;
-const saved = [];                 // design ids saved from this page (publish candidates)
+let session = null, stream = null, state = null, material = null;
 const view = new FrameView($("view"), $("readout"));
 const overlay = $("overlay").getContext("2d");
 
@@ -76,13 +78,23 @@ async function upload() {
   } catch (err) { status(`upload failed: ${err.message}`); }
 }
 
-async function openScene(id) {
+// a new session of scene ``id`` (the URL names it from now on; design: a design to put on it)
+async function openScene(id, design = null, version = null) {
   if (stream) stream.close();
   status("opening a session…");
-  session = await api("/v1/sessions", { method: "POST", body: { scene_id: id } });
+  const s = await api("/v1/sessions", { method: "POST", body: { scene_id: id } });
+  remember(s);
+  setUrl({ session: s.id, design: null, version: null });
+  await startSession(s);
+  await designs.start(design, version, true);
+}
+
+// stream session ``s`` (new, or reopened with what the server stored)
+async function startSession(s) {
+  if (stream) stream.close();
+  session = s;
   state = session.state;
-  designId = null;
-  $("versions").innerHTML = "";
+  const id = session.scene_id;
   const scene = await api(`/v1/scenes/${id}`);
   const objIdx = Math.max(0, scene.spec.objects.findIndex((o) => o.name === state.object));
   setMaterial(state.materials[objIdx]);
@@ -91,7 +103,10 @@ async function openScene(id) {
   stream = new SessionStream(session, {
     onFrame: (f) => { $("shadow").disabled = f.header.shadow == null; view.push(f); },
     onEvent: onEvent,
-    onState: (s) => status(`${state.object}: ${s}`),
+    onState: (s) => {
+      status(`${state.object}: ${s}`);
+      if (s.startsWith("closed: 4404")) forget(session.id);    // the server closed it: "/" opens a new one
+    },
   });
   view.stream = stream;
 }
@@ -142,7 +157,7 @@ $("paint-keep").onclick = () => {
   if (!lastPaint) return status("move a paint slider first");
   const name = $("design-name").value || "paint";
   palette.add({ name, measurements: lastPaint.measured, material: lastPaint.material });
-  stream?.send("save", { name, material_id: designId });
+  stream?.send("save", { name, material_id: designs.current() });
 };
 $("paint-export-json").onclick = () => lastPaint && downloadMeasurements(lastPaint.measured, $("design-name").value || "paint", "json");
 $("paint-export-csv").onclick = () => lastPaint && downloadMeasurements(lastPaint.measured, $("design-name").value || "paint", "csv");
@@ -152,6 +167,15 @@ let movableNames = [];   // movable objects of the scene (hello), shown when the
 
 function onEvent(ev) {
   if (ev.type === "hello") {
+    // what the server stored (a reopened session: the camera, light and material left there)
+    Object.assign(state, ev.state);
+    const i = state.objects ? state.objects.indexOf(state.object) : -1;
+    if (i >= 0 && state.materials?.[i]) setMaterial(state.materials[i]);
+    if (state.exposure != null) $("exposure").value = state.exposure;
+    if (state.tone) $("tone").value = state.tone;
+    if (ev.strokes || ev.streams > 1) {
+      status(`${state.object}: ${ev.strokes} stroke(s) restored` + (ev.streams > 1 ? `; ${ev.streams} tabs share this session` : ""));
+    }
     showRenderer(ev.renderer || "cuts", ev.controls || [], ev.renderers);
     mountPaint(ev.state.object, ev.state.paint?.[ev.state.object] || null);
     state.transforms = ev.state.transforms || state.transforms;
@@ -161,23 +185,26 @@ function onEvent(ev) {
     showRenderer(ev.kind, ev.controls);
     showMoveTool((ev.controls || []).includes("move") ? movableNames : []);
     status(`now drawing with ${RENDERER_NAMES[ev.kind] || ev.kind}`);
+  } else if (ev.type === "peer") {
+    applyPeer(ev.message, { state, setMaterial, editedObject: () => state.object,
+      setControl: (id, v) => { if (id === "shadow") $(id).checked = v; else $(id).value = v; } });
+    if (["stroke", "material", "paint", "undo", "redo"].includes(ev.message.type)) designs.edited();
   } else if (ev.type === "paint") {
     lastPaint = ev;
+    designs.edited();
     setMaterial(ev.material);
     paintPanel?.showEvent(ev);
     lobeView.update(ev.material, 45);
     status(`paint: fitted in ${ev.ms_fit.toFixed(1)} ms, error ${(100 * ev.error_l1).toFixed(1)}%`);
   } else if (ev.type === "fit") {
     setMaterial(ev.material);
+    designs.edited();
     // the figures and the notes together: the notes say why a stroke fell short
     status([fitSummary(ev.stats || {}), ...(ev.notes || [])].join("; "));
   } else if (ev.type === "stroke" && ev.notes?.length) {
     status(ev.notes.join("; "));
   } else if (ev.type === "saved") {
-    designId = ev.material_id;
-    if (!saved.includes(designId)) saved.push(designId);
-    status(`saved “${ev.name}” version ${ev.version}`);
-    loadVersions();
+    designs.onSaved(ev);
   } else if (ev.type === "error") {
     status(`error: ${ev.message}`);
   } else if (ev.type === "note") {
@@ -331,6 +358,7 @@ function queueMaterial() {
   if (pendingMaterial) return;
   pendingMaterial = true;
   requestAnimationFrame(() => { pendingMaterial = false; stream?.send("material", { material }); });
+  designs.edited();
 }
 
 function setMaterial(m, rebuild = true) {
@@ -370,34 +398,9 @@ $("model").addEventListener("change", () => {
 });
 $("lobe-angle").addEventListener("input", () => drawLobe($("lobe"), material, +$("lobe-angle").value));
 
-// -- designs -------------------------------------------------------------------------------------------
-$("save").onclick = () => stream?.send("save", { name: $("design-name").value || "design", material_id: designId });
-async function loadVersions() {
-  if (!designId) return;
-  const vs = await api(`/v1/materials/${designId}/versions`);
-  const ul = $("versions");
-  ul.innerHTML = "";
-  for (const v of vs.reverse()) {
-    const li = document.createElement("li");
-    li.textContent = `v${v.version} · ${v.material.model} · ${new Date(v.created).toLocaleTimeString()}`;
-    const b = document.createElement("button");
-    b.textContent = "load";
-    b.onclick = () => { setMaterial(v.material); stream.send("material", { material: v.material }); };
-    li.append(b);
-    ul.append(li);
-  }
-}
-$("publish").onclick = async () => {
-  if (!saved.length) return status("save a design first");
-  try {
-    const p = await api("/v1/publications", { method: "POST", body: { name: $("design-name").value || "designs",
-      scene_id: session.scene_id, object: state.object, variants: saved.map((id) => ({ material_id: id })) } });
-    const a = $("publish-link");
-    a.href = p.viewer; a.textContent = `open the viewer (${p.variants.length} variant${p.variants.length > 1 ? "s" : ""})`;
-    a.classList.remove("hidden");
-    status(`published ${p.id}`);
-  } catch (err) { status(`publish failed: ${err.message}`); }
-};
+// -- designs (designs.js) -------------------------------------------------------------------------------
+const designs = mountDesigns({ status, send: (type, f) => stream?.send(type, f), session: () => session, state: () => state,
+  applyMaterial: (m) => { setMaterial(m); stream?.send("material", { material: m }); } });
 
 $("open-scene").onclick = () => $("scene-select").value && openScene($("scene-select").value);
 $("upload").onclick = upload;
@@ -417,9 +420,37 @@ async function waitDemo() {
   }
 }
 
+// the session the URL names (else the last one this browser edited), reopened with what the server
+// stored; else a new session of a ready scene (with the design the URL names, if any)
+async function resume() {
+  const url = urlState();
+  const want = url.session ? url : (url.design ? null : lastSession());
+  if (want?.session) {
+    const { session: s, why } = await reopen(want.session);
+    if (s) {
+      setUrl({ session: s.id, design: want.design, version: want.version });
+      await listScenes(s.scene_id);
+      await startSession(s);
+      await designs.start(want.design, want.version, false);
+      return true;
+    }
+    if (url.session) status(`${why}; opening a new session`);
+    setUrl({ session: null });
+  }
+  if (url.design) {
+    try {
+      const d = await api(`/v1/materials/${url.design}`);
+      const { ready } = await listScenes(d.scene_id);
+      if (ready && ready.id === d.scene_id) { await openScene(d.scene_id, d.id, url.version); return true; }
+    } catch (err) { status(`design ${url.design}: ${err.message}`); }
+  }
+  return false;
+}
+
 (async () => {
   try {
     await loadModels();
+    if (await resume()) return;
     for (;;) {
       const { scenes, ready } = await listScenes();
       if (ready) { await openScene(ready.id); break; }

@@ -10,7 +10,7 @@ wire.py      binary frames, the stream's JSON Schema, the size and depth checks 
 from .effects import (NO_EFFECT, Effect, FitPaint, Moved, NewMaterial, NoEffect,  # noqa: F401
                       RecordStroke, Redo, Refit, RejectStroke, Relight, Save, StoreEffect, StoreSave, SwitchRenderer, Undo)
 from .events import (WORKER_EVENTS, CurveEvent, ErrorEvent, FitEvent, FitStats, HelloEvent, NoteEvent,  # noqa: F401
-                     PaintEvent, RendererEvent, SavedEvent, SaveRequest, ServerEvent, StrokeEvent, apply_event,
+                     PaintEvent, PeerEvent, RendererEvent, SavedEvent, SaveRequest, ServerEvent, StrokeEvent, apply_event,
                      server_event, worker_event)
 from .messages import (_MESSAGES, AnyClientMsg, ClientMsg, DisplayMsg, EnvironmentMsg, FitMsg, LightMsg,  # noqa: F401
                        MaterialMsg, MoveMsg, PaintMsg, RedoMsg, RendererMsg, SaveMsg, Storage, StrokeMsg, UndoMsg,

@@ -41,6 +41,17 @@ class HelloEvent(_Event):
     renderer: str = "cuts"
     renderers: list[str] = Field(default_factory=list, description="renderers the session may switch between")
     controls: list[str] = Field(default_factory=list, description="what this session's renderer lets a client change")
+    streams: int = Field(1, description="open streams of this session on this server, this one included (another "
+                                        "tab, a reload): they all see each other's changes")
+
+
+class PeerEvent(_Event):
+    """A change another stream of this session made (another tab): the client message as the
+    session applied it (``message.seq`` is the session's number for it), so this client's
+    controls can follow; its frame comes like any other. ``streams``: open streams now."""
+    type: Literal["peer"] = "peer"
+    message: dict
+    streams: int = 1
 
 
 class StrokeEvent(_WorkerEvent):
@@ -150,7 +161,7 @@ class SaveRequest(_WorkerEvent):
 
 
 ServerEvent = Annotated[Union[HelloEvent, StrokeEvent, FitEvent, CurveEvent, SavedEvent, NoteEvent, ErrorEvent,
-                              PaintEvent, RendererEvent],
+                              PaintEvent, RendererEvent, PeerEvent],
                         Field(discriminator="type")]
 server_event = TypeAdapter(ServerEvent)
 
