@@ -5,6 +5,19 @@
 // notes) would overflow, opens a panel with the full text of the recent messages.
 const HISTORY = 40;
 
+// pack the panels of ``aside`` (a CSS grid of 4 px rows): each spans the rows its height needs,
+// kept up to date as panels open, close or change size (a CSS masonry layout is not in browsers yet)
+export function packPanels(aside) {
+  const fit = (el) => {
+    const cs = getComputedStyle(aside), row = parseFloat(cs.gridAutoRows) || 4, gap = parseFloat(cs.rowGap) || 0;
+    const h = el.getBoundingClientRect().height + parseFloat(getComputedStyle(el).marginBottom || 0);
+    el.style.gridRowEnd = `span ${Math.max(1, Math.ceil((h + gap) / (row + gap)))}`;
+  };
+  const ro = new ResizeObserver((entries) => entries.forEach((e) => fit(e.target)));
+  for (const el of aside.children) ro.observe(el);
+  return ro;
+}
+
 // status(text): show ``text`` on the status line (its tooltip and the panel have it in full)
 export function createStatus(line, panel) {
   const log = [];

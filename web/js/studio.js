@@ -10,10 +10,11 @@ import { mountCapturePanel } from "./capture.js";
 import { MoveDrag, fullTransform } from "./move.js";
 import { applyPeer, forget, lastSession, remember, reopen, setUrl, urlState } from "./persist.js";
 import { mountDesigns } from "./designs.js";
-import { createStatus } from "./layout.js";
+import { createStatus, packPanels } from "./layout.js";
 
 const $ = (id) => document.getElementById(id);
 const status = createStatus($("status"), $("status-panel"));
+packPanels(document.querySelector("main.studio aside"));
 
 let session = null, stream = null, state = null, material = null;
 const view = new FrameView($("view"), $("readout"));
@@ -105,7 +106,8 @@ async function startSession(s) {
     onEvent: onEvent,
     onState: (s) => {
       status(`${state.object}: ${s}`);
-      if (s.startsWith("closed: 4404")) forget(session.id);    // the server closed it: "/" opens a new one
+      // the server closed it, or cannot draw it: "/" opens a new one
+      if (s.startsWith("closed: 4404") || s.startsWith("closed: 4409")) forget(session.id);
     },
   });
   view.stream = stream;
