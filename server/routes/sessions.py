@@ -22,6 +22,7 @@ import datetime as dt
 import hmac
 import json
 import logging
+import time
 
 from fastapi import APIRouter, Header, HTTPException, Query, Request, WebSocket, WebSocketDisconnect
 from fastapi.concurrency import run_in_threadpool
@@ -43,6 +44,9 @@ log = logging.getLogger("glint")
 AUTH_SECONDS = 10.0      # a stream must authenticate within this
 MAX_BATCH = 256          # client messages stored in one transaction at most
 MAX_PENDING = 4096       # client messages waiting to be stored before the stream is refused
+# how long a session's worker session outlives its last stream to store the saves still pending
+# (a save is a fraction of a second; one not stored by then is run when the session reopens)
+SAVE_WAIT_S = 15.0
 # resident memory a frame costs its worker per pixel of the camera: measured with the bunny at
 # 1920×1080, an anti-aliased still (4 samples a pixel: primary hits, shading, tone mapping,
 # JPEG): the worker's peak grew from 176 to 988 MiB, ~410 bytes a pixel; so the default
@@ -499,10 +503,19 @@ async def _store_and_forward(st, sid: str, conn: _Conn, inbox: asyncio.Queue) ->
 
 
 async def _session_ended(st, sid: str, streams) -> None:
-    """The session's last stream here ended: stop its worker session, write and drop its
-    cached state, note when it was last used."""
+    """The session's last stream here ended: let its worker store the saves still pending (a
+    tab that saves as it closes is not kept waiting for the answer; at most SAVE_WAIT_S), then
+    stop its worker session, write and drop its cached state, note when it was last used."""
+    t0 = time.monotonic()
+    while streams.pump is not None and not streams.pump.done() and time.monotonic() - t0 < SAVE_WAIT_S:
+        cached = st.sessions.cached_state(sid)
+        if cached is None or not cached.pending_saves:
+            break
+        await asyncio.sleep(0.05)
     if streams.pump is not None:
         streams.pump.cancel()
+    if st.sessions.is_streamed(sid):
+        return      # a stream opened it again meanwhile, with a worker session of its own
     st.pool.close_session(sid)
     st.metrics.session_ended(sid)
     await run_in_threadpool(st.sessions.forget, sid)

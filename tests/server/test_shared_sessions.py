@@ -5,6 +5,7 @@ stores a version with its name and a thumbnail of the frame."""
 import asyncio
 import io
 import json
+import time
 
 import pytest
 from PIL import Image
@@ -108,6 +109,27 @@ def test_a_saved_version_has_its_name_and_a_thumbnail(server, client, bunny_scen
     assert client.get(f"/v1/materials/{mid}/versions/3").json()["thumbnail"] is None
     assert client.get(f"/v1/materials/{mid}/versions/3/thumbnail").status_code == 404
     assert client.get(f"/v1/materials/{mid}/versions/9/thumbnail").status_code == 404
+
+
+def test_a_save_sent_as_the_tab_closes_is_stored(server, client, bunny_scene):
+    """A client that saves and leaves at once (a tab's autosave as it closes) does not wait for
+    the answer: the worker session outlives the stream until the save is stored."""
+    ses = client.post("/v1/sessions", json={"scene_id": bunny_scene}).json()
+
+    async def go():
+        async with connect(server, ses["stream"], ses["token"]) as ws:
+            seq = json.loads(await ws.recv())["state"]["last_seq"]
+            await next_frame(ws)
+            await ws.send(json.dumps({"seq": seq + 1, "type": "save", "name": "closing"}))
+    asyncio.run(go())
+    for _ in range(100):
+        found = [d for d in client.get("/v1/materials").json() if d["name"] == "closing"]
+        if found:
+            break
+        time.sleep(0.1)
+    assert found and found[0]["version"] == 1, "the save sent as the stream closed was not stored"
+    got = client.get(f"/v1/sessions/{ses['id']}", headers={"X-Session-Token": ses["token"]}).json()
+    assert got["state"]["pending_saves"] == []
 
 
 def test_the_store_counts_every_stream_against_the_limits(tmp_path):

@@ -5,6 +5,7 @@ and the canvas stays in view and uses the window at 1280×720 to 2560×1440. Scr
 test-artifacts/web-work-*.png."""
 import json
 import shutil
+import time
 
 import httpx
 import numpy as np
@@ -176,6 +177,18 @@ def test_designs_save_as_versions_and_publish_after_a_reload(server, bunny_scene
     link.wait_for(state="visible", timeout=30_000)
     pub = httpx.get(base + "/v1/publications/" + link.get_attribute("href").rsplit("/", 1)[-1]).json()
     assert [v["material_id"] for v in pub["variants"]] == [designs["oak"]["id"]], pub
+
+    # autosave: an edit, then the tab is closed; the edited design gets an "autosave" version
+    _stroke(page, sign="-1")
+    page.close(run_before_unload=True)
+    oak = designs["oak"]["id"]
+    for _ in range(100):
+        vs = httpx.get(f"{base}/v1/materials/{oak}/versions").json()
+        if len(vs) == 3:
+            break
+        time.sleep(0.2)
+    assert [v["name"] for v in vs] == ["oak", "brighter", "autosave"], vs
+    assert vs[2]["material"] != vs[1]["material"]          # the stroke's look, not the saved one
     assert not errors, errors
     ctx.close()
 

@@ -144,7 +144,9 @@ export function mountDesigns({ status, send, session, state, applyMaterial }) {
     send("save", { name: "autosave", material_id: designId });
     dirty = false;
   }
-  // the tab closes or goes to the background: the stream is still open long enough to send
+  // the tab closes or goes to the background: the stream is still open long enough to send, and
+  // the server stores a save that arrives as the stream closes
+  window.addEventListener("beforeunload", autosave);
   window.addEventListener("pagehide", autosave);
   document.addEventListener("visibilitychange", () => { if (document.visibilityState === "hidden") autosave(); });
 

@@ -153,7 +153,7 @@ function mountPaint(object, initial) {
   $("paint-panel").innerHTML = "";
   paintPanel = createPaintPanel($("paint-panel"), { object, initial,
     // the panel numbers its own messages; the stream gives them the session's seq
-    send: ({ type, seq, ...fields }) => stream?.send("paint", fields) });
+    send: ({ type, seq, ...fields }) => { stream?.send("paint", fields); designs.edited(); } });
 }
 $("paint-keep").onclick = () => {
   if (!lastPaint) return status("move a paint slider first");
@@ -190,17 +190,14 @@ function onEvent(ev) {
   } else if (ev.type === "peer") {
     applyPeer(ev.message, { state, setMaterial, editedObject: () => state.object,
       setControl: (id, v) => { if (id === "shadow") $(id).checked = v; else $(id).value = v; } });
-    if (["stroke", "material", "paint", "undo", "redo"].includes(ev.message.type)) designs.edited();
   } else if (ev.type === "paint") {
     lastPaint = ev;
-    designs.edited();
     setMaterial(ev.material);
     paintPanel?.showEvent(ev);
     lobeView.update(ev.material, 45);
     status(`paint: fitted in ${ev.ms_fit.toFixed(1)} ms, error ${(100 * ev.error_l1).toFixed(1)}%`);
   } else if (ev.type === "fit") {
     setMaterial(ev.material);
-    designs.edited();
     // the figures and the notes together: the notes say why a stroke fell short
     status([fitSummary(ev.stats || {}), ...(ev.notes || [])].join("; "));
   } else if (ev.type === "stroke" && ev.notes?.length) {
@@ -326,11 +323,14 @@ function sendStroke() {
   stream.send("stroke", { stroke: { points: strokePts.slice(0, 10000), color, diameter: +$("brush-diameter").value,
     kappa: +$("brush-kappa").value, mode: $("brush-mode").value, scale: +$("brush-scale").value } });
   setTimeout(() => { strokePts = []; drawStroke(); }, 250);
+  designs.edited();
 }
-$("undo").onclick = () => stream?.send("undo");
-$("redo").onclick = () => stream?.send("redo");
+// (edits made in this tab mark the design edited, for autosave; another tab's, in that tab)
+const undoRedo = (kind) => { stream?.send(kind); designs.edited(); };
+$("undo").onclick = () => undoRedo("undo");
+$("redo").onclick = () => undoRedo("redo");
 document.addEventListener("keydown", (e) => {
-  if ((e.ctrlKey || e.metaKey) && e.key.toLowerCase() === "z") { e.preventDefault(); stream?.send(e.shiftKey ? "redo" : "undo"); }
+  if ((e.ctrlKey || e.metaKey) && e.key.toLowerCase() === "z") { e.preventDefault(); undoRedo(e.shiftKey ? "redo" : "undo"); }
 });
 const sendFit = () => stream?.send("fit", { constrained: $("constrained").checked, unpainted_weight: +$("unpainted-weight").value });
 $("constrained").onchange = sendFit;
