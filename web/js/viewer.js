@@ -3,7 +3,9 @@
 import { api, SessionStream } from "./net.js";
 import { FrameView } from "./canvas.js";
 import { orbit } from "./orbit.js";
-import { albedoOf } from "./brdf.js";
+
+// a swatch's colour: the material's own diffuse colour (a field, not an evaluation)
+const albedoOf = (m) => m.albedo || m.diffuse || [0, 0, 0];
 
 const $ = (id) => document.getElementById(id);
 const pubId = location.pathname.split("/").filter(Boolean).pop();
