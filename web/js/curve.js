@@ -38,18 +38,20 @@ export class CurveEditor {
     this.lo = -3; this.hi = 2;       // log10 range shown
     canvas.addEventListener("pointerdown", (e) => this.down(e));
     canvas.addEventListener("pointermove", (e) => this.move(e));
-    canvas.addEventListener("pointerup", () => { this.drag = -1; this.waiting = null; });
+    // a drag released before the converted curve arrives still applies where it ended
+    canvas.addEventListener("pointerup", () => { this.drag = -1; if (this.waiting) this.waiting.released = true; });
   }
 
   // the material and the server's curve of it (null: not evaluated yet, nothing is drawn)
   set(material, curve) {
     this.material = material;
     if (curve !== undefined) { this.curve = curve; this.base = material; }
-    if (this.waiting && material?.model === "curve") {
-      this.drag = this.waiting.bin;
-      const y = this.waiting.y;
+    if (this.waiting && material?.model === "curve" && curve) {
+      const { bin, y, released } = this.waiting;
       this.waiting = null;
+      this.drag = bin;
       this.moveTo(y);
+      if (released) this.drag = -1;
     }
     this.draw();
   }
@@ -106,6 +108,7 @@ export class CurveEditor {
     this.canvas.dataset.points = JSON.stringify(where);
     this.canvas.dataset.drawn = JSON.stringify(c.specular);
     this.canvas.dataset.quantity = c.quantity || "";
+    this.canvas.dataset.material = JSON.stringify(this.base);
   }
 
   hit(e) {

@@ -83,7 +83,6 @@ async function openScene(id) {
     onState: (s) => status(`${state.object}: ${s}`),
   });
   view.stream = stream;
-  frameSize.now();
 }
 
 // the fit's figures, so a designer sees why a stroke is only partly achieved: the share of the
@@ -170,8 +169,10 @@ function onEvent(ev) {
     state.transforms = ev.state.transforms || state.transforms;
     movableNames = ev.state.movable || [];
     showMoveTool((ev.controls || []).includes("move") ? movableNames : []);
+    frameSize.now();          // the stream is open: frames at the canvas's size from now on
   } else if (ev.type === "renderer") {
     showRenderer(ev.kind, ev.controls, null, ev.off || {});
+    frameSize.now();
     showMoveTool((ev.controls || []).includes("move") ? movableNames : []);
     status(`now drawing with ${RENDERER_NAMES[ev.kind] || ev.kind}`);
   } else if (ev.type === "paint") {
@@ -185,7 +186,7 @@ function onEvent(ev) {
   } else if (ev.type === "converted") {
     if (ev.object === state.object) setMaterial(ev.material, true, ev.curve);
     status(`${ev.object}: now ${MODELS[ev.material.model]?.label || ev.material.model}, fitted to the old look ` +
-      `(mean colour within ${(100 * ev.albedo_error).toFixed(1)}%)`);
+      `(its colour in this view kept; albedo within ${(100 * ev.albedo_error).toFixed(1)}%)`);
   } else if (ev.type === "object") {
     state.object = ev.object;
     objects.selected(ev.object);
