@@ -3,6 +3,8 @@ undo history its own; ``pick`` names the object under a point of the last frame;
 gives a material another model with the same look in the session's view; frames follow the
 size the client asks for, within the session's pixel cap. Worker side, no server (the server's
 half, the stroke rows of an object's epoch, is in tests/web/test_studio_objects.py)."""
+import time
+
 import numpy as np
 import pytest
 from helpers import open_renderer, scene_file
@@ -175,3 +177,42 @@ def test_a_captured_lighting_is_applied_in_its_previews_units_and_confirmed(two,
     assert "applied" in ev[1]["message"] and "my capture" in ev[1]["message"]
     med = float(np.median(env @ LUMA))
     assert abs(med * 2 ** rt.state.exposure / MID_GREY - 1) < 0.01, (med, rt.state.exposure)
+
+
+def test_a_session_left_alone_settles_on_the_anti_aliased_frame(two):
+    """With no message at all after it opens, a session's thread sends its first frame (one
+    sample: the view's anti-aliased primary hits are not traced yet) and then the settled,
+    anti-aliased one. Before, the first frame stayed until the user nudged the view, for
+    designers and shoppers alike. The thread's cache here only hands out the loaded renderer."""
+    import queue
+
+    from worker.jobs.runner import SessionThread
+
+    class _Loaded:
+        def renderer(self, scene, kind=None):
+            return two
+
+        def envmap(self, f):
+            raise AssertionError("no environment preset in this session")
+
+    for readonly, eye in ((False, [0.1, 0.8, 5.2]), (True, [0.6, 0.9, 5.1])):     # each a view not traced yet
+        outq = queue.Queue()
+        cam = {**two.scene.spec.camera.model_dump(mode="json"), "eye": eye}
+        st = new_state(two.scene.spec, camera=cam, readonly=readonly)
+        th = SessionThread("s1", {"scene": {}, "state": st.model_dump(mode="json"), "strokes": []}, _Loaded(), outq)
+        th.start()
+        frames, deadline = [], time.monotonic() + 120
+        try:
+            while len(frames) < 2 and time.monotonic() < deadline:
+                try:
+                    r = outq.get(timeout=1)
+                except queue.Empty:
+                    continue
+                assert r.kind != "event" or r.payload.get("type") != "error", r.payload
+                if r.kind == "frame":
+                    frames.append(r.payload[0])
+        finally:
+            th.stop()
+            th.join(30)
+        assert [f["samples"] for f in frames] == [1, 4], (readonly, frames)
+        assert frames[0]["quick"] and not frames[1]["quick"]
