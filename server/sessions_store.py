@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 
 from sqlalchemy import select, update
 
-from worker.protocol import (ClientMsg, EnvPreset, EnvironmentMsg, ErrorEvent, RecordStroke, Redo, RejectStroke,
+from worker.protocol import (ClientMsg, EnvPreset, EnvironmentMsg, ErrorEvent, ObjectMsg, RecordStroke, Redo, RejectStroke,
                              SavedEvent, SessionState, StateError, StoreSave, Undo, apply, apply_event,
                              restore_state, worker_event)
 
@@ -345,6 +345,9 @@ class SessionStore:
         rows = _ROW_EFFECTS.get(type(eff))
         if rows is not None:
             rows(s, sid, before.epoch, msg, eff)
+        if isinstance(msg, ObjectMsg):
+            # the worker replays the picked object's own strokes (its epoch's rows)
+            msg = msg.model_copy(update={"strokes": _epoch_strokes(s, sid, state.epoch)})
         e.state = state
         e.pending.append(msg)
         if e.since is None:
@@ -415,6 +418,14 @@ def _undo_redo(s, sid: str, epoch: int, msg, eff) -> None:
     if r is not None:
         r.undone = undo
         s.flush()
+
+
+def _epoch_strokes(s, sid: str, epoch: int) -> list[dict]:
+    """The stroke records of one epoch a worker replays (as AppState.session_payload gives them)."""
+    rows = s.scalars(select(StrokeRow).where(StrokeRow.session_id == sid, StrokeRow.epoch == epoch,
+                                             StrokeRow.dropped.is_(False), StrokeRow.rejected.is_(False))
+                     .order_by(StrokeRow.seq)).all()
+    return [{**r.body, "seq": r.seq, "undone": r.undone} for r in rows]
 
 
 # effect class -> handler(db session, sid, epoch before the message, message, effect)

@@ -134,6 +134,9 @@ class SceneFile(_Strict):
     cuts: CutSettings | None = None
 
     ground: Ground | None = Field(None, description="optional shadow-catcher ground plane (precomputed with the cuts)")
+    exposure: float | Literal["auto"] | None = Field(
+        None, description="the display exposure (stops) a new session starts with; \"auto\": the worker exposes "
+                          "so that the median object pixel is middle grey (uploaded scenes)")
 
     @field_validator("renderer")
     @classmethod

@@ -107,7 +107,7 @@ def create_session(req: SessionCreate, request: Request, st: State, db: DB, clie
     camera = req.camera.model_dump(mode="json") if req.camera else None
     check_frame_size(st.settings, camera or sc.spec.get("camera"))
     try:
-        state = new_state(sc.spec, req.object, camera)
+        state = new_state(sc.spec, req.object, camera, max_frame_pixels=st.settings.max_frame_pixels)
     except StateError as e:
         raise HTTPException(422, str(e)) from None
     token = new_secret()

@@ -99,13 +99,15 @@ async def run_precompute(st, pre_id: str, on_progress=None) -> bool:
             for k, v in kw.items():
                 setattr(p, k, v)
 
-    last = [0.0, 0.0]
+    last = [0.0, 0.0, ""]
 
     def progress(f, msg):
         if on_progress is not None:
             on_progress(f, msg)
-        if f - last[0] >= 0.02 or f >= 1.0:
-            last[0] = f
+        # a new stage ("assembling and storing …") is written at once, whatever the fraction
+        stage = msg.rsplit(": ", 1)[0] if ": " in msg else ""
+        if f - last[0] >= 0.02 or f >= 1.0 or stage != last[2]:
+            last[0], last[2] = f, stage
             update(progress=float(f), message=msg, status="running")
         if f - last[1] >= 0.1 or f >= 1.0:
             last[1] = f

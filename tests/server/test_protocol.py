@@ -28,7 +28,7 @@ def test_every_effect_has_one_worker_handler():
 def test_policies_are_declared_on_the_message_classes():
     """What the server's and the worker's tables used to say, now each class's own."""
     by = {t: c for t, c in _MESSAGES.items()}
-    assert {t for t, c in by.items() if c.storage == "batched"} == {"view", "light", "move", "display"}
+    assert {t for t, c in by.items() if c.storage == "batched"} == {"view", "light", "move", "display", "pick"}
     assert {t for t, c in by.items() if c.storage == "rows"} == {"stroke", "undo", "redo"}
     assert {t for t, c in by.items() if c.urgent} == {"stroke", "undo", "redo", "fit"}
     assert {t for t, c in by.items() if c.drags} == {"view", "light", "move"}

@@ -291,6 +291,7 @@ def test_apply_never_changes_the_state_it_is_given(bunny_renderer):
         "variant": {"index": 0}, "environment": {"index": 0},
         "move": {"object": "bunny", "transform": {"translate": [0.1, 0, 0]}},
         "renderer": {"kind": "cuts"}, "paint": {"gloss": 80.0, "aspecular": {"15": [0.5, 0.5, 0.5]}},
+        "object": {"object": "bunny"}, "pick": {"u": 0.5, "v": 0.5}, "convert": {"model": "ggx"},
     }
     assert set(examples) == set(_MESSAGES), set(_MESSAGES) ^ set(examples)
     applied = 0

@@ -36,6 +36,8 @@ export class FrameView {
       const now = performance.now();
       this.times.push(now);
       while (this.times.length && now - this.times[0] > 1000) this.times.shift();
+      this.canvas.dataset.samples = String(f.header.samples);
+      this.canvas.dataset.quick = String(!!f.header.quick);
       this.canvas.dataset.frame = String(f.header.frame);
       this.canvas.dataset.ack = String(f.header.ack);
     }

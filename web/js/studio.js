@@ -3,7 +3,6 @@
 import { api, SessionStream } from "./net.js";
 import { FrameView } from "./canvas.js";
 import { CurveEditor, drawLobe } from "./curve.js";
-import { toCurve } from "./brdf.js";
 import { orbit } from "./orbit.js";
 import { createLobeVisualiser, createPaintPanel, createSwatchPalette, downloadMeasurements } from "./paint.js";
 import { mountCapturePanel } from "./capture.js";
@@ -11,6 +10,9 @@ import { MoveDrag, fullTransform } from "./move.js";
 import { applyPeer, forget, lastSession, remember, reopen, setUrl, urlState } from "./persist.js";
 import { mountDesigns } from "./designs.js";
 import { createStatus, packPanels } from "./layout.js";
+import { imageFraction, isClick, mountObjects } from "./objects.js";
+import { fitCanvases, followCanvasSize } from "./framesize.js";
+import { mountSceneCreate } from "./scenecreate.js";
 
 const $ = (id) => document.getElementById(id);
 const status = createStatus($("status"), $("status-panel"));
@@ -57,28 +59,6 @@ async function waitPrecompute(sceneId) {
   bar.classList.add("hidden");
 }
 
-async function upload() {
-  const mesh = $("mesh-file").files[0], env = $("env-file").files[0];
-  if (!mesh || !env) return status("choose a mesh and an HDRI first");
-  try {
-    status(`uploading ${mesh.name}…`);
-    const m = await api(`/v1/assets/meshes?filename=${encodeURIComponent(mesh.name)}`, { method: "POST", raw: mesh });
-    status(`uploading ${env.name}…`);
-    const e = await api(`/v1/assets/envmaps?filename=${encodeURIComponent(env.name)}`, { method: "POST", raw: env });
-    const [lo, hi] = m.meta.bounds;
-    const c = lo.map((x, i) => (x + hi[i]) / 2), r = Math.hypot(...hi.map((x, i) => x - lo[i])) / 2;
-    const scene = { version: 1, environment: { map: e.id },
-      camera: { eye: [c[0], c[1] + 0.4 * r, c[2] + 2.8 * r], target: c, up: [0, 1, 0], fov_y_deg: 40, width: 640, height: 480 },
-      objects: [{ name: mesh.name.replace(/\.[^.]+$/, ""), mesh: m.id, material: { model: "lambert", albedo: [0.6, 0.6, 0.6] } }],
-      ground: { shadow: true } };
-    const s = await api(`/v1/scenes?name=${encodeURIComponent(mesh.name)}`, { method: "POST", body: scene });
-    await api(`/v1/scenes/${s.id}/precompute`, { method: "POST" });
-    await waitPrecompute(s.id);
-    await listScenes(s.id);
-    await openScene(s.id);
-  } catch (err) { status(`upload failed: ${err.message}`); }
-}
-
 // a new session of scene ``id`` (the URL names it from now on; design: a design to put on it)
 async function openScene(id, design = null, version = null) {
   if (stream) stream.close();
@@ -98,11 +78,20 @@ async function startSession(s) {
   const id = session.scene_id;
   const scene = await api(`/v1/scenes/${id}`);
   const objIdx = Math.max(0, scene.spec.objects.findIndex((o) => o.name === state.object));
-  setMaterial(state.materials[objIdx]);
+  setMaterial(state.materials[objIdx], true, null);         // its curve comes from the worker
+  objects.show(state.objects, state.object);
   $("shadow").checked = state.shadow ?? scene.spec.ground?.shadow ?? false;
+  $("exposure").value = state.exposure ?? 0;
   showMoveTool(state.movable || []);
   stream = new SessionStream(session, {
-    onFrame: (f) => { $("shadow").disabled = f.header.shadow == null; view.push(f); },
+    onFrame: (f) => {
+      $("shadow").disabled = f.header.shadow == null;
+      // a full frame sets the canvases' pixels and the camera's size the strokes are drawn in
+      if (fitCanvases(f.header, $("view"), $("overlay")) && controls.has("camera")) {
+        state.camera = { ...state.camera, width: f.header.width, height: f.header.height };
+      }
+      view.push(f);
+    },
     onEvent: onEvent,
     onState: (s) => {
       status(`${state.object}: ${s}`);
@@ -132,18 +121,41 @@ export function fitSummary(s) {
 // -- renderers: what this session's renderer lets the designer change -------------------------------
 let controls = new Set(["camera", "light", "materials", "environment"]), renderers = ["cuts"], rendererKind = "cuts";
 const RENDERER_NAMES = { cuts: "direct light (visibility cuts)", gi: "global illumination", paint: "car paint (prefiltered lobes)" };
-function showRenderer(kind, ctl, available) {
+// each tool and the control it needs: a renderer without it turns the tool off, with its reason
+const TOOL_NEEDS = { "tool-orbit": "camera", "tool-light": "light", "tool-brush": "strokes", "tool-move": "move" };
+function showRenderer(kind, ctl, available, off = {}) {
   rendererKind = kind; controls = new Set(ctl); if (available) renderers = available;
-  const fixed = !controls.has("camera");
   $("renderer-info").textContent = RENDERER_NAMES[kind] || kind;
-  if (fixed) $("renderer-info").textContent += " — view and light are fixed by the precomputation; edit materials";
-  document.querySelectorAll("#tool-orbit, #tool-light").forEach((e) => { e.disabled = fixed; });
-  if (fixed && tool() !== "brush") $("tool-brush").checked = true;
+  for (const [id, need] of Object.entries(TOOL_NEEDS)) {
+    const input = $(id), on = controls.has(need);
+    input.disabled = !on;
+    input.closest("label").title = on ? "" : off[need] || `not available with ${RENDERER_NAMES[kind] || kind}`;
+    input.closest("label").classList.toggle("off", !on);
+  }
+  // never leave a tool selected that the renderer rejects: the first one it offers, else none
+  // (a click still picks an object)
+  if (document.querySelector("input[name=tool]:checked")?.disabled) {
+    const first = [...document.querySelectorAll("input[name=tool]")].find((e) => !e.disabled);
+    document.querySelectorAll("input[name=tool]").forEach((e) => { e.checked = e === first; });
+  }
+  const ul = $("renderer-off");
+  ul.innerHTML = "";
+  for (const [what, why] of Object.entries(off)) {
+    const li = document.createElement("li");
+    li.textContent = `${what}: ${why}`;
+    ul.append(li);
+  }
   const other = renderers.find((k) => k !== kind);
   const sw = $("renderer-switch");
   sw.classList.toggle("hidden", !other);
   if (other) { sw.textContent = `Switch to ${RENDERER_NAMES[other] || other}`; sw.onclick = () => stream?.send("renderer", { kind: other }); }
 }
+
+const objects = mountObjects($("object-select"), { send: (t, f) => stream?.send(t, f), status });
+const frameSize = followCanvasSize($("view"), {
+  allowed: () => !!stream && controls.has("camera"),
+  send: (width, height) => stream?.send("view", { width, height }),
+});
 
 // -- paint designer and lighting capture ------------------------------------------------------------
 let paintPanel = null, lastPaint = null;
@@ -178,13 +190,15 @@ function onEvent(ev) {
     if (ev.strokes || ev.streams > 1) {
       status(`${state.object}: ${ev.strokes} stroke(s) restored` + (ev.streams > 1 ? `; ${ev.streams} tabs share this session` : ""));
     }
-    showRenderer(ev.renderer || "cuts", ev.controls || [], ev.renderers);
+    showRenderer(ev.renderer || "cuts", ev.controls || [], ev.renderers, ev.off || {});
     mountPaint(ev.state.object, ev.state.paint?.[ev.state.object] || null);
     state.transforms = ev.state.transforms || state.transforms;
     movableNames = ev.state.movable || [];
     showMoveTool((ev.controls || []).includes("move") ? movableNames : []);
+    frameSize.now();          // the stream is open: frames at the canvas's size from now on
   } else if (ev.type === "renderer") {
-    showRenderer(ev.kind, ev.controls);
+    showRenderer(ev.kind, ev.controls, null, ev.off || {});
+    frameSize.now();
     showMoveTool((ev.controls || []).includes("move") ? movableNames : []);
     status(`now drawing with ${RENDERER_NAMES[ev.kind] || ev.kind}`);
   } else if (ev.type === "peer") {
@@ -196,8 +210,27 @@ function onEvent(ev) {
     paintPanel?.showEvent(ev);
     lobeView.update(ev.material, 45);
     status(`paint: fitted in ${ev.ms_fit.toFixed(1)} ms, error ${(100 * ev.error_l1).toFixed(1)}%`);
+  } else if (ev.type === "curve") {
+    if (ev.object === state.object) { curveEditor.set(material, ev.curve); curveData = ev.curve; drawLobePlot(); }
+  } else if (ev.type === "converted") {
+    if (ev.object === state.object) setMaterial(ev.material, true, ev.curve);
+    status(`${ev.object}: now ${MODELS[ev.material.model]?.label || ev.material.model}, fitted to the old look ` +
+      `(its colour in this view kept; albedo within ${(100 * ev.albedo_error).toFixed(1)}%)`);
+  } else if (ev.type === "object") {
+    state.object = ev.object;
+    objects.selected(ev.object);
+    setMaterial(ev.material, true, ev.curve);
+    mountPaint(ev.object, state.paint?.[ev.object] || null);
+    status(`editing ${ev.object}` + (ev.strokes ? ` (${ev.strokes} stroke${ev.strokes > 1 ? "s" : ""} of its own)` : ""));
+  } else if (ev.type === "exposure") {
+    state.exposure = ev.exposure;
+    $("exposure").value = ev.exposure;
+    status(`exposure ${ev.exposure >= 0 ? "+" : ""}${ev.exposure.toFixed(2)} EV: ${ev.reason}`);
+  } else if (ev.type === "picked") {
+    objects.picked(ev);
   } else if (ev.type === "fit") {
-    setMaterial(ev.material);
+    if (ev.object !== state.object) return;
+    setMaterial(ev.material, true, ev.curve);
     // the figures and the notes together: the notes say why a stroke fell short
     status([fitSummary(ev.stats || {}), ...(ev.notes || [])].join("; "));
   } else if (ev.type === "stroke" && ev.notes?.length) {
@@ -234,15 +267,16 @@ function sendMove(drag) {
 }
 
 // -- camera, light, display -----------------------------------------------------------------------
-let dragging = null, strokePts = [];
-const tool = () => document.querySelector("input[name=tool]:checked").value;
+let dragging = null, strokePts = [], pressed = null;
+const tool = () => document.querySelector("input[name=tool]:checked")?.value || "none";
 
 $("view").addEventListener("pointerdown", (e) => {
   if (!stream) return;
   $("view").setPointerCapture(e.pointerId);
   const mode = tool() === "brush" ? "brush" : tool() === "move" && movable.length ? "move"
-    : (e.altKey || tool() === "light" ? "light" : "orbit");
+    : !controls.has("camera") ? "fixed" : (e.altKey || tool() === "light" ? "light" : "orbit");
   dragging = { mode, x: e.clientX, y: e.clientY };
+  pressed = { x: e.clientX, y: e.clientY, t: performance.now() };
   if (mode === "brush") { strokePts = [view.toFrame(e, state.camera.width, state.camera.height)]; drawStroke(); }
   if (mode === "move") {
     const name = $("move-object").value;
@@ -270,6 +304,7 @@ $("view").addEventListener("pointermove", (e) => {
     sendMove(true);
     return;
   }
+  if (dragging.mode === "fixed") return;          // a fixed view: a click picks, a drag does nothing
   dragging.x = e.clientX; dragging.y = e.clientY;
   if (dragging.mode === "orbit") {
     state.camera = orbit(state.camera, -dx * 0.01, dy * 0.01);
@@ -279,18 +314,21 @@ $("view").addEventListener("pointermove", (e) => {
     stream.send("light", { rotation_deg: state.rotation_deg, drag: true });
   }
 });
-$("view").addEventListener("pointerup", () => {
+$("view").addEventListener("pointerup", (e) => {
   if (!dragging) return;
   const mode = dragging.mode;
   dragging = null;
+  // a click (no drag) outside the brush picks the object under it
+  if (mode !== "brush" && isClick(pressed, e)) { stream.send("pick", imageFraction($("view"), e)); if (mode !== "move") return; }
   if (mode === "brush") return sendStroke();
   if (mode === "move") return sendMove(false);
+  if (mode === "fixed") return;
   if (mode === "orbit") stream.send("view", { eye: state.camera.eye, drag: false });
   else stream.send("light", { rotation_deg: state.rotation_deg, drag: false });
 });
 let wheelEnd = null;
 $("view").addEventListener("wheel", (e) => {
-  if (!stream) return;
+  if (!stream || !controls.has("camera")) return;
   e.preventDefault();
   state.camera = orbit(state.camera, 0, 0, Math.exp(e.deltaY * 0.001));
   // zooming is a drag: fast frames while the wheel turns, a still (anti-aliased) one after
@@ -354,7 +392,14 @@ async function loadModels() {
 }
 const toHex = (rgb) => "#" + rgb.map((c) => Math.round(255 * Math.min(1, Math.max(0, c <= 0.0031308 ? 12.92 * c : 1.055 * c ** (1 / 2.4) - 0.055))).toString(16).padStart(2, "0")).join("");
 
-const curveEditor = new CurveEditor($("curve"), (m) => { setMaterial(m, false); queueMaterial(); });
+// the curve editor draws the worker's curve of the material; a drag on another model asks the
+// worker to convert the look to a curve first
+const curveEditor = new CurveEditor($("curve"), {
+  onChange: (m) => { setMaterial(m, false); queueMaterial(); },
+  onNeedCurve: () => { status("converting to a curve…"); stream?.send("convert", { model: "curve" }); },
+});
+let curveData = null;             // the worker's curve of the edited object's material
+const drawLobePlot = () => drawLobe($("lobe"), curveData?.lobe, +$("lobe-angle").value);
 let pendingMaterial = false;
 function queueMaterial() {
   if (pendingMaterial) return;
@@ -363,12 +408,14 @@ function queueMaterial() {
   designs.edited();
 }
 
-function setMaterial(m, rebuild = true) {
+// curve: the worker's curve of m (undefined: not known yet, the last one stays until it comes)
+function setMaterial(m, rebuild = true, curve) {
   material = structuredClone(m);
   $("model").value = m.model;
   if (rebuild) buildParams();
-  curveEditor.set(material);
-  drawLobe($("lobe"), material, +$("lobe-angle").value);
+  curveEditor.set(material, curve);
+  if (curve !== undefined) curveData = curve;
+  drawLobePlot();
 }
 
 function buildParams() {
@@ -383,8 +430,7 @@ function buildParams() {
     else { Object.assign(input, { type: "range", min: lo, max: hi, step, value: material[key] ?? lo }); }
     input.addEventListener("input", () => {
       material[key] = kind === "color" ? hexToLinear(input.value) : +input.value;
-      curveEditor.set(material);
-      drawLobe($("lobe"), material, +$("lobe-angle").value);
+      curveEditor.set(material);          // its curve follows from the worker (a curve event)
       queueMaterial();
     });
     label.append(input);
@@ -392,20 +438,21 @@ function buildParams() {
   }
 }
 $("model").addEventListener("change", () => {
+  // the worker fits the new model to the current look (a converted event), never a reset
   const model = $("model").value;
-  // a curve starts from the current BRDF's half-angle distribution, so the look carries over
-  if (model === "curve") setMaterial(toCurve(material));
-  else setMaterial(structuredClone(MODELS[model].default));
-  queueMaterial();
+  $("model").value = material.model;        // until the converted material arrives
+  status(`converting to ${MODELS[model]?.label || model}…`);
+  stream?.send("convert", { model });
 });
-$("lobe-angle").addEventListener("input", () => drawLobe($("lobe"), material, +$("lobe-angle").value));
+$("lobe-angle").addEventListener("input", drawLobePlot);
 
 // -- designs (designs.js) -------------------------------------------------------------------------------
 const designs = mountDesigns({ status, send: (type, f) => stream?.send(type, f), session: () => session, state: () => state,
   applyMaterial: (m) => { setMaterial(m); stream?.send("material", { material: m }); } });
 
 $("open-scene").onclick = () => $("scene-select").value && openScene($("scene-select").value);
-$("upload").onclick = upload;
+mountSceneCreate($("scene-panel"), { api, status, waitPrecompute,
+  onCreated: async (id) => { await listScenes(id); await openScene(id); } });
 
 // -- start -----------------------------------------------------------------------------------------------
 // On a first start the demo scene is still being fetched and precomputed: show its progress and

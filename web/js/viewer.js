@@ -3,7 +3,10 @@
 import { api, SessionStream } from "./net.js";
 import { FrameView } from "./canvas.js";
 import { orbit } from "./orbit.js";
-import { albedoOf } from "./brdf.js";
+import { fitCanvases, followCanvasSize } from "./framesize.js";
+
+// a swatch's colour: the material's own diffuse colour (a field, not an evaluation)
+const albedoOf = (m) => m.albedo || m.diffuse || [0, 0, 0];
 
 const $ = (id) => document.getElementById(id);
 const pubId = location.pathname.split("/").filter(Boolean).pop();
@@ -23,8 +26,10 @@ async function start() {
       $("shadow-toggle").classList.remove("hidden");
       $("shadow").checked = f.header.shadow;
     }
+    fitCanvases(f.header, $("view"));
     view.push(f);
   }, onEvent: (e) => {
+    if (e.type === "hello") { camOk = !!e.controls?.includes("camera"); frameSize.now(); }
     if (e.type === "error") $("readout").textContent = e.message;
   } });
   view.stream = stream;
@@ -46,6 +51,13 @@ async function start() {
   pub.environments.forEach((e, i) => env.append(new Option(e.label, i)));
   env.onchange = () => stream.send("environment", { index: +env.value });
 }
+
+// frames at the canvas's size times the device pixel ratio (the server caps the pixels)
+let camOk = false;            // the renderer has a free camera (a GI publication's is fixed)
+const frameSize = followCanvasSize($("view"), {
+  allowed: () => !!stream && camOk,
+  send: (width, height) => stream?.send("view", { width, height }),
+});
 
 let drag = null;
 $("view").addEventListener("pointerdown", (e) => { drag = { x: e.clientX, y: e.clientY }; $("view").setPointerCapture(e.pointerId); });

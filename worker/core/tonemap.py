@@ -10,6 +10,26 @@ from __future__ import annotations
 import numpy as np
 
 CURVES = {"linear": 0, "aces": 1, "neutral": 2}
+MID_GREY = 0.18            # the linear reflectance a display shows as middle grey
+LUMA = np.array([0.2126, 0.7152, 0.0722])
+EV_RANGE = (-20.0, 20.0)   # the display messages' exposure bounds
+
+
+def auto_exposure(radiance: np.ndarray, mask: np.ndarray | None = None) -> float | None:
+    """The exposure (stops) that shows the median luminance of ``radiance`` (…, 3) linear,
+    over ``mask`` (boolean, its leading shape; None: every pixel), as middle grey (MID_GREY);
+    None when nothing lit is selected. The capture preview is exposed the same way
+    (worker/capture/pipeline.py preview_png), so a map shown at this exposure matches it."""
+    lum = np.asarray(radiance, np.float64) @ LUMA
+    if mask is not None:
+        lum = lum[mask]
+    lum = lum[np.isfinite(lum)]
+    if lum.size == 0:
+        return None
+    med = float(np.median(lum))
+    if med <= 0:
+        return None
+    return float(np.clip(np.log2(MID_GREY / med), *EV_RANGE))
 
 
 def apply_curve(x: np.ndarray, curve: str) -> np.ndarray:

@@ -104,21 +104,26 @@ def _precompute(cache: DataCache, p: dict, progress) -> dict:
     kinds = [kind] + (["cuts"] if kind != "cuts" else [])
     pres = [get(k)[1] for k in kinds]
     total = max(1, sum(x.work for pre in pres for x in pre.parts(sc, options if pre.kind == kind else {})))
-    done = [0, -1.0]
+    done = [0.0, -1.0]
+    stage = [""]
 
     def tick(k):
         done[0] += k
         f = min(1.0, done[0] / total)
         if f - done[1] >= 0.01 or done[0] >= total:
             done[1] = f
-            progress(f, f"{done[0]}/{total}")
+            progress(f, f"{stage[0]}: {round(done[0])}/{total}" if stage[0] else f"{round(done[0])}/{total}")
+
+    def say(text):
+        stage[0] = text
+        progress(max(0.0, done[1]), f"{text}: {round(done[0])}/{total}")
 
     from worker.renderers import ensure
 
     manifest, flat, seconds, computed = {}, {}, 0.0, 0
     for pre in pres:
         stats = ensure(pre, sc, cache.parts, options if pre.kind == kind else {}, tick,
-                       threads=cache.settings.threads or os.cpu_count() or 2)
+                       threads=cache.settings.threads or os.cpu_count() or 2, stage=say)
         manifest.update({k: cache.parts.sha(k) for k in stats["parts"]})
         for info in stats["parts"].values():
             if pre.kind == kind:          # the scene renderer's figures are the job's headline

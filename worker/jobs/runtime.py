@@ -21,9 +21,9 @@ import numpy as np
 
 from ..fit.fitter import FitError
 from ..models import SRBF
-from ..protocol import (ClientMsg, FitPaint, Moved, NewMaterial, NoEffect, NoteEvent, RecordStroke, Redo, Refit,
-                        Relight, RendererEvent, Save, SaveRequest, SwitchRenderer, Undo, apply, client_msg,
-                        restore_state)
+from ..protocol import (ClientMsg, Convert, ConvertedEvent, CurveEvent, ExposureEvent, FitPaint, Moved, NewMaterial, NoEffect,
+                        NoteEvent, ObjectEvent, Pick, PickedEvent, RecordStroke, Redo, Refit, Relight, RendererEvent,
+                        Save, SaveRequest, SelectObject, SwitchRenderer, Undo, apply, client_msg, restore_state)
 from ..renderers.base import FrameRequest, Lighting
 from . import compose
 from .compose import BIG_FRAME_PIXELS
@@ -31,6 +31,7 @@ from .curves import _dump, brdf_curve
 from .fit_driver import FitDriver
 from .lod import LevelOfDetail, mark_busy
 
+MEASURE_WIDTH = 200     # pixels across of the frames a model conversion measures the object's colour in
 # effect class -> handler(runtime, message, effect) -> events; filled by ``handles`` below
 EFFECTS: dict[type, Callable[["SessionRuntime", ClientMsg, object], list[dict]]] = {}
 
@@ -83,8 +84,20 @@ class SessionRuntime(FitDriver):
             SRBF.model_validate(b.to_material(np.zeros((b.J, 3)), (0.0, 0.0, 0.0))).pack()
         if hasattr(renderer, "coarse_cuts"):
             renderer.coarse_cuts()           # the drag-time level of detail
-        # replay the stored strokes (undone ones form the redo stack, most recent undone last)
-        strokes = stored.get("strokes") or []
+        self._last_ids = None            # the last frame's object ids (H, W) int32 (picking)
+        self._replay(stored.get("strokes") or [])
+        if self.state.auto_exposure and not self.state.readonly:
+            self.events += self._auto_expose()
+        # the curve of the edited object's material: the studio draws this, never its own BRDF
+        if not self.state.readonly:
+            m = self.state.material_of(self.state.object)
+            self.events.append(CurveEvent(object=self.state.object, curve=brdf_curve(m)).model_dump())
+        # saves the server has not stored yet (the worker died before they were): run again
+        self._resave = list(self.state.pending_saves)
+
+    def _replay(self, strokes: list[dict]) -> None:
+        """Replay stored stroke records of the edited object's epoch (undone ones form the redo
+        stack, most recent undone last); rejected ones are reported."""
         active = [s for s in strokes if not s.get("undone")]
         undone = [s for s in strokes if s.get("undone")]
         kept_undone = 0
@@ -97,8 +110,6 @@ class SessionRuntime(FitDriver):
         for _ in range(kept_undone):
             self.fitter.undo()
         self._needs_fit = bool(self.fitter is not None and len(self.fitter.history))
-        # saves the server has not stored yet (the worker died before they were): run again
-        self._resave = list(self.state.pending_saves)
 
     # -- the edited object ----------------------------------------------------------------------
     @property
@@ -138,7 +149,7 @@ class SessionRuntime(FitDriver):
         if name == self.state.object:
             self.state.base_material = mat
             self.fitter = None
-        return [ev]
+        return [ev, CurveEvent(seq=seq, object=name, curve=brdf_curve(mat)).model_dump()]
 
     def _apply_environment(self) -> None:
         i = self.state.environment_index
@@ -206,6 +217,52 @@ class SessionRuntime(FitDriver):
                 if hasattr(r, "forget_views"):
                     r.forget_views(BIG_FRAME_PIXELS)
 
+    def _measure(self, name: str, width: int = MEASURE_WIDTH):
+        """material -> (3,) mean linear radiance of object ``name`` drawn with it in the session's
+        view and light at ``width`` pixels (None when the object is not in view): how a model
+        conversion keeps what the designer sees (models/convert.py)."""
+        st = self.state
+        i = st.objects.index(name)
+        camera, lighting = st.camera, Lighting(st.rotation_deg, st.intensity)
+        if not st.allows("camera"):
+            camera = self.scene.spec.camera
+            lighting = Lighting(self.scene.spec.environment.rotation_deg, st.intensity)
+        k = min(1.0, width / camera.width)
+        if st.allows("camera"):
+            camera = camera.model_copy(update={"width": max(16, int(camera.width * k)),
+                                               "height": max(16, int(camera.height * k))})
+
+        def measure(m):
+            mats = list(st.materials)
+            mats[i] = m
+            out = self.renderer.render(FrameRequest(camera=camera, lighting=lighting, materials=mats, samples=1,
+                                                    ground_shadow=st.shadow, transforms=st.transforms or None))
+            sel = out.object_id == i
+            return out.radiance[sel].mean(axis=0) if sel.any() else None
+        return measure
+
+    def _auto_expose(self) -> list[dict]:
+        """Expose so that the median pixel of the objects is middle grey (a small frame of the
+        session's view; core/tonemap.py auto_exposure): an uploaded scene's first exposure."""
+        from ..core.tonemap import auto_exposure
+
+        st = self.state
+        cam = st.camera
+        k = min(1.0, MEASURE_WIDTH / cam.width)
+        if st.allows("camera"):
+            cam = cam.model_copy(update={"width": max(16, int(cam.width * k)), "height": max(16, int(cam.height * k))})
+        else:
+            cam = self.scene.spec.camera
+        out = self.renderer.render(FrameRequest(camera=cam, lighting=Lighting(st.rotation_deg, st.intensity),
+                                                materials=st.materials, samples=1, ground_shadow=False,
+                                                transforms=st.transforms or None))
+        ev = auto_exposure(out.radiance, out.object_id >= 0)
+        st.auto_exposure = False
+        if ev is None:
+            return []
+        st.exposure = round(ev, 2)
+        return [ExposureEvent(exposure=st.exposure, reason="the median object pixel shown as middle grey").model_dump()]
+
     # -- frames -----------------------------------------------------------------------------------
     @property
     def frame_budget_ms(self) -> float:
@@ -262,6 +319,7 @@ class SessionRuntime(FitDriver):
                            # the per-vertex transfer is per view: built for still views, not per drag frame
                            vertex_radiance=None if self._drag else self._override())
         out = self.renderer.render(req)
+        self._last_ids = out.object_id
         rgb = compose.tone(out.radiance, st.exposure, st.tone)
         t1 = clock.now()
         w, h, jpeg = compose.jpeg(rgb, st.quality, self._drag)
@@ -351,10 +409,68 @@ def _switch(rt: SessionRuntime, msg, eff) -> list[dict]:
 
 @handles(Relight)
 def _relight(rt: SessionRuntime, msg, eff) -> list[dict]:
+    from ..core.tonemap import auto_exposure
+
     rt._apply_environment()
-    return []
+    st = rt.state
+    if getattr(msg, "preset", None) is None or st.readonly or rt.env_loader is None:
+        return []
+    # an uploaded map (a capture) is shown in the units of its preview: the map's median
+    # luminance as middle grey, the exposure its preview was made with
+    env = st.environments[st.environment_index]
+    ev = auto_exposure(rt.env_loader(env))
+    out = []
+    if ev is not None and st.allows("environment"):
+        st.exposure = round(ev, 2)
+        out.append(ExposureEvent(seq=msg.seq, exposure=st.exposure,
+                                 reason=f"as the preview of {env.label or env.filename}").model_dump())
+    out.append(NoteEvent(seq=msg.seq, message=f"lighting applied: {env.label or env.filename}" +
+                         (f", exposure {st.exposure:+.2f} EV as in its preview" if out else "")).model_dump())
+    return out
 
 
 @handles(FitPaint)
 def _fit_paint(rt: SessionRuntime, msg, eff: FitPaint) -> list[dict]:
     return rt._paint(eff.object, msg.seq)
+
+
+@handles(SelectObject)
+def _select_object(rt: SessionRuntime, msg, eff: SelectObject) -> list[dict]:
+    # the fitter, its views and the vertex transfer were the other object's
+    rt.fitter = None
+    rt._fitted = None
+    rt._vt = None
+    rt._drop_fit_work()
+    rt._replay(getattr(msg, "strokes", None) or [])
+    out = rt.events
+    rt.events = []
+    m = rt.state.material_of(eff.object)
+    n = len(rt.fitter.history) if rt.fitter is not None else 0
+    return out + [ObjectEvent(seq=msg.seq, object=eff.object, material=_dump(m), curve=brdf_curve(m),
+                              strokes=n).model_dump()]
+
+
+@handles(Pick)
+def _pick(rt: SessionRuntime, msg, eff: Pick) -> list[dict]:
+    ids = rt._last_ids
+    name = None
+    if ids is not None and ids.size:
+        h, w = ids.shape
+        i = int(ids[min(h - 1, int(eff.v * h)), min(w - 1, int(eff.u * w))])
+        name = rt.state.objects[i] if 0 <= i < len(rt.state.objects) else None
+    return [PickedEvent(seq=msg.seq, u=eff.u, v=eff.v, object=name).model_dump()]
+
+
+@handles(Convert)
+def _convert(rt: SessionRuntime, msg, eff: Convert) -> list[dict]:
+    from ..models.convert import convert
+
+    c = convert(rt.state.material_of(eff.object), eff.model, measure=rt._measure(eff.object))
+    rt._set_material(rt.state.objects.index(eff.object), c.material)
+    if eff.object == rt.state.object:
+        rt.state.base_material = c.material     # a new base: strokes of earlier epochs do not carry over
+        rt.fitter = None
+        rt._needs_fit = False
+        rt._drop_fit_work()
+    return [ConvertedEvent(seq=msg.seq, object=eff.object, material=_dump(c.material), curve=brdf_curve(c.material),
+                           error=round(c.error, 4), albedo_error=round(c.albedo_error, 4)).model_dump()]

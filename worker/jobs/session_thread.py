@@ -101,7 +101,6 @@ class SessionThread(threading.Thread):
         from worker.jobs.lod import busy_sessions
         from worker.jobs.reporting import error_event
         from worker.jobs.runtime import SessionRuntime
-        from worker.renderers.base import FrameCancelled
 
         rt = None
         try:
@@ -114,6 +113,9 @@ class SessionThread(threading.Thread):
             for e in rt.take_events():
                 self._event(e)
             self.outq.put(Reply("frame", self.sid, rt.frame(ack)))
+            # the first frame is a quick one (one sample) when the view's anti-aliased primary
+            # hits are not traced yet: its settled frame follows without waiting for input
+            self._settle(rt, ack)
             while True:
                 with self.cv:
                     while not self.inbox and not self.stopping and not self.poked:
@@ -157,19 +159,7 @@ class SessionThread(threading.Thread):
                     idle = not self.inbox
                 if idle:
                     rt.prefetch()
-                    if rt.needs_still_frame() and self._quiet_for(STILL_DELAY_S):
-                        # the settled, anti-aliased image of the same state
-                        PRIORITY.wait_turn()
-                        self.pause_left = MAX_PAUSE_S
-                        try:
-                            # given up as soon as a message arrives: that one's frame comes first
-                            with FRAME_SLOTS.take(self._any_waiting):
-                                self.outq.put(Reply("frame", self.sid, rt.frame(
-                                    ack, cancelled=lambda: self._checkpoint(self._any_waiting))))
-                        except FrameCancelled:
-                            pass
-                        except Exception as ex:
-                            self._event(error_event(ex, ack) | {"message": f"render failed: {error_event(ex)['message']}"})
+                    self._settle(rt, ack)
         except Exception as ex:
             self._event({**error_event(ex), "fatal": True,
                          "message": f"cannot open the session: {error_event(ex)['message']}"})
@@ -181,6 +171,26 @@ class SessionThread(threading.Thread):
             del rt
             release_memory()
             self.outq.put(Reply("closed", self.sid, None))
+
+    def _settle(self, rt, ack: int) -> None:
+        """After a moving frame (one sample, or the drag level of detail), when the session
+        stays idle STILL_DELAY_S: the settled, anti-aliased image of the same state, given up
+        as soon as a message arrives (that one's frame comes first)."""
+        from worker.jobs.reporting import error_event
+        from worker.renderers.base import FrameCancelled
+
+        if not (rt.needs_still_frame() and self._quiet_for(STILL_DELAY_S)):
+            return
+        PRIORITY.wait_turn()
+        self.pause_left = MAX_PAUSE_S
+        try:
+            with FRAME_SLOTS.take(self._any_waiting):
+                self.outq.put(Reply("frame", self.sid, rt.frame(
+                    ack, cancelled=lambda: self._checkpoint(self._any_waiting))))
+        except FrameCancelled:
+            pass
+        except Exception as ex:
+            self._event(error_event(ex, ack) | {"message": f"render failed: {error_event(ex)['message']}"})
 
     def _step(self, rt, msgs: list, ack: int, arrived: float = 0.0, checkpoint=None) -> int:
         """Apply messages, fit if needed, send the frame; returns the new ack. arrived :

@@ -26,6 +26,8 @@ class AshikhminShirley(BRDFModel):
         {"name": "exponent_u", "kind": "range", "min": 1, "max": 2000, "step": 1},
         {"name": "exponent_v", "kind": "range", "min": 1, "max": 2000, "step": 1},
         {"name": "specular", "kind": "color"}, {"name": "albedo", "kind": "color"})
+    studio_default: ClassVar[dict] = {"exponent_u": 100.0, "exponent_v": 100.0, "specular": (0.04, 0.04, 0.04),
+                                      "albedo": (0.5, 0.5, 0.5)}
     model: Literal["ashikhmin-shirley"] = "ashikhmin-shirley"
     exponent_u: float = Field(225.0, gt=0.0, le=1e5)
     exponent_v: float = Field(225.0, gt=0.0, le=1e5)

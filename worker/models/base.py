@@ -104,6 +104,8 @@ class BRDFModel(BaseModel):
     creatable : whether the studio can start a design from this model's defaults (srbf comes
         from strokes instead).
     label : human name.
+    studio_default : the fields a design starts from in the studio (over the field defaults,
+        which stay what stored materials mean): a plausible material, not a mirror.
     """
     model_config = ConfigDict(extra="forbid")
 
@@ -111,6 +113,7 @@ class BRDFModel(BaseModel):
     controls: ClassVar[tuple[dict, ...]] = ({"name": "albedo", "kind": "color"},)
     creatable: ClassVar[bool] = True
     label: ClassVar[str] = ""
+    studio_default: ClassVar[dict] = {}
 
     model: str
     albedo: Color = (0.0, 0.0, 0.0)
@@ -218,7 +221,7 @@ def describe() -> list[dict]:
         default = None
         if cls.creatable:
             try:
-                default = cls().model_dump(mode="json")
+                default = cls(**cls.studio_default).model_dump(mode="json")
             except Exception:
                 default = None
         out.append({"model": name, "label": cls.label or name, "controls": list(cls.controls),

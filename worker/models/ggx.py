@@ -37,6 +37,8 @@ class GGX(BRDFModel):
     controls: ClassVar[tuple[dict, ...]] = (
         {"name": "alpha", "kind": "range", "min": 0.02, "max": 1.0, "step": 0.01},
         {"name": "specular", "kind": "color"}, {"name": "albedo", "kind": "color"})
+    # a grey plastic: a dielectric's 4 % specular over a mid-grey diffuse
+    studio_default: ClassVar[dict] = {"alpha": 0.3, "specular": (0.04, 0.04, 0.04), "albedo": (0.5, 0.5, 0.5)}
     model: Literal["ggx"] = "ggx"
     alpha: float = Field(0.25, gt=0.0, le=2.0)
     specular: Color = (1.0, 1.0, 1.0)

@@ -80,6 +80,27 @@ class FitPaint:
 
 
 @dataclass(frozen=True, slots=True)
+class SelectObject:
+    """The edited object changed to ``object``; the worker replays its epoch's strokes (the
+    message's ``strokes``, filled by the server)."""
+    object: str
+
+
+@dataclass(frozen=True, slots=True)
+class Pick:
+    """Say which object is at (u, v) of the last frame (fractions of its width and height)."""
+    u: float
+    v: float
+
+
+@dataclass(frozen=True, slots=True)
+class Convert:
+    """Fit a ``model`` material to ``object``'s look and make it the object's material."""
+    object: str
+    model: str
+
+
+@dataclass(frozen=True, slots=True)
 class RejectStroke:
     """Worker event: the stroke of message ``seq`` cannot apply; it is never replayed."""
     seq: int
@@ -97,7 +118,8 @@ class StoreSave:
 
 
 # what a client message's apply returns
-Effect = Union[NoEffect, RecordStroke, Undo, Redo, Refit, Save, NewMaterial, Moved, SwitchRenderer, Relight, FitPaint]
+Effect = Union[NoEffect, RecordStroke, Undo, Redo, Refit, Save, NewMaterial, Moved, SwitchRenderer, Relight, FitPaint,
+               SelectObject, Pick, Convert]
 # what a worker event's apply returns (on the server)
 StoreEffect = Union[NoEffect, RejectStroke, StoreSave]
 NO_EFFECT = NoEffect()

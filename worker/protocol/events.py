@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from typing import Annotated, ClassVar, Literal, Union
 
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, model_validator
 
 from ..models import parse_material
 from .effects import NO_EFFECT, RejectStroke, StoreEffect, StoreSave
@@ -33,6 +33,12 @@ class _WorkerEvent(_Event):
         raise NotImplementedError
 
 
+def _off(kind: str, controls: list[str]) -> dict[str, str]:
+    from ..renderers import ALL_CONTROLS, why_not
+
+    return {c: why_not(kind, c) for c in sorted(ALL_CONTROLS - set(controls))}
+
+
 class HelloEvent(_Event):
     type: Literal["hello"] = "hello"
     session: str
@@ -43,6 +49,14 @@ class HelloEvent(_Event):
     controls: list[str] = Field(default_factory=list, description="what this session's renderer lets a client change")
     streams: int = Field(1, description="open streams of this session on this server, this one included (another "
                                         "tab, a reload): they all see each other's changes")
+    off: dict[str, str] = Field(default_factory=dict, description="each control this renderer does not offer, "
+                                                                  "and why (filled from renderer and controls)")
+
+    @model_validator(mode="after")
+    def _fill_off(self):
+        if not self.off:
+            self.off = _off(self.renderer, self.controls)
+        return self
 
 
 class PeerEvent(_Event):
@@ -139,11 +153,74 @@ class PaintEvent(_WorkerEvent):
         return None
 
 
+class ExposureEvent(_WorkerEvent):
+    """The worker chose the display exposure: the median object pixel shown as middle grey
+    (an uploaded scene's first frame), or a captured lighting applied in the units of its
+    preview (the map's median luminance middle grey, as the preview was exposed)."""
+    storage: ClassVar[Storage] = "batched"
+    type: Literal["exposure"] = "exposure"
+    exposure: float = Field(ge=-20.0, le=20.0)
+    reason: str = ""
+
+    def apply(self, st):
+        st.exposure = self.exposure
+        st.auto_exposure = False
+        return None
+
+
 class RendererEvent(_Event):
-    """The session now draws with this renderer; ``controls`` is what a client may change."""
+    """The session now draws with this renderer; ``controls`` is what a client may change,
+    ``off`` each control it does not offer and why."""
     type: Literal["renderer"] = "renderer"
     kind: str
     controls: list[str]
+    off: dict[str, str] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _fill_off(self):
+        if not self.off:
+            self.off = _off(self.kind, self.controls)
+        return self
+
+
+class ObjectEvent(_Event):
+    """The session now edits ``object`` (an ``object`` message): its material, the curve of
+    it, and its active strokes (its own undo history)."""
+    type: Literal["object"] = "object"
+    object: str
+    material: dict
+    curve: dict
+    strokes: int = 0
+
+
+class PickedEvent(_Event):
+    """The object under (u, v) of the last frame (a ``pick`` message); None: the background."""
+    type: Literal["picked"] = "picked"
+    u: float
+    v: float
+    object: str | None = None
+
+
+class ConvertedEvent(_WorkerEvent):
+    """An object's material converted to another model with the same look (a ``convert``
+    message): the fitted material and how close it is (worker/models/convert.py)."""
+    type: Literal["converted"] = "converted"
+    object: str
+    material: dict
+    curve: dict
+    error: float = Field(description="relative RMS difference of the BRDF over the fit's samples")
+    albedo_error: float = Field(description="largest relative change of the mean directional albedo "
+                                            "per channel (the mean colour under a smooth light)")
+
+    def apply(self, st):
+        if self.object in st.objects:
+            mat = parse_material(self.material)
+            mats = list(st.materials)
+            mats[st.objects.index(self.object)] = mat
+            st.materials = mats
+            if self.object == st.object:
+                st.base_material = mat          # strokes now paint over the converted material
+        return None
 
 
 class SaveRequest(_WorkerEvent):
@@ -161,14 +238,14 @@ class SaveRequest(_WorkerEvent):
 
 
 ServerEvent = Annotated[Union[HelloEvent, StrokeEvent, FitEvent, CurveEvent, SavedEvent, NoteEvent, ErrorEvent,
-                              PaintEvent, RendererEvent, PeerEvent],
+                              PaintEvent, RendererEvent, PeerEvent, ObjectEvent, PickedEvent, ConvertedEvent, ExposureEvent],
                         Field(discriminator="type")]
 server_event = TypeAdapter(ServerEvent)
 
 
 # worker → server events that change what is stored, by type; any other event is passed on
 WORKER_EVENTS: dict[str, type[_WorkerEvent]] = {c.model_fields["type"].default: c
-                                                for c in (StrokeEvent, FitEvent, PaintEvent, SaveRequest)}
+                                                for c in (StrokeEvent, FitEvent, PaintEvent, SaveRequest, ConvertedEvent, ExposureEvent)}
 
 
 def worker_event(ev: dict) -> _WorkerEvent | None:

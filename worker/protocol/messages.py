@@ -37,11 +37,13 @@ from pydantic_core import PydanticCustomError, core_schema
 from ..fit.brush import Stroke
 from ..models import Material, Vec3
 from ..scene import Camera, Transform
-from .effects import (NO_EFFECT, Effect, FitPaint, Moved, NewMaterial, RecordStroke, Redo, Refit, Relight, Save,
-                      SwitchRenderer, Undo)
-from .state import EnvPreset, PendingSave, SessionState, StateError, Tone, copy_state
+from .effects import (NO_EFFECT, Convert, Effect, FitPaint, Moved, NewMaterial, Pick, RecordStroke, Redo, Refit,
+                      Relight, Save, SelectObject, SwitchRenderer, Undo)
+from .state import EnvPreset, ObjectEdit, PendingSave, SessionState, StateError, Tone, copy_state
 
 Storage = Literal["batched", "rows", "state"]
+# a frame's pixels at most when the session does not say (server Settings.max_frame_pixels's default)
+DEFAULT_MAX_FRAME_PIXELS = 2560 * 1600
 
 _MESSAGES: dict[str, type["ClientMsg"]] = {}
 
@@ -73,7 +75,9 @@ class ClientMsg(BaseModel):
 
 @message
 class ViewMsg(ClientMsg):
-    """Partial camera: any of eye, target, up, fov_y_deg (width and height are the session's)."""
+    """Partial camera: any of eye, target, up, fov_y_deg, and the frame's ``width`` and ``height``
+    in pixels (the studio's canvas size times its device pixel ratio), scaled down, keeping
+    their aspect, to the session's ``max_frame_pixels``."""
     storage: ClassVar[Storage] = "batched"
     drags: ClassVar[bool] = True
     readonly_ok: ClassVar[bool] = True
@@ -82,6 +86,8 @@ class ViewMsg(ClientMsg):
     target: Vec3 | None = None
     up: Vec3 | None = None
     fov_y_deg: float | None = Field(None, gt=1.0, lt=170.0)
+    width: int | None = Field(None, ge=16, le=8192)
+    height: int | None = Field(None, ge=16, le=8192)
     drag: bool = False
 
     def apply(self, st):
@@ -89,6 +95,13 @@ class ViewMsg(ClientMsg):
             raise StateError(f"view: the {st.renderer} renderer draws from a fixed camera "
                              "(switch to the cuts renderer to orbit)")
         upd = {k: getattr(self, k) for k in ("eye", "target", "up", "fov_y_deg") if getattr(self, k) is not None}
+        if self.width is not None or self.height is not None:
+            w, h = self.width or st.camera.width, self.height or st.camera.height
+            cap = st.max_frame_pixels or DEFAULT_MAX_FRAME_PIXELS
+            if w * h > cap:
+                k = (cap / (w * h)) ** 0.5
+                w, h = max(16, int(w * k)), max(16, int(h * k))
+            upd.update(width=w, height=h)
         try:
             st.camera = Camera.model_validate({**st.camera.model_dump(), **upd})
         except ValidationError as e:
@@ -135,7 +148,7 @@ class MaterialMsg(ClientMsg):
         rebase = name == st.object
         if rebase:
             st.base_material = self.material
-            st.epoch += 1
+            st.epoch = st.fresh_epoch()
         return NewMaterial(name, rebase)
 
 
@@ -147,6 +160,9 @@ class StrokeMsg(ClientMsg):
     stroke: Stroke
 
     def apply(self, st):
+        if not st.allows("strokes"):
+            from ..renderers import why_not
+            raise StateError(f"stroke: {why_not(st.renderer, 'strokes')}")
         a = st.base_material.albedo
         if min(a) < 0 or max(a) > 1:
             raise StateError(f"stroke: strokes paint over the edited object's material, whose diffuse albedo "
@@ -345,8 +361,73 @@ class PaintMsg(ClientMsg):
             raise StateError(f"paint: no object {name!r} (objects: {', '.join(st.objects)})")
         st.paint = {**st.paint, name: {"gloss": self.gloss, "aspecular": {k: list(v) for k, v in self.aspecular.items()}}}
         if name == st.object:
-            st.epoch += 1          # like a new material: strokes painted before do not carry over
+            st.epoch = st.fresh_epoch()     # like a new material: strokes painted before do not carry over
         return FitPaint(name)
+
+
+@message
+class ObjectMsg(ClientMsg):
+    """Edit another object: from now on the brush, the fit, the material panel and saves act on
+    ``object``. Each object keeps its own strokes and undo history: the one left is remembered
+    (its epoch and base material, ``state.edits``) and comes back when it is picked again.
+    ``strokes`` is filled by the server (the stroke rows of the object's epoch, for the worker to
+    replay); a client's is ignored."""
+    type: Literal["object"] = "object"
+    object: str = Field(min_length=1, max_length=255)
+    strokes: list[dict] | None = Field(None, max_length=100_000)
+
+    def apply(self, st):
+        if st.readonly:
+            raise StateError("object: a viewer session shows the published object only")
+        if self.object not in st.objects:
+            raise StateError(f"object: no object {self.object!r} (objects: {', '.join(st.objects)})")
+        if self.object != st.object:
+            st.edits = {**st.edits, st.object: ObjectEdit(epoch=st.epoch, base_material=st.base_material)}
+            back = st.edits.get(self.object)
+            if back is not None:
+                st.epoch, st.base_material = back.epoch, back.base_material
+            else:
+                st.epoch, st.base_material = st.fresh_epoch(), st.material_of(self.object)
+            st.object = self.object
+        return SelectObject(self.object)
+
+
+@message
+class PickMsg(ClientMsg):
+    """Which object is under a point of the image (``u``, ``v``: fractions of the frame's width
+    and height from its top left): the worker answers with a ``picked`` event from the last
+    frame's object ids. Changes nothing."""
+    storage: ClassVar[Storage] = "batched"
+    readonly_ok: ClassVar[bool] = True
+    type: Literal["pick"] = "pick"
+    u: float = Field(ge=0.0, le=1.0)
+    v: float = Field(ge=0.0, le=1.0)
+
+    def apply(self, st):
+        return Pick(self.u, self.v)
+
+
+@message
+class ConvertMsg(ClientMsg):
+    """Give an object's material another model with the same look: the worker fits the new
+    model to the old material's appearance (worker/models/convert.py) and sends a
+    ``converted`` event, which the object's stored material follows. For the edited object it
+    is a new base, as a material message (strokes start a new epoch)."""
+    type: Literal["convert"] = "convert"
+    object: str | None = None
+    model: str = Field(max_length=64)
+
+    def apply(self, st):
+        from ..models.convert import TARGETS
+
+        name = self.object or st.object
+        if name not in st.objects:
+            raise StateError(f"convert: no object {name!r} (objects: {', '.join(st.objects)})")
+        if self.model not in TARGETS:
+            raise StateError(f"convert: cannot convert to {self.model!r} (models: {', '.join(TARGETS)})")
+        if name == st.object:
+            st.epoch = st.fresh_epoch()
+        return Convert(name, self.model)
 
 
 def _validate_msg(v: Any) -> ClientMsg:

@@ -41,6 +41,14 @@ class PendingSave(BaseModel):
     material_id: str | None = None
 
 
+class ObjectEdit(BaseModel):
+    """Where an object's editing stood when the session moved to another object: its epoch
+    (its stroke rows, with their undo state, are the rows of that epoch) and the material its
+    strokes paint over."""
+    epoch: int
+    base_material: Material
+
+
 class SessionState(BaseModel):
     """What the server stores per session and the worker renders from."""
     model_config = ConfigDict(extra="ignore")
@@ -76,6 +84,17 @@ class SessionState(BaseModel):
     # where movable objects are now (scene objects with "movable": true), by name
     transforms: dict[str, Transform] = Field(default_factory=dict)
     movable: list[str] = Field(default_factory=list)
+    # expose the first frame automatically (a scene file's "exposure": "auto"): the worker sets
+    # ``exposure`` from it and sends an exposure event
+    auto_exposure: bool = False
+    # the most pixels a frame may have (the server's max_frame_pixels; None: the camera's bounds)
+    max_frame_pixels: int | None = None
+    # objects edited before the current one, by name (``ObjectMsg``): each keeps its strokes
+    edits: dict[str, ObjectEdit] = Field(default_factory=dict)
+
+    def fresh_epoch(self) -> int:
+        """An epoch no object has used: the stroke rows of every object's epoch stay its own."""
+        return max([self.epoch, *(e.epoch for e in self.edits.values())]) + 1
 
     def allows(self, control: str) -> bool:
         from ..renderers import controls
@@ -101,6 +120,9 @@ def new_state(spec, object_name: str | None = None, camera=None, **fields) -> Se
     env = spec["environment"]
     kind = spec.get("renderer") or "cuts"
     movable = [o["name"] for o in spec["objects"] if o.get("movable")]
+    ex = spec.get("exposure")
+    if ex is not None and "exposure" not in fields and "auto_exposure" not in fields:
+        fields = {**fields, **({"auto_exposure": True} if ex == "auto" else {"exposure": float(ex)})}
     return SessionState.model_validate({
         "objects": names, "object": obj, "camera": camera or spec["camera"],
         "rotation_deg": env.get("rotation_deg", 0.0), "intensity": env.get("intensity", 1.0),

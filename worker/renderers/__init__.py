@@ -22,10 +22,33 @@ RENDERER_MODULES: dict[str, str] = {
 # checks messages against it and stays free of the renderers' numerical imports); a renderer's
 # class attribute ``controls`` must say the same (checked when it registers)
 RENDERER_CONTROLS: dict[str, frozenset[str]] = {
-    "cuts": frozenset({"camera", "light", "materials", "environment", "ground", "move"}),
+    "cuts": frozenset({"camera", "light", "materials", "environment", "ground", "move", "strokes"}),
     "gi": frozenset({"materials"}),
     "paint": frozenset({"camera", "light", "materials", "environment"}),
 }
+
+ALL_CONTROLS = frozenset({"camera", "light", "materials", "environment", "ground", "move", "strokes"})
+# why a renderer does not offer a control (the studio shows it beside the control it turns off)
+WHY_NOT: dict[str, dict[str, str]] = {
+    "gi": {"camera": "the global-illumination precomputation is for one view: the camera is fixed "
+                     "(switch to direct light to orbit)",
+           "light": "the light transport is precomputed for the scene's lighting: it cannot turn",
+           "environment": "the light transport is precomputed for the scene's environment map",
+           "move": "objects are baked into the interreflections: they cannot move",
+           "ground": "the GI scene has no shadow-catcher ground",
+           "strokes": "strokes fit a BRDF through the direct-light transfer, which this renderer "
+                      "does not have (switch to direct light to paint)"},
+    "paint": {"strokes": "strokes fit a BRDF through the direct-light transfer, which the paint "
+                         "renderer does not have (switch to direct light to paint)",
+              "move": "the paint renderer has no precomputed visibility of moving objects",
+              "ground": "the paint renderer draws no shadow-catcher ground"},
+}
+
+
+def why_not(kind: str, control: str) -> str:
+    """Why the ``kind`` renderer does not offer ``control`` (a sentence for the designer)."""
+    return WHY_NOT.get(kind, {}).get(control, f"the {kind} renderer does not offer {control}")
+
 
 _registry: dict[str, tuple[type[Renderer], Precomputation]] = {}
 

@@ -222,12 +222,21 @@ class Precomputation(ABC):
         return {"bytes": len(blob)}
 
 
+# the share of a part's progress kept for its assembly and storing (encoding, deflate, the
+# write): measured on the couch's visibility cuts (12.6K vertices), 160 s tracing and 13 s
+# assembling on two loaded cores; before, the bar sat at 100% through those 13 s
+ASSEMBLE_SHARE = 0.08
+
+
 def ensure(pre: Precomputation, scene, store: ArtifactStore, options: Mapping[str, Any] | None = None,
-           progress: Progress | None = None, threads: int = 2) -> dict:
+           progress: Progress | None = None, threads: int = 2, stage: Callable[[str], None] | None = None) -> dict:
     """Compute the parts missing from the store, in this process. Returns stats:
     {"parts": {key: {"label", "cached": bool, "seconds", ...part stats}}, "seconds": total,
-    "computed": number of parts computed}."""
+    "computed": number of parts computed}. progress : units of work done (a part's ``work``
+    in all, (1 − ASSEMBLE_SHARE) of it while computing, the rest once it is assembled and
+    stored); stage : what is being done now ("tracing visibility cuts", …)."""
     options = dict(options or {})
+    say = stage or (lambda text: None)
     t0 = time.perf_counter()
     out: dict[str, Any] = {"parts": {}, "computed": 0}
     for part in pre.parts(scene, options):
@@ -238,10 +247,24 @@ def ensure(pre: Precomputation, scene, store: ArtifactStore, options: Mapping[st
                 progress(part.work)
             continue
         t1 = time.perf_counter()
-        results = [pre.compute(scene, part, options, ch, progress, threads)
+        say(f"computing {part.label}")
+        scaled = None
+        if progress:
+            k = 1.0 - ASSEMBLE_SHARE
+            seen = [0]
+
+            def scaled(n):
+                # never more than the computing share, whatever the part's compute reports
+                n = min(n, part.work - seen[0])
+                seen[0] += n
+                progress(n * k)
+        results = [pre.compute(scene, part, options, ch, scaled, threads)
                    for ch in pre.chunks(scene, part, options, 1)]
+        say(f"assembling and storing {part.label}")
         blob, stats = pre.assemble(scene, part, options, results)
         store.put(part.key, blob)
+        if progress:
+            progress(part.work - seen[0] * (1.0 - ASSEMBLE_SHARE))
         out["parts"][part.key] = {"label": part.label, "cached": False, "seconds": time.perf_counter() - t1,
                                   "bytes": len(blob), **stats}
         out["computed"] += 1

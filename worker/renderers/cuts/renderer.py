@@ -134,7 +134,7 @@ class CutRenderer(Renderer):
     """
 
     kind = "cuts"
-    controls = frozenset({"camera", "light", "materials", "environment", "ground", "move"})
+    controls = frozenset({"camera", "light", "materials", "environment", "ground", "move", "strokes"})
     _moving = None          # MovingFrames (moving.py) of a scene with movable objects
 
     def __init__(self, scene, data: CutData, kernels=None):

@@ -1,0 +1,226 @@
+"""The studio as a designer's tool, in headless Chromium against the real server: the settled
+frame comes anti-aliased without input, the curve drawn is the worker's, a model switch keeps
+the object's colour, a click picks the second object of a scene and a stroke changes only it,
+and GI and car-paint scenes are created from the studio's scene dialog. Screenshots go to
+test-artifacts/web-objects-*.png."""
+import json
+import shutil
+import time
+
+import numpy as np
+import pytest
+from helpers import drag, frame_no, settle, wait_new_frame
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+pw = pytest.importorskip("playwright.sync_api")
+
+# every drawn frame's number, samples, size and mean absolute Laplacian of its luminance (the
+# high frequencies that aliasing adds at edges), recorded as the canvas draws it
+RECORD_JS = """() => {
+  window.__frames = [];
+  const c = document.getElementById('view');
+  new MutationObserver(() => {
+    const g = c.getContext('2d'), W = c.width, H = c.height, d = g.getImageData(0, 0, W, H).data;
+    const L = (x, y) => { const k = 4 * (y * W + x); return 0.2126 * d[k] + 0.7152 * d[k + 1] + 0.0722 * d[k + 2]; };
+    let s = 0, n = 0;
+    for (let y = 1; y < H - 1; y++) for (let x = 1; x < W - 1; x++) {
+      s += Math.abs(4 * L(x, y) - L(x - 1, y) - L(x + 1, y) - L(x, y - 1) - L(x, y + 1)); n++;
+    }
+    window.__frames.push({ frame: +c.dataset.frame, samples: +c.dataset.samples, quick: c.dataset.quick === 'true',
+                           w: W, h: H, lap: s / n, t: performance.now() });
+  }).observe(c, { attributes: true, attributeFilter: ['data-frame'] });
+  // when the renderer line last changed (a new session's hello)
+  const r = document.getElementById('renderer-info');
+  new MutationObserver(() => { window.__rendererAt = performance.now(); })
+    .observe(r, { childList: true, characterData: true, subtree: true });
+}"""
+
+# the canvas as linear RGB (sRGB decoded) on a W×H grid, read in the page
+GRID_JS = """([W, H]) => {
+  const c = document.getElementById('view'), g = c.getContext('2d');
+  const d = g.getImageData(0, 0, c.width, c.height).data, out = [];
+  const lin = (v) => { v /= 255; return v <= 0.04045 ? v / 12.92 : ((v + 0.055) / 1.055) ** 2.4; };
+  for (let j = 0; j < H; j++) for (let i = 0; i < W; i++) {
+    const x = Math.floor((i + 0.5) * c.width / W), y = Math.floor((j + 0.5) * c.height / H), k = 4 * (y * c.width + x);
+    out.push([lin(d[k]), lin(d[k + 1]), lin(d[k + 2])]);
+  }
+  return out;
+}"""
+
+
+def rgb(page, w=96, h=72):
+    return np.asarray(page.evaluate(GRID_JS, [w, h]), np.float64).reshape(h, w, 3)
+
+
+@pytest.fixture(scope="module")
+def browser():
+    with pw.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, headless=True,
+                              args=["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
+                                    "--disable-background-networking"])
+        yield b
+        b.close()
+
+
+def _page(browser, server, errors):
+    page = browser.new_page(viewport={"width": 1280, "height": 900})
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(server["base"] + "/")
+    page.wait_for_function("() => document.getElementById('scene-select').options.length > 0", timeout=60_000)
+    return page
+
+
+def _open(page, scene_id):
+    page.select_option("#scene-select", scene_id)
+    n = frame_no(page)
+    page.click("#open-scene")
+    wait_new_frame(page, n)
+
+
+def _status(page, text, timeout=120_000):
+    page.wait_for_function("(t) => document.getElementById('status').textContent.includes(t)", arg=text,
+                           timeout=timeout)
+
+
+def _upload_scene(client, shared_assets, spec_file, name):
+    from helpers import scene_file
+
+    mesh = client.post("/v1/assets/meshes", params={"filename": "bunny.ply"},
+                       content=(shared_assets / "meshes" / "bunny.ply").read_bytes()).json()
+    env = client.post("/v1/assets/envmaps", params={"filename": "sunset.exr"},
+                      content=(shared_assets / "env" / "sunset.exr").read_bytes()).json()
+    spec = json.loads(scene_file(spec_file).read_text())
+    spec["environment"]["map"] = env["id"]
+    for o in spec["objects"]:
+        o["mesh"] = mesh["id"]
+    sc = client.post("/v1/scenes", json=spec, params={"name": name}).json()
+    pre = client.post(f"/v1/scenes/{sc['id']}/precompute").json()
+    for _ in range(900):
+        p = client.get(f"/v1/precomputations/{pre['id']}").json()
+        if p["status"] in ("done", "failed"):
+            break
+        time.sleep(0.5)
+    assert p["status"] == "done", p
+    return sc["id"]
+
+
+def test_settled_frame_curve_and_model_switch(server, bunny_scene, browser, artifacts):
+    from worker.jobs.curves import brdf_curve
+    from worker.models import parse_material
+
+    errors = []
+    page = _page(browser, server, errors)
+    page.evaluate(RECORD_JS)
+    _open(page, bunny_scene)
+    # 1. with no input at all, the settled frame is the anti-aliased one, at the canvas's size
+    page.wait_for_function("() => window.__frames.some((f) => f.samples > 1)", timeout=90_000)
+    settle(page)
+    frames = page.evaluate("() => window.__frames")
+    still = [f for f in frames if f["samples"] > 1][-1]
+    rough = [f for f in frames if f["samples"] == 1 and (f["w"], f["h"]) == (still["w"], still["h"])]
+    page.screenshot(path=str(artifacts / "web-objects-1-settled.png"))
+    assert rough, frames
+    assert frames[-1]["samples"] > 1, frames                      # the last one drawn is the settled one
+    assert still["lap"] < 0.9 * rough[-1]["lap"], (still, rough[-1])   # smoother edges than one sample
+    box = page.locator("#view").bounding_box()
+    dpr = page.evaluate("() => window.devicePixelRatio")
+    assert abs(still["w"] - box["width"] * dpr) <= 2 and abs(still["h"] - box["height"] * dpr) <= 2, (still, box)
+
+    # 2. the object's pixels (a black albedo makes them black), then a coloured diffuse material
+    page.fill("#param-albedo", "#000000")
+    n = frame_no(page)
+    wait_new_frame(page, n)
+    settle(page)
+    dark = rgb(page).mean(axis=2)
+    page.fill("#param-albedo", "#b4825a")
+    n = frame_no(page)
+    wait_new_frame(page, n)
+    settle(page)
+    base = rgb(page)
+    mask = (dark < 0.004) & (base.mean(axis=2) > 0.02)
+    assert mask.sum() > 200, mask.sum()
+    c0 = base[mask].mean(axis=0)
+    # 3. switching models converts the look: the object's mean colour stays within 5 %
+    for model in ("ggx", "blinn-phong", "ashikhmin-shirley"):
+        n = frame_no(page)
+        page.select_option("#model", model)
+        _status(page, "fitted to the old look")
+        wait_new_frame(page, n)
+        settle(page)
+        assert page.locator("#model").input_value() == model
+        c1 = rgb(page)[mask].mean(axis=0)
+        rel = np.abs(c1 - c0) / c0
+        page.screenshot(path=str(artifacts / f"web-objects-2-{model}.png"))
+        assert rel.max() < 0.05, (model, c0.round(4).tolist(), c1.round(4).tolist())
+    # 4. the curve drawn is the worker's curve of the Ashikhmin-Shirley material being rendered
+    mat = json.loads(page.locator("#curve").get_attribute("data-material"))
+    drawn = np.asarray(json.loads(page.locator("#curve").get_attribute("data-drawn")))
+    assert mat["model"] == "ashikhmin-shirley"
+    want = np.asarray(brdf_curve(parse_material(mat))["specular"])
+    assert drawn.shape == want.shape and np.allclose(drawn, want, rtol=1e-4, atol=1e-6), np.abs(drawn - want).max()
+    assert page.locator("#lobe").get_attribute("data-incident") == "40"
+    assert not errors, errors
+    page.close()
+
+
+def test_click_picks_the_second_object_and_a_stroke_changes_only_it(server, client, shared_assets, browser, artifacts):
+    sid = _upload_scene(client, shared_assets, "two-bunnies.json", "two bunnies")
+    errors = []
+    page = _page(browser, server, errors)
+    _open(page, sid)
+    settle(page)
+    assert page.locator("#object-select").input_value() == "left"
+    box = page.locator("#view").bounding_box()
+    x, y, w, h = box["x"], box["y"], box["width"], box["height"]
+    # a click on the right bunny picks it
+    page.mouse.click(x + 0.68 * w, y + 0.55 * h)
+    page.wait_for_function("() => document.getElementById('object-select').dataset.edited === 'right'", timeout=60_000)
+    settle(page)
+    before = rgb(page)
+    page.check("#tool-brush")
+    page.fill("#brush-diameter", "40")
+    page.locator("#brush-strength").fill("6")
+    n = frame_no(page)
+    drag(page, x + 0.62 * w, y + 0.55 * h, 0.12 * w, 0, steps=10)
+    wait_new_frame(page, n)
+    settle(page)
+    after = rgb(page)
+    page.screenshot(path=str(artifacts / "web-objects-3-second-object-stroke.png"))
+    change = np.abs(after - before).mean(axis=2)
+    left, right = change[:, : change.shape[1] // 2], change[:, change.shape[1] // 2:]
+    assert right.max() > 0.05 and right.mean() > 5 * max(left.mean(), 1e-4), (left.mean(), right.mean())
+    assert left.max() < 0.01, left.max()                  # the left bunny did not change at all
+    assert not errors, errors
+    page.close()
+
+
+@pytest.mark.parametrize("kind, label", [("gi", "global illumination"), ("paint", "car paint")])
+def test_gi_and_paint_scenes_created_from_the_studio(server, bunny_scene, shared_assets, browser, artifacts, kind, label):
+    errors = []
+    page = _page(browser, server, errors)
+    page.evaluate(RECORD_JS)
+    page.locator("#scene-create summary").click()
+    page.locator("#mesh-file").set_input_files(str(shared_assets / "meshes" / "bunny.ply"))
+    page.locator("#env-file").set_input_files(str(shared_assets / "env" / "sunset.exr"))
+    page.select_option("#scene-renderer", kind)
+    page.fill("#scene-name", f"bunny {kind}")
+    settle(page)                          # the scene the studio opened by itself
+    page.click("#upload")
+    _status(page, "precomputing", timeout=60_000)
+    # the new scene opens by itself when its precomputation is done, with its renderer
+    page.wait_for_function("(t) => document.getElementById('renderer-info').textContent.includes(t)",
+                           arg=label, timeout=300_000)
+    page.wait_for_function("() => window.__frames.some((f) => f.t > window.__rendererAt)", timeout=120_000)
+    settle(page)
+    page.screenshot(path=str(artifacts / f"web-objects-4-{kind}-created.png"))
+    assert label in page.locator("#renderer-info").inner_text()
+    assert rgb(page).std() > 0.01, "the new scene's frame is blank"
+    # what the renderer does not offer is off, with its reason; nothing rejected is selected
+    assert page.locator("#tool-brush").is_disabled()
+    assert "strokes" in page.locator("#renderer-off").inner_text()
+    checked = page.locator("input[name=tool]:checked")
+    assert checked.count() == 0 or not checked.is_disabled()
+    # the uploaded scene was exposed automatically (median object pixel middle grey)
+    page.wait_for_function("() => +document.getElementById('exposure').value !== 0", timeout=60_000)
+    assert not errors, errors
+    page.close()
