@@ -3,8 +3,17 @@ quadrature, the glTF BRDF's energy, a glTF material fitted to itself, and extens
 when they lower the error."""
 import numpy as np
 
-from worker.export.approx import (GltfMaterial, GltfPBR, Samples, approximate, approximate_ggx, default_samples,
-                                  gltf_brdf, sheen_albedo, sheen_lobe)
+from worker.export.approx import (
+    GltfMaterial,
+    GltfPBR,
+    Samples,
+    approximate,
+    approximate_ggx,
+    default_samples,
+    gltf_brdf,
+    sheen_albedo,
+    sheen_lobe,
+)
 from worker.models import GGX, Lambert
 
 

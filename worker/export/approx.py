@@ -44,7 +44,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ..models.base import BRDFModel, Geometry, PackedBRDF
-from ..models.ggx import GGX, ggx_D, ggx_G1
+from ..models.ggx import GGX, ggx_D
 from ..models.lambert import Lambert
 
 N_VIEWS = 16
@@ -96,7 +96,7 @@ class Samples:
 
     @classmethod
     def make(cls, n_views: int = N_VIEWS, n_cos: int = N_COS, n_lobe: int = N_LOBE,
-             lobe_alphas=LOBE_ALPHAS) -> "Samples":
+             lobe_alphas=LOBE_ALPHAS) -> Samples:
         wo = _lift(_spiral(n_views, 0.5) * 0.985)        # keep the views off the exact horizon
         cos_wi = _lift(_spiral(n_cos, 0.5))
         u = _r2(n_lobe)
