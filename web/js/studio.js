@@ -8,6 +8,7 @@ import { orbit } from "./orbit.js";
 import { createLobeVisualiser, createPaintPanel, createSwatchPalette, downloadMeasurements } from "./paint.js";
 import { mountCapturePanel } from "./capture.js";
 import { MoveDrag, fullTransform } from "./move.js";
+import { mountExportPanel } from "./export.js";
 
 const $ = (id) => document.getElementById(id);
 const status = (t) => { $("status").textContent = t; };
@@ -398,6 +399,7 @@ $("publish").onclick = async () => {
     status(`published ${p.id}`);
   } catch (err) { status(`publish failed: ${err.message}`); }
 };
+mountExportPanel($("export-panel"), () => ({ sceneId: session?.scene_id, object: state?.object, designs: saved }), status);
 
 $("open-scene").onclick = () => $("scene-select").value && openScene($("scene-select").value);
 $("upload").onclick = upload;
