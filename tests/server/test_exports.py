@@ -26,6 +26,14 @@ def test_export_a_scene_with_a_saved_variant(client, bunny_scene, tmp_path):
     assert v["issues"]["numErrors"] == 0, v["issues"]["messages"]
     assert "KHR_materials_variants" in v["info"]["extensionsUsed"]
 
+    # a publication's object and variants, by its id
+    pub = client.post("/v1/publications", json={"name": "shop", "scene_id": bunny_scene,
+                                                "variants": [{"material_id": m.json()["id"], "label": "Gold leaf"}]})
+    assert pub.status_code == 201, pub.text
+    x = client.post("/v1/exports", json={"publication_id": pub.json()["id"], "format": "mtlx"})
+    assert x.status_code == 200 and x.headers["content-type"].startswith("application/xml"), x.text
+    assert 'uiname="Gold leaf"' in x.text and "open_pbr_surface" in x.text
+
     z = client.post("/v1/exports", json={"scene_id": bunny_scene, "format": "mitsuba", "render_check": True})
     assert z.status_code == 200, z.text
     names = zipfile.ZipFile(io.BytesIO(z.content)).namelist()

@@ -38,7 +38,8 @@ def add_commands(sub) -> None:
     b.add_argument("--spp", type=int, default=128, help="Mitsuba samples per pixel per seed of the targets")
     b.add_argument("--cache", help="folder for Mitsuba targets (default $GLINT_DATA_DIR/mitsuba)")
     b.add_argument("--cuts", help="cut cache folder")
-    b.add_argument("--json", action="store_true")
+    b.add_argument("--json", action="store_true",
+                   help="one JSON object a line: each case as it is done, then {\"summary\": …}")
     b.set_defaults(fn=cmd_bench_export_recovery)
 
 
@@ -133,6 +134,8 @@ def cmd_bench_export_recovery(a) -> int:
                "design_vs_target": res["rel_rmse_vertex"],
                "gltf_vs_target": rel_rmse(gl_vx, res["_images"]["target"], mask)}
         out.append(row)
+        if a.json:            # as each case is done: a long run interrupted keeps its results
+            print(json.dumps(row), flush=True)
         bar.update(1)
         bar.set_postfix_str(f"α={al:g}: BRDF {100 * ap.rel_rmse:.1f}%, render {100 * row['render_rel_rmse']:.1f}%")
     bar.close()
@@ -141,7 +144,7 @@ def cmd_bench_export_recovery(a) -> int:
                "median_render_rel_rmse": sorted(x["render_rel_rmse"] for x in out)[len(out) // 2],
                "worst_brdf_rel_rmse": max(x["brdf_rel_rmse"] for x in out)}
     if a.json:
-        print(json.dumps({"summary": summary, "results": out}))
+        print(json.dumps({"summary": summary}))
     else:
         for x in out:
             print(f"{x['scene']} {x['env']} α={x['alpha']:g} s={x['specular']:g}: BRDF {100 * x['brdf_rel_rmse']:.1f}%, "
