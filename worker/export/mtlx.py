@@ -46,7 +46,8 @@ def openpbr_inputs(m: GltfMaterial) -> dict[str, tuple[str, object]]:
         "base_weight": ("float", 1.0), "base_color": ("color3", m.base_color),
         "base_metalness": ("float", m.metallic), "specular_roughness": ("float", m.roughness),
         "specular_weight": ("float", 1.0 if m.specular is None else m.specular), "specular_ior": ("float", 1.5)}
-    if m.specular_color is not None:
+    if m.specular_color is not None and (m.specular or 0.0) >= 1e-3:
+        # (a vanishing specular weight leaves the colour undetermined: OpenPBR's defaults then)
         c = np.asarray(m.specular_color, np.float64)
         mx_ = float(c.max())
         if mx_ > 0:
