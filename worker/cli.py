@@ -361,6 +361,7 @@ COMMAND_MODULES: list[str] = [
     "worker.capture.cli",
     "worker.renderers.cuts.fields_cli",      # glint field trace | bench (cut fields of movable objects)
     "worker.fit.cli",
+    "worker.export.cli",                     # glint export (glTF, MaterialX, Mitsuba 3)
 ]
 
 

@@ -20,7 +20,8 @@ import numpy as np
 from .scene import GGX, Lambert, LoadedScene
 
 
-def _bsdf(m):
+def bsdf_dict(m) -> dict:
+    """The Mitsuba 3 BSDF (as a load_dict dictionary) of a lambert or ggx material (module doc)."""
     if isinstance(m, Lambert):
         return {"type": "diffuse", "reflectance": {"type": "rgb", "value": list(m.albedo)}}
     if isinstance(m, GGX):
@@ -71,7 +72,7 @@ def render_mitsuba(scene: LoadedScene, spp: int = 256, seed: int = 0, rotation_d
             tm = trimesh.Trimesh(mesh.vertices[used], remap[faces], vertex_normals=mesh.normals[used], process=False)
             path = Path(tmp) / f"obj{i}.ply"
             path.write_bytes(trimesh.exchange.ply.export_ply(tm, include_attributes=False, vertex_normal=True))
-            bsdf = _bsdf(o.material)
+            bsdf = bsdf_dict(o.material)
             if two_sided:
                 bsdf = {"type": "twosided", "bsdf": bsdf}
             d[f"obj{i}"] = {"type": "ply", "filename": str(path), "face_normals": False, "bsdf": bsdf}

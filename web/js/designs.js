@@ -164,11 +164,16 @@ export function mountDesigns({ status, send, session, state, applyMaterial }) {
   };
   $("design-select").onchange = () => { const id = $("design-select").value; if (id) open(id, null, true); };
   $("design-name").addEventListener("input", info);
+  // the designs ticked in the list, else the one being edited (what Publish and Export take)
+  function chosen() {
+    const ids = designs.filter((d) => picked.has(d.id)).map((d) => d.id);
+    if (!ids.length && designId) ids.push(designId);
+    return ids;
+  }
   $("publish").onclick = async () => {
     const s = session(), st = state();
     if (!s) return status("open a scene first");
-    const ids = designs.filter((d) => picked.has(d.id)).map((d) => d.id);
-    if (!ids.length && designId) ids.push(designId);
+    const ids = chosen();
     if (!ids.length) return status(designs.length ? "tick the designs to publish" : "save a design first");
     try {
       const name = designs.find((d) => d.id === (designId || ids[0]))?.name || "designs";
@@ -192,7 +197,7 @@ export function mountDesigns({ status, send, session, state, applyMaterial }) {
       }
       await loadDesigns();
     },
-    onSaved, edited, open,
+    onSaved, edited, open, chosen,
     current: () => designId,
   };
 }

@@ -13,6 +13,7 @@ import { createStatus, packPanels } from "./layout.js";
 import { imageFraction, isClick, mountObjects } from "./objects.js";
 import { fitCanvases, followCanvasSize } from "./framesize.js";
 import { mountSceneCreate } from "./scenecreate.js";
+import { mountExportPanel } from "./export.js";
 
 const $ = (id) => document.getElementById(id);
 const status = createStatus($("status"), $("status-panel"));
@@ -449,6 +450,7 @@ $("lobe-angle").addEventListener("input", drawLobePlot);
 // -- designs (designs.js) -------------------------------------------------------------------------------
 const designs = mountDesigns({ status, send: (type, f) => stream?.send(type, f), session: () => session, state: () => state,
   applyMaterial: (m) => { setMaterial(m); stream?.send("material", { material: m }); } });
+mountExportPanel($("export-panel"), () => ({ sceneId: session?.scene_id, object: state?.object, designs: designs.chosen() }), status);
 
 $("open-scene").onclick = () => $("scene-select").value && openScene($("scene-select").value);
 mountSceneCreate($("scene-panel"), { api, status, waitPrecompute,

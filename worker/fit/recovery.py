@@ -174,6 +174,7 @@ def recover(renderer, case: Case, *, basis: SRBFBasis | None = None, fit_scale: 
                     "ggx_floor": rel_rmse(ggx_px, target, mask), "ggx_floor_vertex": rel_rmse(ggx_vx, target, mask),
                     "fit_vs_glint_ggx": rel_rmse(fit_px, ggx_px, mask)})
         res["_images"] = {"target": target, "fit": fit_px, "ggx": ggx_px}
+    res["_material"] = out.material          # the fitted design (public() leaves it out)
     return res
 
 

@@ -1,4 +1,4 @@
-"""The worker's job handlers (precompute, render, fit, capture), in one registry: ``JOBS``,
+"""The worker's job handlers (precompute, render, fit, capture, export), in one registry: ``JOBS``,
 job type -> handler(cache, payload, progress) -> result dict. progress : (fraction 0..1,
 message) -> None; a handler raises JobError (or GlintError, ValueError) for bad input."""
 from __future__ import annotations
@@ -153,9 +153,45 @@ def _capture(cache: DataCache, p: dict, progress) -> dict:
         shutil.rmtree(work, ignore_errors=True)
 
 
+def _export(cache: DataCache, p: dict, progress) -> dict:
+    """A scene exported (worker/export) in this worker's scratch folder: the file's bytes (the
+    Mitsuba folder zipped, with its report.json), a file name and the report."""
+    import json
+    import re
+    import shutil
+    import tempfile
+    import zipfile
+
+    from worker.export.common import ExportError, parse_variants
+    from worker.export.run import export
+
+    sc = cache.scene(p["scene"])
+    renderer = cache.renderer(p["scene"], "cuts") if p.get("render_check") else None
+    variants = parse_variants(sc, p.get("variants"))
+    name = re.sub(r"[^A-Za-z0-9_-]+", "-", sc.spec.objects[0].name).strip("-") or "scene"
+    work = Path(tempfile.mkdtemp(prefix="export-", dir=cache.tmp))
+    try:
+        fmt = p["format"]
+        out = work / {"gltf": "scene.glb", "mtlx": "scene.mtlx", "mitsuba": "scene"}[fmt]
+        rep = export(sc, fmt, out, variants, renderer=renderer, progress=progress)
+        if fmt != "mitsuba":
+            return {"bytes": out.read_bytes(), "name": name, "report": rep}
+        zpath = work / "scene.zip"
+        with zipfile.ZipFile(zpath, "w", zipfile.ZIP_DEFLATED) as z:
+            for f in sorted(out.rglob("*")):
+                if f.is_file():
+                    z.write(f, f"{name}/{f.relative_to(out)}")
+            z.writestr(f"{name}/report.json", json.dumps({k: v for k, v in rep.items() if k != "path"}, indent=1))
+        return {"bytes": zpath.read_bytes(), "name": name, "report": rep}
+    except ExportError as e:
+        raise JobError(str(e), e.status) from None
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
 JOBS = {"render": lambda cache, p, progress: _render(cache, p),
         "fit": lambda cache, p, progress: _fit(cache, p),
-        "precompute": _precompute, "capture": _capture}
+        "precompute": _precompute, "capture": _capture, "export": _export}
 
 
 def run_job(cache: DataCache, p: dict, progress) -> dict:

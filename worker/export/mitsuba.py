@@ -1,0 +1,129 @@
+"""A Mitsuba 3 scene folder: ``scene.xml`` (scene format 3.0.0), ``meshes/<object>.ply`` (world
+space, Glint's vertex normals) and ``envmap.exr`` (the map as Glint loaded it), with the
+conventions of worker/mitsuba_ref.py (DESIGN.md §2): the envmap's to_world is rotate(+Y, angle)
+and scaled by the intensity, the camera a perspective sensor with fov_axis y and look_at.
+
+Materials: a lambert or ggx material is written exactly (mitsuba_ref.bsdf_dict: diffuse,
+roughconductor, or their blendbsdf); any other model as the Lambert + GGX material closest to it
+(approx.approximate_ggx), whose error the report gives. The folder is built beside its target
+and renamed into place, so a reader never sees half of it.
+"""
+from __future__ import annotations
+
+import shutil
+import tempfile
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+
+from ..envmap import save_exr
+from ..mitsuba_ref import bsdf_dict
+from ..scene import LoadedScene
+from .common import ExportError, ObjectMesh
+
+SCENE_VERSION = "3.0.0"
+INTEGRATOR = "direct"      # Glint's cut renderer draws direct light (the GI renderer: "path")
+
+
+def _vec(v) -> str:
+    return ", ".join(f"{float(x):.9g}" for x in v)
+
+
+def _add(parent: ET.Element, name: str | None, value) -> None:
+    """One property of a load_dict-style dictionary as Mitsuba XML (the shapes bsdf_dict gives:
+    nested plugins with "type", {"type": "rgb", "value"}, numbers, booleans and strings)."""
+    if isinstance(value, dict) and value.get("type") == "rgb":
+        ET.SubElement(parent, "rgb", name=name, value=_vec(value["value"]))
+    elif isinstance(value, dict):
+        tag = "bsdf" if name is None or name.startswith("bsdf") else name
+        # nested BSDFs go in order (blendbsdf's bsdf_0, bsdf_1), as Mitsuba's XML reads them
+        el = ET.SubElement(parent, tag, type=value["type"])
+        for k, v in value.items():
+            if k != "type":
+                _add(el, k, v)
+    elif isinstance(value, bool):
+        ET.SubElement(parent, "boolean", name=name, value="true" if value else "false")
+    elif isinstance(value, int):
+        ET.SubElement(parent, "integer", name=name, value=str(value))
+    elif isinstance(value, float):
+        ET.SubElement(parent, "float", name=name, value=f"{value:.9g}")
+    else:
+        ET.SubElement(parent, "string", name=name, value=str(value))
+
+
+def scene_xml(scene: LoadedScene, meshes: list[ObjectMesh], bsdfs: list[dict], spp: int, mesh_files: list[str],
+              env_file: str, two_sided: bool = False) -> str:
+    """The scene.xml text."""
+    spec = scene.spec
+    cam, env = spec.camera, spec.environment
+    root = ET.Element("scene", version=SCENE_VERSION)
+    integ = ET.SubElement(root, "integrator", type="path" if spec.renderer == "gi" else INTEGRATOR)
+    if spec.renderer == "gi":
+        bounces = int((spec.gi or {}).get("bounces", 1))
+        ET.SubElement(integ, "integer", name="max_depth", value=str(bounces + 1))
+    s = ET.SubElement(root, "sensor", type="perspective")
+    ET.SubElement(s, "float", name="fov", value=f"{cam.fov_y_deg:.9g}")
+    ET.SubElement(s, "string", name="fov_axis", value="y")
+    t = ET.SubElement(s, "transform", name="to_world")
+    ET.SubElement(t, "lookat", origin=_vec(cam.eye), target=_vec(cam.target), up=_vec(cam.up))
+    smp = ET.SubElement(s, "sampler", type="independent")
+    ET.SubElement(smp, "integer", name="sample_count", value=str(int(spp)))
+    film = ET.SubElement(s, "film", type="hdrfilm")
+    ET.SubElement(film, "integer", name="width", value=str(cam.width))
+    ET.SubElement(film, "integer", name="height", value=str(cam.height))
+    ET.SubElement(film, "rfilter", type="box")
+    ET.SubElement(film, "string", name="pixel_format", value="rgb")
+    e = ET.SubElement(root, "emitter", type="envmap")
+    ET.SubElement(e, "string", name="filename", value=env_file)
+    ET.SubElement(e, "float", name="scale", value=f"{env.intensity:.9g}")
+    t = ET.SubElement(e, "transform", name="to_world")
+    ET.SubElement(t, "rotate", y="1", angle=f"{env.rotation_deg:.9g}")
+    for om, b, f in zip(meshes, bsdfs, mesh_files):
+        sh = ET.SubElement(root, "shape", type="ply", id=f"obj-{len(root)}")
+        sh.append(ET.Comment(f" object {om.name} "))
+        ET.SubElement(sh, "string", name="filename", value=f)
+        ET.SubElement(sh, "boolean", name="face_normals", value="false")
+        _add(sh, None, {"type": "twosided", "bsdf": b} if two_sided else b)
+    ET.indent(root)
+    return ET.tostring(root, encoding="unicode", xml_declaration=True) + "\n"
+
+
+def _safe(name: str, i: int) -> str:
+    keep = "".join(c if c.isalnum() or c in "-_" else "_" for c in name)[:64]
+    return f"{i:03d}-{keep or 'object'}.ply"
+
+
+def write_folder(out: Path, scene: LoadedScene, meshes: list[ObjectMesh], materials: list, spp: int = 256) -> int:
+    """Write the folder ``out`` (replacing an earlier export there); returns its size in bytes.
+    materials : one lambert or ggx material per object (within Mitsuba's blend bound)."""
+    import trimesh
+
+    out = Path(out)
+    if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not (out / "scene.xml").is_file())):
+        raise ExportError(f"{out}: exists and is not an earlier Mitsuba export (no scene.xml); choose another --out")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=out.name + ".", suffix=".tmp", dir=out.parent))
+    try:
+        (tmp / "meshes").mkdir()
+        files = []
+        for i, om in enumerate(meshes):
+            tm = trimesh.Trimesh(om.vertices, om.faces.astype(np.int64), vertex_normals=om.normals, process=False)
+            rel = f"meshes/{_safe(om.name, i)}"
+            (tmp / rel).write_bytes(trimesh.exchange.ply.export_ply(tm, include_attributes=False, vertex_normal=True))
+            files.append(rel)
+        save_exr(tmp / "envmap.exr", scene.envmap.astype(np.float32))
+        bsdfs = [bsdf_dict(m) for m in materials]
+        (tmp / "scene.xml").write_text(scene_xml(scene, meshes, bsdfs, spp, files, "envmap.exr"))
+        size = sum(p.stat().st_size for p in tmp.rglob("*") if p.is_file())
+        old = None
+        if out.exists():
+            old = out.with_name(out.name + ".old-" + tmp.name.rsplit(".", 2)[-2])
+            out.rename(old)
+        tmp.rename(out)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+        return size
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
