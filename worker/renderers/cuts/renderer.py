@@ -64,7 +64,7 @@ from ...native.kernels import kernels as _kernels
 from ..base import FrameCancelled, FrameRequest, Lighting, Rendered, Renderer, Unsupported
 from .precompute import CutData
 from . import refine as refinemod
-from .refine import Refinement, candidate_faces
+from .refine import Refinement
 
 DRAG_REFINE = 0.1   # drag level of detail: clusters refined to no finer than 0.1 rad (a GGX α = 0.05's)
 CANCEL_CHUNK = 1024  # vertices shaded between checkpoints (FrameRequest.cancelled): ~10 ms of a fitted srbf, one core
@@ -394,7 +394,7 @@ class CutRenderer(Renderer):
             mat_of = self.scene.object_of_vertex[vi]
             mats = self.material_table(materials, np.unique(mat_of).tolist())
             # faces to shade per pixel, chosen by the materials' own lobes (not the drag level's)
-            ref = self._refinement(v, camera, mats, mat_of) if req.shading == "vertex" and not drag else None
+            radius = self._refine_radius(mats, mat_of) if req.shading == "vertex" and not drag else None
             if drag or quick:
                 mats = self._drag_materials(mats)
             if req.cancelled is None:
@@ -414,14 +414,11 @@ class CutRenderer(Renderer):
                 vert[ids] = r
             t4 = time.perf_counter(); t["shade"] = (t4 - t3) * 1e3
             tri = v.tri
-            if ref is not None and len(ref.rows):
-                scale = float(rad.max(1).mean()) if len(rad) else 0.0
-                pick = ref.select(vert, scale, self.k, refinemod.CONTRAST)
-                if len(pick):
-                    rows = ref.rows[pick]
-                    s = ref.samples
-                    part = Samples(s.pix[pick], s.positions[pick], s.normals[pick], s.wo[pick], s.verts[pick],
-                                   s.bary[pick])
+            if radius is not None and np.isfinite(radius).any() and len(rad):
+                rows = self._refinement(v, camera).select(radius, vert, float(rad.max(1).mean()), self.k,
+                                                          refinemod.SPREAD_FRACTION, refinemod.CONTRAST)
+                if len(rows):
+                    part = self._pixel_samples(v, camera, rows)
                     # the refined rows are hit samples: the background buffer's rows there are never
                     # read as background, so they carry the per-pixel radiance into the resolve
                     bg[rows] = self._shade_chunked(part, cuts, node_l, node_w, mats, node8, req.cancelled)
@@ -447,28 +444,21 @@ class CutRenderer(Renderer):
                          "refined_samples": n_refined,
                          "ground_shadow": None if self.data.ground is None else shadow is not None})
 
-    def _refinement(self, v: View, camera, mats: MaterialTable, mat_of: np.ndarray) -> Refinement:
-        """The view's candidate samples for per-pixel shading (refine.py) for the lobes of the
-        objects shaded now (mat_of: the object of each vertex shaded; the others, e.g. objects
-        whose radiance the frame brings, are not refined). Kept with the view per set of lobes."""
+    @staticmethod
+    def _refine_radius(mats: MaterialTable, mat_of: np.ndarray) -> np.ndarray:
+        """(O,) float32 radians: each object's refine radius (refine.py) where it is shaded now
+        (mat_of: the object of each vertex shaded), inf elsewhere (objects whose radiance the
+        frame brings are not refined)."""
         shaded = np.zeros(len(mats.refine), bool)
         shaded[np.unique(mat_of)] = True
-        radius = np.where(shaded, mats.refine, np.inf).astype(np.float32)
-        frac = refinemod.SPREAD_FRACTION
-        key = (tuple(radius.tolist()), frac)
-        if v.refinement is not None and v.refinement.key == key:
-            return v.refinement
-        mesh = self.scene.mesh
-        seen = np.zeros(len(mesh.faces), bool)
-        seen[v.tri[v.tri >= 0]] = True
-        faces = candidate_faces(np.nonzero(seen)[0].astype(np.int32), mesh.faces, mesh.vertices, mesh.normals,
-                                camera.eye, self.scene.object_of_face, radius, self.k, frac)
-        index = np.full(len(mesh.faces) + 1, -1, np.int32)    # + 1: index −1 (background) stays −1
-        index[faces] = np.arange(len(faces), dtype=np.int32)
-        row_face = index[v.tri]
-        rows = np.nonzero(row_face >= 0)[0]
-        v.refinement = Refinement(key, faces, np.ascontiguousarray(mesh.faces[faces], np.int32), rows,
-                                  row_face[rows], self._pixel_samples(v, camera, rows))
+        return np.where(shaded, mats.refine, np.inf).astype(np.float32)
+
+    def _refinement(self, v: View, camera) -> Refinement:
+        """The view's refinement geometry (refine.py Refinement), made once per view."""
+        if v.refinement is None:
+            mesh = self.scene.mesh
+            v.refinement = Refinement.of_view(v.tri, mesh.faces, mesh.vertices, mesh.normals, camera.eye,
+                                              self.scene.object_of_face, self.k)
         return v.refinement
 
     def _shade_chunked(self, s: Samples, cuts, node_l, node_w, mats, node8, cancelled) -> np.ndarray:
