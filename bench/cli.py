@@ -28,7 +28,7 @@ def cmd_bench_render(a) -> int:
 
     r, _ = _renderer(a, quiet=a.json)
     cam = r.scene.spec.camera
-    mode = "pixel" if a.per_pixel else "vertex"
+    mode = "pixel" if a.per_pixel else a.shading
     n = len(r.scene.materials)
     res = {"frames": a.frames, "width": cam.width, "height": cam.height, "mode": mode,
            "vertices": int(len(r.scene.mesh.vertices)), "native": native.available(), "threads": native.max_threads(),
@@ -53,11 +53,59 @@ def cmd_bench_render(a) -> int:
         if lod == "drag":
             res.update(width_drag=out.info["width"], height_drag=out.info["height"], tau_drag=out.info["tau"])
         elif samples == 1:
-            res.update(visible_vertices=out.info.get("visible_vertices"), tau=out.info["tau"])
+            res.update(visible_vertices=out.info.get("visible_vertices"), tau=out.info["tau"],
+                       refined_samples=out.info.get("refined_samples", 0))
         if mode == "pixel":
             break
     res["mean_cut_size"] = float(r.cuts.sizes().mean())
     print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items()))
+    return 0
+
+
+def cmd_bench_accuracy(a) -> int:
+    """Relative RMSE against Mitsuba 3 (scalar_rgb, direct; the mean of two renders) over the
+    object's pixels at least 2 pixels from silhouettes, per shading mode and GGX α (albedo 0.1,
+    specular 0.8), with the reference's own noise and each mode's frame time (after a warm-up
+    frame; light and BRDF fixed, so the view's refinement candidates are cached)."""
+    import numpy as np
+    from scipy.ndimage import binary_erosion
+
+    from worker.cli import _renderer
+    from worker.fit.recovery import mitsuba_target
+    from worker.renderers import FrameRequest
+    from worker.scene import GGX, LoadedScene
+
+    r, _ = _renderer(a, quiet=a.json)
+    rows = []
+    for alpha in [float(x) for x in a.alphas.split(",")]:
+        mat = GGX(alpha=alpha, albedo=(0.1, 0.1, 0.1), specular=(0.8, 0.8, 0.8))
+        spec = r.scene.spec.model_copy(deep=True)
+        for o in spec.objects:
+            o.material = mat
+        sc = LoadedScene(spec, r.scene.root, envmap=r.scene.envmap)
+        ref, imgs = mitsuba_target(sc, a.spp, (1, 2), a.cache)
+        row = {"alpha": alpha}
+        for mode in ("gouraud", "vertex", "pixel"):
+            req = FrameRequest(camera=spec.camera, materials=[mat] * len(spec.objects), shading=mode)
+            r.render(req)
+            t0 = time.perf_counter()
+            out = r.render(req)
+            ms = (time.perf_counter() - t0) * 1000
+            inner = binary_erosion(out.object_id >= 0, iterations=2)
+            norm = float(np.sqrt((ref[inner].astype(np.float64) ** 2).mean()))
+            row[f"rel_{mode}"] = float(np.sqrt(((out.radiance[inner] - ref[inner]) ** 2).mean()) / norm)
+            row[f"ms_{mode}"] = ms
+            if mode == "vertex":
+                row["refined_fraction"] = out.info["refined_samples"] / max(int((out.object_id >= 0).sum()), 1)
+        row["noise"] = float(0.5 * np.sqrt(((imgs[0] - imgs[1])[inner] ** 2).mean()) / norm)
+        row["vertex_over_pixel"] = row["rel_vertex"] / row["rel_pixel"]
+        rows.append(row)
+        if not a.json:
+            print(" ".join(f"{k}={v:.4g}" for k, v in row.items()), flush=True)
+    res = {"scene": a.scene, "width": r.scene.spec.camera.width, "height": r.scene.spec.camera.height,
+           "vertices": int(len(r.scene.mesh.vertices)), "spp": a.spp, "rows": rows}
+    if a.json:
+        print(json.dumps(res))
     return 0
 
 
@@ -124,8 +172,18 @@ def add_bench_commands(bsub) -> None:
 
     br = bsub.add_parser("render", help="frame time while light and BRDF change")
     br.add_argument("scene"); br.add_argument("--frames", type=int, default=60); br.add_argument("--json", action="store_true")
-    br.add_argument("--per-pixel", action="store_true"); br.add_argument("--cuts"); br.add_argument("--tau", type=float, default=DEFAULT_TAU)
+    br.add_argument("--per-pixel", action="store_true", help="the same as --shading pixel")
+    br.add_argument("--shading", choices=("vertex", "gouraud", "pixel"), default="vertex",
+                    help="vertex (default: vertex shading, per pixel where it is wrong), gouraud (vertex shading alone), pixel")
+    br.add_argument("--cuts"); br.add_argument("--tau", type=float, default=DEFAULT_TAU)
     br.set_defaults(fn=cmd_bench_render)
+    ba = bsub.add_parser("accuracy", help="relative RMSE of each shading mode against Mitsuba 3 (GGX α list)")
+    ba.add_argument("scene"); ba.add_argument("--alphas", default="0.05,0.1,0.15,0.25,0.4")
+    ba.add_argument("--spp", type=int, default=256, help="Mitsuba samples per pixel of each of its two renders")
+    ba.add_argument("--cache", default="tests/.cache/mitsuba", help="where Mitsuba's renders are kept by content")
+    ba.add_argument("--cuts"); ba.add_argument("--tau", type=float, default=DEFAULT_TAU)
+    ba.add_argument("--json", action="store_true")
+    ba.set_defaults(fn=cmd_bench_accuracy)
     bf = bsub.add_parser("fit", help="transfer-matrix and solve times at the default sizes")
     bf.add_argument("scene"); bf.add_argument("--object", help="default: the first object")
     bf.add_argument("--repeat", type=int, default=7); bf.add_argument("--json", action="store_true")

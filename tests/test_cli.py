@@ -35,7 +35,7 @@ def test_precompute_render_bench(tmp_path, cache_dir, bunny):
     assert Image.open(png).size == (160, 120)
     b = json.loads(glint("bench", "render", SCENE, "--frames", "4", "--json", "--cuts", str(cache_dir)).stdout)
     for k in ("ms_per_frame", "fps", "width", "height", "vertices", "ms_per_frame_drag", "fps_drag", "width_drag",
-              "tau", "tau_drag"):
+              "tau", "tau_drag", "refined_samples"):
         assert k in b
     assert b["width"] == 160 and b["width_drag"] == 160 and b["tau_drag"] == 16.0   # 160 px: no half resolution
 

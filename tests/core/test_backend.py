@@ -15,7 +15,7 @@ from worker import native
 from worker.native.kernels import kernels
 
 ROOT = Path(__file__).resolve().parents[2]
-FAMILIES = ("fields", "gi", "paint", "capture", "fit")
+FAMILIES = ("fields", "gi", "paint", "capture", "refine", "fit")
 # a tiny GI scene: the NumPy path tracer accumulates a dense tile tensor, exact but slow
 GI_SCENE = ("cornell", 8, 8)
 GI_OPTIONS = {"spp": 2, "series": [16, 1]}

@@ -15,6 +15,7 @@ with the backend's ``name``:
     k.gi        GI path tracing, freezing and frames (src/gi.c; worker/native/gi.py)
     k.paint     paint prefiltering and shading (src/paint.c; worker/native/paint.py)
     k.capture   HDR merge and fisheye maps (src/capture.c; worker/native/capture.py)
+    k.refine    where vertex shading needs per-pixel shading (src/refine.c; worker/native/refine.py)
     k.fit       SRBF transfer rows and energy rows (src/fit.c; the backend's own methods)
 
 A renderer or a precomputation keeps the backend it was built with and passes it on; nothing
@@ -57,6 +58,11 @@ class _Families:
         from . import capture
         return capture.NativeCapture() if self.name == "native" else capture.NumpyCapture()
 
+    @cached_property
+    def refine(self):
+        from . import refine
+        return refine.NativeRefine() if self.name == "native" else refine.NumpyRefine()
+
     @property
     def fit(self):
         """The fit kernels (transfer, energy_rows) are the backend's own methods."""
@@ -64,7 +70,7 @@ class _Families:
 
     def families(self) -> dict:
         """Every sub-object by family name (each has the backend's ``name``)."""
-        return {f: getattr(self, f) for f in ("fields", "gi", "paint", "capture", "fit")}
+        return {f: getattr(self, f) for f in ("fields", "gi", "paint", "capture", "refine", "fit")}
 
 
 class NumpyKernels(_Families):

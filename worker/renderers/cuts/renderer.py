@@ -2,13 +2,18 @@
 
 cyber-worlds eq. 3 / inverse-brdf-modeling eq. 22: B(x, ωo) = Σ_k l_k v_k f_r(ω_k, ωo) over the
 point's cut, with l_k the map integrated over cluster k (core/lighting.py), v_k its mean
-cosine-weighted visibility and ω_k its light-weighted centroid. Two shading modes:
+cosine-weighted visibility and ω_k its light-weighted centroid. Three shading modes:
 
-* ``vertex`` (default): radiance at the vertices of the triangles the camera sees, then
-  barycentric interpolation per pixel. Fast: cost scales with visible vertices.
+* ``vertex`` (default): radiance at the vertices of the triangles the camera sees, barycentric
+  interpolation per pixel, and pixel-mode shading on the faces where that interpolation is wrong:
+  those whose vertices' mirror directions span more than a fraction of their material's lobe
+  (refine.py). Per-pixel accuracy for glossy lobes at a cost that scales with visible vertices
+  plus the refined pixels (none for Lambert).
+* ``gouraud``: the vertex shading and interpolation alone (the default mode before refinement;
+  kept to measure against).
 * ``pixel``: every pixel shades its three vertices' cuts with its own interpolated normal and
   view direction and blends them by barycentric weight (equal to interpolating the cuts, the
-  integral being linear in visibility). Sharper glossy highlights on coarse meshes.
+  integral being linear in visibility).
 
 It caches what a frame reuses (per camera and sample count: the hit buffer, the visible
 vertices and their view directions, the background's map coordinates and the object ids; per
@@ -58,6 +63,8 @@ from ...core.render import (
 from ...native.kernels import kernels as _kernels
 from ..base import FrameCancelled, FrameRequest, Lighting, Rendered, Renderer, Unsupported
 from .precompute import CutData
+from . import refine as refinemod
+from .refine import Refinement
 
 DRAG_REFINE = 0.1   # drag level of detail: clusters refined to no finer than 0.1 rad (a GGX α = 0.05's)
 CANCEL_CHUNK = 1024  # vertices shaded between checkpoints (FrameRequest.cancelled): ~10 ms of a fitted srbf, one core
@@ -109,6 +116,7 @@ class View:
     bgdirs: np.ndarray | None = None
     bgbuf: np.ndarray | None = None
     bg_key: object = None
+    refinement: Refinement | None = None
 
 
 @dataclass
@@ -376,7 +384,8 @@ class CutRenderer(Renderer):
         t3 = time.perf_counter(); t["background"] = (t3 - t2) * 1e3
         mesh = self.scene.mesh
         img = np.empty((camera.width * camera.height, 3), np.float32)
-        if req.shading == "vertex":
+        n_refined = 0
+        if req.shading in ("vertex", "gouraud"):
             known = {} if drag else dict(req.vertex_radiance or {})
             vi, wo = v.visible, v.wo
             if known:
@@ -384,6 +393,8 @@ class CutRenderer(Renderer):
                 vi, wo = vi[keep], wo[keep]
             mat_of = self.scene.object_of_vertex[vi]
             mats = self.material_table(materials, np.unique(mat_of).tolist())
+            # faces to shade per pixel, chosen by the materials' own lobes (not the drag level's)
+            radius = self._refine_radius(mats, mat_of) if req.shading == "vertex" and not drag else None
             if drag or quick:
                 mats = self._drag_materials(mats)
             if req.cancelled is None:
@@ -402,8 +413,21 @@ class CutRenderer(Renderer):
             for ids, r in known.values():
                 vert[ids] = r
             t4 = time.perf_counter(); t["shade"] = (t4 - t3) * 1e3
-            resolve(v.tri, v.uv, mesh.faces, vert, bg, samples, img, self.k)
-            t["resolve"] = (time.perf_counter() - t4) * 1e3
+            tri = v.tri
+            if radius is not None and np.isfinite(radius).any() and len(rad):
+                rows = self._refinement(v, camera).select(radius, vert, float(rad.max(1).mean()), self.k,
+                                                          refinemod.SPREAD_FRACTION, refinemod.CONTRAST)
+                if len(rows):
+                    part = self._pixel_samples(v, camera, rows)
+                    # the refined rows are hit samples: the background buffer's rows there are never
+                    # read as background, so they carry the per-pixel radiance into the resolve
+                    bg[rows] = self._shade_chunked(part, cuts, node_l, node_w, mats, node8, req.cancelled)
+                    tri = v.tri.copy()
+                    tri[rows] = -1
+                    n_refined = len(rows)
+            t5 = time.perf_counter(); t["refine"] = (t5 - t4) * 1e3
+            resolve(tri, v.uv, mesh.faces, vert, bg, samples, img, self.k)
+            t["resolve"] = (time.perf_counter() - t5) * 1e3
         elif req.shading == "pixel":
             hit = np.nonzero(v.tri >= 0)[0]
             mats = self.material_table(materials)
@@ -413,11 +437,43 @@ class CutRenderer(Renderer):
             img[:] = val.reshape(-1, samples, 3).mean(1)
             t["shade"] = (time.perf_counter() - t3) * 1e3
         else:
-            raise ValueError(f"unknown shading mode {req.shading!r} (vertex or pixel)")
+            raise ValueError(f"unknown shading mode {req.shading!r} (vertex, gouraud or pixel)")
         return Rendered(img.reshape(camera.height, camera.width, 3), v.obj, t,
                         {"lod": req.lod, "tau": DRAG_TAU if drag else self.data.tau, "width": camera.width,
                          "height": camera.height, "visible_vertices": int(len(v.visible)), "samples": samples,
+                         "refined_samples": n_refined,
                          "ground_shadow": None if self.data.ground is None else shadow is not None})
+
+    @staticmethod
+    def _refine_radius(mats: MaterialTable, mat_of: np.ndarray) -> np.ndarray:
+        """(O,) float32 radians: each object's refine radius (refine.py) where it is shaded now
+        (mat_of: the object of each vertex shaded), inf elsewhere (objects whose radiance the
+        frame brings are not refined)."""
+        shaded = np.zeros(len(mats.refine), bool)
+        shaded[np.unique(mat_of)] = True
+        return np.where(shaded, mats.refine, np.inf).astype(np.float32)
+
+    def _refinement(self, v: View, camera) -> Refinement:
+        """The view's refinement geometry (refine.py Refinement), made once per view."""
+        if v.refinement is None:
+            mesh = self.scene.mesh
+            v.refinement = Refinement.of_view(v.tri, mesh.faces, mesh.vertices, mesh.normals, camera.eye,
+                                              self.scene.object_of_face, self.k)
+        return v.refinement
+
+    def _shade_chunked(self, s: Samples, cuts, node_l, node_w, mats, node8, cancelled) -> np.ndarray:
+        """_shade of samples, in parts with a checkpoint between them when the frame may give way."""
+        if cancelled is None:
+            return self._shade(s, cuts, node_l, node_w, mats, self.scene.object_of_vertex, node8)
+        out = np.empty((len(s), 3), np.float32)
+        step = max(1, CANCEL_CHUNK // 3)                     # three cuts a sample
+        for a in range(0, len(s), step):
+            if cancelled():
+                raise FrameCancelled()
+            b = min(a + step, len(s))
+            part = Samples(s.pix[a:b], s.positions[a:b], s.normals[a:b], s.wo[a:b], s.verts[a:b], s.bary[a:b])
+            out[a:b] = self._shade(part, cuts, node_l, node_w, mats, self.scene.object_of_vertex, node8)
+        return out
 
     def _index(self, name: str) -> int:
         return [o.name for o in self.scene.spec.objects].index(name)

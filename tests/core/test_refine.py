@@ -1,0 +1,73 @@
+"""The default (vertex) mode's per-pixel refinement (worker/renderers/cuts/refine.py): the two
+kernels against closed forms and against each other, and the frames it makes against the
+gouraud and pixel modes it sits between."""
+import numpy as np
+import pytest
+
+from worker import native
+from worker.native.kernels import kernels
+from worker.renderers import FrameRequest
+from worker.scene import GGX, Lambert
+
+BACKENDS = ["numpy"] + (["native"] if native.available() else [])
+
+
+@pytest.mark.parametrize("name", BACKENDS)
+def test_mirror_spread_of_tilted_normals_seen_from_afar(name):
+    """Normals tilted by 0, +θ, −θ about x, the eye far along +z: each mirror direction is 2θ
+    from the view direction, so the widest pair spans 4θ."""
+    k = kernels(name)
+    for theta in (0.0, 0.01, 0.1, 0.3):
+        n = np.array([[0, 0, 1], [0, np.sin(theta), np.cos(theta)], [0, -np.sin(theta), np.cos(theta)]], np.float32)
+        x = np.array([[0, 0, 0], [1e-3, 0, 0], [0, 1e-3, 0]], np.float32)
+        s = k.refine.mirror_spread(np.array([[0, 1, 2]], np.int32), x, 3 * n, [0.0, 0.0, 1e6])
+        assert s.shape == (1,) and s.dtype == np.float32
+        assert abs(s[0] - 4 * theta) < 1e-3, (theta, float(s[0]))
+
+
+def test_refine_kernels_agree_on_a_real_mesh(bunny):
+    scene, _ = bunny
+    if not native.available():
+        pytest.skip("C kernels not built")
+    m = scene.mesh
+    eye = scene.spec.camera.eye
+    a = kernels("numpy").refine.mirror_spread(m.faces, m.vertices, m.normals, eye)
+    b = kernels("native").refine.mirror_spread(m.faces, m.vertices, m.normals, eye)
+    assert a.shape == (len(m.faces),) and np.ptp(a) > 1.0          # real spreads, not a constant
+    np.testing.assert_allclose(b, a, atol=1e-4)
+    rgb = np.random.default_rng(3).gamma(0.5, 2.0, (len(m.vertices), 3)).astype(np.float32)
+    ca = kernels("numpy").refine.face_contrast(m.faces, rgb)
+    cb = kernels("native").refine.face_contrast(m.faces, rgb)
+    np.testing.assert_array_equal(cb, ca)
+    f = m.faces[7]
+    assert ca[7] == (rgb[f].max(0) - rgb[f].min(0)).max()
+
+
+def _frames(r, material, samples=1):
+    cam = r.scene.spec.camera
+    out = {m: r.render(FrameRequest(camera=cam, materials=[material], shading=m, samples=samples))
+           for m in ("gouraud", "vertex", "pixel")}
+    return out, out["vertex"].object_id >= 0
+
+
+def test_lambert_is_never_refined(bunny_renderer):
+    out, obj = _frames(bunny_renderer, Lambert(albedo=(0.7, 0.6, 0.5)))
+    assert out["vertex"].info["refined_samples"] == 0
+    np.testing.assert_array_equal(out["vertex"].radiance, out["gouraud"].radiance)
+
+
+@pytest.mark.parametrize("samples", [1, 2])
+def test_glossy_frames_are_pixel_mode_where_refined_and_vertex_shading_elsewhere(bunny_renderer, samples):
+    out, obj = _frames(bunny_renderer, GGX(alpha=0.15, albedo=(0.1, 0.1, 0.1), specular=(0.8, 0.8, 0.8)), samples)
+    v, g, p = (out[m].radiance for m in ("vertex", "gouraud", "pixel"))
+    n = out["vertex"].info["refined_samples"]
+    assert 0 < n < obj.sum() * samples, n           # some pixels, not all
+    same_g = np.isclose(v, g, rtol=1e-5, atol=1e-6).all(-1)
+    same_p = np.isclose(v, p, rtol=1e-4, atol=1e-5).all(-1)
+    changed = ~same_g
+    if samples == 1:        # one sample a pixel: each pixel is one or the other, the changed ones refined
+        assert (same_g | same_p).all(), int((~(same_g | same_p)).sum())
+        assert changed.sum() <= n and changed.sum() > 0.9 * n, (int(changed.sum()), n)
+    else:                   # a pixel may mix refined and unrefined samples
+        assert n >= changed.sum() > 0, (int(changed.sum()), n)
+    assert np.abs(v - p)[obj].mean() < np.abs(g - p)[obj].mean()   # nearer the per-pixel image overall

@@ -1,0 +1,75 @@
+"""The refinement kernel (src/refine.c) behind the backend's ``refine`` family:
+``k.refine.mirror_spread`` (per face, the largest angle between its vertices' mirror directions)
+and ``k.refine.face_contrast`` (per face, the spread of its vertices' radiance),
+the same arrays in and out in both backends; the NumPy reference is ``mirror_spread_numpy`` here
+(tests/core/test_refine.py checks they agree). The cut renderer shades per pixel only the faces
+whose spread exceeds a fraction of their material's lobe (worker/renderers/cuts/refine.py).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from . import bind, c, f32p, f64, i32p, i64, lib
+
+
+def mirror_spread_numpy(faces, vertices, normals, eye) -> np.ndarray:
+    """(F,) float32 radians: per face of faces (F, 3) int32, the largest angle between the mirror
+    directions r_i = 2 (n_i·o_i) n_i − o_i of its vertices, o_i the unit direction from vertex
+    x_i (vertices (V, 3) float32) to eye (3,), n_i from normals (V, 3) float32 (normalised here)."""
+    f = np.asarray(faces, np.int64)
+    x = np.asarray(vertices, np.float64)[f]                     # (F, 3, 3)
+    n = np.asarray(normals, np.float64)[f]
+    n /= np.maximum(np.linalg.norm(n, axis=2, keepdims=True), 1e-30)
+    o = np.asarray(eye, np.float64) - x
+    o /= np.maximum(np.linalg.norm(o, axis=2, keepdims=True), 1e-30)
+    r = 2.0 * (n * o).sum(2, keepdims=True) * n - o
+
+    def ang(a, b):
+        return np.arccos(np.clip((r[:, a] * r[:, b]).sum(1), -1.0, 1.0))
+
+    return np.maximum(np.maximum(ang(0, 1), ang(1, 2)), ang(0, 2)).astype(np.float32)
+
+
+def face_contrast_numpy(faces, vert_rgb) -> np.ndarray:
+    """(F,) float32: per face of faces (F, 3) int32, max over channels of (max − min) of its
+    vertices' radiance vert_rgb (V, 3) float32."""
+    r = np.asarray(vert_rgb, np.float32)[np.asarray(faces, np.int64)]   # (F, 3 vertices, 3 channels)
+    return (r.max(1) - r.min(1)).max(1).astype(np.float32)
+
+
+class NumpyRefine:
+    """The reference of the refinement kernel."""
+    name = "numpy"
+
+    def mirror_spread(self, faces, vertices, normals, eye):
+        return mirror_spread_numpy(faces, vertices, normals, eye)
+
+    def face_contrast(self, faces, vert_rgb):
+        return face_contrast_numpy(faces, vert_rgb)
+
+
+class NativeRefine:
+    """Typed wrapper of glk_mirror_spread (refine.c; OpenMP over faces)."""
+    name = "native"
+
+    def __init__(self):
+        if lib is None:
+            raise RuntimeError("the C kernels are not built (make build)")
+        self._spread = bind("glk_mirror_spread", None, F=i64, faces=i32p, vx=f32p, vn=f32p, ex=f64, ey=f64, ez=f64,
+                            out=f32p)
+        self._contrast = bind("glk_face_contrast", None, F=i64, faces=i32p, vert_rgb=f32p, out=f32p)
+
+    def mirror_spread(self, faces, vertices, normals, eye):
+        """(F,) float32 (see mirror_spread_numpy)."""
+        fc = c(faces, np.int32).reshape(-1, 3)
+        out = np.empty(len(fc), np.float32)
+        e = [float(v) for v in eye]
+        self._spread(len(fc), fc, c(vertices, np.float32), c(normals, np.float32), *e, out)
+        return out
+
+    def face_contrast(self, faces, vert_rgb):
+        """(F,) float32 (see face_contrast_numpy)."""
+        fc = c(faces, np.int32).reshape(-1, 3)
+        out = np.empty(len(fc), np.float32)
+        self._contrast(len(fc), fc, c(vert_rgb, np.float32), out)
+        return out
