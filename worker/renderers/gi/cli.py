@@ -22,7 +22,7 @@ def _store(a):
 def _overrides(a) -> dict:
     from .options import parse_series
     return {"series": parse_series(a.series) if a.series else None, "bounces": a.bounces, "spp": a.spp,
-            "fresnel": True if a.fresnel else None, "seed": a.seed}
+            "fresnel": True if a.fresnel else None, "seed": a.seed, "denoise": True if a.denoise else None}
 
 
 def _ensure(a, quiet: bool):
@@ -60,7 +60,7 @@ def cmd_precompute(a) -> int:
     res = {"seconds": info.get("seconds", 0.0), "seconds_total": time.perf_counter() - t0, "cached": info["cached"],
            "pixels": meta["pixels"], "width": meta["width"], "height": meta["height"], "bounces": N,
            "series": meta["series"], "spp": meta["spp"], "fresnel": meta["fresnel"], "units": meta["units"],
-           "bytes": len(store.get(key)), "bytes_per_bounce": per,
+           "bytes": len(store.get(key)), "bytes_per_bounce": per, "denoise": meta.get("denoise"),
            "entries_per_bounce": [int(len(arrays[f"b{k}.slot"])) for k in range(1, N + 1)],
            "rays": meta["rays"], "key": key, "store": str(store.root)}
     if not info["cached"]:
@@ -216,6 +216,8 @@ def add_commands(sub) -> None:
         p.add_argument("--spp", type=int, help="paths per pixel (default: the scene's gi.spp, else 64)")
         p.add_argument("--fresnel", action="store_true", help="precompute the Fresnel layer (Appendix A)")
         p.add_argument("--seed", type=int, help="random seed of the path tracer")
+        p.add_argument("--denoise", action="store_true",
+                       help="denoise every basis image of the tensors once with Open Image Denoise (denoise.py)")
         p.add_argument("--store", help="tensor store folder (default $GLINT_DATA_DIR or ~/.cache/glint)")
 
     p = gs.add_parser("precompute", help="path-trace and store the multibounce tensors")

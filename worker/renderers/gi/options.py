@@ -25,6 +25,9 @@ A scene file may carry an optional ``gi`` object (scene.SceneFile.gi, validated 
 * ``regions``: spatial weight maps H(x) (eq. 5-6, §5.3): a greyscale image projected along
   ``axis`` over the object's bounding box; the region's material applies with weight H(x), the
   object's own with 1 − ΣH. Each region is an editable unit named like an object.
+* ``denoise``: denoise every basis image of the tensors once, at precomputation, with Intel
+  Open Image Denoise (denoise.py): frames stay linear in the first-vertex coefficients; the
+  indirect bounces carry the first vertex on hat functions over the bands.
 * ``anisotropic``: objects whose first-bounce bands are over the Ashikhmin-Shirley anisotropy
   factor γ = cos θh^(n_u sin² φh) of Appendix A (eq. 33-35) instead of θh, with a fixed n_u
   and a brushing direction ``tangent`` (world axis, projected onto the tangent plane).
@@ -43,6 +46,7 @@ from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError,
 
 from ...errors import GlintError
 from ...scene import Material
+from . import denoise
 from .anisotropy import AshikhminShirley
 
 DEFAULT_SERIES = (64, 1, 1, 1)
@@ -87,6 +91,7 @@ class GIOptions(_Strict):
     fresnel: bool = False
     quotient: Literal["distribution", "microfacet"] | dict[str, Literal["distribution", "microfacet"]] | None = None
     seed: int = Field(0, ge=0)
+    denoise: bool = Field(False, description="denoise every basis image of the tensors once (denoise.py)")
     regions: list[GIRegion] = []
     anisotropic: list[GIAnisotropy] = []
 
@@ -272,7 +277,8 @@ def tensor_key(scene, opts: GIOptions, region_images: list[np.ndarray]) -> str:
               [dict(r.model_dump(mode="json", exclude={"material", "weights"})) for r in opts.regions],
               *region_images,
               [a.model_dump(mode="json", exclude={"material"}) for a in opts.anisotropic],
-              list(opts.series), opts.spp, opts.fresnel, unit_layout(scene, opts).quotients(scene, opts), opts.seed)
+              list(opts.series), opts.spp, opts.fresnel, unit_layout(scene, opts).quotients(scene, opts), opts.seed,
+              *(["denoise", denoise.HATS, denoise.ENERGY_SHARE] if opts.denoise else []))
 
 
 _MATERIAL = TypeAdapter(Material)

@@ -13,6 +13,7 @@ import numpy as np
 
 from ...errors import GlintError
 from ..base import FrameRequest, Part, Precomputation, Progress, Rendered, Renderer, Unsupported
+from . import denoise as dn
 from . import freeze as fzm
 from . import tensors
 from .basis import QUOTIENTS, THETA_NODES, Projection, fixed_projection, project, theta_interp
@@ -94,13 +95,18 @@ class GIPrecomputation(Precomputation):
         bounces = tensors.join_tiles([t[0] for t in tiles], S.N)
         rays = int(sum(t[1] for t in tiles))
         layout = S.layout
-        meta = {"series": list(opts.series), "bounces": S.N, "spp": opts.spp, "fresnel": opts.fresnel,
+        den = {}
+        if opts.denoise:
+            t0 = time.perf_counter()
+            bounces, den = denoise_tensors(scene, S, bounces)
+            den["seconds"] = time.perf_counter() - t0
+        meta = {"denoise": den or None, "series": list(opts.series), "bounces": S.N, "spp": opts.spp, "fresnel": opts.fresnel,
                 "J": S.J, "J2": S.J2, "U": S.U, "layers": S.layers, "K1": S.K1, "tails": S.tails,
                 "units": layout.names, "width": scene.spec.camera.width, "height": scene.spec.camera.height,
                 "pixels": int(len(S.prim.pixel)), "rays": rays + int(scene.spec.camera.width * scene.spec.camera.height)}
         arrays = {"pixel": S.prim.pixel, "obj": S.prim.obj.astype(np.int32), **tensors.bounce_arrays(bounces)}
         blob = tensors.pack(meta, arrays)
-        stats = {"pixels": meta["pixels"], "bounces": S.N, "series": list(opts.series), "spp": opts.spp,
+        stats = {"denoise": den or None, "pixels": meta["pixels"], "bounces": S.N, "series": list(opts.series), "spp": opts.spp,
                  "rays": meta["rays"], "entries_per_bounce": [b.entries for b in bounces],
                  "bytes_per_bounce": [b.nbytes for b in bounces]}
         return blob, stats
@@ -110,6 +116,25 @@ class GIPrecomputation(Precomputation):
         (key,) = [p.key for p in self.parts(scene, options)]
         meta, arrays = tensors.unpack(blobs[key])
         return GIData(meta, arrays["pixel"], arrays["obj"], tensors.bounces_from(arrays, meta["bounces"]), opts)
+
+
+def denoise_tensors(scene, S, bounces, denoiser=None):
+    """Every basis image of the tensors denoised (denoise.py): direct light per slot, further
+    bounces per hat component; returns (bounces, meta["denoise"]). ``denoiser(img, albedo,
+    normal)`` replaces OIDN (tests)."""
+    cam = scene.spec.camera
+    shape = (cam.height, cam.width)
+    alb, nrm = dn.guides(S.prim, S.fixed, [getattr(m, "albedo", (1.0, 1.0, 1.0)) for m in S.fixed_materials], shape)
+    out, images = [], 0
+    phis = dn.component_sets(S.J, S.layers, S.N)
+    offs = dn.component_offsets(S.K1, phis)
+    for k, b in enumerate(bounces, start=1):
+        c = min(k - 2, len(phis) - 1)
+        nb, n = dn.denoise_bounce(b, S.prim.pixel, shape, alb, nrm, None if k == 1 else phis[c], 0 if k == 1 else offs[c],
+                                    denoiser=denoiser)
+        out.append(nb)
+        images += n
+    return out, {"hats": list(dn.HATS[:len(phis)]), "components": [int(p.shape[1]) for p in phis], "images": images}
 
 
 @dataclass
@@ -155,6 +180,11 @@ class GIRenderer(Renderer):
         self.layout: UnitLayout = unit_layout(scene, self.opts)
         m = data.meta
         self.J, self.J2, self.U, self.K1, self.layers = m["J"], m["J2"], m["U"], m["K1"], m["layers"]
+        # denoised tensors carry the indirect light on hat components in slots K1… (denoise.py)
+        den = m.get("denoise") or {}
+        self.phis = [dn.hat_basis(self.J, self.layers, h) for h in den.get("hats", [])]
+        self._maps: dict[int, list] = {}
+        self.K1 = self.K1 + sum(p.shape[1] for p in self.phis)
         self.N = m["bounces"]
         self.K2 = 1 if self.J2 <= 1 else 1 + second_codes(self.J2)
         self.max_bounces = self.N if max_bounces is None else int(max_bounces)
@@ -198,9 +228,24 @@ class GIRenderer(Renderer):
             self._proj_cache[key] = p
         return p
 
+    def _first(self, p: Projection, qkind: int = 0) -> np.ndarray:
+        """(Kθ, K1, 3) float32 first-vertex table of a projection, extended with the hat
+        coefficients when the tensors are denoised (qkind: the unit's quotient)."""
+        if not self.phis:
+            return p.first
+        maps = self._maps.get(qkind)
+        if maps is None:
+            w = dn.basis_weights(self.J, self.layers, qkind)
+            maps = self._maps[qkind] = [dn.projectors(phi, w) for phi in self.phis]
+        return np.ascontiguousarray(dn.extend_coefficients(p.first, maps), np.float32)
+
+    def _unit_q(self, u: int) -> int:
+        return self.qkind[self.layout.units[u].object]
+
     def _tables(self, mats):
         projs = [self.projection(u, m) for u, m in enumerate(mats)]
-        C1 = np.stack([p.first for p in projs] + [fixed_projection(self.J, self.layers).first]).astype(np.float32)
+        C1 = np.stack([self._first(p, self._unit_q(u)) for u, p in enumerate(projs)]
+                      + [self._first(fixed_projection(self.J, self.layers))]).astype(np.float32)
         d = np.stack([p.d for p in projs]) if projs else np.zeros((0, 3))
         second = np.stack([p.second for p in projs]) if (self.J2 > 1 and projs) else None
         return projs, C1, d, second
@@ -256,7 +301,7 @@ class GIRenderer(Renderer):
         t1 = time.perf_counter()
         if fz.unit >= 0:
             p = self.projection(fz.unit, self.materials[fz.unit])
-            C1i, d = p.first, p.d
+            C1i, d = self._first(p, self._unit_q(fz.unit)), p.d
             ck = np.ones((self.K2, 3), np.float32)
             if self.K2 > 1:
                 ck[1:] = p.second
