@@ -165,9 +165,9 @@ def cmd_bench(a) -> int:
     """Median frame time while the paint changes (a fit per frame) and the light rotates, the
     camera fixed (the designer's loop); prefiltering of the scene's map timed cold."""
     from ..renderers import FrameRequest, Lighting
+    from ..renderers.paint.prefilter import prefilter_all
     from .fit import fit_measurements
     from .geometry import measure
-    from .prefilter import prefilter_all
     scene, rnd, mats, stats = _setup(a, a.json)
     env = scene.spec.environment
     cam = scene.spec.camera

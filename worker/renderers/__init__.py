@@ -16,7 +16,7 @@ from .base import (ArtifactStore, FrameRequest, Lighting, Part, Precomputation, 
 RENDERER_MODULES: dict[str, str] = {
     "cuts": "worker.renderers.cuts",
     "gi": "worker.renderers.gi",
-    "paint": "worker.paint.renderer",
+    "paint": "worker.renderers.paint",
 }
 # what a session on each renderer may change, known without importing it (the API process
 # checks messages against it and stays free of the renderers' numerical imports); a renderer's

@@ -23,12 +23,11 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..core.lighting import direction_to_uv
-from ..core.render import camera_rays
-from ..renderers import register
-from ..renderers.base import FrameRequest, Part, Precomputation, Rendered, Renderer
-from ..scene import Lobes
-from .exponents import default_exponents
+from ...core.lighting import direction_to_uv
+from ...core.render import camera_rays
+from ...paint.exponents import default_exponents
+from ...scene import Lobes
+from ..base import FrameRequest, Part, Precomputation, Rendered, Renderer
 from .prefilter import LobeMaps, prefilter_all
 from .render import background, material_rows, shade
 
@@ -63,8 +62,8 @@ def as_basis(material, exponents) -> Lobes:
     key = (json.dumps(material.model_dump(), sort_keys=True), ex)
     hit = _converted.get(key)
     if hit is None:
-        from .fit import fit_measurements
-        from .geometry import measure
+        from ...paint.fit import fit_measurements
+        from ...paint.geometry import measure
         hit = fit_measurements(measure(material), ex).material
         _converted[key] = hit
     return hit
@@ -134,11 +133,11 @@ class PaintRenderer(Renderer):
 
     def __init__(self, scene, data: PaintData, kernels=None):
         super().__init__(scene, data, kernels)
-        from ..native.kernels import kernels as _kernels
+        from ...native.kernels import kernels as _kernels
 
         # the backend it was built with (default: the process's), used for every kernel below
         self.k = kernels or _kernels()
-        from ..trace.embree import Tracer
+        from ...trace.embree import Tracer
         self.tracer = Tracer(scene.mesh.vertices, scene.mesh.faces)
         self.cosine = "vector"
         self.fresnel = False
@@ -212,5 +211,3 @@ class PaintRenderer(Renderer):
     def object_mask(self, camera) -> np.ndarray:
         return self.view(camera).object_id
 
-
-register(PaintRenderer, PaintPrecomputation())
