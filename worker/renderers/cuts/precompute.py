@@ -26,6 +26,7 @@ from ...core.cuts import DEFAULT_TAU, CutSet
 from ...core.directions import DirectionTree, get_tree
 from ...trace.embree import Tracer
 from ..base import Part, Precomputation
+from . import DECLARATION
 
 BATCH = 4           # vertices per tracing batch (2^15 rays each): 4 keeps its arrays (~5 MB) near the
                     # core's cache; 16 (~20 MB) made two concurrent processes ~12% slower per CPU second
@@ -174,7 +175,7 @@ class CutPrecomputation(Precomputation):
         process's, chosen when first needed).
     """
 
-    kind = "cuts"
+    kind = DECLARATION.kind
 
     def parts(self, scene, options) -> list[Part]:
         from .moving import movable_names, moving_parts

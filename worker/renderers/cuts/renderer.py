@@ -57,6 +57,7 @@ from ...core.render import (
 )
 from ...native.kernels import kernels as _kernels
 from ..base import FrameCancelled, FrameRequest, Lighting, Rendered, Renderer, Unsupported
+from . import DECLARATION
 from .precompute import CutData
 
 DRAG_REFINE = 0.1   # drag level of detail: clusters refined to no finer than 0.1 rad (a GGX α = 0.05's)
@@ -133,8 +134,9 @@ class CutRenderer(Renderer):
     kernels : the kernel backend (worker/native/kernels.py); default: the process's.
     """
 
-    kind = "cuts"
-    controls = frozenset({"camera", "light", "materials", "environment", "ground", "move"})
+    kind = DECLARATION.kind
+    controls = DECLARATION.controls
+    capabilities = frozenset({"place", "drag_level", "view_cache", "stroke_fit", "vertex_transfer"})
     _moving = None          # MovingFrames (moving.py) of a scene with movable objects
 
     def __init__(self, scene, data: CutData, kernels=None):

@@ -28,6 +28,7 @@ from ...core.render import camera_rays
 from ...paint.exponents import default_exponents
 from ...scene import Lobes
 from ..base import FrameRequest, Part, Precomputation, Rendered, Renderer
+from . import DECLARATION
 from .prefilter import LobeMaps, prefilter_all
 from .render import background, material_rows, shade
 
@@ -81,7 +82,7 @@ class PaintData:
 class PaintPrecomputation(Precomputation):
     """Prefiltered lobe maps (and, optionally, per-vertex visibility); kernels: the backend that
     prefilters (default: the process's, chosen when first needed)."""
-    kind = "paint"
+    kind = DECLARATION.kind
 
     def parts(self, scene, options):
         ex = basis_of(options)
@@ -129,7 +130,8 @@ class PaintRenderer(Renderer):
     Attributes set by callers: ``cosine`` ("vector", "albedo" or "paper", render.py), ``fresnel`` (bool),
     ``visibility`` (bool, used when the data has it)."""
 
-    kind = "paint"
+    kind = DECLARATION.kind
+    controls = DECLARATION.controls
 
     def __init__(self, scene, data: PaintData, kernels=None):
         super().__init__(scene, data, kernels)
