@@ -36,7 +36,7 @@ def test_the_cut_renderer_has_every_capability_and_the_others_none():
 
 def test_a_capability_declared_without_its_methods_is_refused():
     with pytest.raises(TypeError, match="place needs place"):
-        class NoPlace(Renderer):               # noqa: F841
+        class NoPlace(Renderer):
             kind = "x"
             capabilities = frozenset({"place"})
 
@@ -44,7 +44,7 @@ def test_a_capability_declared_without_its_methods_is_refused():
                 raise NotImplementedError
 
     with pytest.raises(TypeError, match="stroke_fit needs .*shade_samples"):
-        class HalfFit(Renderer):               # noqa: F841
+        class HalfFit(Renderer):
             kind = "x"
             capabilities = frozenset({"stroke_fit"})
 
@@ -58,7 +58,7 @@ def test_a_capability_declared_without_its_methods_is_refused():
                 raise NotImplementedError
 
     with pytest.raises(TypeError, match="unknown capabilities"):
-        class Typo(Renderer):                  # noqa: F841
+        class Typo(Renderer):
             kind = "x"
             capabilities = frozenset({"plcae"})
 
