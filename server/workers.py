@@ -56,6 +56,11 @@ class WorkerPool:
     def health(self) -> dict:
         return {}
 
+    def worker_of(self, sid: str) -> int | None:
+        """The process id of the worker serving a session; None when it has none (or the pool
+        cannot tell)."""
+        return None
+
 
 class SessionQueue(asyncio.Queue):
     """Frames and events for one stream. Frames are latest-wins: when the client reads slower

@@ -324,7 +324,7 @@ def add_commands(sub, bench=None) -> None:
     ft.set_defaults(fn=cmd_fit)
 
     # the group of benchmarks: the benchmark package (bench/cli.py) and the capabilities
-    # (COMMAND_MODULES: bench move, recovery, strokes) add theirs to it
+    # (COMMAND_MODULES: bench move) add theirs to it
     b = sub.add_parser("bench", help="benchmarks (JSON)")
     bsub = b.add_subparsers(dest="what", required=True)
     if bench is not None:
@@ -360,7 +360,6 @@ COMMAND_MODULES: list[str] = [
     "worker.paint.cli",
     "worker.capture.cli",
     "worker.renderers.cuts.fields_cli",      # glint field trace | bench (cut fields of movable objects)
-    "worker.fit.cli",
     "worker.export.cli",                     # glint export (glTF, MaterialX, Mitsuba 3)
 ]
 

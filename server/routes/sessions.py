@@ -134,7 +134,7 @@ def get_session(sid: str, st: State, db: DB, x_session_token: str | None = Heade
         db.refresh(row)
     return SessionOut(id=row.id, scene_id=row.scene_id, stream=_stream_url(sid), state=row.state,
                       strokes=_strokes(db, row), closed=row.closed,
-                      worker_pid=st.pool.worker_of(sid) if hasattr(st.pool, "worker_of") else None)
+                      worker_pid=st.pool.worker_of(sid))
 
 
 @router.delete("/{sid}", status_code=204)

@@ -39,7 +39,7 @@ def test_default_backend_is_native_when_built():
 
 
 def test_precomputations_keep_the_backend_they_were_given():
-    from worker.paint.renderer import PaintPrecomputation
+    from worker.renderers.paint.renderer import PaintPrecomputation
     from worker.renderers import get
     from worker.renderers.cuts.precompute import CutPrecomputation
     from worker.renderers.gi import GIPrecomputation
@@ -89,8 +89,8 @@ _CHILD = textwrap.dedent("""
     from worker.core.directions import get_tree
     from worker.renderers.cuts.rotate import LeafMap
     LeafMap(get_tree(), np.array([[0.0, 0, 1], [0, 1, 0], [-1, 0, 0]]))
-    from worker.paint.prefilter import prefilter_all
-    from worker.paint.render import background
+    from worker.renderers.paint.prefilter import prefilter_all
+    from worker.renderers.paint.render import background
     maps = prefilter_all(env, [4.0])
     background(np.zeros((4, 2), np.float32), env, 10.0, 1.0)
     from worker.capture.fisheye import Lens

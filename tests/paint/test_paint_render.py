@@ -1,4 +1,4 @@
-"""Shading by prefiltered maps (worker/paint/render.py, C glp_shade) against a brute-force
+"""Shading by prefiltered maps (worker/renderers/paint/render.py, C glp_shade) against a brute-force
 integration of the same lobes BRDF over a real HDRI, on an unoccluded convex object (a sphere,
 intersected analytically so normals are exact)."""
 import numpy as np
@@ -10,8 +10,8 @@ from worker.core.brdf import evaluate, to_local
 from worker.core.lighting import pixel_directions
 from worker.envmap import load_envmap
 from worker.paint.exponents import default_exponents
-from worker.paint.prefilter import prefilter_all
-from worker.paint.render import lobe_albedo, material_rows, shade, shade_numpy
+from worker.renderers.paint.prefilter import prefilter_all
+from worker.renderers.paint.render import lobe_albedo, material_rows, shade, shade_numpy
 from worker.scene import Lobes
 
 
@@ -154,7 +154,7 @@ def test_c_shading_matches_numpy(setup):
 
 @pytest.mark.skipif(not native.available(), reason="C kernels not built")
 def test_c_background_matches_numpy(setup):
-    from worker.paint.render import background
+    from worker.renderers.paint.render import background
     env = setup[0]
     uv = np.random.default_rng(3).random((4000, 2)).astype(np.float32)
     for rot, inten in ((0.0, 1.0), (30.0, 2.0), (-271.5, 0.5)):
@@ -180,7 +180,7 @@ def test_rotation_of_the_environment_is_a_lookup_offset(setup):
 
 @pytest.mark.parametrize("backend", ["native", "numpy"])
 def test_writing_into_an_image_equals_the_plain_output(setup, backend):
-    from worker.paint.render import background
+    from worker.renderers.paint.render import background
     if backend == "native" and not native.available():
         pytest.skip("C kernels not built")
     k = kernels(backend)

@@ -1,4 +1,4 @@
-"""Prefiltered lobe maps (worker/paint/prefilter.py, C glp_prefilter): closed forms, C against the
+"""Prefiltered lobe maps (worker/renderers/paint/prefilter.py, C glp_prefilter): closed forms, C against the
 NumPy reference, and a brute-force convolution of a real HDRI for the sharp lobes."""
 import numpy as np
 import pytest
@@ -7,9 +7,9 @@ from worker import native
 from worker.native.kernels import kernels
 from worker.core.lighting import pixel_directions
 from worker.envmap import load_envmap
-from worker.paint.prefilter import (LobeMaps, level_for, prefilter, prefilter_all, prefilter_numpy, pyramid,
+from worker.renderers.paint.prefilter import (LobeMaps, level_for, prefilter, prefilter_all, prefilter_numpy, pyramid,
                                     support_cos)
-from worker.paint.render import _lookup
+from worker.renderers.paint.render import _lookup
 
 
 def test_constant_map_is_unchanged():

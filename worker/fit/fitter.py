@@ -185,7 +185,7 @@ class Fitter:
             raise FitError(f"no object named {object_name!r} (objects: {', '.join(names)})")
         if not 0.0 < fit_scale <= 1.0:
             raise FitError(f"fit_scale must be in (0, 1], got {fit_scale}")
-        if not hasattr(renderer, "transfer"):
+        if not renderer.can("stroke_fit"):
             raise FitError(f"the {renderer.kind} renderer cannot fit materials to strokes")
         self.renderer = renderer
         self.object_name = object_name

@@ -19,7 +19,6 @@ directional albedo by an independent quadrature (``basis.energy_maximum``), and 
 from __future__ import annotations
 
 import copy
-import hashlib
 import json
 import time
 from dataclasses import asdict, dataclass
@@ -29,6 +28,7 @@ import numpy as np
 
 from ..atomic import atomic_write
 from ..errors import GlintError
+from ..keys import content_key
 from ..scene import GGX, Lambert, LoadedScene
 from .basis import SRBFBasis, default_basis, energy_maximum
 
@@ -80,15 +80,19 @@ def _render(renderer, materials, shading: str) -> np.ndarray:
     return renderer.render(req).radiance
 
 
-def _scene_key(scene: LoadedScene) -> str:
-    h = hashlib.sha256()
-    for a in (scene.mesh.vertices, scene.mesh.faces, scene.mesh.normals, scene.object_of_face, scene.envmap):
-        h.update(np.ascontiguousarray(a).tobytes())
-    h.update(scene.spec.camera.model_dump_json().encode())
-    h.update(scene.spec.environment.model_copy(update={"map": ""}).model_dump_json().encode())
-    for o in scene.spec.objects:
-        h.update(o.material.model_dump_json().encode())
-    return h.hexdigest()
+TARGET_VERSION = 2      # of the cached targets' key (worker/keys.py)
+
+
+def _target_key(scene: LoadedScene, spp: int, seeds, mitsuba_version: str) -> str:
+    """Content key of a Mitsuba target: geometry, normals, objects, map, camera, lighting,
+    materials, samples, seeds and Mitsuba's version."""
+    m = scene.mesh
+    return content_key("mitsuba-target", TARGET_VERSION, vertices=m.vertices, faces=m.faces, normals=m.normals,
+                       object_of_face=scene.object_of_face, envmap=scene.envmap,
+                       camera=scene.spec.camera.model_dump(mode="json"),
+                       environment=scene.spec.environment.model_copy(update={"map": ""}).model_dump(mode="json"),
+                       materials=[o.material.model_dump(mode="json") for o in scene.spec.objects],
+                       spp=int(spp), seeds=[int(s) for s in seeds], mitsuba=mitsuba_version)
 
 
 def mitsuba_target(scene: LoadedScene, spp: int, seeds=(1, 2), cache_dir: Path | None = None):
@@ -101,8 +105,8 @@ def mitsuba_target(scene: LoadedScene, spp: int, seeds=(1, 2), cache_dir: Path |
         raise RecoveryError("the recovery benchmark needs Mitsuba 3 (pip install mitsuba)") from e
     from ..mitsuba_ref import render_mitsuba
 
-    key = hashlib.sha256(f"{_scene_key(scene)};spp={spp};seeds={list(seeds)};mi={mitsuba.__version__};v1".encode())
-    path = Path(cache_dir) / f"{key.hexdigest()[:32]}.npy" if cache_dir else None
+    key = _target_key(scene, spp, seeds, mitsuba.__version__)
+    path = Path(cache_dir) / f"{key}.npy" if cache_dir else None
     if path is not None and path.is_file():
         try:
             imgs = np.load(path, allow_pickle=False)

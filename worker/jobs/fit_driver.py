@@ -263,7 +263,7 @@ class FitDriver:
         """Known radiance of the edited object's vertices when its material is the current fit:
         {object index: (ids, radiance)} for the renderer, or None."""
         i = self.state.object_index
-        if self._fitted is None or self.materials[i] is not self._fitted or not hasattr(self.renderer, "vertex_samples"):
+        if self._fitted is None or self.materials[i] is not self._fitted or not self.renderer.can("vertex_transfer"):
             return None
         vt = self._vertex_transfer()
         if vt is None:

@@ -17,18 +17,19 @@ def _render(cache: DataCache, p: dict) -> dict:
     from PIL import Image
 
     from worker.core.tonemap import tonemap
-    from worker.models import parse_material
+    from worker.overrides import InvalidMaterial, UnknownObject, apply_material_overrides
     from worker.renderers import FrameRequest, Lighting
     from worker.scene import Camera, Transform
 
     r = cache.renderer(p["scene"])
     sc = r.scene
     names = [o.name for o in sc.spec.objects]
-    mats = list(sc.materials)
-    for name, m in (p.get("materials") or {}).items():
-        if name not in names:
-            raise JobError(f"materials: no object {name!r} in the scene (objects: {', '.join(names)})")
-        mats[names.index(name)] = parse_material(m)
+    try:
+        mats = apply_material_overrides(sc, (p.get("materials") or {}).items())
+    except UnknownObject as e:
+        raise JobError(f"materials: {e}") from None
+    except InvalidMaterial as e:
+        raise JobError(f"materials: {e}") from e
     env = sc.spec.environment
     cam = Camera.model_validate(p["camera"]) if p.get("camera") else sc.spec.camera
     rot = env.rotation_deg if p.get("rotation_deg") is None else p["rotation_deg"]

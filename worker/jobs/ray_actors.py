@@ -28,9 +28,7 @@ this module to name the actor class, and must stay free of them (tests/scale/tes
 """
 from __future__ import annotations
 
-import hashlib
 import itertools
-import json
 import os
 import queue
 import threading
@@ -40,6 +38,7 @@ from collections import OrderedDict, deque
 
 import ray
 
+from ..keys import content_key
 from .runner import JobError, WorkerSettings, worker_main
 
 # -- the host's pipes --------------------------------------------------------------------------
@@ -330,8 +329,7 @@ def _timeline(results: list[dict], w_sub: float, w_res: float, w_asm: float) -> 
 def _scene_key(scene_p: dict) -> str:
     """Content key of a scene payload (its spec and its files' hashes): the cache key of the
     scene in a task process, stable across jobs (the GI precomputation keeps per-scene set-up)."""
-    body = json.dumps({"spec": scene_p["spec"], "files": scene_p.get("files")}, sort_keys=True, default=str)
-    return hashlib.sha256(body.encode()).hexdigest()
+    return content_key("scene-payload", 1, spec=scene_p["spec"], files=scene_p.get("files"))
 
 
 def _portable(sc):

@@ -68,7 +68,7 @@ class SessionRuntime(FitDriver):
         self._env_key = None
         self.lod = LevelOfDetail()
         self._init_fit()
-        if hasattr(renderer, "place"):
+        if renderer.can("place"):
             renderer.place(self.state.transforms or None)
         if self.state.renderer != renderer.kind:
             self._switch_renderer(self.state.renderer)
@@ -82,7 +82,7 @@ class SessionRuntime(FitDriver):
             b = default_basis(static_alpha=static_alpha_for(self.state.base_material))
             b.energy_rows()
             SRBF.model_validate(b.to_material(np.zeros((b.J, 3)), (0.0, 0.0, 0.0))).pack()
-        if hasattr(renderer, "coarse_cuts"):
+        if renderer.can("drag_level"):
             renderer.coarse_cuts()           # the drag-time level of detail
         self._last_ids = None            # the last frame's object ids (H, W) int32 (picking)
         self._replay(stored.get("strokes") or [])
@@ -131,7 +131,7 @@ class SessionRuntime(FitDriver):
                 raise FitError(f"this worker cannot switch to the {kind} renderer")
             self.renderers[kind] = self.renderer_for(kind)
         self.renderer = self.renderers[kind]
-        if hasattr(self.renderer, "place"):       # movable objects where the session has them
+        if self.renderer.can("place"):       # movable objects where the session has them
             self.renderer.place(self.state.transforms or None)
         self.fitter = None                         # fit rows belong to a renderer
         self._vt = None
@@ -214,7 +214,7 @@ class SessionRuntime(FitDriver):
         cam = self.state.camera
         if cam.width * cam.height >= BIG_FRAME_PIXELS:
             for r in self.renderers.values():
-                if hasattr(r, "forget_views"):
+                if r.can("view_cache"):
                     r.forget_views(BIG_FRAME_PIXELS)
 
     def _measure(self, name: str, width: int = MEASURE_WIDTH):
@@ -281,8 +281,7 @@ class SessionRuntime(FitDriver):
         return self.lod.choose(self.state, self._drag)
 
     def _still_view_ready(self, camera, samples: int) -> bool:
-        has = getattr(self.renderer, "has_view", None)
-        return has is None or has(camera, samples)
+        return not self.renderer.can("view_cache") or self.renderer.has_view(camera, samples)
 
     def needs_still_frame(self) -> bool:
         """Whether the last frame was a moving one (one sample, or the drag level of detail) and
@@ -343,7 +342,7 @@ def _nothing(rt: SessionRuntime, msg, eff) -> list[dict]:
 @handles(Moved)
 def _moved(rt: SessionRuntime, msg, eff: Moved) -> list[dict]:
     # fit views and the vertex transfer were of the old placement
-    if hasattr(rt.renderer, "place"):
+    if rt.renderer.can("place"):
         rt.renderer.place(rt.state.transforms or None)
     rt._moves += 1
     rt._vt = None

@@ -1,7 +1,7 @@
 """Converting a material to another model while keeping its look: the new model's parameters
 are fitted to the old material's BRDF over sampled direction pairs, so switching models in the
 studio changes the controls, not the appearance (as the paint renderer converts materials to its
-lobes basis, worker/paint/renderer.py ``as_basis``).
+lobes basis, worker/renderers/paint/renderer.py ``as_basis``).
 
 The fit: every model here is linear in its colours (albedo, specular, a curve's values) once
 its shape (GGX α, a Phong exponent) is fixed, so for each shape the colours are a bounded

@@ -11,7 +11,6 @@ F0 = ``fresnel_f0``. λ_j is one ``bandwidth`` for every centre, or per centre
 """
 from __future__ import annotations
 
-import hashlib
 import threading
 from collections import OrderedDict
 from typing import Annotated, ClassVar, Literal
@@ -19,6 +18,7 @@ from typing import Annotated, ClassVar, Literal
 import numpy as np
 from pydantic import Field, field_validator
 
+from ..keys import content_key
 from .base import BRDFModel, Color, Geometry, PackedBRDF, Vec3, register
 from .table import STATICS, distribution_static, hemisphere_table_dirs, table_specular
 
@@ -47,7 +47,7 @@ def table_basis(centers: np.ndarray, bandwidth) -> np.ndarray:
     """G (TABLE_N², J) float32: exp(λ_j(h·ξ_j − 1)) at hemisphere_table_dirs(), cached by
     content (centres (J, 3) unit, λ scalar or (J,))."""
     lam = np.broadcast_to(np.asarray(bandwidth, np.float64), (len(centers),))
-    key = hashlib.sha1(np.ascontiguousarray(centers, np.float64).tobytes() + lam.tobytes()).digest()
+    key = content_key("srbf-table", 1, centers=np.asarray(centers, np.float64), bandwidth=np.ascontiguousarray(lam))
     with _TABLE_LOCK:
         g = _TABLE_BASES.get(key)
         if g is not None:

@@ -1,6 +1,6 @@
 """The paint kernels (src/paint.c) behind the backend's ``paint`` family: ``k.paint.prefilter``,
 ``background`` and ``shade`` take and return the same arrays in both backends. The NumPy
-references are worker/paint/prefilter.py prefilter_numpy and worker/paint/render.py
+references are worker/renderers/paint/prefilter.py prefilter_numpy and worker/renderers/paint/render.py
 background_numpy / shade_numpy (tests/paint checks they agree); the public functions
 (prefilter.prefilter, render.background, render.shade) check the arrays and call these.
 """
@@ -17,19 +17,19 @@ class NumpyPaint:
 
     def prefilter(self, img, exponent: float):
         """(H, W, 3) float32 map prefiltered by the normalised Phong lobe of the exponent."""
-        from ..paint.prefilter import prefilter_numpy
+        from ..renderers.paint.prefilter import prefilter_numpy
         return prefilter_numpy(img, exponent)
 
     def background(self, uv, envmap, rotation_deg: float, intensity: float, buf, dst):
         """Environment radiance at unrotated map coordinates uv (P, 2) float32 into buf (P, 3)
         float32, or into rows dst (P,) int64 of buf (N, 3) when dst is given; returns buf."""
-        from ..paint.render import background_numpy
+        from ..renderers.paint.render import background_numpy
         return background_numpy(uv, envmap, rotation_deg, intensity, buf, dst)
 
     def shade(self, normals, views, mat_of, rows, maps, cosine: str, fresnel: bool, vsh,
               rotation_deg: float, intensity: float, buf, dst):
         """Radiance of P points into buf (as ``background``); see render.shade_numpy."""
-        from ..paint.render import shade_numpy
+        from ..renderers.paint.render import shade_numpy
         val = shade_numpy(normals, views, mat_of, rows, maps, cosine, fresnel, vsh, rotation_deg, intensity)
         if dst is None:
             buf[:] = val
@@ -69,7 +69,7 @@ class NativePaint:
 
     def shade(self, normals, views, mat_of, rows, maps, cosine: str, fresnel: bool, vsh,
               rotation_deg: float, intensity: float, buf, dst):
-        from ..paint.render import COSINE_MODES, F0, TABLE_N, _packed
+        from ..renderers.paint.render import COSINE_MODES, F0, TABLE_N, _packed
 
         ex = maps.exponents
         flat, offs, hs, ws, tabs, zon, ex32, vflat, voffs = _packed(maps)

@@ -5,8 +5,8 @@
   glint paint exponents --lobes M [--json] [--recompute [--out FILE]]
   glint paint export MATERIAL.json --format json|csv
   glint paint render SCENE.json --out PNG [--raw NPY] [--material OBJ=M.json] [--fresnel] [--cosine vector|albedo|paper] [--visibility]
-  glint paint bench SCENE.json [--frames N] [--json]
-  glint paint bench-fit [--repeats N] [--json]
+
+``glint paint bench`` and ``bench-fit`` are the benchmark package's (bench/paint.py).
 """
 from __future__ import annotations
 
@@ -116,9 +116,9 @@ def _setup(a, quiet: bool):
     from tqdm import tqdm
 
     from ..artifacts import DirStore
-    from ..cli import data_dir
+    from ..cli import data_dir, load_material_overrides
     from ..renderers import ensure, get, load
-    from ..scene import SceneError, load_scene
+    from ..scene import load_scene
     scene = load_scene(a.scene)
     cls, pre = get("paint")
     store = DirStore(Path(a.store) if a.store else data_dir(), "paint")
@@ -132,14 +132,7 @@ def _setup(a, quiet: bool):
     rnd = cls(scene, load(pre, scene, store, opts))
     rnd.cosine = a.cosine
     rnd.fresnel = a.fresnel
-    mats = list(scene.materials)
-    names = [o.name for o in scene.spec.objects]
-    for spec in a.material or []:
-        name, sep, path = spec.partition("=")
-        if not sep or name not in names:
-            raise SceneError(f"--material {spec!r}: expected OBJECT=FILE with OBJECT one of {', '.join(names)}")
-        mats[names.index(name)] = _material(path)
-    return scene, rnd, mats, stats
+    return scene, rnd, load_material_overrides(scene, a.material), stats
 
 
 def cmd_render(a) -> int:
@@ -159,88 +152,6 @@ def cmd_render(a) -> int:
         np.save(a.raw, out.radiance.astype(np.float32))
     print(f"wrote {p} ({out.radiance.shape[1]}×{out.radiance.shape[0]}, {dt * 1000:.0f} ms)", file=sys.stderr)
     return 0
-
-
-def cmd_bench(a) -> int:
-    """Median frame time while the paint changes (a fit per frame) and the light rotates, the
-    camera fixed (the designer's loop); prefiltering of the scene's map timed cold."""
-    from ..renderers import FrameRequest, Lighting
-    from .fit import fit_measurements
-    from .geometry import measure
-    from .prefilter import prefilter_all
-    scene, rnd, mats, stats = _setup(a, a.json)
-    env = scene.spec.environment
-    cam = scene.spec.camera
-    t0, c0 = time.perf_counter(), time.process_time()
-    prefilter_all(scene.envmap, rnd.exponents, rnd.k)
-    ms_prefilter = 1e3 * (time.perf_counter() - t0)
-    cpu_ms_prefilter = 1e3 * (time.process_time() - c0)
-    t0 = time.perf_counter()
-    rnd.render(FrameRequest(cam, Lighting(env.rotation_deg, env.intensity), mats))
-    ms_first = 1e3 * (time.perf_counter() - t0)
-    base = measure(mats[0])
-    frames, fits, shades = [], [], []
-    cpu0 = time.process_time()
-    for k in range(a.frames):
-        s = 1.0 + 0.3 * np.sin(k * 0.7)
-        m = {"gloss": base["gloss"], "aspecular": {kk: [x * s for x in v] for kk, v in base["aspecular"].items()}}
-        t0 = time.perf_counter()
-        fr = fit_measurements(m, rnd.exponents)
-        t1 = time.perf_counter()
-        out = rnd.render(FrameRequest(cam, Lighting(env.rotation_deg + 3.0 * k, env.intensity),
-                                      [fr.material] + mats[1:]))
-        t2 = time.perf_counter()
-        frames.append(t2 - t0); fits.append(t1 - t0); shades.append(out.timings["shade"])
-    cpu_ms = 1e3 * (time.process_time() - cpu0) / a.frames
-    ms = 1e3 * float(np.median(frames))
-    res = {"scene": a.scene, "width": cam.width, "height": cam.height, "frames": a.frames,
-           "lobes": len(rnd.exponents), "map": list(scene.envmap.shape[:2]),
-           "ms_prefilter": ms_prefilter, "cpu_ms_prefilter": cpu_ms_prefilter, "ms_per_frame": ms, "fps": 1e3 / ms,
-           "p95_ms": 1e3 * float(np.percentile(frames, 95)), "ms_fit": 1e3 * float(np.median(fits)),
-           "ms_shade": float(np.median(shades)), "ms_first_frame_with_view": ms_first,
-           # CPU time of all threads per frame: on a loaded machine, wall time measures the queue;
-           # CPU time / cores bounds what 2 free cores would take
-           "cpu_ms_per_frame": cpu_ms, "threads": _threads(),
-           "visibility": bool(a.visibility), "fresnel": bool(a.fresnel), "cosine": a.cosine,
-           "precompute": {"seconds": stats["seconds"], "computed": stats["computed"]}}
-    if a.json:
-        print(json.dumps(res))
-    else:
-        print(f"{ms:.2f} ms/frame ({1e3 / ms:.0f} fps) at {cam.width}×{cam.height}; prefilter {ms_prefilter:.0f} ms")
-    return 0
-
-
-def cmd_bench_fit(a) -> int:
-    """Fit time over the database's measurements: the warm HiGHS instance against linprog."""
-    from .database import load_paints
-    from .exponents import default_exponents
-    from .fit import fit_measurements
-    exps = default_exponents()
-    paints = load_paints()
-    res = {"paints": len(paints), "lobes": len(exps), "repeats": a.repeats}
-    for solver in ("warm", "linprog"):
-        fit_measurements(paints[0]["measurements"], exps, solver=solver)      # build once
-        ts, errs = [], []
-        for _ in range(a.repeats):
-            for p in paints:
-                t0 = time.perf_counter()
-                r = fit_measurements(p["measurements"], exps, solver=solver)
-                ts.append(time.perf_counter() - t0)
-                errs.append(r.error_l1)
-        res[f"ms_{solver}_median"] = 1e3 * float(np.median(ts))
-        res[f"ms_{solver}_p95"] = 1e3 * float(np.percentile(ts, 95))
-        res[f"error_l1_{solver}_mean"] = float(np.mean(errs))
-    if a.json:
-        print(json.dumps(res))
-    else:
-        print(f"fit: warm {res['ms_warm_median']:.3f} ms median (p95 {res['ms_warm_p95']:.3f}), "
-              f"linprog {res['ms_linprog_median']:.3f} ms")
-    return 0
-
-
-def _threads() -> int:
-    from .. import native
-    return native.max_threads()
 
 
 def _render_args(p):
@@ -285,12 +196,3 @@ def add_commands(sub) -> None:
     r.add_argument("--out", required=True); r.add_argument("--raw")
     r.add_argument("--exposure", type=float, default=0.0); r.add_argument("--tone", default="neutral")
     r.set_defaults(fn=cmd_render)
-
-    bf = ps.add_parser("bench-fit", help="fit time over the database (warm HiGHS vs linprog)")
-    bf.add_argument("--repeats", type=int, default=5); bf.add_argument("--json", action="store_true")
-    bf.set_defaults(fn=cmd_bench_fit)
-
-    b = ps.add_parser("bench", help="prefilter and frame times (--json)")
-    _render_args(b)
-    b.add_argument("--frames", type=int, default=60); b.add_argument("--json", action="store_true")
-    b.set_defaults(fn=cmd_bench)

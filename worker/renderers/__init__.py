@@ -1,75 +1,95 @@
 """Renderers by kind (see base.py). ``get(kind)`` returns the registered (Renderer class,
-Precomputation instance); each renderer module registers itself when imported.
+Precomputation instance); ``controls(kind)`` what a session on it may change.
 
-Adding a renderer: a module (or package) under worker/renderers/ that subclasses Renderer and
-Precomputation and calls ``register``, plus one line in RENDERER_MODULES.
+A renderer is a package under worker/renderers/ whose ``__init__`` holds its ``DECLARATION``
+(declaration.py: kind, controls, and where its classes are) and imports nothing numerical, so
+the API process reads the declarations without the renderers' numerical imports; the classes
+are imported when ``get`` first asks for them.
+
+Adding a renderer: the package (its DECLARATION, a Renderer subclass taking ``kind`` and
+``controls`` from it and listing its ``capabilities``, a Precomputation subclass), plus one
+line in RENDERER_PACKAGES.
 """
 from __future__ import annotations
 
 import importlib
 
 from ..errors import GlintError
-from .base import (ArtifactStore, FrameRequest, Lighting, Part, Precomputation, Rendered, Renderer,  # noqa: F401
-                   Unsupported, ensure, load)
+from .base import (CAPABILITIES, ArtifactStore, FrameRequest, Lighting, Part, Precomputation,  # noqa: F401
+                   Rendered, Renderer, Unsupported, ensure, implemented_capabilities, load)
+from .declaration import ALL_CONTROLS, RendererDeclaration, resolve  # noqa: F401
 
-# one line per renderer: importing the module registers it
-RENDERER_MODULES: dict[str, str] = {
-    "cuts": "worker.renderers.cuts",
-    "gi": "worker.renderers.gi",
-    "paint": "worker.paint.renderer",
-}
-# what a session on each renderer may change, known without importing it (the API process
-# checks messages against it and stays free of the renderers' numerical imports); a renderer's
-# class attribute ``controls`` must say the same (checked when it registers)
-RENDERER_CONTROLS: dict[str, frozenset[str]] = {
-    "cuts": frozenset({"camera", "light", "materials", "environment", "ground", "move", "strokes"}),
-    "gi": frozenset({"materials"}),
-    "paint": frozenset({"camera", "light", "materials", "environment"}),
-}
+# one line per renderer: the package whose DECLARATION says what it is
+RENDERER_PACKAGES: list[str] = [
+    "worker.renderers.cuts",
+    "worker.renderers.gi",
+    "worker.renderers.paint",
+]
 
-ALL_CONTROLS = frozenset({"camera", "light", "materials", "environment", "ground", "move", "strokes"})
-# why a renderer does not offer a control (the studio shows it beside the control it turns off)
-WHY_NOT: dict[str, dict[str, str]] = {
-    "gi": {"camera": "the global-illumination precomputation is for one view: the camera is fixed "
-                     "(switch to direct light to orbit)",
-           "light": "the light transport is precomputed for the scene's lighting: it cannot turn",
-           "environment": "the light transport is precomputed for the scene's environment map",
-           "move": "objects are baked into the interreflections: they cannot move",
-           "ground": "the GI scene has no shadow-catcher ground",
-           "strokes": "strokes fit a BRDF through the direct-light transfer, which this renderer "
-                      "does not have (switch to direct light to paint)"},
-    "paint": {"strokes": "strokes fit a BRDF through the direct-light transfer, which the paint "
-                         "renderer does not have (switch to direct light to paint)",
-              "move": "the paint renderer has no precomputed visibility of moving objects",
-              "ground": "the paint renderer draws no shadow-catcher ground"},
-}
-
-
-def why_not(kind: str, control: str) -> str:
-    """Why the ``kind`` renderer does not offer ``control`` (a sentence for the designer)."""
-    return WHY_NOT.get(kind, {}).get(control, f"the {kind} renderer does not offer {control}")
-
-
+_declared: dict[tuple[str, ...], dict[str, RendererDeclaration]] = {}
 _registry: dict[str, tuple[type[Renderer], Precomputation]] = {}
 
 
-def register(renderer: type[Renderer], precomputation: Precomputation) -> None:
-    if renderer.kind != precomputation.kind:
-        raise ValueError(f"renderer {renderer.kind!r} registered with precomputation {precomputation.kind!r}")
-    declared = RENDERER_CONTROLS.setdefault(renderer.kind, frozenset(renderer.controls))
-    if frozenset(renderer.controls) != declared:
-        raise ValueError(f"renderer {renderer.kind!r}: controls {sorted(renderer.controls)} differ from "
-                         f"RENDERER_CONTROLS {sorted(declared)}")
-    _registry[renderer.kind] = (renderer, precomputation)
+def declarations() -> dict[str, RendererDeclaration]:
+    """kind -> the declaration of every renderer in RENDERER_PACKAGES (light: imports only the
+    packages' ``__init__``)."""
+    packages = tuple(RENDERER_PACKAGES)
+    out = _declared.get(packages)
+    if out is None:
+        out = {}
+        for name in packages:
+            decl = getattr(importlib.import_module(name), "DECLARATION", None)
+            if not isinstance(decl, RendererDeclaration):
+                raise TypeError(f"renderer package {name!r} has no DECLARATION (worker/renderers/declaration.py)")
+            if decl.kind in out:
+                raise ValueError(f"renderer {decl.kind!r} declared by two packages")
+            out[decl.kind] = decl
+        _declared.clear()
+        _declared[packages] = out
+    return out
 
 
 def controls(kind: str) -> frozenset[str]:
-    """What a session on this renderer may change (camera, light, materials, environment, move)."""
-    return RENDERER_CONTROLS.get(kind, frozenset())
+    """What a session on this renderer may change (camera, light, materials, environment, ground,
+    move); nothing for a kind no package declares."""
+    decl = declarations().get(kind)
+    return decl.controls if decl is not None else frozenset()
+
+
+def why_not(kind: str, control: str) -> str:
+    """Why the ``kind`` renderer does not offer ``control`` (a sentence for the designer, from
+    its declaration's ``why_not``)."""
+    decl = declarations().get(kind)
+    reason = decl.why_not.get(control) if decl is not None else None
+    return reason or f"the {kind} renderer does not offer {control}"
 
 
 def kinds() -> list[str]:
-    return sorted(set(RENDERER_MODULES) | set(_registry))
+    return sorted(declarations())
+
+
+def get(kind: str) -> tuple[type[Renderer], Precomputation]:
+    decl = declarations().get(kind)
+    if decl is None:
+        raise GlintError(f"unknown renderer {kind!r} (known: {', '.join(kinds())})")
+    hit = _registry.get(kind)
+    if hit is None or hit[0].__module__ + ":" + hit[0].__qualname__ != decl.renderer:
+        hit = _registry[kind] = _build(decl)
+    return hit
+
+
+def _build(decl: RendererDeclaration) -> tuple[type[Renderer], Precomputation]:
+    cls, pre_cls = resolve(decl.renderer), resolve(decl.precomputation)
+    if not (isinstance(cls, type) and issubclass(cls, Renderer)):
+        raise TypeError(f"renderer {decl.kind!r}: {decl.renderer} is not a Renderer")
+    if not (isinstance(pre_cls, type) and issubclass(pre_cls, Precomputation)):
+        raise TypeError(f"renderer {decl.kind!r}: {decl.precomputation} is not a Precomputation")
+    # the classes take kind and controls from the declaration; one written by hand must agree
+    for what, have in (("kind", cls.kind), ("controls", frozenset(cls.controls)), ("precomputation kind", pre_cls.kind)):
+        want = decl.controls if what == "controls" else decl.kind
+        if have != want:
+            raise ValueError(f"renderer {decl.kind!r}: {what} {have!r} of the class differs from its DECLARATION {want!r}")
+    return cls, pre_cls()
 
 
 def prepare(scene, store: ArtifactStore, kind: str | None = None, options: dict | None = None,
@@ -82,11 +102,3 @@ def prepare(scene, store: ArtifactStore, kind: str | None = None, options: dict 
     stats = ensure(pre, scene, store, options, progress, threads) if compute else None
     data = load(pre, scene, store, options)
     return cls(scene, data, kernels=kernels), stats
-
-
-def get(kind: str) -> tuple[type[Renderer], Precomputation]:
-    if kind not in _registry and kind in RENDERER_MODULES:
-        importlib.import_module(RENDERER_MODULES[kind])
-    if kind not in _registry:
-        raise GlintError(f"unknown renderer {kind!r} (known: {', '.join(kinds())})")
-    return _registry[kind]

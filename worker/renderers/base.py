@@ -110,18 +110,86 @@ class Rendered:
     info: dict[str, Any] = field(default_factory=dict)
 
 
+# --- optional capabilities ---------------------------------------------------------------------
+# What some renderers can do beyond ``render``: name -> the methods it brings. A renderer lists
+# the names it has in ``capabilities``; the session runtime, the fit driver and the fitter ask
+# ``renderer.can(name)``. The methods' shapes (as the cut renderer defines them):
+#
+# "place"        place(transforms: Mapping[str, scene.Transform] | None) -> None
+#                    where movable objects stand for the fitter's questions until the next frame.
+# "drag_level"   coarse_cuts() -> Any
+#                    build the drag-time level of detail now (the session does it at open, so
+#                    the first drag does not pay it).
+# "view_cache"   has_view(camera, samples: int = 1) -> bool
+#                    whether a frame of (camera, samples) costs only shading (its primary hits
+#                    are cached); without the capability every view counts as ready.
+#                forget_views(min_pixels: int) -> int
+#                    drop cached views of cameras of at least min_pixels (width × height);
+#                    returns how many went (a closed session's big frame frees its memory).
+# "stroke_fit"   surface_samples(camera, object_index: int, pixels: (M,) int64 | None) -> Samples
+#                transfer(samples, basis, lighting: Lighting, coarse: bool = False)
+#                    -> (T (3, N, J) float32, E (N, 3) float32)   (inverse-brdf-modeling eq. 21)
+#                shade_samples(samples, material, object_index: int, lighting: Lighting,
+#                              coarse: bool = False) -> (N, 3) float64 radiance
+#                    what the stroke fitter (worker/fit/fitter.py) asks of a renderer; Samples
+#                    holds pix (N,), positions, normals, wo (N, 3) float32, verts (N, 3) int32,
+#                    bary (N, 3) float32 (worker/renderers/cuts/renderer.py).
+# "vertex_transfer"  vertex_samples(camera, object_index: int, samples: int = 1) -> Samples
+#                    the object's visible vertices, whose transfer rows give the fitted
+#                    material's radiance there (FrameRequest.vertex_radiance); with transfer.
+CAPABILITIES: dict[str, tuple[str, ...]] = {
+    "place": ("place",),
+    "drag_level": ("coarse_cuts",),
+    "view_cache": ("has_view", "forget_views"),
+    "stroke_fit": ("surface_samples", "transfer", "shade_samples"),
+    "vertex_transfer": ("vertex_samples", "transfer"),
+}
+
+
+def implemented_capabilities(cls: type) -> frozenset[str]:
+    """The capabilities whose methods a renderer class defines (declared or not)."""
+    return frozenset(c for c, methods in CAPABILITIES.items()
+                     if all(callable(getattr(cls, m, None)) for m in methods))
+
+
 class Renderer(ABC):
     """Draws one loaded scene from its precomputed data.
 
     Class attributes
     ----------------
-    kind : the registry key (the scene file's ``renderer``).
-    controls : what an interactive session may change: a subset of {"camera", "light",
-        "materials", "move", "environment"}; the studio hides the others and says why.
+    kind : the registry key (the scene file's ``renderer``), from the package's DECLARATION.
+    controls : what an interactive session may change: a subset of
+        declaration.ALL_CONTROLS, from the package's DECLARATION (the studio hides the
+        others and says why).
+    capabilities : the optional capabilities (CAPABILITIES) it has; each one's methods must be
+        defined (checked when the class is defined), and callers ask ``renderer.can(name)``.
     """
 
     kind: ClassVar[str]
     controls: ClassVar[frozenset[str]] = frozenset({"camera", "light", "materials", "environment"})
+    capabilities: ClassVar[frozenset[str]] = frozenset()
+
+    def __init_subclass__(cls, **kw):
+        super().__init_subclass__(**kw)
+        cls.capabilities = frozenset(cls.capabilities)
+        unknown = cls.capabilities - set(CAPABILITIES)
+        if unknown:
+            raise TypeError(f"{cls.__name__} declares unknown capabilities {sorted(unknown)} "
+                            f"(known: {', '.join(sorted(CAPABILITIES))})")
+        missing = {c: [m for m in CAPABILITIES[c] if not callable(getattr(cls, m, None))]
+                   for c in cls.capabilities}
+        missing = {c: ms for c, ms in missing.items() if ms}
+        if missing:
+            raise TypeError(f"{cls.__name__} declares capabilities it does not implement: "
+                            + "; ".join(f"{c} needs {', '.join(ms)}" for c, ms in sorted(missing.items())))
+
+    @classmethod
+    def can(cls, capability: str) -> bool:
+        """Whether this renderer has an optional capability (a key of CAPABILITIES; a name that
+        is not one is a KeyError, so a typo cannot read as "no")."""
+        if capability not in CAPABILITIES:
+            raise KeyError(f"unknown renderer capability {capability!r} (known: {', '.join(sorted(CAPABILITIES))})")
+        return capability in cls.capabilities
 
     def __init__(self, scene, data, kernels=None):
         self.scene = scene

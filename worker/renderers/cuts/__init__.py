@@ -1,7 +1,16 @@
 """The cut renderer: direct environment light through per-vertex visibility cuts
-(cyber-worlds §V, inverse-brdf-modeling §4), with cut fields for movable objects."""
-from .. import register
-from .precompute import DEFAULT_TAU, CutData, CutPrecomputation, precompute_cuts, storage_stats  # noqa: F401
-from .renderer import DRAG_TAU, CutRenderer, Samples, View  # noqa: F401
+(cyber-worlds §V, inverse-brdf-modeling §4), with cut fields for movable objects.
 
-register(CutRenderer, CutPrecomputation())
+Importing the package is light (its DECLARATION, read by the API process); the classes and
+functions below load from their modules when first used."""
+from ..declaration import RendererDeclaration, lazy_exports
+
+DECLARATION = RendererDeclaration(
+    kind="cuts", controls=frozenset({"camera", "light", "materials", "environment", "ground", "move", "strokes"}),
+    renderer="worker.renderers.cuts.renderer:CutRenderer",
+    precomputation="worker.renderers.cuts.precompute:CutPrecomputation")
+
+__getattr__ = lazy_exports(__name__, {
+    **dict.fromkeys(("DEFAULT_TAU", "CutData", "CutPrecomputation", "precompute_cuts", "storage_stats"), ".precompute"),
+    **dict.fromkeys(("DRAG_TAU", "CutRenderer", "Samples", "View"), ".renderer"),
+})

@@ -16,7 +16,6 @@ scale is part of the shape), so its content key never changes when the object mo
 """
 from __future__ import annotations
 
-import hashlib
 import io
 import json
 import threading
@@ -30,6 +29,7 @@ import numpy as np
 from ...core.cuts import CutSet, build_cuts
 from ...core.directions import DirectionTree, get_tree
 from ...errors import GlintError
+from ...keys import content_key
 from ...trace.embree import Tracer
 from .grid import FieldGrid, GridSpec
 
@@ -61,18 +61,11 @@ def bounding_sphere(vertices: np.ndarray) -> tuple[np.ndarray, float]:
     return c, float(np.sqrt(((v - c) ** 2).sum(axis=1).max()))
 
 
-def mesh_key(vertices: np.ndarray, faces: np.ndarray, *extra: str) -> str:
-    """Content hash (hex, 32 chars) of a mesh's local geometry and the given extra strings."""
-    h = hashlib.sha256()
-    h.update(np.ascontiguousarray(vertices, np.float32).tobytes())
-    h.update(np.ascontiguousarray(faces, np.int32).tobytes())
-    for e in extra:
-        h.update(e.encode())
-    return h.hexdigest()[:32]
-
-
 def field_key(vertices: np.ndarray, faces: np.ndarray, spec: GridSpec, height: int) -> str:
-    return mesh_key(vertices, faces, f"vcf;{spec.tag()};H={height};v{FORMAT_VERSION}")
+    """Content key (worker/keys.py) of a mesh's cut field: its local geometry (as float32 and
+    int32, the field's own precision), the grid and the direction tree's height."""
+    return content_key("cut-field", FORMAT_VERSION, vertices=np.asarray(vertices, np.float32),
+                       faces=np.asarray(faces, np.int32), grid=spec.tag(), height=int(height))
 
 
 def pack_cuts(cs: CutSet) -> tuple[np.ndarray, np.ndarray]:

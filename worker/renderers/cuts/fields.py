@@ -87,9 +87,10 @@ from ...core.cuts import DEFAULT_TAU, CutSet
 from ...core.directions import get_tree
 from ...core.lighting import LeafLighting, node_lighting, rotate_map
 from ...errors import GlintError
+from ...keys import content_key
 from ..base import Part
 from .combine import DEFAULT_HMIN, Combiner, combined_cuts, lookup  # noqa: F401  (the API)
-from .field import Field, FieldError, bounding_sphere, field_key, mesh_key, trace_field  # noqa: F401
+from .field import Field, FieldError, bounding_sphere, field_key, trace_field  # noqa: F401
 from .grid import FieldGrid, GridSpec
 from .rotate import rotation_part
 
@@ -197,14 +198,15 @@ def receiver_from_local(world_from_receiver: np.ndarray, world_from_local: np.nd
 
 # --- precomputed parts -------------------------------------------------------------------------
 
+SELF_CUTS_VERSION = 2   # of the self-visibility cuts' key (worker/keys.py)
+
+
 def self_cuts_key(shape: ObjectShape, tau: float, height: int) -> str:
-    return mesh_key(shape.vertices, shape.faces, _normals_digest(shape.normals), f"svc;tau={tau};H={height};v1")
-
-
-def _normals_digest(n: np.ndarray) -> str:
-    import hashlib
-
-    return hashlib.sha256(np.ascontiguousarray(n, np.float32).tobytes()).hexdigest()
+    """Content key of a movable object's self-visibility cuts: its local geometry and normals
+    (float32, int32), τ and the direction tree's height."""
+    return content_key("self-cuts", SELF_CUTS_VERSION, vertices=np.asarray(shape.vertices, np.float32),
+                       faces=np.asarray(shape.faces, np.int32), normals=np.asarray(shape.normals, np.float32),
+                       tau=float(tau), height=int(height))
 
 
 def field_parts(scene, movable: list[str], options: Mapping[str, Any] | None = None) -> list[Part]:

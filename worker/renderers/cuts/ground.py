@@ -23,7 +23,6 @@ the outer quarter of the grid so that no edge shows (the one non-physical step).
 """
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,6 +30,7 @@ import numpy as np
 from ...core import cuts as cutmod
 from ...core.cuts import CutSet
 from ...core.directions import DirectionTree, get_tree
+from ...keys import content_key
 
 GRID = 64          # ground sample points per side (4,096 points: ~4% of a 100K-vertex precompute)
 FADE = 0.25        # the outer quarter of the grid fades the shadow to none
@@ -73,14 +73,13 @@ def ground_grid(vertices: np.ndarray, height: float | None = None, n: int = GRID
     return GroundGrid(float(y), float(cx - half), float(cz - half), float(2.0 * half / (n - 1)), int(n))
 
 
+GROUND_VERSION = 2  # of the stored ground cuts' key (worker/keys.py)
+
+
 def ground_key(vertices, faces, grid: GroundGrid, tau: float, height: int) -> str:
     """Content key of the ground cuts: the geometry that casts the shadow and the grid."""
-    h = hashlib.sha256()
-    for a in (vertices, faces):
-        h.update(np.ascontiguousarray(a).tobytes())
-    h.update(f"ground;y={grid.y!r};x0={grid.x0!r};z0={grid.z0!r};step={grid.step!r};n={grid.n};tau={tau};"
-             f"H={height};v1".encode())
-    return h.hexdigest()[:32]
+    return content_key("ground", GROUND_VERSION, vertices=vertices, faces=faces,
+                       grid=[grid.y, grid.x0, grid.z0, grid.step, grid.n], tau=float(tau), height=int(height))
 
 
 def open_sky_cut(tau: float, tree: DirectionTree | None = None, kernels=None) -> CutSet:

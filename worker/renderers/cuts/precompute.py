@@ -13,7 +13,6 @@ part: the cuts of the ground's sample points, keyed by the geometry and the grid
 """
 from __future__ import annotations
 
-import hashlib
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -24,8 +23,10 @@ import numpy as np
 from ...core import cuts as cutmod
 from ...core.cuts import DEFAULT_TAU, CutSet
 from ...core.directions import DirectionTree, get_tree
+from ...keys import content_key
 from ...trace.embree import Tracer
 from ..base import Part, Precomputation
+from . import DECLARATION
 
 BATCH = 4           # vertices per tracing batch (2^15 rays each): 4 keeps its arrays (~5 MB) near the
                     # core's cache; 16 (~20 MB) made two concurrent processes ~12% slower per CPU second
@@ -139,13 +140,13 @@ def precompute_cuts(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray
     return cuts, rays[0], time.perf_counter() - t0
 
 
+CUTS_VERSION = 2    # of the stored cuts' key (worker/keys.py): bumped when the key moved to content_key
+
+
 def geometry_key(vertices, faces, normals, tau: float, height: int) -> str:
-    """Content hash of everything the cuts depend on (world-space geometry, normals, τ, H)."""
-    h = hashlib.sha256()
-    for a in (vertices, faces, normals):
-        h.update(np.ascontiguousarray(a).tobytes())
-    h.update(f"tau={tau};H={height};v1".encode())
-    return h.hexdigest()[:32]
+    """Content key of everything the cuts depend on (world-space geometry, normals, τ, H)."""
+    return content_key("cuts", CUTS_VERSION, vertices=vertices, faces=faces, normals=normals,
+                       tau=float(tau), height=int(height))
 
 
 def storage_stats(cs: CutSet, blob_bytes: int, index_deflated: int | None = None) -> dict:
@@ -174,7 +175,7 @@ class CutPrecomputation(Precomputation):
         process's, chosen when first needed).
     """
 
-    kind = "cuts"
+    kind = DECLARATION.kind
 
     def parts(self, scene, options) -> list[Part]:
         from .moving import movable_names, moving_parts

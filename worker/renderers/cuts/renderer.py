@@ -62,6 +62,7 @@ from ...core.render import (
 )
 from ...native.kernels import kernels as _kernels
 from ..base import FrameCancelled, FrameRequest, Lighting, Rendered, Renderer, Unsupported
+from . import DECLARATION
 from .precompute import CutData
 from . import refine as refinemod
 from .refine import Refinement
@@ -141,8 +142,9 @@ class CutRenderer(Renderer):
     kernels : the kernel backend (worker/native/kernels.py); default: the process's.
     """
 
-    kind = "cuts"
-    controls = frozenset({"camera", "light", "materials", "environment", "ground", "move", "strokes"})
+    kind = DECLARATION.kind
+    controls = DECLARATION.controls
+    capabilities = frozenset({"place", "drag_level", "view_cache", "stroke_fit", "vertex_transfer"})
     _moving = None          # MovingFrames (moving.py) of a scene with movable objects
 
     def __init__(self, scene, data: CutData, kernels=None):

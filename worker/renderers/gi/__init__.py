@@ -1,6 +1,21 @@
 """The GI renderer (polynomial-gi): multibounce tensors precomputed by path tracing, BRDFs edited
-live with interreflections under a fixed view and lighting. Importing registers it."""
-from .. import register
-from .renderer import GIData, GIPrecomputation, GIRenderer  # noqa: F401
+live with interreflections under a fixed view and lighting.
 
-register(GIRenderer, GIPrecomputation())
+Importing the package is light (its DECLARATION, read by the API process); the classes load
+from renderer.py when first used."""
+from ..declaration import RendererDeclaration, lazy_exports
+
+DECLARATION = RendererDeclaration(
+    kind="gi", controls=frozenset({"materials"}),
+    renderer="worker.renderers.gi.renderer:GIRenderer",
+    precomputation="worker.renderers.gi.renderer:GIPrecomputation",
+    why_not={"camera": "the global-illumination precomputation is for one view: the camera is fixed "
+                       "(switch to direct light to orbit)",
+             "light": "the light transport is precomputed for the scene's lighting: it cannot turn",
+             "environment": "the light transport is precomputed for the scene's environment map",
+             "move": "objects are baked into the interreflections: they cannot move",
+             "ground": "the GI scene has no shadow-catcher ground",
+             "strokes": "strokes fit a BRDF through the direct-light transfer, which this renderer "
+                        "does not have (switch to direct light to paint)"})
+
+__getattr__ = lazy_exports(__name__, dict.fromkeys(("GIData", "GIPrecomputation", "GIRenderer"), ".renderer"))

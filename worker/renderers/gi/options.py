@@ -36,8 +36,6 @@ Objects with ``"editable": false`` (scene.SceneObject, §5.3) are baked with the
 """
 from __future__ import annotations
 
-import hashlib
-import json
 from dataclasses import dataclass, field
 from typing import Any, Literal, Mapping
 
@@ -45,6 +43,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
 
 from ...errors import GlintError
+from ...keys import content_key
 from ...scene import Material
 from . import denoise
 from .anisotropy import AshikhminShirley
@@ -244,20 +243,6 @@ def unit_layout(scene, opts: GIOptions) -> UnitLayout:
 # --- content keys ------------------------------------------------------------------------------
 
 
-def _h(*chunks) -> str:
-    h = hashlib.sha256()
-    for c in chunks:
-        if isinstance(c, np.ndarray):
-            h.update(str(c.dtype).encode()); h.update(str(c.shape).encode())
-            h.update(np.ascontiguousarray(c).tobytes())
-        elif isinstance(c, bytes):
-            h.update(c)
-        else:
-            h.update(json.dumps(c, sort_keys=True, default=str).encode())
-        h.update(b"|")
-    return h.hexdigest()
-
-
 FORMAT_VERSION = 4
 
 
@@ -270,15 +255,17 @@ def tensor_key(scene, opts: GIOptions, region_images: list[np.ndarray]) -> str:
     m = scene.mesh
     fixed_mats = [o.material.model_dump(mode="json") if not getattr(o, "editable", True) else None
                   for o in spec.objects]
-    return _h("gi", FORMAT_VERSION, m.vertices, m.faces, m.normals, scene.object_of_face,
-              spec.camera.model_dump(mode="json"), scene.envmap,
-              {"rotation_deg": spec.environment.rotation_deg, "intensity": spec.environment.intensity},
-              fixed_mats,
-              [dict(r.model_dump(mode="json", exclude={"material", "weights"})) for r in opts.regions],
-              *region_images,
-              [a.model_dump(mode="json", exclude={"material"}) for a in opts.anisotropic],
-              list(opts.series), opts.spp, opts.fresnel, unit_layout(scene, opts).quotients(scene, opts), opts.seed,
-              *(["denoise", denoise.HATS, denoise.ENERGY_SHARE] if opts.denoise else []))
+    return content_key(
+        "gi", FORMAT_VERSION, vertices=m.vertices, faces=m.faces, normals=m.normals,
+        object_of_face=scene.object_of_face, camera=spec.camera.model_dump(mode="json"), envmap=scene.envmap,
+        lighting={"rotation_deg": spec.environment.rotation_deg, "intensity": spec.environment.intensity},
+        fixed_materials=fixed_mats,
+        regions=[dict(r.model_dump(mode="json", exclude={"material", "weights"})) for r in opts.regions],
+        **{f"region_image_{i}": np.asarray(img) for i, img in enumerate(region_images)},
+        anisotropic=[a.model_dump(mode="json", exclude={"material"}) for a in opts.anisotropic],
+        series=list(opts.series), spp=opts.spp, fresnel=opts.fresnel,
+        quotients=unit_layout(scene, opts).quotients(scene, opts), seed=opts.seed,
+        **({"denoise": [denoise.HATS, denoise.ENERGY_SHARE]} if opts.denoise else {}))
 
 
 _MATERIAL = TypeAdapter(Material)

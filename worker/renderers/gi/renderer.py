@@ -14,13 +14,14 @@ import numpy as np
 from ...errors import GlintError
 from ..base import FrameRequest, Part, Precomputation, Progress, Rendered, Renderer, Unsupported
 from . import denoise as dn
+from . import DECLARATION
 from . import freeze as fzm
 from . import tensors
 from .basis import QUOTIENTS, THETA_NODES, Projection, fixed_projection, project, theta_interp
 from .options import GIOptions, UnitLayout, parse_options, tensor_key, unit_layout
 from .trace import Geometry, Primary, make_setup, primary_hits, second_codes, trace_tile
 
-KIND = "gi"
+KIND = DECLARATION.kind
 
 
 def region_images(scene, opts: GIOptions) -> list[np.ndarray]:
@@ -168,7 +169,7 @@ class GIRenderer(Renderer):
     """
 
     kind = KIND
-    controls = frozenset({"materials"})
+    controls = DECLARATION.controls
 
     def __init__(self, scene, data: GIData, kernels=None, max_bounces: int | None = None):
         super().__init__(scene, data, kernels)

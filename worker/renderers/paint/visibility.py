@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.directions import get_tree
+from ...core.directions import get_tree
 from .render import sh9
 
 A_L = np.array([np.pi, 2 * np.pi / 3, np.pi / 4])     # Funk-Hecke: 2π∫max(0,t)P_l(t)dt
@@ -28,16 +28,16 @@ A_L = np.array([np.pi, 2 * np.pi / 3, np.pi / 4])     # Funk-Hecke: 2π∫max(0,
 def _cuts_of(scene, cache_dir=None, progress=None, threads: int = 2):
     """The scene's visibility cuts: read from the cut renderer's folder store when ``cache_dir``
     is given (and stored there when traced), else traced here."""
-    from ..renderers import ensure, get, load
+    from .. import ensure, get, load
 
     _, pre = get("cuts")
     if cache_dir is not None:
-        from ..artifacts import DirStore
+        from ...artifacts import DirStore
 
         store = DirStore(cache_dir, "cuts")
         ensure(pre, scene, store, {}, progress, threads)
         return load(pre, scene, store, {}).cuts
-    from ..renderers.cuts import precompute_cuts
+    from ..cuts import precompute_cuts
 
     m = scene.mesh
     cs, _, _ = precompute_cuts(m.vertices, m.faces, m.normals, progress=progress, threads=threads)

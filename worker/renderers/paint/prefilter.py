@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.lighting import prepare_map
+from ...core.lighting import prepare_map
 
 SUPPORT = 1e-3           # kernel support: cos^E ≥ SUPPORT (must match GLP_SUPPORT in paint.c)
 MIN_ROWS = 64
@@ -113,7 +113,7 @@ def prefilter_numpy(img: np.ndarray, exponent: float) -> np.ndarray:
 def prefilter(img: np.ndarray, exponent: float, kernels=None) -> np.ndarray:
     """One prefiltered map: img (H, W, 3) float32 -> (H, W, 3) float32 (glp_prefilter, or
     prefilter_numpy; kernels: the backend, default the process's)."""
-    from ..native.kernels import kernels as _kernels
+    from ...native.kernels import kernels as _kernels
 
     img = np.ascontiguousarray(img, np.float32)
     if img.ndim != 3 or img.shape[-1] != 3:
@@ -159,7 +159,7 @@ class LobeMaps:
 def prefilter_all(envmap: np.ndarray, exponents, kernels=None, progress=None) -> LobeMaps:
     """The diffuse map, every basis exponent's map, and the wide lobes' vector maps (kernels:
     the backend, default the process's)."""
-    from ..core.lighting import pixel_directions
+    from ...core.lighting import pixel_directions
     levels = pyramid(envmap)
     ex = (1.0,) + tuple(float(e) for e in exponents)
     maps, vec = [], {}

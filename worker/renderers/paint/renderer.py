@@ -15,7 +15,6 @@ are converted the designer's way: measured in the industry geometry and fitted (
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import time
 from dataclasses import dataclass
@@ -23,30 +22,24 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..core.lighting import direction_to_uv
-from ..core.render import camera_rays
-from ..renderers import register
-from ..renderers.base import FrameRequest, Part, Precomputation, Rendered, Renderer
-from ..scene import Lobes
-from .exponents import default_exponents
+from ...core.lighting import direction_to_uv
+from ...core.render import camera_rays
+from ...keys import content_key
+from ...paint.exponents import default_exponents
+from ...scene import Lobes
+from ..base import FrameRequest, Part, Precomputation, Rendered, Renderer
+from . import DECLARATION
 from .prefilter import LobeMaps, prefilter_all
 from .render import background, material_rows, shade
 
-VERSION = "paint-v2"
+VERSION = 3     # of the stored parts' keys (worker/keys.py; "paint-v2" before content_key)
 
 
-def _maps_recipe() -> str:
+def _maps_recipe() -> dict:
     """Everything besides the map and the exponents that the prefiltered maps depend on."""
     from . import prefilter as pf
-    return f"{VERSION};pps={pf.PIXELS_PER_SIGMA};rows={pf.MIN_ROWS};support={pf.SUPPORT};vec={pf.VECTOR_MAX_E}"
-
-
-def _hash(*arrays, text: str = "") -> str:
-    h = hashlib.sha256()
-    for a in arrays:
-        h.update(np.ascontiguousarray(a).tobytes())
-    h.update(text.encode())
-    return h.hexdigest()[:32]
+    return {"pixels_per_sigma": pf.PIXELS_PER_SIGMA, "min_rows": pf.MIN_ROWS, "support": pf.SUPPORT,
+            "vector_max_e": pf.VECTOR_MAX_E}
 
 
 def basis_of(options: Mapping[str, Any]) -> tuple[float, ...]:
@@ -63,8 +56,8 @@ def as_basis(material, exponents) -> Lobes:
     key = (json.dumps(material.model_dump(), sort_keys=True), ex)
     hit = _converted.get(key)
     if hit is None:
-        from .fit import fit_measurements
-        from .geometry import measure
+        from ...paint.fit import fit_measurements
+        from ...paint.geometry import measure
         hit = fit_measurements(measure(material), ex).material
         _converted[key] = hit
     return hit
@@ -82,15 +75,17 @@ class PaintData:
 class PaintPrecomputation(Precomputation):
     """Prefiltered lobe maps (and, optionally, per-vertex visibility); kernels: the backend that
     prefilters (default: the process's, chosen when first needed)."""
-    kind = "paint"
+    kind = DECLARATION.kind
 
     def parts(self, scene, options):
         ex = basis_of(options)
-        out = [Part(_hash(scene.envmap, np.asarray(ex), text=_maps_recipe() + ";maps"), "prefiltered lobe maps",
+        out = [Part(content_key("paint-maps", VERSION, envmap=scene.envmap, exponents=np.asarray(ex, np.float64),
+                                recipe=_maps_recipe()), "prefiltered lobe maps",
                     work=len(ex) + 1, meta={"what": "maps"})]
         if options.get("visibility"):
             m = scene.mesh
-            out.append(Part(_hash(m.vertices, m.faces, m.normals, text=VERSION + "vis"),
+            out.append(Part(content_key("paint-visibility", VERSION, vertices=m.vertices, faces=m.faces,
+                                        normals=m.normals),
                             "per-vertex visibility harmonics (from cuts)", work=len(m.vertices), meta={"what": "vis"}))
         return out
 
@@ -130,15 +125,16 @@ class PaintRenderer(Renderer):
     Attributes set by callers: ``cosine`` ("vector", "albedo" or "paper", render.py), ``fresnel`` (bool),
     ``visibility`` (bool, used when the data has it)."""
 
-    kind = "paint"
+    kind = DECLARATION.kind
+    controls = DECLARATION.controls
 
     def __init__(self, scene, data: PaintData, kernels=None):
         super().__init__(scene, data, kernels)
-        from ..native.kernels import kernels as _kernels
+        from ...native.kernels import kernels as _kernels
 
         # the backend it was built with (default: the process's), used for every kernel below
         self.k = kernels or _kernels()
-        from ..trace.embree import Tracer
+        from ...trace.embree import Tracer
         self.tracer = Tracer(scene.mesh.vertices, scene.mesh.faces)
         self.cosine = "vector"
         self.fresnel = False
@@ -212,5 +208,3 @@ class PaintRenderer(Renderer):
     def object_mask(self, camera) -> np.ndarray:
         return self.view(camera).object_id
 
-
-register(PaintRenderer, PaintPrecomputation())

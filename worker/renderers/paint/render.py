@@ -195,7 +195,7 @@ def background(uv: np.ndarray, envmap: np.ndarray, rotation_deg: float = 0.0, in
     (a camera's background pixels: only the rotation changes between frames; degrees about +Y).
     With ``out`` (an image as (N, 3) float32) and ``dst`` (P,) pixel indices, written straight
     into it. kernels: the backend (glp_background or background_numpy), default the process's."""
-    from ..native.kernels import kernels as _kernels
+    from ...native.kernels import kernels as _kernels
 
     buf, d = _into(out, dst, len(uv))
     return (kernels or _kernels()).paint.background(uv, envmap, float(rotation_deg), float(intensity), buf, d)
@@ -241,7 +241,7 @@ def shade(normals, views, mat_of, rows, maps: LobeMaps, cosine: str = "vector", 
     """(P, 3) float32 radiance (glp_shade or shade_numpy, by the backend ``kernels``, default
     the process's; rotation in degrees about +Y). With ``out`` (an image as (N, 3) float32) and
     ``dst`` (P,) pixel indices, written straight into it."""
-    from ..native.kernels import kernels as _kernels
+    from ...native.kernels import kernels as _kernels
 
     if cosine not in COSINE_MODES:
         raise ValueError(f"cosine must be one of {sorted(COSINE_MODES)}")

@@ -1,7 +1,8 @@
-"""Paint-to-BRDF benchmarks on the command line: ``glint bench recovery`` and ``glint bench strokes``.
+"""Paint-to-BRDF benchmarks on the command line: ``glint bench recovery`` and ``glint bench strokes``
+(worker/fit measured from outside).
 
-Registered with one line in worker/cli.py COMMAND_MODULES; both print one JSON object with
-``--json`` (progress on stderr).
+Registered by bench/cli.py ``add_bench_commands``; both print one JSON object with ``--json``
+(progress on stderr).
 """
 from __future__ import annotations
 
@@ -12,15 +13,6 @@ import time
 from pathlib import Path
 
 
-def _bench_subparsers(sub):
-    """The subparsers of ``glint bench`` (created by worker/cli.py)."""
-    bench = sub.choices["bench"]
-    for a in bench._actions:
-        if isinstance(a, argparse._SubParsersAction):
-            return a
-    raise RuntimeError("glint bench has no subcommands")
-
-
 def _floats(text: str) -> list[float]:
     try:
         return [float(x) for x in text.split(",") if x.strip()]
@@ -28,8 +20,8 @@ def _floats(text: str) -> list[float]:
         raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
 
 
-def add_commands(sub) -> None:
-    bsub = _bench_subparsers(sub)
+def add_bench_commands(bsub) -> None:
+    """``glint bench recovery | strokes`` into the subparsers of ``glint bench``."""
     r = bsub.add_parser("recovery", help="fit srbf to Mitsuba renders of GGX materials and re-render")
     r.add_argument("scenes", nargs="+", help="scene files: mesh, camera and object (material and map are replaced)")
     r.add_argument("--env", action="append", required=True, help="environment map (repeatable)")
@@ -62,9 +54,9 @@ def add_commands(sub) -> None:
 def _renderer_for(path, env, cuts_dir, tau, quiet):
     """The cut renderer of a scene file, under another environment map when ``env`` is given
     (the cuts are geometry only: one precomputation serves every map)."""
-    from ..cli import open_renderer
-    from ..envmap import load_envmap
-    from ..scene import LoadedScene, load_scene
+    from worker.cli import open_renderer
+    from worker.envmap import load_envmap
+    from worker.scene import LoadedScene, load_scene
 
     sc = load_scene(path)
     if env is not None:
@@ -82,9 +74,9 @@ def cmd_bench_recovery(a) -> int:
     from PIL import Image
     from tqdm import tqdm
 
-    from ..core.tonemap import tonemap
-    from .basis import default_basis, paper_basis
-    from .recovery import ALPHAS, FINISHES, Case, public, recover
+    from worker.core.tonemap import tonemap
+    from worker.fit.basis import default_basis, paper_basis
+    from worker.fit.recovery import ALPHAS, FINISHES, Case, public, recover
 
     cache = Path(a.cache) if a.cache else Path(os.environ.get("GLINT_DATA_DIR", Path.home() / ".cache" / "glint")) / "mitsuba"
     finishes = {"bare": FINISHES[:1], "coated": FINISHES[1:], "both": FINISHES}[a.finish]
@@ -139,7 +131,7 @@ def standard_strokes(fx, view: int = 0):
     a colour change (colour mode, the base's mean radiance there tinted (1.6, 0.8, 0.5))."""
     import numpy as np
 
-    from .brush import Stroke
+    from worker.fit.brush import Stroke
 
     v = fx.views[view]
     ys = v.xy[:, 1]
@@ -158,7 +150,7 @@ def standard_strokes(fx, view: int = 0):
 
 
 def cmd_bench_strokes(a) -> int:
-    from .fitter import Fitter
+    from worker.fit.fitter import Fitter
 
     res = []
     for s in a.scenes:
