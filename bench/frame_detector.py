@@ -36,13 +36,11 @@ TUNING = ["apartment.exr", "city.exr", "forest.exr", "interior-1k.exr", "lobby.e
           "warehouse.exr"]
 HELD_OUT = ["dawn.exr", "hall.exr", "night.exr", "sky.exr", "venice.exr", "workshop.exr", "courtyard.exr"]
 CLEAN_YAWS = [(0.0, 180.0), (60.0, 240.0), (120.0, 300.0)]
-# the constants the held-out failures of the first detector led to (the overlap and edge
-# tests); the older ones (DARK_STOPS, DARK_ALBEDO, FLAT_STOPS_PER_PX, OCCLUDED_STOPS) keep the
+# the constants the held-out failures of the first detector led to (the overlap test); the older ones (DARK_STOPS, DARK_ALBEDO, FLAT_STOPS_PER_PX, OCCLUDED_STOPS) keep the
 # values chosen on the first eight HDRIs, which are all in TUNING
 SEARCH = {
     "AGREE_STOPS": [0.35, 0.5, 0.75],
     "SEEN_FRACTION": [0.4, 0.6, 0.8],
-    "EDGE_STOPS": [0.75, 1.0, 1.5],
     "GROW_PX": [8, 16, 32],
 }
 

@@ -28,10 +28,6 @@ lens, whatever the scene, and together they separate it from the scene:
    read like the scene it hides would not change the light. Exception: a region along
    ``ENCIRCLE`` of the rim (a centred housing is at the same place in both shots, so their
    agreement proves nothing).
-7. **A fixed edge.** A ring too thin for the texture test (a barrel's edge a few pixels wide,
-   dark or bright) shows as a radial step of more than ``EDGE_STOPS`` in the outer
-   ``EDGE_ZONE`` of the radius at the same pixels in every shot, along a run of azimuths; what
-   lies outward of it is frame.
 
 Detection runs at about 512 px across the circle. Rim-attached components of the candidates
 are seeds; they grow (hysteresis, at most ``GROW_PX`` working pixels) through pixels that are
@@ -62,8 +58,6 @@ AGREE_STOPS = 0.75     # a region's pixel agrees with another shot's view of its
 SEEN_FRACTION = 0.8    # a region whose overlap pixels agree this often is scene, seen by both shots
 ENCIRCLE = 0.9         # ... unless it runs along this fraction of the rim (a centred housing,
                        # which both shots see at the same place: their agreement proves nothing)
-EDGE_STOPS = 1.5       # a housing's inner edge: a step across 2 working pixels, radially ...
-EDGE_ZONE = 0.12       # ... in the outer 12% of the radius, the same in every shot
 GROW_PX = 16           # hysteresis: how far (working pixels) a region grows from its seeds
 WORK_DIAMETER = 512    # working resolution across the image circle
 LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
@@ -127,53 +121,6 @@ def _cross_views(small: Lens, ells, oks, yaws) -> list[tuple[np.ndarray, np.ndar
         valid = np.isfinite(th_best) & oks[a]
         out.append((lb_best, valid, valid & (th_a >= th_best)))
     return out
-
-
-def _edge_ring(small: Lens, ells, oks) -> np.ndarray:
-    """(h, w) bool: the part of the rim cut off by a housing edge that every shot sees at the
-    same place: in polar coordinates about the circle's centre, the innermost radius (within
-    the outer EDGE_ZONE of the radius) where log₂ luminance steps by more than EDGE_STOPS across
-    two pixels in every shot with the same sign, and everything outward of it. The scene
-    changes between shots, so its edges do not coincide; a housing's (a thin dark or bright
-    ring along the rim, too narrow for the texture test) do. An edge must be found along at
-    least 5 of 9 neighbouring 1° azimuth bins to count."""
-    import cv2
-
-    hs, ws = ells[0].shape
-    R = small.radius
-    nr, nphi = int(np.ceil(R)), 360
-    c = (float(small.centre[0]), float(small.centre[1]))
-    flags = cv2.WARP_POLAR_LINEAR | cv2.INTER_LINEAR
-    step, sign = None, None
-    for ell, ok in zip(ells, oks):
-        lo = float(ell[ok].min()) if ok.any() else 0.0
-        p = cv2.warpPolar(np.where(ok, ell, lo).astype(np.float32), (nr, nphi), c, R, flags)
-        v = cv2.warpPolar(ok.astype(np.float32), (nr, nphi), c, R, flags) > 0.99
-        g = np.zeros_like(p)
-        # a step between valid pixels, 3 valid pixels inside the circle's own (JPEG-ringing) edge
-        inner = v.copy()
-        inner[:, :-4] &= v[:, 4:]
-        inner[:, -4:] = False
-        g[:, 1:-1] = np.where(inner[:, 1:-1] & v[:, :-2], p[:, 2:] - p[:, :-2], 0.0)
-        if step is None:
-            step, sign = np.abs(g), np.sign(g)
-        else:
-            same = np.sign(g) == sign
-            step = np.where(same, np.minimum(step, np.abs(g)), 0.0)
-    rr = np.arange(nr)
-    zone = (rr >= (1.0 - EDGE_ZONE) * R) & (rr <= R - 3.0)     # the last pixels: the circle's own edge
-    hit = (step > EDGE_STOPS) & zone[None, :]
-    found = hit.any(axis=1)
-    first = np.where(found, hit.argmax(axis=1), nr + 2)
-    # an edge along a run of azimuths, not a lone step: 5 of 9 neighbouring bins
-    run = np.convolve(np.concatenate([found[-4:], found, found[:4]]).astype(float), np.ones(9), "valid")
-    first = np.where(run >= 5, first, nr + 2)
-    # back to the image: warpPolar's row k is the angle 2πk/nphi of atan2(y − cy, x − cx) (y down)
-    ys, xs = np.mgrid[0:hs, 0:ws].astype(np.float64)
-    ang = np.mod(np.arctan2(ys - c[1], xs - c[0]), 2 * np.pi)
-    k = np.minimum((ang / (2 * np.pi) * nphi + 0.5).astype(int), nphi - 1) % nphi
-    rad = np.hypot(xs - c[0], ys - c[1])
-    return (rad >= first[k] - 1.0) & (small.pixel_radius() <= R)
 
 
 def detect_frame(radiance: list[np.ndarray], lens: Lens, max_shift: int = 0,
@@ -257,9 +204,8 @@ def detect_frame(radiance: list[np.ndarray], lens: Lens, max_shift: int = 0,
     encircles = along.mean(axis=1) >= ENCIRCLE
     through = (n_seen >= min_area) & (n_agree >= SEEN_FRACTION * np.maximum(n_seen, 1)) & ~encircles
     grown &= ~through
-    ring = _edge_ring(small, ells, oks)
-    keep_regions = int(grown.sum()) + int(ring.any())
-    m = (grown[lab2] | ring).astype(np.uint8)
+    keep_regions = int(grown.sum())
+    m = grown[lab2].astype(np.uint8)
     grow = 2 + int(np.ceil(max_shift * scale))
     m = cv2.dilate(m, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1)))
     full = cv2.resize(m * 255, (w, h), interpolation=cv2.INTER_LINEAR) > 0
