@@ -7,7 +7,7 @@ its SHA-256 and where it comes from, fetched with the registries' ordinary clien
   ``npm pack``.
 * Furniture: Debian ``sweethome3d-furniture`` (``BlendSwap-CC-0.sh3f`` and ``BlendSwap-CC-BY.sh3f``,
   zips of OBJ + MTL + textures + licence), via ``apt-get download``.
-* interior-1k.exr: Debian ``blender-data`` (``studiolights/world/interior.exr``).
+* interior-1k.exr, courtyard.exr: Debian ``blender-data`` (``studiolights/world/``).
 * stinson-beach.hdr: PyPI ``bpy==5.0.1`` (OpenUSD's ``StinsonBeach.hdr``), via ``pip download``;
   the 374 MB wheel is read for that one file and deleted.
 * cornell-box.obj: the measured Cornell box, written from the published coordinates here.
@@ -104,8 +104,24 @@ ASSETS = [
     _hdri("city", "82847b3f3e2073d16647be2eb5712dc0f7e37ddc9480a1d45f2270fe8cd048f6"),
     _hdri("lobby", "55b54fc7b4efc5e9fef27529208d4abe9614839307f40490b135ce75aa08b72c"),
     _hdri("forest", "6fff311b5f3dad0910d8f334a6d9d88218ffd873d72c679ee1b7e4bccfa140e3"),
+    # the held-out HDRIs of the lens-frame detector (never used to choose its constants)
+    _hdri("bridge", "921f8b95cd1ae8bda602d4d395d8ce5574975ae0df626504eb4387cc963212ea"),
+    _hdri("dawn", "02529d0a04dbc6e761adb9b4f6bcb07b0ef3931b218b394ee6be68b1fe39ce79"),
+    _hdri("esplanade", "2a3c5a870167dc1a1ad44115cd0c554cfde97fa6ca859f4f90f39771db90b54c"),
+    _hdri("hall", "205a84e0108d40fb207e077db9bc68a15f329a8af8ee1f82c28524e967963b81"),
+    _hdri("lab", "4f993660d9c53e97cb23f2d901e06aed9bc0323f6cd9079ec0de02e73634796e"),
+    _hdri("night", "9509f1b917dbb4c98d63b92e9fd12fb79e3376d17ec3186e2de39543e32ce5ff"),
+    _hdri("park", "00e78fd8fe0ac81f73eb3682b1a4e2e1b909148f1b06d1e52e771d4fec3d02a1"),
+    _hdri("sky", "a72412700b91a49080a582420476d2ab9a1e8fd181031f4ae7ec5e2596addc2a"),
+    _hdri("sunrise", "d48b92f8fd8d1e8eb111d90284a007f811a4d57abe4fa6faf10165287a3fe9c2"),
+    _hdri("venice", "8200c809a7032efaa7d9fa3a5c64939d7f07d26478bc2418af624150af90dac9"),
+    _hdri("warehouse", "bb11fe7e9c3037b8db21beab826a7ed7c452a48cb6d361f982ca7311aacba9c1"),
+    _hdri("workshop", "793ca687c647e032c79ea3a67bd016ad3158d17506540cfa8fdd901550cc0a5d"),
     Asset("env/interior-1k.exr", "4f6810b182ade346eac6964bf02405adf430c321b8853a644316af4e05d0fdb5", "blender",
           "usr/share/blender/datafiles/studiolights/world/interior.exr"),
+    # held out by the lens-frame detector too: a Poly Haven courtyard none of the others shows
+    Asset("env/courtyard.exr", "1518fa37da6a8a389810a7a70262c410553018a51f0be9e248155b9bb363ff3d", "blender",
+          "usr/share/blender/datafiles/studiolights/world/courtyard.exr"),
     Asset("env/stinson-beach.hdr", "4897697c757edc524dc9b7bcc692e8e05a7f02dbede3e30d2291dc0831dece17", "bpy",
           "bpy/lib/usd/hdx/resources/textures/StinsonBeach.hdr"),
     # the PLY is written here (not copied), byte for byte as ../shared/assets has it

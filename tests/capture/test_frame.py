@@ -1,4 +1,5 @@
-"""Lens-frame detection on every HDRI we have (none was used to choose the thresholds alone):
+"""Lens-frame detection on the eight HDRIs it was first built on (part of the tuning set of
+bench/frame_detector.py; the held-out HDRIs are tested in test_frame_heldout.py):
 frames of random shape (synth.paint_frame, a different seed per HDRI) are found, clean
 captures lose (almost) nothing, and where the detector declines, the frame did not matter."""
 from __future__ import annotations

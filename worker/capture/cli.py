@@ -70,7 +70,7 @@ def cmd_capture_synth(args) -> int:
     bar = _Bar("synth")
     try:
         sc = synthesize(env, args.out, w, h, args.projection, args.fov, tuple(float(v) for v in args.yaws.split(",")),
-                        args.brackets, not args.no_frame, args.jitter, args.seed, args.exposure_in_manifest,
+                        args.brackets, False if args.no_frame else args.housing, args.jitter, args.seed, args.exposure_in_manifest,
                         progress=bar)
     finally:
         bar.close()
@@ -99,6 +99,8 @@ def add_commands(sub) -> None:
     s.add_argument("--yaws", default="0,180", help="shot yaw angles, degrees (default 0,180)")
     s.add_argument("--brackets", type=int, default=5)
     s.add_argument("--no-frame", action="store_true", help="no lens frame in the photos")
+    s.add_argument("--housing", default="band", choices=["band", "clip", "vignette", "rim"],
+                   help="the lens housing's kind (default band: a band along the rim and a clip arm)")
     s.add_argument("--jitter", type=int, default=0, help="hand-held shake: max bracket shift, pixels")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--exposure-in-manifest", action="store_true", help="write exposure_s (else only EXIF)")

@@ -9,7 +9,10 @@ What a phone with a clip-on fisheye would record, step by step:
    photo: a band along a random arc of the rim with varying thickness and tapered ends, plus a
    clip arm. Its radiance is a black body's under the room's light: reflectance 3–6% × the
    irradiance E on a surface facing the shot's direction, /π, modulated by a smooth field
-   (a soft reflection), so it is dark, smooth and consistent, never a flat constant.
+   (a soft reflection), so it is dark, smooth and consistent, never a flat constant. Other
+   housings (``paint_housing``, the detector's held-out cases): clip arms alone, a decentred
+   lens's vignetting crescent with a soft edge, a thin polished rim glinting with the room's
+   brightest light (20-60% of the 99th percentile of what the shot sees).
 3. **Camera**: sensor exposure X = L·t, shot and read noise, clipped at full well (X = 4), the
    tone curve ``camera_curve`` (Narkowicz's ACES fit, then sRGB; a filmic phone-like curve
    with a toe and a shoulder), quantised to 8 bits, JPEG (quality 95, 4:2:0) with EXIF
@@ -87,6 +90,64 @@ def forward_irradiance(envmap: np.ndarray, yaw_deg: float) -> float:
     fwd = yaw_matrix(yaw_deg) @ np.array([0.0, 0.0, -1.0])
     cos = np.clip(dirs @ fwd, 0.0, None)
     return float(((envmap @ LUMA) * cos * solid[:, None]).sum())
+
+
+HOUSINGS = ("band", "clip", "vignette", "rim")
+
+
+def paint_housing(lens: Lens, rng: np.random.Generator, kind: str) -> tuple[np.ndarray, np.ndarray, bool]:
+    """A random lens housing of one kind, in sensor coordinates (the detector's held-out cases).
+
+    kind : "band" (``paint_frame``: a band along an arc of the rim plus a clip arm), "clip" (one
+        or two clip arms alone), "vignette" (a decentred lens: mechanical vignetting, a dark
+        crescent from the rim whose coverage ramps over 3-8% of the radius), "rim" (a bright
+        polished barrel edge: a thin ring along most of the rim, 2-5% of the radius, glinting
+        with the room's brightest light).
+    Returns (alpha (H, W) float32 coverage in [0, 1]; shade (H, W) float32 smooth modulation;
+    bright: True when the housing reflects the room's highlights rather than its irradiance)."""
+    if kind == "band":
+        return (*paint_frame(lens, rng), False)
+    h, w = lens.height, lens.width
+    cx, cy = lens.centre
+    rr = lens.radius
+    y, x = np.mgrid[0:h, 0:w].astype(np.float64) + 0.5
+    dx, dy = x - cx, cy - y
+    r = np.hypot(dx, dy)
+    phi = np.arctan2(dy, dx)
+    k1, k2 = rng.uniform(1, 3, 2) * 2 * np.pi / (2 * rr)
+    ph = rng.uniform(0, 2 * np.pi, 2)
+    shade = (1.0 + 0.25 * np.sin(k1 * dx + ph[0]) + 0.15 * np.cos(k2 * dy + ph[1])).astype(np.float32)
+    if kind == "clip":
+        sd = np.full((h, w), np.inf)
+        for _ in range(int(rng.integers(1, 3))):
+            a = rng.uniform(-np.pi, np.pi)
+            half_w = rng.uniform(0.04, 0.10) * rr
+            length = rng.uniform(0.12, 0.3) * rr
+            ux, uy = np.cos(a), np.sin(a)
+            along = dx * ux + dy * uy
+            across = np.abs(-dx * uy + dy * ux)
+            sd = np.minimum(sd, np.maximum(across - half_w, (rr - length) - along))
+        alpha = np.clip(0.5 - sd, 0.0, 1.0)
+    elif kind == "vignette":
+        # the lens sits off the sensor's axis: the housing's shadow is thickest on one side
+        a0 = rng.uniform(-np.pi, np.pi)
+        off = rng.uniform(0.08, 0.16) * rr
+        base = rng.uniform(-0.06, 0.02) * rr
+        thick = base + off * np.cos(phi - a0)
+        ramp = rng.uniform(0.03, 0.08) * rr
+        alpha = np.clip(((r - rr) + thick) / ramp + 0.5, 0.0, 1.0)
+    elif kind == "rim":
+        start = rng.uniform(-np.pi, np.pi)
+        span = np.radians(rng.uniform(200, 360))
+        s = np.mod(phi - start, 2 * np.pi) / span
+        t0 = rng.uniform(0.02, 0.05) * rr
+        thick = np.where(s <= 1.0, t0 * np.sqrt(np.clip(np.minimum(s, 1.0 - s) * 20.0, 0.0, 1.0)), 0.0)
+        alpha = np.clip(0.5 - ((rr - r) - thick), 0.0, 1.0)
+    else:
+        raise ValueError(f"unknown housing {kind!r} (known: {', '.join(HOUSINGS)})")
+    alpha = alpha.astype(np.float32)
+    alpha[r > rr] = 0.0
+    return alpha, shade, kind == "rim"
 
 
 def paint_frame(lens: Lens, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -167,10 +228,12 @@ def _write_jpeg(path: Path, img: np.ndarray, t: float, quality: int) -> None:
 
 def synthesize(envmap: np.ndarray, out_dir: str | Path, width: int = 600, height: int = 400,
                projection: str = "equidistant", fov_deg: float = 190.0, yaws=(0.0, 180.0),
-               brackets: int = 5, frame: bool = True, jitter_px: int = 0, seed: int = 0,
+               brackets: int = 5, frame: bool | str = True, jitter_px: int = 0, seed: int = 0,
                exposure_in_manifest: bool = False, quality: int = 95, progress=None) -> SynthCapture:
     """Write a synthetic capture of ``envmap`` ((H, W, 3) float32 radiance) to out_dir: JPEGs,
-    ``manifest.json``, ``truth.json`` and ``frame.png``. See the module doc."""
+    ``manifest.json``, ``truth.json`` and ``frame.png``. See the module doc.
+
+    frame : True (a "band" housing), False (a clean capture) or a kind of ``paint_housing``."""
     from PIL import Image
 
     tick = progress or (lambda f, m: None)
@@ -179,13 +242,20 @@ def synthesize(envmap: np.ndarray, out_dir: str | Path, width: int = 600, height
     rng = np.random.default_rng(seed)
     lens = Lens(width, height, projection, fov_deg)
     circle = lens.circle_mask()
+    bright = False
     if frame:
-        alpha, shade = paint_frame(lens, rng)
+        alpha, shade, bright = paint_housing(lens, rng, "band" if frame is True else str(frame))
     else:
         alpha, shade = np.zeros((height, width), np.float32), np.ones((height, width), np.float32)
     tick(0.0, "rendering the fisheye views")
     centre = [render_fisheye(envmap, lens, y) for y in yaws]
-    frame_l = [rng.uniform(0.03, 0.06) * forward_irradiance(envmap, y) / np.pi for y in yaws]
+    if bright:
+        # polished metal glinting with the room's brightest light: 20-60% of the 99th percentile
+        # of the radiance the shot sees (brighter than most of the scene, never a clipped light)
+        frame_l = [rng.uniform(0.2, 0.6) * float(np.percentile((c @ LUMA.astype(np.float32))[circle], 99))
+                   for c in centre]
+    else:
+        frame_l = [rng.uniform(0.03, 0.06) * forward_irradiance(envmap, y) / np.pi for y in yaws]
     seen = np.concatenate([(c @ LUMA.astype(np.float32))[circle] for c in centre])
     times = ladder(seen, brackets)
     x128 = float(inverse_camera_curve(128.0 / 255.0))
