@@ -29,7 +29,7 @@ from .config import Settings
 from .deps import Client, check_host, check_origin
 from .logs import RequestContext, redact_text
 from .metrics import CONTENT_TYPE, Metrics
-from .routes import assets, captures, materials, publications, renders, scenes, sessions
+from .routes import assets, bundle_files, captures, materials, publications, renders, scenes, sessions
 from .state import AppState
 
 log = logging.getLogger("glint")
@@ -310,7 +310,7 @@ def create_app(settings: Settings | None = None, pool=None) -> FastAPI:
 
         return describe()
 
-    for r in (assets, scenes, renders, materials, publications, sessions, captures):
+    for r in (assets, scenes, renders, materials, publications, bundle_files, sessions, captures):
         app.include_router(r.router)
 
     web = Path(settings.web_dir)
