@@ -248,6 +248,8 @@ def create_app(settings: Settings | None = None, pool=None) -> FastAPI:
 
     app.add_middleware(JsonBodyCap, limit=settings.max_json_body_bytes)
     app.add_middleware(SecurityHeaders, embed_origins=settings.embed_origins)
+    # published frames already in memory are answered before the layers above (routes/bundle_files.py)
+    app.add_middleware(bundle_files.CachedBundleFiles)
     # outermost: a request id for every request and stream, its access line and its metrics
     app.add_middleware(RequestContext, observe=metrics.http)
 

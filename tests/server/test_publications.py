@@ -103,6 +103,13 @@ def test_bundle_manifest_immutable_files_zip_and_incremental_rebuild(server, cli
     assert r1.headers["etag"] == f'"{f["webp1"].split(".")[0]}"'
     nm = client.get(f"/v1/bundle-files/{f['webp1']}", headers={"If-None-Match": r1.headers["etag"]})
     assert nm.status_code == 304 and nm.content == b"" and nm.headers["cache-control"] == IMMUTABLE
+    # again, now from the server's memory (routes/bundle_files.py CachedBundleFiles): the same answers
+    again = frame(client, f["webp1"])
+    assert again.content == r1.content and all(again.headers[h] == r1.headers[h] for h in
+                                                ("etag", "cache-control", "content-type", "content-length"))
+    nm = client.get(f"/v1/bundle-files/{f['webp1']}", headers={"If-None-Match": f'"x", {r1.headers["etag"]}'})
+    assert nm.status_code == 304 and nm.headers["etag"] == r1.headers["etag"]
+    assert client.get(f"/v1/bundle-files/{f['webp1']}", headers={"If-None-Match": '"x"'}).status_code == 200
     im1 = np.asarray(Image.open(io.BytesIO(r1.content)).convert("RGB"), np.float64)
     im2 = np.asarray(Image.open(io.BytesIO(frame(client, f["webp2"]).content)).convert("RGB"), np.float64)
     jp = Image.open(io.BytesIO(frame(client, f["jpeg1"]).content))
