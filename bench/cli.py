@@ -118,8 +118,12 @@ def cmd_bench_load(a) -> int:
 
 
 def cmd_bench_publish(a) -> int:
-    from .publish import bench_publish
+    from .publish import bench_publish, frame_cost
 
+    if a.in_process:
+        res = frame_cost(a.scene, cameras=a.cameras, width=a.width, height=a.height)
+        print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items()))
+        return 0
     res = bench_publish(azimuths=a.azimuths, elevations=a.elevations, width=a.width, height=a.height, port=a.port,
                         data_dir=a.data_dir, workers=a.workers, scene=a.scene, quiet=a.json)
     print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items()))
@@ -131,7 +135,7 @@ def cmd_bench_viewer(a) -> int:
 
     res = bench_viewer(clients=a.clients, frames=a.frames, interval=a.interval, ramp=a.ramp, runs=a.runs,
                        port=a.port, publication=a.publication, data_dir=a.data_dir, browser=not a.no_browser,
-                       quiet=a.json)
+                       quiet=a.json, azimuths=a.azimuths)
     print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items() if k != "runs"))
     return 0
 
@@ -169,6 +173,9 @@ def add_bench_commands(bsub) -> None:
     bp.add_argument("--width", type=int, default=640); bp.add_argument("--height", type=int, default=480)
     bp.add_argument("--scene", help="scene file (default: tests/scenes/bunny-ground.json)")
     bp.add_argument("--port", type=int); bp.add_argument("--data-dir"); bp.add_argument("--workers", type=int)
+    bp.add_argument("--in-process", action="store_true",
+                    help="only the CPU cost per view of the frames job, in this process (no service)")
+    bp.add_argument("--cameras", type=int, default=4, help="with --in-process: cameras (4 views each) measured")
     bp.add_argument("--json", action="store_true")
     bp.set_defaults(fn=cmd_bench_publish)
     bv = bsub.add_parser("viewer", help="N concurrent shoppers opening and turning a published object (loopback)")
@@ -177,6 +184,7 @@ def add_bench_commands(bsub) -> None:
     bv.add_argument("--ramp", type=float, default=2.0, help="seconds over which the shoppers arrive")
     bv.add_argument("--runs", type=int, default=2, help="identical runs in a row (memory must stay flat)")
     bv.add_argument("--port", type=int); bv.add_argument("--publication", help="a publication on --port (default: build one)")
+    bv.add_argument("--azimuths", type=int, default=72, help="of the bundle built here")
     bv.add_argument("--data-dir"); bv.add_argument("--no-browser", action="store_true", help="skip the first-image measurement")
     bv.add_argument("--json", action="store_true")
     bv.set_defaults(fn=cmd_bench_viewer)

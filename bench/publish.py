@@ -73,7 +73,7 @@ def bench_publish(azimuths: int = 72, elevations: int = 2, width: int = 640, hei
     figures (and, with keep, the running server and the publication id)."""
     import httpx
 
-    srv = Server(port, data_dir, quiet, workers=workers)
+    srv = Server(port, data_dir, quiet, workers=workers, demo=False)
     try:
         sid, env2, ids = setup(srv, Path(scene) if scene else SCENE)
         cam = json.loads(Path(scene or SCENE).read_text())["camera"]
@@ -196,18 +196,21 @@ def first_image_ms(base: str, pid: str, runs: int = 3) -> dict:
 
 def bench_viewer(clients: int = 1000, frames: int = 24, interval: float = 1.0, ramp: float = 2.0, runs: int = 2,
                  port: int | None = None, publication: str | None = None, data_dir: str | None = None,
-                 browser: bool = True, quiet: bool = False) -> dict:
+                 browser: bool = True, quiet: bool = False, azimuths: int = 72) -> dict:
     """``clients`` concurrent shoppers on one published object (built here at 640×480 unless
     ``publication`` on ``port`` is given), ``runs`` times: per-frame request latency, server
     memory after each run (flat: the file cache is bounded), the workers' CPU time during the
     runs (no frame is rendered), and the first image in Chromium."""
     srv = None
     if publication is None:
-        res, srv, publication = bench_publish(port=port, data_dir=data_dir, quiet=quiet, keep=True)
+        res, srv, publication = bench_publish(azimuths=azimuths, port=port, data_dir=data_dir, quiet=quiet, keep=True)
+        if not quiet:
+            print(json.dumps(res), file=sys.stderr)
     else:
+        res = None
         srv = Server(port, None, quiet)
     try:
-        out = {"publication": publication, "runs": []}
+        out = {"publication": publication, "build": res, "runs": []}
         mem0 = srv.memory()
         cpu0 = srv.cpu_seconds()
         for _ in range(runs):
@@ -228,3 +231,68 @@ def bench_viewer(clients: int = 1000, frames: int = 24, interval: float = 1.0, r
         return out
     finally:
         srv.close()
+
+
+class _LocalCache:
+    """What worker/publish/frames.py asks of a worker's data cache (a renderer, environment
+    maps, a part store), from a scene file in this process: the frame cost without the service."""
+
+    def __init__(self, renderer, maps: dict, store):
+        self._r, self._maps, self.parts = renderer, maps, store
+
+    def renderer(self, scene, kind=None):
+        return self._r
+
+    def envmap(self, e):
+        return self._maps[e["sha256"]]
+
+
+def frame_cost(scene: str | None = None, cameras: int = 4, width: int = 640, height: int = 480,
+               env2: Path = SECOND_ENV) -> dict:
+    """CPU seconds per view of the bundle_frames job, in this process (all its threads:
+    time.process_time), over ``cameras`` cameras × 2 variants × 2 environments at width ×
+    height, by stage: the machine's other load does not count, so it bounds the build time of
+    an idle machine (CPU seconds / cores)."""
+    import hashlib
+    import tempfile
+    import types
+
+    from worker.blobs import BlobStore, PartStore
+    from worker.cli import _renderer
+    from worker.envmap import load_envmap
+    from worker.publish.frames import render_frames
+    from worker.publish.manifest import plan
+    from worker.publish.turntable import default_elevations
+
+    path = Path(scene) if scene else SCENE
+    from worker.core.cuts import DEFAULT_TAU
+
+    r, _ = _renderer(types.SimpleNamespace(scene=str(path), cuts=None, tau=DEFAULT_TAU), quiet=True)
+    spec = json.loads(path.read_text())
+    envs = [(path.parent / spec["environment"]["map"]).resolve(), Path(env2)]
+    maps, env_list = {}, []
+    for p in envs:
+        sha = hashlib.sha256(p.read_bytes()).hexdigest()
+        maps[sha] = load_envmap(p)
+        env_list.append({"sha256": sha, "filename": p.name, "rotation_deg": 0.0, "intensity": 1.0})
+    payload = {"renderer": "cuts", "parts": {"scene": hashlib.sha256(path.read_bytes()).hexdigest()},
+               "files": {o["mesh"]: {"sha256": o["mesh"]} for o in spec["objects"]}, "spec": spec}
+    opts = {"azimuths": 72, "elevations_deg": default_elevations(spec["camera"]), "width": width, "height": height,
+            "samples": 1, "shading": "vertex", "tone": "neutral", "exposure": 0.0,
+            "ground_shadow": bool(spec.get("ground")),
+            "encode": {"webp_quality": 80, "webp_method": 2, "jpeg_quality": 85}}
+    pl = plan(payload, spec["objects"][0]["name"], [v["material"] for v in VARIANTS], env_list, opts)
+    views = pl["views"][:4 * cameras]
+    with tempfile.TemporaryDirectory() as d:
+        cache = _LocalCache(r, maps, PartStore(BlobStore(d)))
+        job = {"scene": payload, "object": spec["objects"][0]["name"], "variants": [v["material"] for v in VARIANTS],
+               "environments": env_list, "render": pl["render"], "encode": pl["encode"]}
+        render_frames(cache, {**job, "views": pl["views"][-4:]}, lambda f, m: None)    # warm: maps, tables
+        c0, t0 = time.process_time(), time.perf_counter()
+        res = render_frames(cache, {**job, "views": views}, lambda f, m: None)
+        cpu, wall = time.process_time() - c0, time.perf_counter() - t0
+    n = len(views)
+    return {"views": n, "width": width, "height": height, "cpu_s_per_view": round(cpu / n, 4),
+            "wall_s_per_view": round(wall / n, 4), "stage_ms_per_view": {k: round(v / n, 1) for k, v in res["ms"].items()},
+            "bytes_per_view": round(sum(sum(m["bytes"].values()) for m in res["meta"].values()) / n),
+            "idle_2core_estimate_s_576_views": round(576 * cpu / n / 2, 1)}

@@ -170,13 +170,13 @@ def pinch(page, cx, cy, d0, d1, steps=8):
     cdp.detach()
 
 
-def test_viewer_plays_the_bundle_on_phones(server, bunny_scene, client, browser, artifacts):
+def test_viewer_plays_the_bundle_on_phones(server, bunny_scene, client, browser, artifacts, tmp_path):
     # two designs and a publication made through the API, with a small bundle
     m = client.post("/v1/materials", json={"name": "Cherry red", "material": {"model": "ggx", "alpha": 0.2, "specular": [0.5, 0.5, 0.5],
                                                                               "albedo": [0.5, 0.05, 0.05]}}).json()
     m2 = client.post("/v1/materials", json={"name": "Ocean blue", "material": {"model": "lambert", "albedo": [0.05, 0.1, 0.6]}}).json()
     pub = client.post("/v1/publications", json={"name": "bunny colours", "scene_id": bunny_scene, "live": True,
-                                                "bundle": {"azimuths": 24, "elevations_deg": [10, 35]},
+                                                "bundle": {"azimuths": 12, "elevations_deg": [10, 35], "width": 320, "height": 240},
                                                 "variants": [{"material_id": m["id"]}, {"material_id": m2["id"]}],
                                                 "environments": [{}, {"label": "Sunset, turned", "rotation_deg": 120}]})
     assert pub.status_code == 201, pub.text
@@ -256,6 +256,48 @@ def test_viewer_plays_the_bundle_on_phones(server, bunny_scene, client, browser,
     page.screenshot(path=str(artifacts / "web-10-phone-landscape.png"))
     assert not errors, errors
     ctx.close()
+
+    # the downloaded bundle plays from a plain static file server, no Glint behind it
+    import io
+    import subprocess
+    import sys
+    import zipfile
+
+    from helpers import free_port
+
+    site = tmp_path / "site"
+    zipfile.ZipFile(io.BytesIO(client.get(f"/v1/publications/{pid}/bundle.zip").content)).extractall(site)
+    port = free_port()
+    static = subprocess.Popen([sys.executable, "-m", "http.server", str(port), "--bind", "127.0.0.1"], cwd=site,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        ctx = browser.new_context(viewport={"width": 1024, "height": 800})
+        page = ctx.new_page()
+        page.on("pageerror", lambda e: errors.append(str(e)))
+        hosts = []
+        page.on("request", lambda r: hosts.append(r.url.split("/")[2]))
+        for _ in range(50):
+            try:
+                page.goto(f"http://127.0.0.1:{port}/index.html")
+                break
+            except pw.Error:
+                time.sleep(0.2)                 # the file server is starting
+        wait_drawn(page, 0)
+        page.wait_for_timeout(500)
+        g0 = grid(page)
+        bb = page.locator("#view").bounding_box()
+        n = drawn(page)
+        drag(page, bb["x"] + 0.7 * bb["width"], bb["y"] + 0.5 * bb["height"], -0.3 * bb["width"], 0, steps=8)
+        wait_drawn(page, n)
+        assert np.abs(grid(page) - g0).mean() > 1
+        assert page.locator(".swatch").all_inner_texts() == ["Cherry red", "Ocean blue"]
+        assert set(hosts) == {f"127.0.0.1:{port}"}, set(hosts)        # everything from the static host
+        page.screenshot(path=str(artifacts / "web-11-static-bundle.png"))
+        assert not errors, errors
+        ctx.close()
+    finally:
+        static.terminate()
+        static.wait(timeout=10)
 
     # a viewer session (live mode, allowed here) cannot edit: strokes, materials and saves are refused
     from websockets.sync.client import connect      # (Playwright's sync API owns this thread's event loop)

@@ -45,8 +45,12 @@ export class BundlePlayer {
   get A() { return this.m.azimuths_deg.length; }
   get E() { return this.m.elevations_deg.length; }
 
-  /** Whether the 2× set is what the screen needs: zoomed in, or a high-DPI screen. */
-  get hi() { return this.webp && (this.zoom > 1.01 || (window.devicePixelRatio || 1) > 1.5); }
+  /** Whether the 2× set is what the screen needs: zoomed in, or a stage wider in device
+   *  pixels than the 1× frame by a quarter (a high-DPI screen, a large window). */
+  get hi() {
+    const px = (this.canvas.clientWidth || this.m.width) * (window.devicePixelRatio || 1);
+    return this.webp && (this.zoom > 1.01 || px > 1.25 * this.m.width);
+  }
 
   entry(v, e, el, az) { return this.m.frames[v][e][el][((az % this.A) + this.A) % this.A]; }
 
