@@ -124,32 +124,41 @@ def bench_publish(azimuths: int = 72, elevations: int = 2, width: int = 640, hei
             srv.close()
 
 
-async def _shopper(c, pid: str, man: dict, frames: int, interval: float, delay: float, lat: list, opened: list,
-                   errors: list) -> None:
+_TLS = None       # one TLS context for every shopper's client (loopback is plain HTTP; httpx builds
+                  # one per client otherwise, reading the CA bundle: ~30 ms of CPU each)
+
+
+async def _shopper(base: str, pid: str, man: dict, frames: int, interval: float, delay: float, lat: list,
+                   opened: list, errors: list) -> None:
     """One shopper: opens the viewer page (page, scripts, manifest, first frame), then turns the
     object, fetching one frame it does not have yet every ``interval`` s (a browser caches
-    the immutable files, so each is fetched once)."""
+    the immutable files, so each is fetched once). Its own client and connection, as a
+    browser's: one pool shared by a thousand connections spent the benchmark's CPU in
+    httpcore's pool bookkeeping rather than in requests."""
+    import httpx
+
     await asyncio.sleep(delay)
     try:
-        t0 = time.perf_counter()
-        for u in (f"/view/{pid}", "/web/js/viewer.js", "/web/js/player.js", "/web/css/viewer.css",
-                  f"/v1/publications/{pid}/manifest"):
-            r = await c.get(u)
-            if r.status_code != 200:
-                errors.append(f"{u}: {r.status_code}")
-                return
-        ring = man["frames"][0][0][0]
-        a = random.randrange(len(ring))
-        for k in range(frames + 1):
-            t1 = time.perf_counter()
-            r = await c.get(f"/v1/bundle-files/{ring[(a + k) % len(ring)]['webp1']}")
-            dt = time.perf_counter() - t1
-            if r.status_code != 200:
-                errors.append(f"frame: {r.status_code}")
-            lat.append(dt)
-            if k == 0:
-                opened.append(time.perf_counter() - t0)
-            await asyncio.sleep(interval * (0.5 + random.random()))
+        async with httpx.AsyncClient(base_url=base, timeout=60, verify=_TLS) as c:
+            t0 = time.perf_counter()
+            for u in (f"/view/{pid}", "/web/js/viewer.js", "/web/js/player.js", "/web/css/viewer.css",
+                      f"/v1/publications/{pid}/manifest"):
+                r = await c.get(u)
+                if r.status_code != 200:
+                    errors.append(f"{u}: {r.status_code}")
+                    return
+            ring = man["frames"][0][0][0]
+            a = random.randrange(len(ring))
+            for k in range(frames + 1):
+                t1 = time.perf_counter()
+                r = await c.get(f"/v1/bundle-files/{ring[(a + k) % len(ring)]['webp1']}")
+                dt = time.perf_counter() - t1
+                if r.status_code != 200:
+                    errors.append(f"frame: {r.status_code}")
+                lat.append(dt)
+                if k == 0:
+                    opened.append(time.perf_counter() - t0)
+                await asyncio.sleep(interval * (0.5 + random.random()))
     except Exception as e:   # a refused or dropped connection is a result, counted
         errors.append(f"{type(e).__name__}: {e}")
 
@@ -157,14 +166,17 @@ async def _shopper(c, pid: str, man: dict, frames: int, interval: float, delay: 
 async def _load(base: str, pid: str, clients: int, frames: int, interval: float, ramp: float) -> dict:
     import httpx
 
-    limits = httpx.Limits(max_connections=clients, max_keepalive_connections=clients)
-    async with httpx.AsyncClient(base_url=base, limits=limits, timeout=60) as c:
+    import ssl
+
+    global _TLS
+    _TLS = ssl.create_default_context()
+    async with httpx.AsyncClient(base_url=base, timeout=60) as c:
         man = (await c.get(f"/v1/publications/{pid}/manifest")).json()
-        lat, opened, errors = [], [], []
-        t0 = time.perf_counter()
-        await asyncio.gather(*(_shopper(c, pid, man, frames, interval, ramp * i / clients, lat, opened, errors)
-                               for i in range(clients)))
-        wall = time.perf_counter() - t0
+    lat, opened, errors = [], [], []
+    t0 = time.perf_counter()
+    await asyncio.gather(*(_shopper(base, pid, man, frames, interval, ramp * i / clients, lat, opened, errors)
+                           for i in range(clients)))
+    wall = time.perf_counter() - t0
     ms = [x * 1e3 for x in lat]
     return {"clients": clients, "frame_requests": len(ms), "errors": len(errors), "error_examples": errors[:3],
             "seconds": round(wall, 1), "requests_per_s": round(len(ms) / wall, 1),
@@ -208,7 +220,9 @@ def bench_viewer(clients: int = 1000, frames: int = 24, interval: float = 1.0, r
             print(json.dumps(res), file=sys.stderr)
     else:
         res = None
-        srv = Server(port, None, quiet)
+        # a publication of a data folder: served by a server this starts on it (so its
+        # processes' memory and CPU can be read), or by the one on ``port``
+        srv = Server(port, data_dir, quiet, demo=False)
     try:
         out = {"publication": publication, "build": res, "runs": []}
         mem0 = srv.memory()
