@@ -166,8 +166,32 @@ def cmd_bench_load(a) -> int:
     return 0
 
 
+def cmd_bench_publish(a) -> int:
+    from .publish import bench_publish, frame_cost
+
+    if a.in_process:
+        res = frame_cost(a.scene, cameras=a.cameras, width=a.width, height=a.height)
+        print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items()))
+        return 0
+    res = bench_publish(azimuths=a.azimuths, elevations=a.elevations, width=a.width, height=a.height, port=a.port,
+                        data_dir=a.data_dir, workers=a.workers, scene=a.scene, quiet=a.json)
+    print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items()))
+    return 0
+
+
+def cmd_bench_viewer(a) -> int:
+    from .publish import bench_viewer
+
+    res = bench_viewer(clients=a.clients, frames=a.frames, interval=a.interval, ramp=a.ramp, runs=a.runs,
+                       port=a.port, publication=a.publication, data_dir=a.data_dir, browser=not a.no_browser,
+                       quiet=a.json, azimuths=a.azimuths)
+    print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items() if k != "runs"))
+    return 0
+
+
 def add_bench_commands(bsub) -> None:
-    """``glint bench render | fit | stream | load`` into the subparsers of ``glint bench``."""
+    """``glint bench render | fit | stream | load | publish | viewer`` into the subparsers of
+    ``glint bench``."""
     from worker.cli import fit_options
     from worker.core.cuts import DEFAULT_TAU
 
@@ -203,6 +227,26 @@ def add_bench_commands(bsub) -> None:
     bl.add_argument("--port", type=int); bl.add_argument("--data-dir"); bl.add_argument("--workers", type=int)
     bl.add_argument("--json", action="store_true")
     bl.set_defaults(fn=cmd_bench_load)
+    bp = bsub.add_parser("publish", help="build a static bundle (2 variants × 2 environments), then rebuild after one change")
+    bp.add_argument("--azimuths", type=int, default=72); bp.add_argument("--elevations", type=int, default=2)
+    bp.add_argument("--width", type=int, default=640); bp.add_argument("--height", type=int, default=480)
+    bp.add_argument("--scene", help="scene file (default: tests/scenes/bunny-ground.json)")
+    bp.add_argument("--port", type=int); bp.add_argument("--data-dir"); bp.add_argument("--workers", type=int)
+    bp.add_argument("--in-process", action="store_true",
+                    help="only the CPU cost per view of the frames job, in this process (no service)")
+    bp.add_argument("--cameras", type=int, default=4, help="with --in-process: cameras (4 views each) measured")
+    bp.add_argument("--json", action="store_true")
+    bp.set_defaults(fn=cmd_bench_publish)
+    bv = bsub.add_parser("viewer", help="N concurrent shoppers opening and turning a published object (loopback)")
+    bv.add_argument("--clients", type=int, default=1000); bv.add_argument("--frames", type=int, default=24)
+    bv.add_argument("--interval", type=float, default=1.0, help="mean seconds between a shopper's frame requests")
+    bv.add_argument("--ramp", type=float, default=2.0, help="seconds over which the shoppers arrive")
+    bv.add_argument("--runs", type=int, default=2, help="identical runs in a row (memory must stay flat)")
+    bv.add_argument("--port", type=int); bv.add_argument("--publication", help="a publication on --port (default: build one)")
+    bv.add_argument("--azimuths", type=int, default=72, help="of the bundle built here")
+    bv.add_argument("--data-dir"); bv.add_argument("--no-browser", action="store_true", help="skip the first-image measurement")
+    bv.add_argument("--json", action="store_true")
+    bv.set_defaults(fn=cmd_bench_viewer)
 
 
 def add_commands(sub) -> None:

@@ -53,7 +53,8 @@ def pct(v, q):
 class Server:
     """``glint serve`` started for the benchmark (or one already running on ``port``)."""
 
-    def __init__(self, port: int | None, data_dir: str | None, quiet: bool, workers: int | None = None):
+    def __init__(self, port: int | None, data_dir: str | None, quiet: bool, workers: int | None = None,
+                 demo: bool = True):
         import httpx
 
         self.proc = None
@@ -64,6 +65,8 @@ class Server:
                 cmd += ["--data-dir", data_dir]
             if workers:
                 cmd += ["--workers", str(workers)]
+            if not demo:
+                cmd += ["--no-demo"]
             log = open(os.devnull, "w") if quiet else sys.stderr
             self.proc = subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=log)
         self.port = port

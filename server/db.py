@@ -162,6 +162,12 @@ class Publication(Base):
     object: Mapped[str] = mapped_column(String(255))
     variants: Mapped[list] = mapped_column(JSON)        # [{"label", "material_id", "version", "material"}]
     environments: Mapped[list] = mapped_column(JSON)    # [{"label", "asset_id", "rotation_deg"}]
+    # the shopper viewer may open a live (streaming, free camera) session; else only the bundle
+    live: Mapped[bool] = mapped_column(Boolean, default=False, server_default=false())
+    bundle: Mapped[dict | None] = mapped_column(JSON, nullable=True)   # the bundle options
+    # the latest build: {"id", "status", "progress", "message", "stats", "manifest_sha256" (the
+    # last finished build's manifest, served while a rebuild runs)}
+    build: Mapped[dict | None] = mapped_column(JSON, nullable=True)
     created: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now)
 
 

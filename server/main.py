@@ -29,7 +29,7 @@ from .config import Settings
 from .deps import Client, check_host, check_origin
 from .logs import RequestContext, redact_text
 from .metrics import CONTENT_TYPE, Metrics
-from .routes import assets, captures, exports, materials, publications, renders, scenes, sessions
+from .routes import assets, bundle_files, captures, exports, materials, publications, renders, scenes, sessions
 from .state import AppState
 
 log = logging.getLogger("glint")
@@ -248,6 +248,8 @@ def create_app(settings: Settings | None = None, pool=None) -> FastAPI:
 
     app.add_middleware(JsonBodyCap, limit=settings.max_json_body_bytes)
     app.add_middleware(SecurityHeaders, embed_origins=settings.embed_origins)
+    # published frames already in memory are answered before the layers above (routes/bundle_files.py)
+    app.add_middleware(bundle_files.CachedBundleFiles)
     # outermost: a request id for every request and stream, its access line and its metrics
     app.add_middleware(RequestContext, observe=metrics.http)
 
@@ -310,7 +312,7 @@ def create_app(settings: Settings | None = None, pool=None) -> FastAPI:
 
         return describe()
 
-    for r in (assets, scenes, renders, materials, publications, sessions, captures, exports):
+    for r in (assets, scenes, renders, materials, publications, bundle_files, sessions, captures, exports):
         app.include_router(r.router)
 
     web = Path(settings.web_dir)

@@ -10,7 +10,16 @@ from sqlalchemy import select
 from worker.blobs import BlobStore
 
 from .config import Settings
-from .db import Asset, Capture, Precomputation, Scene, Session, StrokeRow, make_sessionmaker
+from .db import (
+    Asset,
+    Capture,
+    Precomputation,
+    Publication,
+    Scene,
+    Session,
+    StrokeRow,
+    make_sessionmaker,
+)
 from .sessions_store import SessionStore
 from .workers import WorkerPool, make_pool
 
@@ -57,6 +66,10 @@ class AppState:
             for p in s.scalars(select(Precomputation).where(Precomputation.status.in_(("queued", "running")))):
                 p.status = "failed"
                 p.message = "interrupted by a server restart; start the precomputation again (finished parts are kept)"
+            for p in s.scalars(select(Publication).where(Publication.build.is_not(None))):
+                if (p.build or {}).get("status") in ("queued", "running"):
+                    p.build = {**p.build, "status": "failed", "message": "interrupted by a server restart; publish "
+                               "again (frames already made are kept)"}
             for c in s.scalars(select(Capture).where(Capture.status.in_(("queued", "running")))):
                 c.status = "failed"
                 c.message = "interrupted by a server restart; upload the capture again"

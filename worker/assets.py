@@ -619,6 +619,8 @@ def demo_scene(dest: Path | None = None) -> Path:
             "objects": [{"name": "chair", "mesh": "meshes/oakChair/oakChair.obj",
                          "transform": {"scale": 1.0, "rotate_deg": [0, 30, 0], "translate": [0, 0, 0]},
                          "material": {"model": "ggx", "alpha": 0.3, "specular": [0.04, 0.04, 0.04], "albedo": [0.55, 0.38, 0.22]}}],
+            # the chair stands on the floor: its shadow there (a shadow-catcher ground plane)
+            "ground": {"shadow": True},
         }
         path = dest / "demo.json"
         path.write_text(json.dumps(scene, indent=2))

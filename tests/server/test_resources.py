@@ -6,6 +6,9 @@ from pathlib import Path
 
 from websockets.sync.client import connect
 
+# a live publication with the smallest bundle: these tests are about its sessions
+TINY = {"azimuths": 1, "elevations_deg": [20]}
+
 
 def _rss_mib(pids) -> float:
     total = 0
@@ -46,7 +49,7 @@ def _viewer_round(server, client, pid: str, n: int) -> list[str]:
 
 def test_viewer_sessions_are_closed_and_memory_is_returned(server, client, bunny_scene):
     m = client.post("/v1/materials", json={"name": "grey", "material": {"model": "lambert"}}).json()
-    pub = client.post("/v1/publications", json={"name": "p", "scene_id": bunny_scene,
+    pub = client.post("/v1/publications", json={"name": "p", "scene_id": bunny_scene, "live": True, "bundle": TINY,
                                                 "variants": [{"material_id": m["id"]}]}).json()
     workers = _children(server["proc"].pid)
     _viewer_round(server, client, pub["id"], 10)            # warm: scene data loaded once

@@ -32,7 +32,8 @@ def abuse(tmp_path_factory, shared_assets):
     with httpx.Client(base_url=srv.base, timeout=120) as c:
         scene = _upload_scene(c, shared_assets)
         m = c.post("/v1/materials", json={"name": "grey", "material": {"model": "lambert"}}).json()
-        pub = c.post("/v1/publications", json={"name": "p", "scene_id": scene, "variants": [{"material_id": m["id"]}]})
+        pub = c.post("/v1/publications", json={"name": "p", "scene_id": scene, "live": True, "bundle": {"azimuths": 1, "elevations_deg": [20]},
+                                               "variants": [{"material_id": m["id"]}]})
         assert pub.status_code == 201, pub.text
         yield srv, c, scene, pub.json()["id"]
     srv.stop()

@@ -2,6 +2,7 @@
 against the real server fixture. Screenshots of every step go to test-artifacts/web-*.png."""
 import json
 import shutil
+import time
 
 import numpy as np
 import pytest
@@ -117,57 +118,188 @@ def test_studio_and_viewer(server, bunny_scene, browser, artifacts):
     viewer = ctx.new_page()
     viewer.on("pageerror", lambda e: errors.append(str(e)))
     viewer.goto(base + href)
-    wait_new_frame(viewer, 0)
-    settle(viewer)
+    # the publication's bundle is built as a job: the viewer waits for it, then plays it
+    wait_drawn(viewer, 0, timeout=240_000)
     gv = grid(viewer)
     viewer.screenshot(path=str(artifacts / "web-6-viewer.png"))
     assert gv.std() > 5
     assert viewer.locator(".swatch").count() == 1
+    assert viewer.locator(".swatch").inner_text() == "curved bunny"       # the design's name, shown
     assert viewer.locator("#design-name").count() == 0 and viewer.locator("#save").count() == 0   # read-only
-    # the screenshot downloads a PNG
+    # the screenshot downloads a PNG of the 2× frame
     with viewer.expect_download() as dl:
         viewer.click("#screenshot")
     path = dl.value.path()
     assert open(path, "rb").read(8) == b"\x89PNG\r\n\x1a\n"
+    from PIL import Image
+    assert Image.open(path).size == (320, 240)                           # the scene camera's 160×120, twice
     assert dl.value.suggested_filename.endswith(".png")
     assert not errors, errors
     ctx.close()
 
 
-def test_viewer_on_a_phone_and_read_only(server, bunny_scene, client, browser, artifacts):
-    # a design and a publication made through the API
-    m = client.post("/v1/materials", json={"name": "red", "material": {"model": "ggx", "alpha": 0.2, "specular": [0.5, 0.5, 0.5],
-                                                                       "albedo": [0.5, 0.05, 0.05]}}).json()
-    m2 = client.post("/v1/materials", json={"name": "blue", "material": {"model": "lambert", "albedo": [0.05, 0.1, 0.6]}}).json()
-    pub = client.post("/v1/publications", json={"name": "bunny colours", "scene_id": bunny_scene,
+def wait_drawn(page, after, timeout=60_000):
+    """Wait until the bundle player has drawn more than ``after`` frames."""
+    page.wait_for_function(f"() => +(document.getElementById('view').dataset.drawn || 0) > {after}", timeout=timeout)
+
+
+def drawn(page) -> int:
+    return int(page.evaluate("() => +(document.getElementById('view').dataset.drawn || 0)"))
+
+
+def no_overflow(page) -> dict:
+    """The page's scroll size against its viewport, and the stage's box."""
+    return page.evaluate("""() => { const d = document.documentElement, b = document.getElementById('stage').getBoundingClientRect();
+      return {sw: d.scrollWidth, sh: d.scrollHeight, w: innerWidth, h: innerHeight,
+              stage: [b.left, b.top, b.right, b.bottom]}; }""")
+
+
+def pinch(page, cx, cy, d0, d1, steps=8):
+    """Two fingers from d0 to d1 apart about (cx, cy), through Chromium's touch input (CDP):
+    Playwright's API has one pointer only."""
+    cdp = page.context.new_cdp_session(page)
+
+    def touch(kind, d):
+        pts = [] if kind == "touchEnd" else [{"x": cx - d / 2, "y": cy, "id": 1}, {"x": cx + d / 2, "y": cy, "id": 2}]
+        cdp.send("Input.dispatchTouchEvent", {"type": kind, "touchPoints": pts})
+    touch("touchStart", d0)
+    for k in range(1, steps + 1):
+        touch("touchMove", d0 + (d1 - d0) * k / steps)
+        page.wait_for_timeout(30)
+    touch("touchEnd", d1)
+    cdp.detach()
+
+
+def test_viewer_plays_the_bundle_on_phones(server, bunny_scene, client, browser, artifacts, tmp_path):
+    # two designs and a publication made through the API, with a small bundle
+    m = client.post("/v1/materials", json={"name": "Cherry red", "material": {"model": "ggx", "alpha": 0.2, "specular": [0.5, 0.5, 0.5],
+                                                                              "albedo": [0.5, 0.05, 0.05]}}).json()
+    m2 = client.post("/v1/materials", json={"name": "Ocean blue", "material": {"model": "lambert", "albedo": [0.05, 0.1, 0.6]}}).json()
+    pub = client.post("/v1/publications", json={"name": "bunny colours", "scene_id": bunny_scene, "live": True,
+                                                "bundle": {"azimuths": 12, "elevations_deg": [10, 35], "width": 320, "height": 240},
                                                 "variants": [{"material_id": m["id"]}, {"material_id": m2["id"]}],
-                                                "environments": [{"label": "sunset"}, {"label": "sunset, turned", "rotation_deg": 120}]})
+                                                "environments": [{}, {"label": "Sunset, turned", "rotation_deg": 120}]})
     assert pub.status_code == 201, pub.text
     pid = pub.json()["id"]
-    ctx = browser.new_context(viewport={"width": 390, "height": 844}, is_mobile=True, has_touch=True)
+    for _ in range(960):
+        b = client.get(f"/v1/publications/{pid}").json()["bundle"]
+        if b["status"] in ("done", "failed"):
+            break
+        time.sleep(0.25)
+    assert b["status"] == "done", b
+
+    ctx = browser.new_context(viewport={"width": 390, "height": 844}, is_mobile=True, has_touch=True, accept_downloads=True)
     page = ctx.new_page()
+    errors, requests = [], []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.on("request", lambda r: requests.append(r.url))
     page.goto(server["base"] + f"/view/{pid}")
-    wait_new_frame(page, 0)
-    settle(page)
+    wait_drawn(page, 0)
+    page.wait_for_timeout(1500)                 # the ring preloads
     g0 = grid(page)
+    o = no_overflow(page)
+    assert o["sw"] <= o["w"], o                                       # portrait: nothing sticks out sideways
     bb = page.locator("#view").bounding_box()
-    assert bb["width"] <= 390 and bb["width"] > 300                 # fits the phone
+    assert 300 < bb["width"] <= 390, bb                               # the stage takes the phone's width
+    # swatches carry their names; the lighting menu the maps' true names
+    labels = [page.locator(".swatch").nth(i).inner_text() for i in range(2)]
+    assert labels == ["Cherry red", "Ocean blue"] and page.locator(".swatch-label").first.is_visible()
+    assert page.locator("#environment option").all_inner_texts() == ["Sunset", "Sunset, turned"]
+    assert page.locator("#readout").count() == 0 and "fps" not in page.inner_text("body")   # no debug figures
     page.screenshot(path=str(artifacts / "web-7-phone.png"))
-    n = frame_no(page)
-    page.locator(".swatch").nth(1).click()                          # switch variant
-    wait_new_frame(page, n)
-    settle(page)
+
+    # a swipe turns the object: frames swap locally, nothing goes to a session or a worker
+    before = len(requests)
+    az0 = page.evaluate("() => window.glintViewer.az")
+    n = drawn(page)
+    drag(page, bb["x"] + 0.7 * bb["width"], bb["y"] + 0.5 * bb["height"], -0.4 * bb["width"], 0, steps=10)
+    wait_drawn(page, n)
+    assert page.evaluate("() => window.glintViewer.az") != az0
     g1 = grid(page)
-    assert np.abs(g1 - g0).mean() > 2
-    n = frame_no(page)
-    page.select_option("#environment", "1")                         # another lighting preset
-    wait_new_frame(page, n)
-    settle(page)
-    assert np.abs(grid(page) - g1).mean() > 1
+    assert np.abs(g1 - g0).mean() > 1, "swiping did not turn the object"
+    during = requests[before:]
+    assert not [u for u in during if "/sessions" in u or "/v1/renders" in u or "/stream" in u], during
+    assert all("/v1/bundle-files/" in u for u in during), during       # at most the frames not yet preloaded
+
+    # another variant and another lighting preset
+    page.locator(".swatch").nth(1).click()
+    page.wait_for_timeout(800)
+    g2 = grid(page)
+    assert np.abs(g2 - g1).mean() > 2
+    page.select_option("#environment", "1")
+    page.wait_for_timeout(800)
+    assert np.abs(grid(page) - g2).mean() > 1
     page.screenshot(path=str(artifacts / "web-8-phone-variant.png"))
+
+    # a pinch zooms in and switches to the 2× set
+    assert page.evaluate("() => document.getElementById('view').dataset.set") == "1x"
+    n2x = sum("/v1/bundle-files/" in u for u in requests)
+    pinch(page, bb["x"] + bb["width"] / 2, bb["y"] + bb["height"] / 2, 60, 180)
+    page.wait_for_function("() => document.getElementById('view').dataset.set === '2x'", timeout=10_000)
+    assert page.evaluate("() => window.glintViewer.zoom") > 1.5
+    assert sum("/v1/bundle-files/" in u for u in requests) > n2x       # the 2× frames were fetched
+    page.screenshot(path=str(artifacts / "web-9-phone-zoomed.png"))
+    assert not [u for u in requests if "/sessions" in u or "/stream" in u], requests
     ctx.close()
 
-    # a viewer session cannot edit: strokes, materials and saves are refused
+    # the same phone held sideways: the stage and the controls fit the screen, no scrolling
+    ctx = browser.new_context(viewport={"width": 844, "height": 390}, is_mobile=True, has_touch=True)
+    page = ctx.new_page()
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(server["base"] + f"/view/{pid}")
+    wait_drawn(page, 0)
+    o = no_overflow(page)
+    assert o["sw"] <= o["w"] and o["sh"] <= o["h"], o
+    x0, y0, x1, y1 = o["stage"]
+    assert x0 >= 0 and y0 >= 0 and x1 <= o["w"] and y1 <= o["h"] and (y1 - y0) > 0.8 * o["h"], o
+    assert page.locator(".swatch-label").nth(1).is_visible()
+    page.screenshot(path=str(artifacts / "web-10-phone-landscape.png"))
+    assert not errors, errors
+    ctx.close()
+
+    # the downloaded bundle plays from a plain static file server, no Glint behind it
+    import io
+    import subprocess
+    import sys
+    import zipfile
+
+    from helpers import free_port
+
+    site = tmp_path / "site"
+    zipfile.ZipFile(io.BytesIO(client.get(f"/v1/publications/{pid}/bundle.zip").content)).extractall(site)
+    port = free_port()
+    static = subprocess.Popen([sys.executable, "-m", "http.server", str(port), "--bind", "127.0.0.1"], cwd=site,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        ctx = browser.new_context(viewport={"width": 1024, "height": 800})
+        page = ctx.new_page()
+        page.on("pageerror", lambda e: errors.append(str(e)))
+        hosts = []
+        page.on("request", lambda r: hosts.append(r.url.split("/")[2]))
+        for _ in range(50):
+            try:
+                page.goto(f"http://127.0.0.1:{port}/index.html")
+                break
+            except pw.Error:
+                time.sleep(0.2)                 # the file server is starting
+        wait_drawn(page, 0)
+        page.wait_for_timeout(500)
+        g0 = grid(page)
+        bb = page.locator("#view").bounding_box()
+        n = drawn(page)
+        drag(page, bb["x"] + 0.7 * bb["width"], bb["y"] + 0.5 * bb["height"], -0.3 * bb["width"], 0, steps=8)
+        wait_drawn(page, n)
+        assert np.abs(grid(page) - g0).mean() > 1
+        assert page.locator(".swatch").all_inner_texts() == ["Cherry red", "Ocean blue"]
+        assert set(hosts) == {f"127.0.0.1:{port}"}, set(hosts)        # everything from the static host
+        page.screenshot(path=str(artifacts / "web-11-static-bundle.png"))
+        assert not errors, errors
+        ctx.close()
+    finally:
+        static.terminate()
+        static.wait(timeout=10)
+
+    # a viewer session (live mode, allowed here) cannot edit: strokes, materials and saves are refused
     from websockets.sync.client import connect      # (Playwright's sync API owns this thread's event loop)
 
     ses = client.post(f"/v1/publications/{pid}/sessions").json()

@@ -1,4 +1,4 @@
-"""The worker's job handlers (precompute, render, fit, capture, export), in one registry: ``JOBS``,
+"""The worker's job handlers (precompute, render, fit, capture, export, bundle_frames), in one registry: ``JOBS``,
 job type -> handler(cache, payload, progress) -> result dict. progress : (fraction 0..1,
 message) -> None; a handler raises JobError (or GlintError, ValueError) for bad input."""
 from __future__ import annotations
@@ -190,9 +190,15 @@ def _export(cache: DataCache, p: dict, progress) -> dict:
         shutil.rmtree(work, ignore_errors=True)
 
 
+def _bundle_frames(cache: DataCache, p: dict, progress) -> dict:
+    from worker.publish.frames import render_frames
+
+    return render_frames(cache, p, progress)
+
+
 JOBS = {"render": lambda cache, p, progress: _render(cache, p),
         "fit": lambda cache, p, progress: _fit(cache, p),
-        "precompute": _precompute, "capture": _capture, "export": _export}
+        "precompute": _precompute, "capture": _capture, "export": _export, "bundle_frames": _bundle_frames}
 
 
 def run_job(cache: DataCache, p: dict, progress) -> dict:

@@ -1,7 +1,7 @@
 """The worker's end of its two pipes to the server.
 
 Requests (server → worker):
-    ("job", job_id, {"type": "precompute" | "render" | "fit" | "capture", ...})
+    ("job", job_id, {"type": "precompute" | "render" | "fit" | "capture" | "bundle_frames", ...})
     ("open", session_id, {"scene": {...}, "state": {...}, "strokes": [...], "ack": int})
     ("msg", session_id, {client message})
     ("close", session_id, None)

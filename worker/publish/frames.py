@@ -1,0 +1,137 @@
+"""Rendering and encoding a batch of turntable frames in a worker (the ``bundle_frames`` job).
+
+Each view is rendered once, at twice the published resolution (the 2× set, for high-DPI screens
+and zoom); the 1× frame is its 2 × 2 box average in linear radiance before tone mapping, so it
+carries four samples per pixel: anti-aliased at no extra render (a pixel's value is the mean
+radiance over its footprint). Views of one camera are rendered together, camera-major, so the
+primary hits (the largest cost) are traced once for all variants and environments of a camera.
+
+Files, each stored in the blob store under its key (keys.py ``file_key``):
+
+* ``webp2``: the 2× frame, WebP (Pillow/libwebp), ``webp_quality``;
+* ``webp1``: the 1× frame, WebP;
+* ``jpeg1``: the 1× frame, baseline JPEG ``jpeg_quality``: the fallback for browsers without
+  WebP, which get no 2× set (they zoom the 1× frame instead);
+* ``meta``: JSON {"swatch": [r, g, b] 0..255, "coverage": fraction of the frame the object covers},
+  written last, so its presence means the frame's files are all stored.
+"""
+from __future__ import annotations
+
+import io
+import json
+import time
+
+import numpy as np
+
+from .keys import file_key
+
+DEFAULT_ENCODE = {"webp_quality": 80, "webp_method": 2, "jpeg_quality": 85}
+
+
+def downsample2(radiance: np.ndarray) -> np.ndarray:
+    """(2H, 2W, 3) float32 linear radiance -> (H, W, 3) float32, the mean of each 2 × 2 block."""
+    h, w = radiance.shape[0] // 2, radiance.shape[1] // 2
+    return radiance[:2 * h, :2 * w].reshape(h, 2, w, 2, 3).mean(axis=(1, 3), dtype=np.float32)
+
+
+def encode(rgb1: np.ndarray, rgb2: np.ndarray, enc: dict) -> dict[str, bytes]:
+    """The encoded files of one frame from its (H, W, 3) and (2H, 2W, 3) uint8 sRGB images."""
+    from PIL import Image
+
+    out = {}
+    for name, rgb, fmt in (("webp2", rgb2, "WEBP"), ("webp1", rgb1, "WEBP"), ("jpeg1", rgb1, "JPEG")):
+        buf = io.BytesIO()
+        if fmt == "WEBP":
+            Image.fromarray(rgb).save(buf, format="WEBP", quality=enc["webp_quality"], method=enc["webp_method"])
+        else:
+            Image.fromarray(rgb).save(buf, format="JPEG", quality=enc["jpeg_quality"])
+        out[name] = buf.getvalue()
+    return out
+
+
+def swatch(rgb1: np.ndarray, obj_mask: np.ndarray) -> tuple[list[int], float]:
+    """([r, g, b] mean sRGB colour of the object's pixels, the fraction of pixels it covers):
+    the colour a shopper sees on the object, for the variant's swatch."""
+    n = int(obj_mask.sum())
+    if n == 0:
+        return [128, 128, 128], 0.0
+    return [int(round(float(c))) for c in rgb1[obj_mask].mean(0)], n / obj_mask.size
+
+
+def render_frames(cache, p: dict, progress) -> dict:
+    """The ``bundle_frames`` job: render, encode and store the views of ``p``.
+
+    p : {"scene": scene payload, "object": name, "variants": [scene material dicts],
+    "environments": [{"sha256", "filename", "rotation_deg", "intensity"}], "views": [{"key",
+    "variant", "environment", "camera" (the 2× camera)}] (grouped by camera), "render":
+    {"samples", "shading", "tone", "exposure", "ground_shadow"}, "encode": encoder settings}.
+    Returns {"files": {key: {name: sha256}}, "meta": {key: meta}, "rendered", "skipped",
+    "seconds", "ms": {stage: total ms}}. A view whose files are already stored is skipped."""
+    from worker.core.tonemap import tonemap
+    from worker.models import parse_material
+    from worker.renderers import FrameRequest, Lighting
+    from worker.scene import Camera
+
+    from ..jobs.ipc import JobError
+
+    t0 = time.perf_counter()
+    scene = p["scene"]
+    r = cache.renderer(scene)
+    if "camera" not in r.controls:          # a fixed-view renderer (GI): the turntable's is the cut renderer
+        r = cache.renderer(scene, kind="cuts")
+    names = [o.name for o in r.scene.spec.objects]
+    if p["object"] not in names:
+        raise JobError(f"object: no object {p['object']!r} (objects: {', '.join(names)})", 422)
+    oi = names.index(p["object"])
+    base = list(r.scene.materials)
+    mats = []
+    for m in p["variants"]:
+        ms = list(base)
+        ms[oi] = parse_material(m)
+        mats.append(ms)
+    rend, enc = p["render"], {**DEFAULT_ENCODE, **(p.get("encode") or {})}
+    views = p["views"]
+    ms = {"render": 0.0, "tone": 0.0, "encode": 0.0, "store": 0.0}
+    out_files, out_meta, rendered, skipped = {}, {}, 0, 0
+    env_now = None
+    for n, v in enumerate(views):
+        key = v["key"]
+        mk = file_key(key, "meta")
+        if cache.parts.sha(mk) is not None:          # stored meanwhile (another batch, an earlier build)
+            out_files[key] = {k: cache.parts.sha(file_key(key, k)) for k in ("webp1", "jpeg1", "webp2")}
+            out_meta[key] = json.loads(cache.parts.get(mk))
+            skipped += 1
+            progress((n + 1) / len(views), f"{n + 1}/{len(views)} frames")
+            continue
+        e = p["environments"][v["environment"]]
+        if env_now != e["sha256"]:
+            r.set_environment(cache.envmap(e))
+            env_now = e["sha256"]
+        a = time.perf_counter()
+        res = r.render(FrameRequest(camera=Camera.model_validate(v["camera"]),
+                                    lighting=Lighting(e["rotation_deg"], e["intensity"]),
+                                    materials=mats[v["variant"]], samples=rend["samples"], shading=rend["shading"],
+                                    ground_shadow=rend["ground_shadow"]))
+        b = time.perf_counter()
+        rgb2 = tonemap(res.radiance, rend["exposure"], rend["tone"])
+        rgb1 = tonemap(downsample2(res.radiance), rend["exposure"], rend["tone"])
+        c = time.perf_counter()
+        files = encode(rgb1, rgb2, enc)
+        d = time.perf_counter()
+        colour, cover = swatch(rgb1, res.object_id[::2, ::2][:rgb1.shape[0], :rgb1.shape[1]] == oi)
+        meta = {"swatch": colour, "coverage": round(cover, 4),
+                "bytes": {k: len(b_) for k, b_ in files.items()}}
+        shas = {}
+        for name, data in files.items():
+            cache.parts.put(file_key(key, name), data)
+            shas[name] = cache.parts.sha(file_key(key, name))
+        cache.parts.put(mk, json.dumps(meta).encode())
+        ms["render"] += (b - a) * 1e3
+        ms["tone"] += (c - b) * 1e3
+        ms["encode"] += (d - c) * 1e3
+        ms["store"] += (time.perf_counter() - d) * 1e3
+        out_files[key], out_meta[key] = shas, meta
+        rendered += 1
+        progress((n + 1) / len(views), f"{n + 1}/{len(views)} frames")
+    return {"files": out_files, "meta": out_meta, "rendered": rendered, "skipped": skipped,
+            "seconds": time.perf_counter() - t0, "ms": {k: round(x, 1) for k, x in ms.items()}}
