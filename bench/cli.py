@@ -86,7 +86,7 @@ def cmd_bench_accuracy(a) -> int:
         sc = LoadedScene(spec, r.scene.root, envmap=r.scene.envmap)
         ref, imgs = mitsuba_target(sc, a.spp, (1, 2), a.cache)
         row = {"alpha": alpha}
-        for mode in ("gouraud", "vertex", "pixel"):
+        for mode in ("vertex", "refined", "pixel"):
             req = FrameRequest(camera=spec.camera, materials=[mat] * len(spec.objects), shading=mode)
             r.render(req)
             t0 = time.perf_counter()
@@ -96,10 +96,10 @@ def cmd_bench_accuracy(a) -> int:
             norm = float(np.sqrt((ref[inner].astype(np.float64) ** 2).mean()))
             row[f"rel_{mode}"] = float(np.sqrt(((out.radiance[inner] - ref[inner]) ** 2).mean()) / norm)
             row[f"ms_{mode}"] = ms
-            if mode == "vertex":
+            if mode == "refined":
                 row["refined_fraction"] = out.info["refined_samples"] / max(int((out.object_id >= 0).sum()), 1)
         row["noise"] = float(0.5 * np.sqrt(((imgs[0] - imgs[1])[inner] ** 2).mean()) / norm)
-        row["vertex_over_pixel"] = row["rel_vertex"] / row["rel_pixel"]
+        row["refined_over_pixel"] = row["rel_refined"] / row["rel_pixel"]
         rows.append(row)
         if not a.json:
             print(" ".join(f"{k}={v:.4g}" for k, v in row.items()), flush=True)
@@ -198,8 +198,8 @@ def add_bench_commands(bsub) -> None:
     br = bsub.add_parser("render", help="frame time while light and BRDF change")
     br.add_argument("scene"); br.add_argument("--frames", type=int, default=60); br.add_argument("--json", action="store_true")
     br.add_argument("--per-pixel", action="store_true", help="the same as --shading pixel")
-    br.add_argument("--shading", choices=("vertex", "gouraud", "pixel"), default="vertex",
-                    help="vertex (default: vertex shading, per pixel where it is wrong), gouraud (vertex shading alone), pixel")
+    br.add_argument("--shading", choices=("vertex", "refined", "pixel"), default="vertex",
+                    help="vertex (default: vertex shading, interpolated), refined (per pixel where that is wrong), pixel")
     br.add_argument("--cuts"); br.add_argument("--tau", type=float, default=DEFAULT_TAU)
     br.set_defaults(fn=cmd_bench_render)
     ba = bsub.add_parser("accuracy", help="relative RMSE of each shading mode against Mitsuba 3 (GGX α list)")

@@ -63,10 +63,10 @@ def test_ggx_bunny_matches_mitsuba_per_pixel(bunny_renderer, artifacts):
 
 
 @pytest.mark.slow
-def test_default_mode_has_per_pixel_accuracy_on_a_glossy_bunny(bunny_renderer, cache_dir, artifacts):
-    """GGX α = 0.15 on the bunny under sunset at 320×240 (faces of ~5 pixels): the default
-    (vertex) mode must be within 1.5× of pixel mode's error against Mitsuba, where Gouraud
-    interpolation of vertex shading alone (``gouraud``) is not. Reference: two 256-spp renders,
+def test_refined_mode_has_per_pixel_accuracy_on_a_glossy_bunny(bunny_renderer, cache_dir, artifacts):
+    """GGX α = 0.15 on the bunny under sunset at 320×240 (faces of ~5 pixels): the refined
+    mode must be within 1.5× of pixel mode's error against Mitsuba, where Gouraud
+    interpolation of vertex shading alone (``vertex``, the default) is not. Reference: two 256-spp renders,
     cached in tests/.cache/mitsuba by content (fit/recovery.py mitsuba_target)."""
     from PIL import Image
 
@@ -82,7 +82,7 @@ def test_default_mode_has_per_pixel_accuracy_on_a_glossy_bunny(bunny_renderer, c
     sc = LoadedScene(spec, r.scene.root, envmap=r.scene.envmap)
     ref, imgs = mitsuba_target(sc, 256, (1, 2), cache_dir / "mitsuba")
     rel = {}
-    for mode in ("gouraud", "vertex", "pixel"):
+    for mode in ("vertex", "refined", "pixel"):
         out = r.render(FrameRequest(camera=spec.camera, materials=[mat], shading=mode))
         inner = binary_erosion(out.object_id >= 0, iterations=2)
         norm = np.sqrt((ref[inner] ** 2).mean())
@@ -91,6 +91,6 @@ def test_default_mode_has_per_pixel_accuracy_on_a_glossy_bunny(bunny_renderer, c
             artifacts / f"mitsuba-ggx015-bunny-{mode}.png")
     noise = 0.5 * np.sqrt(((imgs[0] - imgs[1])[inner] ** 2).mean()) / norm
     print(f"relative RMSE {rel} (reference noise {noise:.4f})")
-    # measured 2026-12-01: gouraud 13.0%, vertex 5.7%, pixel 4.5% (reference noise 3.9%)
-    assert rel["vertex"] <= 1.5 * rel["pixel"], rel
-    assert rel["gouraud"] > 1.5 * rel["pixel"], rel     # the scene tells the modes apart
+    # measured 2026-12-01: vertex 13.0%, refined 5.7%, pixel 4.5% (reference noise 3.9%)
+    assert rel["refined"] <= 1.5 * rel["pixel"], rel
+    assert rel["vertex"] > 1.5 * rel["pixel"], rel     # the scene tells the modes apart

@@ -1,6 +1,6 @@
-"""The default (vertex) mode's per-pixel refinement (worker/renderers/cuts/refine.py): the two
+"""The refined mode's per-pixel refinement (worker/renderers/cuts/refine.py): the two
 kernels against closed forms and against each other, and the frames it makes against the
-gouraud and pixel modes it sits between."""
+vertex and pixel modes it sits between."""
 import numpy as np
 import pytest
 
@@ -46,21 +46,21 @@ def test_refine_kernels_agree_on_a_real_mesh(bunny):
 def _frames(r, material, samples=1):
     cam = r.scene.spec.camera
     out = {m: r.render(FrameRequest(camera=cam, materials=[material], shading=m, samples=samples))
-           for m in ("gouraud", "vertex", "pixel")}
-    return out, out["vertex"].object_id >= 0
+           for m in ("vertex", "refined", "pixel")}
+    return out, out["refined"].object_id >= 0
 
 
 def test_lambert_is_never_refined(bunny_renderer):
     out, obj = _frames(bunny_renderer, Lambert(albedo=(0.7, 0.6, 0.5)))
-    assert out["vertex"].info["refined_samples"] == 0
-    np.testing.assert_array_equal(out["vertex"].radiance, out["gouraud"].radiance)
+    assert out["refined"].info["refined_samples"] == 0
+    np.testing.assert_array_equal(out["refined"].radiance, out["vertex"].radiance)
 
 
 @pytest.mark.parametrize("samples", [1, 2])
 def test_glossy_frames_are_pixel_mode_where_refined_and_vertex_shading_elsewhere(bunny_renderer, samples):
     out, obj = _frames(bunny_renderer, GGX(alpha=0.15, albedo=(0.1, 0.1, 0.1), specular=(0.8, 0.8, 0.8)), samples)
-    v, g, p = (out[m].radiance for m in ("vertex", "gouraud", "pixel"))
-    n = out["vertex"].info["refined_samples"]
+    v, g, p = (out[m].radiance for m in ("refined", "vertex", "pixel"))
+    n = out["refined"].info["refined_samples"]
     assert 0 < n < obj.sum() * samples, n           # some pixels, not all
     same_g = np.isclose(v, g, rtol=1e-5, atol=1e-6).all(-1)
     same_p = np.isclose(v, p, rtol=1e-4, atol=1e-5).all(-1)

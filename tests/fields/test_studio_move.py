@@ -91,7 +91,10 @@ def test_move_tool_slides_and_turns_the_object(server, crate, crate_scene, artif
             page.screenshot(path=str(artifacts / "web-move-3-turned.png"))
             moves = [json.loads(m) for m in sent if isinstance(m, str) and '"move"' in m]
             last = moves[-1]["transform"]
-            assert abs(last["rotate_deg"][1] - 20.0) < 2.0 and last["translate"] == t["translate"], last
+            # frames follow the canvas size: 0.5° per pixel of the frame drawn (its width: the canvas's)
+            fw = page.evaluate("() => document.getElementById('view').width")
+            want = 0.5 * 40 * sx * fw / c["width"]
+            assert abs(last["rotate_deg"][1] - want) < 0.1 * want and last["translate"] == t["translate"], (last, want)
             assert not errors, errors
         finally:
             b.close()

@@ -41,12 +41,20 @@ def browser():
         b.close()
 
 
-def _open(ctx, url, errors):
+def _open(ctx, url, errors, scene=None):
+    """The studio at url; with ``scene``, on that scene (the shared server also holds scenes
+    other test modules made, e.g. GI ones, which the studio may open first)."""
     page = ctx.new_page()
     page.on("pageerror", lambda e: errors.append(str(e)))
     page.goto(url)
     wait_new_frame(page, 0)
     settle(page)
+    if scene is not None and page.locator("#scene-select").input_value() != scene:
+        n = frame_no(page)
+        page.select_option("#scene-select", scene)
+        page.click("#open-scene")
+        wait_new_frame(page, n)
+        settle(page)
     return page
 
 
@@ -80,7 +88,7 @@ def test_reload_and_a_second_tab_reopen_the_session(server, bunny_scene, browser
     base = server["base"]
     errors = []
     ctx = browser.new_context(viewport={"width": 1280, "height": 720})
-    page = _open(ctx, base + "/", errors)
+    page = _open(ctx, base + "/", errors, scene=bunny_scene)
     sid = _sid(page)
     assert sid, page.url                                   # the URL names the session
     g0 = grid(page)
@@ -99,7 +107,12 @@ def test_reload_and_a_second_tab_reopen_the_session(server, bunny_scene, browser
     assert _sid(page) == sid
     assert np.abs(g2 - g1).mean() < 1.5 and (g2 - g0)[ROWS, COLS].mean() > 4, "the reload lost the stroke"
     assert page.locator("#model").input_value() == model
-    assert page.locator("#curve").get_attribute("data-points") == points, "the reload lost the material"
+    # the plot is the worker's evaluation of the stored material (refitted from the stored strokes
+    # on reopen, so a few thousandths may differ from the stroke's first fit; a reset is ~0.1)
+    after = np.array(json.loads(page.locator("#curve").get_attribute("data-points")))
+    before = np.array(json.loads(points))
+    assert after.shape == before.shape and np.abs(after - before).max() < 0.03, \
+        f"the reload lost the material: the curve moved by {np.abs(after - before).max():.3f}"
     got = httpx.get(f"{base}/v1/sessions/{sid}", headers={"X-Session-Token": _token(page, sid)}).json()
     assert len([s for s in got["strokes"] if not s["undone"]]) == 1, got["strokes"]
 
@@ -133,7 +146,7 @@ def test_designs_save_as_versions_and_publish_after_a_reload(server, bunny_scene
     base = server["base"]
     errors = []
     ctx = browser.new_context(viewport={"width": 1280, "height": 800})
-    page = _open(ctx, base + "/?session=none", errors)          # an unknown session: a new one is opened
+    page = _open(ctx, base + "/?session=none", errors, scene=bunny_scene)          # an unknown session: a new one is opened
     page.click("#new-design")
     page.fill("#design-name", "oak")
     page.click("#save")
@@ -201,7 +214,7 @@ def test_canvas_stays_in_view_and_uses_the_width(server, bunny_scene, browser, a
     base = server["base"]
     errors = []
     ctx = browser.new_context(viewport={"width": 1280, "height": 720})
-    page = _open(ctx, base + "/", errors)
+    page = _open(ctx, base + "/", errors, scene=bunny_scene)
     view = page.locator("#view")
     assert _inside(view.bounding_box(), 1280, 720)
     # editing the curve (the last panels, scrolled to) keeps the canvas where it was

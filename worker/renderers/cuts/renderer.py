@@ -5,12 +5,14 @@ point's cut, with l_k the map integrated over cluster k (core/lighting.py), v_k 
 cosine-weighted visibility and ω_k its light-weighted centroid. Three shading modes:
 
 * ``vertex`` (default): radiance at the vertices of the triangles the camera sees, barycentric
-  interpolation per pixel, and pixel-mode shading on the faces where that interpolation is wrong:
-  those whose vertices' mirror directions span more than a fraction of their material's lobe
-  (refine.py). Per-pixel accuracy for glossy lobes at a cost that scales with visible vertices
-  plus the refined pixels (none for Lambert).
-* ``gouraud``: the vertex shading and interpolation alone (the default mode before refinement;
-  kept to measure against).
+  interpolation per pixel (Gouraud). Its cost scales with the visible vertices; sharp lobes are
+  smeared across a triangle.
+* ``refined``: vertex mode plus pixel-mode shading on the faces where the interpolation is
+  wrong: those whose vertices' mirror directions span more than a fraction of their material's
+  lobe and whose vertex radiance differs by more than the frame's mean (refine.py). Per-pixel
+  accuracy for glossy lobes, at 2-7× vertex mode's cost on glossy materials (none for Lambert);
+  not the default yet: vertices whose radiance a request brings (a stroke's transfer) are not
+  refined, and the contrast threshold couples the objects of a frame.
 * ``pixel``: every pixel shades its three vertices' cuts with its own interpolated normal and
   view direction and blends them by barycentric weight (equal to interpolating the cuts, the
   integral being linear in visibility).
@@ -387,7 +389,7 @@ class CutRenderer(Renderer):
         mesh = self.scene.mesh
         img = np.empty((camera.width * camera.height, 3), np.float32)
         n_refined = 0
-        if req.shading in ("vertex", "gouraud"):
+        if req.shading in ("vertex", "refined"):
             known = {} if drag else dict(req.vertex_radiance or {})
             vi, wo = v.visible, v.wo
             if known:
@@ -396,7 +398,7 @@ class CutRenderer(Renderer):
             mat_of = self.scene.object_of_vertex[vi]
             mats = self.material_table(materials, np.unique(mat_of).tolist())
             # faces to shade per pixel, chosen by the materials' own lobes (not the drag level's)
-            radius = self._refine_radius(mats, mat_of) if req.shading == "vertex" and not drag else None
+            radius = self._refine_radius(mats, mat_of) if req.shading == "refined" and not drag else None
             if drag or quick:
                 mats = self._drag_materials(mats)
             if req.cancelled is None:
@@ -439,7 +441,7 @@ class CutRenderer(Renderer):
             img[:] = val.reshape(-1, samples, 3).mean(1)
             t["shade"] = (time.perf_counter() - t3) * 1e3
         else:
-            raise ValueError(f"unknown shading mode {req.shading!r} (vertex, gouraud or pixel)")
+            raise ValueError(f"unknown shading mode {req.shading!r} (vertex, refined or pixel)")
         return Rendered(img.reshape(camera.height, camera.width, 3), v.obj, t,
                         {"lod": req.lod, "tau": DRAG_TAU if drag else self.data.tau, "width": camera.width,
                          "height": camera.height, "visible_vertices": int(len(v.visible)), "samples": samples,
