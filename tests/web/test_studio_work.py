@@ -50,10 +50,14 @@ def _open(ctx, url, errors, scene=None):
     wait_new_frame(page, 0)
     settle(page)
     if scene is not None and page.locator("#scene-select").input_value() != scene:
-        n = frame_no(page)
+        old = _sid(page)
         page.select_option("#scene-select", scene)
         page.click("#open-scene")
-        wait_new_frame(page, n)
+        # a new session (its frames are numbered from 1 again): the URL names it, then it draws
+        page.wait_for_function(f"() => new URLSearchParams(location.search).get('session') !== {json.dumps(old)}",
+                               timeout=60_000)
+        page.evaluate("() => { document.getElementById('view').dataset.frame = '0'; }")
+        wait_new_frame(page, 0)
         settle(page)
     return page
 
