@@ -1,13 +1,11 @@
 """The studio and the shopper viewer in headless Chromium (Debian's, driven by Playwright),
 against the real server fixture. Screenshots of every step go to test-artifacts/web-*.png."""
 import json
-import shutil
 import time
 
 import numpy as np
 import pytest
 
-CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 from helpers import drag, frame_no, settle, wait_new_frame
 
 pw = pytest.importorskip("playwright.sync_api")
@@ -26,16 +24,6 @@ GRID_JS = """(id) => {
 
 def grid(page, cid="view"):
     return np.asarray(page.evaluate(GRID_JS, cid), np.float64).reshape(48, 64)
-
-
-@pytest.fixture(scope="module")
-def browser():
-    with pw.sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, headless=True,
-                              args=["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-                                    "--disable-background-networking"])
-        yield b
-        b.close()
 
 
 def test_studio_and_viewer(server, bunny_scene, browser, artifacts):

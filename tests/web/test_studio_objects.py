@@ -4,15 +4,13 @@ the object's colour, a click picks the second object of a scene and a stroke cha
 and GI and car-paint scenes are created from the studio's scene dialog. Screenshots go to
 test-artifacts/web-objects-*.png."""
 import json
-import shutil
 import time
 
 import numpy as np
 import pytest
 from helpers import drag, frame_no, settle, wait_new_frame
 
-CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
-pw = pytest.importorskip("playwright.sync_api")
+pytest.importorskip("playwright.sync_api")
 
 # every drawn frame's number, samples, size and mean absolute Laplacian of its luminance (the
 # high frequencies that aliasing adds at edges), recorded as the canvas draws it
@@ -50,16 +48,6 @@ GRID_JS = """([W, H]) => {
 
 def rgb(page, w=96, h=72):
     return np.asarray(page.evaluate(GRID_JS, [w, h]), np.float64).reshape(h, w, 3)
-
-
-@pytest.fixture(scope="module")
-def browser():
-    with pw.sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, headless=True,
-                              args=["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-                                    "--disable-background-networking"])
-        yield b
-        b.close()
 
 
 def _page(browser, server, errors):

@@ -4,7 +4,6 @@ designs have names, "save as" and a version list with thumbnails, publish works 
 and the canvas stays in view and uses the window at 1280×720 to 2560×1440. Screenshots go to
 test-artifacts/web-work-*.png."""
 import json
-import shutil
 import time
 
 import httpx
@@ -13,8 +12,7 @@ import pytest
 
 from helpers import drag, frame_no, settle, wait_new_frame
 
-CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
-pw = pytest.importorskip("playwright.sync_api")
+pytest.importorskip("playwright.sync_api")
 
 GRID_JS = """() => {
   const c = document.getElementById('view'), g = c.getContext('2d');
@@ -29,16 +27,6 @@ GRID_JS = """() => {
 
 def grid(page):
     return np.asarray(page.evaluate(GRID_JS), np.float64).reshape(48, 64)
-
-
-@pytest.fixture(scope="module")
-def browser():
-    with pw.sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, headless=True,
-                              args=["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-                                    "--disable-background-networking"])
-        yield b
-        b.close()
 
 
 def _open(ctx, url, errors, scene=None):
