@@ -98,45 +98,14 @@ class Ground(_Strict):
     intensity: float = Field(1.0, ge=0.0, le=1.0)
     height: float | None = None
 
-class FieldGridSettings(_Strict):
-    """Sampling of the visibility cut fields of a scene with movable objects (cyber-worlds §V;
-    worker/renderers/cuts/grid.py GridSpec, whose defaults BENCHMARKS.md justifies): ``shells``
-    concentric spheres, ``face`` cube-face cells per side, radii from ``rho_min`` to ``rho_max``
-    bounding radii. Coarser grids trace faster and blur shadows of moved objects more."""
-    shells: int = Field(24, ge=2, le=64)
-    face: int = Field(24, ge=1, le=64)
-    rho_min: float = Field(0.25, gt=0.0)
-    rho_max: float = Field(8.0, gt=0.0)
-
-    @model_validator(mode="after")
-    def _order(self):
-        if not self.rho_min < self.rho_max:
-            raise ValueError("rho_min must be below rho_max")
-        return self
-
-
-class CutSettings(_Strict):
-    """The cut renderer's settings (optional): the field grid of movable objects."""
-    field_grid: FieldGridSettings | None = None
-
-
-class SceneFile(_Strict):
+class _SceneHead(_Strict):
+    """The fields of every scene file before the renderers' settings (see ``scene_model``)."""
     version: Literal[1] = 1
     renderer: str = Field("cuts", description="how the scene is drawn: cuts (direct light, default), "
                                               "or another registered renderer (worker/renderers)")
     environment: Environment
     camera: Camera
     objects: list[SceneObject] = Field(min_length=1)
-    # a renderer's settings, under its name: the GI renderer's (validated by
-    # worker/renderers/gi/options.py), the paint renderer's (e.g. {"visibility": true})
-    gi: dict[str, Any] | None = None
-    paint: dict[str, Any] | None = None
-    cuts: CutSettings | None = None
-
-    ground: Ground | None = Field(None, description="optional shadow-catcher ground plane (precomputed with the cuts)")
-    exposure: float | Literal["auto"] | None = Field(
-        None, description="the display exposure (stops) a new session starts with; \"auto\": the worker exposes "
-                          "so that the median object pixel is middle grey (uploaded scenes)")
 
     @field_validator("renderer")
     @classmethod
@@ -151,6 +120,46 @@ class SceneFile(_Strict):
     @classmethod
     def _unique_names(cls, v):
         return _check_unique(v)
+
+
+_models: dict[tuple, type[_SceneHead]] = {}
+
+
+def scene_model() -> type[_SceneHead]:
+    """The scene file's model: the common fields, then one optional field per registered renderer
+    that declares settings (its DECLARATION's ``settings``, under the field named by its kind:
+    ``cuts``, ``gi``, ``paint``), then ``ground`` and ``exposure``. Built from
+    ``worker.renderers.declarations()`` once per list of renderer packages, so a renderer's
+    settings are registered with the renderer, not written here."""
+    from pydantic import create_model
+
+    from .renderers import RENDERER_PACKAGES, declarations
+    from .renderers.declaration import resolve
+
+    key = tuple(RENDERER_PACKAGES)
+    model = _models.get(key)
+    if model is None:
+        fields: dict[str, Any] = {}
+        for kind, decl in declarations().items():
+            if decl.settings is None:
+                continue
+            if kind in _SceneHead.model_fields or kind in ("ground", "exposure"):
+                raise ValueError(f"renderer {kind!r}: its settings field would shadow the scene file's {kind!r}")
+            t = resolve(decl.settings)
+            fields[kind] = ((dict[str, Any] if t is dict else t) | None, None)
+        model = create_model(
+            "SceneFile", __base__=_SceneHead, __module__=__name__, **fields,
+            ground=(Ground | None, Field(None, description="optional shadow-catcher ground plane (precomputed with the cuts)")),
+            exposure=(float | Literal["auto"] | None, Field(
+                None, description="the display exposure (stops) a new session starts with; \"auto\": the worker exposes "
+                                  "so that the median object pixel is middle grey (uploaded scenes)")))
+        _models.clear()
+        _models[key] = model
+    return model
+
+
+# the model of the built-in renderers: the API's request body, and what type hints name
+SceneFile = scene_model()
 
 
 def _check_unique(objects: list) -> list:
@@ -174,9 +183,10 @@ def _format_validation(e: ValidationError, source: str) -> str:
 
 def parse_scene(data: dict | str, source: str = "scene") -> SceneFile:
     try:
+        model = scene_model()
         if isinstance(data, str):
-            return SceneFile.model_validate_json(data)
-        return SceneFile.model_validate(data)
+            return model.model_validate_json(data)
+        return model.model_validate(data)
     except ValidationError as e:
         raise SceneError(_format_validation(e, source)) from None
 
@@ -222,7 +232,8 @@ def parse_scene_pieces(data: dict, source: str = "scene", max_objects: int | Non
         _check_unique(valid)
     except ValueError as e:
         raise SceneError(f"{source}: invalid scene file\n  objects: {e}") from None
-    spec = SceneFile.model_construct(**{k: getattr(head, k) for k in SceneFile.model_fields if k != "objects"},
+    model = type(head)
+    spec = model.model_construct(**{k: getattr(head, k) for k in model.model_fields if k != "objects"},
                                      objects=valid)
     spec.__pydantic_fields_set__ = set(head.__pydantic_fields_set__)
     out = head.model_dump(mode="json")

@@ -104,7 +104,17 @@ from worker.renderers.declaration import RendererDeclaration
 
 DECLARATION = RendererDeclaration(kind="normals", controls=frozenset({"camera", "light"}),
                                   renderer="glint_test_normals.renderer:NormalsRenderer",
-                                  precomputation="glint_test_normals.renderer:NormalsPrecomputation")
+                                  precomputation="glint_test_normals.renderer:NormalsPrecomputation",
+                                  settings="glint_test_normals.settings:NormalsSettings")
+'''
+TINY_SETTINGS = '''
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class NormalsSettings(BaseModel):
+    """The scene file's "normals" object: a gain on the drawn normals."""
+    model_config = ConfigDict(extra="forbid")
+    gain: float = Field(1.0, gt=0.0, le=1.0)
 '''
 TINY_RENDERER = '''
 import hashlib
@@ -146,7 +156,8 @@ class NormalsRenderer(Renderer):
         u, v = uv[hit, 0:1], uv[hit, 1:2]
         n = (1 - u - v) * self.data[f[:, 0]] + u * self.data[f[:, 1]] + v * self.data[f[:, 2]]
         img = np.zeros((len(tri), 3), np.float32)
-        img[hit] = np.abs(n)
+        settings = self.scene.spec.normals
+        img[hit] = np.abs(n) * (settings.gain if settings is not None else 1.0)
         oid = np.where(hit, self.scene.object_of_face[np.maximum(tri, 0)], -1).astype(np.int32)
         return Rendered(img.reshape(c.height, c.width, 3), oid.reshape(c.height, c.width))
 '''
@@ -158,6 +169,7 @@ def normals_renderer(tmp_path, monkeypatch):
     pkg.mkdir()
     (pkg / "__init__.py").write_text(textwrap.dedent(TINY_INIT))
     (pkg / "renderer.py").write_text(textwrap.dedent(TINY_RENDERER))
+    (pkg / "settings.py").write_text(textwrap.dedent(TINY_SETTINGS))
     monkeypatch.syspath_prepend(str(tmp_path))
     # the one registration line
     monkeypatch.setattr(renderers, "RENDERER_PACKAGES", renderers.RENDERER_PACKAGES + ["glint_test_normals"])
@@ -206,6 +218,17 @@ def test_a_new_renderer_is_one_package_and_one_line(normals_renderer, tmp_path):
     n = np.linalg.norm(out.radiance[hit], axis=-1)
     assert n.max() <= 1.0 + 1e-4 and np.median(n) > 0.95 and not out.radiance[~hit].any(), (n.max(), np.median(n))
 
+    # its scene-file settings are registered with it: validated with the scene file under its
+    # kind, and read by the renderer
+    path.write_text(json.dumps({**_spec(kind), "normals": {"gain": 0.5}}))
+    scene = load_scene(path)
+    r, _ = renderers.prepare(scene, DirStore(tmp_path / "parts", kind))
+    n = np.linalg.norm(r.render(FrameRequest(scene.spec.camera)).radiance[hit], axis=-1)
+    assert 0.47 < np.median(n) and n.max() <= 0.5 + 1e-4, (np.median(n), n.max())
+    from worker.scene import SceneError, parse_scene
+    with pytest.raises(SceneError, match="normals.gian"):
+        parse_scene({**_spec(kind), "normals": {"gian": 0.5}})
+
 
 def test_an_unregistered_renderer_is_refused():
     from worker.scene import SceneFile
@@ -213,3 +236,6 @@ def test_an_unregistered_renderer_is_refused():
     assert renderers.controls("normals") == frozenset()
     with pytest.raises(ValueError, match="unknown renderer 'normals'"):
         SceneFile.model_validate(_spec("normals"))
+    # nor are the settings of a renderer that is not registered
+    with pytest.raises(ValueError, match="normals"):
+        SceneFile.model_validate({**_spec("cuts"), "normals": {"gain": 0.5}})

@@ -28,12 +28,18 @@ class RendererDeclaration:
     renderer, precomputation : "package.module:Class" of the Renderer and Precomputation
         subclasses (imported by ``worker.renderers.get``).
     why_not : control -> why this renderer does not offer it (shown beside the control the
-        studio turns off)."""
+        studio turns off).
+    settings : "module:Name" of the type of the renderer's optional scene-file settings, the
+        scene file's field named ``kind`` (``worker.scene.scene_model`` adds it): a pydantic model
+        validated with the scene file, or "builtins:dict" for a JSON object the renderer
+        validates itself at precomputation; None for a renderer without settings. The module
+        must be as light as this one's callers (pydantic, no numerical imports)."""
     kind: str
     controls: frozenset[str]
     renderer: str
     precomputation: str
     why_not: dict[str, str] = field(default_factory=dict, hash=False, compare=False)
+    settings: str | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "controls", frozenset(self.controls))
@@ -41,7 +47,7 @@ class RendererDeclaration:
         if unknown:
             raise ValueError(f"renderer {self.kind!r}: unknown controls {sorted(unknown)} "
                              f"(known: {', '.join(sorted(ALL_CONTROLS))})")
-        for what in (self.renderer, self.precomputation):
+        for what in (self.renderer, self.precomputation, *([self.settings] if self.settings else [])):
             if what.count(":") != 1:
                 raise ValueError(f"renderer {self.kind!r}: {what!r} is not 'module:Class'")
 

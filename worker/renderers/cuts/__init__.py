@@ -8,6 +8,7 @@ from ..declaration import RendererDeclaration, lazy_exports
 DECLARATION = RendererDeclaration(
     kind="cuts", controls=frozenset({"camera", "light", "materials", "environment", "ground", "move", "strokes"}),
     renderer="worker.renderers.cuts.renderer:CutRenderer",
+    settings="worker.renderers.cuts.settings:CutSettings",  # the scene file's "cuts" object
     precomputation="worker.renderers.cuts.precompute:CutPrecomputation")
 
 __getattr__ = lazy_exports(__name__, {

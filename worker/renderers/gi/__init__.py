@@ -8,6 +8,7 @@ from ..declaration import RendererDeclaration, lazy_exports
 DECLARATION = RendererDeclaration(
     kind="gi", controls=frozenset({"materials"}),
     renderer="worker.renderers.gi.renderer:GIRenderer",
+    settings="builtins:dict",  # the scene file's "gi" object, validated by options.py
     precomputation="worker.renderers.gi.renderer:GIPrecomputation",
     why_not={"camera": "the global-illumination precomputation is for one view: the camera is fixed "
                        "(switch to direct light to orbit)",

@@ -8,6 +8,7 @@ from ..declaration import RendererDeclaration, lazy_exports
 DECLARATION = RendererDeclaration(
     kind="paint", controls=frozenset({"camera", "light", "materials", "environment"}),
     renderer="worker.renderers.paint.renderer:PaintRenderer",
+    settings="builtins:dict",  # the scene file's "paint" object
     precomputation="worker.renderers.paint.renderer:PaintPrecomputation",
     why_not={"strokes": "strokes fit a BRDF through the direct-light transfer, which the paint "
                         "renderer does not have (switch to direct light to paint)",
