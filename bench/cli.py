@@ -1,12 +1,13 @@
-"""The benchmarks of the ``glint`` command line: ``glint bench render | fit | stream | load |
-recovery | strokes``, ``glint paint bench | bench-fit`` and ``glint bench-ray``. They live outside the runtime packages (worker/, server/): a benchmark
+"""The benchmarks of the ``glint`` command line: ``glint bench render | accuracy | fit | stream |
+load | publish | viewer | move | recovery | strokes | export-recovery``, ``glint field bench``,
+``glint gi bench``, ``glint paint bench | bench-fit`` and ``glint bench-ray``. They live outside the runtime packages (worker/, server/): a benchmark
 measures the library or the running service from outside, as a user would, and ships with
 neither. ``glint bench stream`` and ``load`` start ``glint serve`` as a child process (or use a
 server already running), so this package imports no server module either.
 
 glint/cli.py registers them: ``add_bench_commands`` under ``glint bench`` (before the
-capabilities' own, e.g. ``glint bench move``), ``add_commands`` for the top-level ones and those
-under a capability's command.
+capabilities' commands), ``add_commands`` for the top-level ones and those under a
+capability's command.
 """
 from __future__ import annotations
 
@@ -252,16 +253,23 @@ def add_bench_commands(bsub) -> None:
 def add_commands(sub) -> None:
     """Into the subparsers of ``glint`` (after worker's commands): the top-level benchmark
     commands (``glint bench-ray``), the fitter's benchmarks under ``glint bench`` (``recovery``,
-    ``strokes``: bench/fitting.py) and the car-paint ones under ``glint paint`` (``bench-fit``,
-    ``bench``: bench/paint.py)."""
+    ``strokes``: bench/fitting.py), the moving objects' (``glint bench move``, ``glint field
+    bench``: bench/fields.py), the GI renderer's (``glint gi bench``: bench/gi.py) and the
+    car-paint ones under ``glint paint`` (``bench-fit``, ``bench``: bench/paint.py)."""
     from .exporting import add_bench_commands as add_exporting
+    from .fields import add_bench_commands as add_move
+    from .fields import add_field_commands
     from .fitting import add_bench_commands as add_fitting
+    from .gi import add_gi_commands
     from .paint import add_paint_commands
     from .ray_precompute import add_commands as add_ray
 
     add_ray(sub)
+    add_move(_subparsers(sub.choices["bench"]))
     add_fitting(_subparsers(sub.choices["bench"]))
     add_exporting(_subparsers(sub.choices["bench"]))
+    add_field_commands(_subparsers(sub.choices["field"]))
+    add_gi_commands(_subparsers(sub.choices["gi"]))
     add_paint_commands(_subparsers(sub.choices["paint"]))
 
 

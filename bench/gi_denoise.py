@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(ROOT / "tests" / "gi"), str(ROOT / "tests")]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests" / "gi"), str(ROOT / "tests")]
 
 from gi_harness import CACHE, compare, inner_mask, mitsuba, scene_with  # noqa: E402
 
@@ -106,7 +106,7 @@ def main(argv=None) -> int:
         c["noise_ref_one_render"] = c["noise_ref"] * np.sqrt(2)
         res[label] = c
     # frames on the denoised tensors (this resolution): freeze and a BRDF sweep of the first unit
-    from worker.renderers.gi.cli import _sweep
+    from bench.gi import sweep as _sweep
     r = den[0]
     r.max_bounces = N
     r.draw()

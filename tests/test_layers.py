@@ -30,6 +30,30 @@ def test_benchmarks_use_the_service_from_outside():
     assert not _importers("bench", ["server", "glint"])
 
 
+def test_every_benchmark_lives_in_the_benchmark_package():
+    """A runtime package (worker, server) ships no benchmark: every ``bench`` command (``glint
+    bench …``, ``glint gi bench``, ``glint field bench``, ``glint paint bench``) is bench/'s."""
+    sys.path.insert(0, str(ROOT))
+    from glint.cli import build_parser
+
+    p, runtime = build_parser(), []
+
+    def walk(parser, path):
+        import argparse
+
+        for a in parser._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                for name, sub in a.choices.items():
+                    walk(sub, path + [name])
+        fn = parser.get_default("fn")
+        if fn is not None and "bench" in " ".join(path).replace("bench-ray", "bench") \
+                and not fn.__module__.startswith("bench."):
+            runtime.append(f"glint {' '.join(path)}: {fn.__module__}.{fn.__name__}")
+
+    walk(p, [])
+    assert not runtime, runtime
+
+
 def _choices(parser, *path):
     import argparse
 

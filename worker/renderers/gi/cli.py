@@ -1,8 +1,9 @@
-"""``glint gi …``: precompute the GI tensors of a scene, render it with edited materials,
-benchmark freezing and frames (polynomial-gi). Registered in worker/cli.py COMMAND_MODULES.
+"""``glint gi …``: precompute the GI tensors of a scene and render it with edited materials
+(polynomial-gi). Registered in worker/cli.py COMMAND_MODULES; ``glint gi bench`` (freezing and
+frames) is the benchmark package's (bench/gi.py).
 
 Tensors are stored as content-keyed parts in ``--store`` (default ``$GLINT_DATA_DIR/gi``, else
-``~/.cache/glint/gi``); ``render`` and ``bench`` precompute first when they are missing.
+``~/.cache/glint/gi``); ``render`` (and the benchmark) precompute first when they are missing.
 """
 from __future__ import annotations
 
@@ -100,7 +101,7 @@ def embree_speed(scene, n: int = 400_000, seed: int = 0) -> dict:
     return out
 
 
-def _renderer(a, quiet):
+def open_renderer(a, quiet):
     from .. import load
     from . import GIRenderer
     scene, pre, store, options, _ = _ensure(a, quiet)
@@ -133,7 +134,7 @@ def cmd_render(a) -> int:
     from PIL import Image
 
     from ...core.tonemap import tonemap
-    r = _renderer(a, False)
+    r = open_renderer(a, False)
     _apply_materials(r, a.material)
     if a.bounces_drawn:
         r.max_bounces = max(1, min(a.bounces_drawn, r.N))
@@ -150,83 +151,30 @@ def cmd_render(a) -> int:
     return 0
 
 
-def _sweep(r, u: int, i: int):
-    """The i-th material of the benchmark's edit of unit u: roughness and colour sweep."""
-    from ...scene import GGX
-    m = r.materials[u]
-    if getattr(m, "model", None) == "ashikhmin-shirley":
-        return m.model_copy(update={"exponent_v": m.exponent_u * (0.1 + 3.0 * ((i * 0.37) % 1.0))})
-    return GGX(alpha=0.05 + 0.3 * ((i * 0.37) % 1.0), specular=(0.6, 0.5, 0.4), albedo=(0.3, 0.2 + 0.1 * (i % 3), 0.1))
-
-
-def cmd_bench(a) -> int:
-    import numpy as np
-
-    from ...core.tonemap import tonemap
-    from ... import native
-    r = _renderer(a, a.json)
-    u = r.layout.index(a.object)
-    other = next((k for k in range(r.U) if k != u), None)
-    r.draw()                                       # warm-up; a unit is live
-    # wall-clock and process CPU times: on a loaded machine the CPU time (all threads) is the
-    # better measure of the work; with one thread it is the time on a quiet core
-    t_freeze, c_freeze = [], []
-    for _ in range(max(1, a.repeat)):
-        if other is not None:
-            r.freeze(other)
-        c0 = time.process_time()
-        t_freeze.append(r.freeze(u))
-        c_freeze.append(time.process_time() - c0)
-    frames, cpu, proj, dots, tm = [], [], [], [], []
-    for i in range(a.frames + 2):
-        r.set_unit_material(u, _sweep(r, u, i))
-        t0, c0 = time.perf_counter(), time.process_time()
-        img = r.draw()
-        t1, c1 = time.perf_counter(), time.process_time()
-        tonemap(img, kernels=r.k)
-        t2 = time.perf_counter()
-        if i >= 2:                                 # warm-up frames
-            frames.append(t1 - t0); cpu.append(c1 - c0); tm.append(t2 - t1)
-            proj.append(r.last_timings["project"]); dots.append(r.last_timings["frame"])
-        assert "freeze" not in r.last_timings, "a frame re-froze"
-    ms = float(np.median(frames) * 1000)
-    cam = r.scene.spec.camera
-    fz = r.frozen
-    res = {"ms_freeze": float(np.median(t_freeze) * 1000), "ms_per_frame": ms, "fps": 1000.0 / ms,
-           "cpu_ms_freeze": float(np.median(c_freeze) * 1000), "cpu_ms_per_frame": float(np.median(cpu) * 1000),
-           "p95_ms": float(np.percentile(frames, 95) * 1000), "ms_project": float(np.median(proj)),
-           "ms_dot": float(np.median(dots)), "ms_tonemap": float(np.median(tm) * 1000), "frames": a.frames,
-           "width": cam.width, "height": cam.height, "object": a.object, "pixels": int(len(r.prim.pixel)),
-           "live_pixels": int(len(fz.live)), "live_values": fz.live_values, "live_layout": "dense" if fz.dense is not None else "sparse",
-           "live_powers": fz.NPe, "frozen_bytes": int(fz.nbytes),
-           "tensor_bytes": r.data.nbytes, "series": list(r.opts.series), "bounces": r.N, "spp": r.opts.spp,
-           "native": r.k.name == "native", "threads": native.max_threads()}
-    print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items()))
-    return 0
+def gi_options(p) -> None:
+    """The options every ``glint gi`` command takes (also ``glint gi bench``, bench/gi.py)."""
+    p.add_argument("scene")
+    p.add_argument("--series", help="BRDF series from the eye, e.g. 64,1,1,1 (default: the scene's gi.series)")
+    p.add_argument("--bounces", type=int, help="bounces N (pads the series with 1 or truncates it)")
+    p.add_argument("--spp", type=int, help="paths per pixel (default: the scene's gi.spp, else 64)")
+    p.add_argument("--fresnel", action="store_true", help="precompute the Fresnel layer (Appendix A)")
+    p.add_argument("--seed", type=int, help="random seed of the path tracer")
+    p.add_argument("--denoise", action="store_true",
+                   help="denoise every basis image of the tensors once with Open Image Denoise (denoise.py)")
+    p.add_argument("--store", help="tensor store folder (default $GLINT_DATA_DIR or ~/.cache/glint)")
 
 
 def add_commands(sub) -> None:
     g = sub.add_parser("gi", help="global illumination with BRDF editing (polynomial-gi tensors)")
     gs = g.add_subparsers(dest="gi_cmd", required=True)
 
-    def common(p):
-        p.add_argument("scene")
-        p.add_argument("--series", help="BRDF series from the eye, e.g. 64,1,1,1 (default: the scene's gi.series)")
-        p.add_argument("--bounces", type=int, help="bounces N (pads the series with 1 or truncates it)")
-        p.add_argument("--spp", type=int, help="paths per pixel (default: the scene's gi.spp, else 64)")
-        p.add_argument("--fresnel", action="store_true", help="precompute the Fresnel layer (Appendix A)")
-        p.add_argument("--seed", type=int, help="random seed of the path tracer")
-        p.add_argument("--denoise", action="store_true",
-                       help="denoise every basis image of the tensors once with Open Image Denoise (denoise.py)")
-        p.add_argument("--store", help="tensor store folder (default $GLINT_DATA_DIR or ~/.cache/glint)")
-
     p = gs.add_parser("precompute", help="path-trace and store the multibounce tensors")
-    common(p)
+    gi_options(p)
     p.add_argument("--json", action="store_true")
     p.set_defaults(fn=cmd_precompute)
 
     r = gs.add_parser("render", help="render with edited materials (precomputing first if needed)")
-    common(r)
+    gi_options(r)
     r.add_argument("--out", required=True)
     r.add_argument("--raw", help="linear float32 H×W×3 radiance .npy")
     r.add_argument("--material", action="append", metavar="OBJECT=FILE",
@@ -236,10 +184,3 @@ def add_commands(sub) -> None:
     r.add_argument("--tone", default="neutral", choices=["linear", "aces", "neutral"])
     r.set_defaults(fn=cmd_render)
 
-    b = gs.add_parser("bench", help="freeze time and frame rate while one object's BRDF changes every frame")
-    common(b)
-    b.add_argument("--object", required=True, help="the edited object (or region)")
-    b.add_argument("--frames", type=int, default=30)
-    b.add_argument("--repeat", type=int, default=3, help="freezes timed (median)")
-    b.add_argument("--json", action="store_true")
-    b.set_defaults(fn=cmd_bench)
