@@ -30,6 +30,19 @@ def test_benchmarks_use_the_service_from_outside():
     assert not _importers("bench", ["server", "glint"])
 
 
+def test_code_cites_documents_in_the_repository():
+    """The design conventions are docs/design/conventions.md: a citation of "DESIGN.md", a
+    document outside the repository, leads a reader of a clone nowhere."""
+    found = []
+    for folder in ("worker", "server", "glint", "bench", "web", "tests", "scripts", "docker"):
+        for p in (ROOT / folder).rglob("*"):
+            if p.suffix in {".py", ".js", ".c", ".h", ".html"} and ".cache" not in p.parts and p.name != "test_layers.py":
+                found += [f"{p.relative_to(ROOT)}:{i}" for i, line in enumerate(p.read_text(errors="replace").splitlines(), 1)
+                          if "DESIGN.md" in line]
+    found += [name for name in ("openapi.yaml", "stream-schema.json") if "DESIGN.md" in (ROOT / name).read_text()]
+    assert not found, found
+
+
 def test_every_benchmark_lives_in_the_benchmark_package():
     """A runtime package (worker, server) ships no benchmark: every ``bench`` command (``glint
     bench …``, ``glint gi bench``, ``glint field bench``, ``glint paint bench``) is bench/'s."""

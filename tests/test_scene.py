@@ -115,7 +115,7 @@ def _gltf(path, normals: bool, rotate_y_deg: float = 0.0):
 @pytest.mark.parametrize("with_normals", [True, False])
 def test_every_mesh_format_with_and_without_normals(tmp_path, kind, with_normals):
     """File normals are used (normalised, copied: trimesh's arrays are read-only) when the file
-    has them; otherwise area-weighted face normals (DESIGN.md §2). A glTF node rotation applies
+    has them; otherwise area-weighted face normals (docs/design/conventions.md). A glTF node rotation applies
     to positions and normals alike."""
     from worker.scene import area_weighted_normals
 

@@ -16,7 +16,7 @@ import sys
 import time
 from pathlib import Path
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # DESIGN.md §7: no BLAS oversubscription
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # docs/design/conventions.md, measured facts: no BLAS oversubscription
 
 
 def _progress(total: int, desc: str, quiet: bool):

@@ -1,6 +1,6 @@
 """Reading equirectangular HDR environment maps (OpenEXR and Radiance .hdr).
 
-DESIGN.md §2: linear radiance, +Y up, u = atan2(x, -z)/2π, v = acos(y)/π, v = 0 the top row.
+docs/design/conventions.md: linear radiance, +Y up, u = atan2(x, -z)/2π, v = acos(y)/π, v = 0 the top row.
 Lossy EXR compression (DWAB) leaves small negative values: they are clamped to zero. NaN and
 infinite values are rejected with a clear error.
 """

@@ -1,7 +1,7 @@
 """The same scene in Mitsuba 3 (``scalar_rgb``, ``direct`` integrator, or ``path`` with a
 ``max_depth`` for global illumination): an independent reference.
 
-Conventions match DESIGN.md §2 by construction: ``envmap`` with to_world = rotate(+Y, angle),
+Conventions match docs/design/conventions.md by construction: ``envmap`` with to_world = rotate(+Y, angle),
 ``perspective`` with fov_axis y and look_at(eye, target, up), meshes written as PLY with our
 vertex normals so both renderers shade the same surface. Materials: ``lambert`` → ``diffuse``;
 ``ggx`` → ``roughconductor`` (distribution ggx, material none, specular_reflectance), with a

@@ -1,4 +1,4 @@
-"""Scene file version 1 (DESIGN.md §3): pydantic models, and loading of meshes and maps.
+"""Scene file version 1 (docs/design/conventions.md, scene file): pydantic models, and loading of meshes and maps.
 
 Paths in a scene file are relative to the file. Errors name the bad field or file.
 """
@@ -323,7 +323,7 @@ def load_mesh(path: str | Path, transform: Transform | None = None) -> Mesh:
     """Load OBJ (all groups), PLY, GLB/GLTF or STL through trimesh, apply the transform.
 
     Vertex normals come from the file when present (OBJ `vn`, PLY nx/ny/nz, glTF NORMAL),
-    otherwise they are area-weighted face normals (DESIGN.md §2). A glTF scene's node
+    otherwise they are area-weighted face normals (docs/design/conventions.md). A glTF scene's node
     transforms apply to positions and (inverse-transposed) to its normals.
     """
     import trimesh

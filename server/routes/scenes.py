@@ -71,7 +71,7 @@ async def read_json_body(request: Request, limit: int, setting: str):
 
 # The body is read raw (read_json_body) and validated in a thread (services/scenes.py); its schema is
 # still the documented one, declared here
-SCENE_BODY = {"requestBody": {"required": True, "description": "scene file v1 (DESIGN.md §3) whose mesh and map "
+SCENE_BODY = {"requestBody": {"required": True, "description": "scene file v1 (docs/design/conventions.md, scene file) whose mesh and map "
                               "fields are asset ids", "content": {"application/json": {
                                   "schema": {"$ref": "#/components/schemas/SceneFile"}}}}}
 

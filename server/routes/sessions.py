@@ -1,5 +1,5 @@
 """Interactive sessions: created over REST (id and secret token), streamed over a WebSocket
-(DESIGN.md §5). Every client message is validated (worker/protocol) and applied to the stored
+(docs/design/conventions.md, streaming protocol). Every client message is validated (worker/protocol) and applied to the stored
 state by the same ``apply`` the worker renders with, stored as its class declares by the
 session store (``st.sessions``, server/sessions_store.py: camera, light and object moves at
 most 0.5 s later, anything else before it is forwarded; a fit's material, derived from the

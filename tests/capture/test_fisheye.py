@@ -1,5 +1,5 @@
 """Fisheye geometry: the documented projections, the image circle, yaw and the equirectangular
-mapping (DESIGN.md §2), the C projection kernel against its NumPy reference."""
+mapping (docs/design/conventions.md), the C projection kernel against its NumPy reference."""
 from __future__ import annotations
 
 import numpy as np

@@ -16,7 +16,7 @@ pw = pytest.importorskip("playwright.sync_api")
 
 
 def project(cam, p):
-    """Frame pixel (x, y) of a world point (DESIGN.md §2 camera)."""
+    """Frame pixel (x, y) of a world point (docs/design/conventions.md camera)."""
     eye = np.asarray(cam["eye"], float)
     fwd = np.asarray(cam["target"], float) - eye
     fwd /= np.linalg.norm(fwd)

@@ -1,6 +1,6 @@
 // The Move tool's maths (cyber-worlds §V: moving rigid objects): a drag slides the object over the
 // floor plane under the pointer, Shift-drag turns it about +Y. Conventions as the server's
-// (DESIGN.md §2): +Y up, pixel (0, 0) top-left, image right = normalize(cross(forward, up)).
+// (docs/design/conventions.md): +Y up, pixel (0, 0) top-left, image right = normalize(cross(forward, up)).
 
 const sub = (a, b) => a.map((x, i) => x - b[i]);
 const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];

@@ -1,4 +1,4 @@
-// REST helpers and the session stream (DESIGN.md §5): JSON messages with increasing seq out,
+// REST helpers and the session stream (docs/design/conventions.md, streaming protocol): JSON messages with increasing seq out,
 // binary frames (4-byte big-endian header length | JSON header | JPEG) and JSON events in.
 
 export async function api(path, { method = "GET", body, raw, headers = {} } = {}) {

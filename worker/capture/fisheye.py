@@ -7,7 +7,7 @@ optical axis with
     equisolid    r = 2f·sin(θ/2)      f = R / (2 sin(θ_max/2))
 where R = min(W, H)/2 and θ_max = fov/2. Image right is camera +X, image up camera +Y, and the
 lens looks along camera −Z. A shot at yaw 0 is the camera frame itself (looks along world −Z, +Y
-up, DESIGN.md §2); a shot at yaw ψ is rotated by ψ about +Y (right-handed, Mitsuba's
+up, docs/design/conventions.md); a shot at yaw ψ is rotated by ψ about +Y (right-handed, Mitsuba's
 ``rotate([0, 1, 0], ψ)``), so yaw 90 looks along −X and yaw 180 along +Z.
 
 Pixel coordinates are continuous with pixel (i, j)'s centre at (i + 0.5, j + 0.5) and (0, 0)

@@ -1,6 +1,6 @@
 """The whole capture path: manifest → HDR shots → lens-frame removal → equirectangular map.
 
-``capture(manifest_path)`` returns the map (linear float32 radiance, DESIGN.md §2) and the
+``capture(manifest_path)`` returns the map (linear float32 radiance, docs/design/conventions.md) and the
 statistics the CLI prints and the service stores; ``exr_bytes`` / ``preview_png`` encode them.
 """
 from __future__ import annotations

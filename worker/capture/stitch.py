@@ -1,4 +1,4 @@
-"""Fisheye shots → one equirectangular radiance map (DESIGN.md §2, Mitsuba's ``envmap``
+"""Fisheye shots → one equirectangular radiance map (docs/design/conventions.md, Mitsuba's ``envmap``
 mapping: u = atan2(x, −z)/2π, v = acos(y)/π).
 
 Each output pixel's direction is projected into every shot (fisheye.py) and read with OpenCV's

@@ -1,6 +1,6 @@
 """Environment lighting integrated over the leaves of the direction tree.
 
-cyber-worlds §V eq. 3: l_k = ∫_{Ω_k} L(ω) dω over each cluster's solid angle. DESIGN.md §4: the
+cyber-worlds §V eq. 3: l_k = ∫_{Ω_k} L(ω) dω over each cluster's solid angle. docs/design/conventions.md, precomputed data: the
 leaf value is the integral of the map over the leaf's cell, not a point sample, so a sun a few
 pixels wide lands, with its full energy, in the leaf that owns it.
 
@@ -38,7 +38,7 @@ def pixel_directions(h: int, w: int, s: int = 1) -> tuple[np.ndarray, np.ndarray
     """Directions and solid angles of the s×s sub-pixels of an h×w equirectangular map.
 
     Returns (dirs (h*s, w*s, 3) float64 unit vectors, solid_angle (h*s,) float64 sr per
-    sub-pixel of each row). DESIGN.md §2: u = atan2(x, -z)/2π, v = acos(y)/π.
+    sub-pixel of each row). docs/design/conventions.md: u = atan2(x, -z)/2π, v = acos(y)/π.
     """
     hs, ws = h * s, w * s
     theta_edges = np.linspace(0.0, np.pi, hs + 1)
@@ -51,7 +51,7 @@ def pixel_directions(h: int, w: int, s: int = 1) -> tuple[np.ndarray, np.ndarray
 
 
 def direction_to_uv(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(…, 3) unit directions -> (u, v) in [0, 1) × [0, 1], DESIGN.md §2."""
+    """(…, 3) unit directions -> (u, v) in [0, 1) × [0, 1], docs/design/conventions.md."""
     u = np.mod(np.arctan2(d[..., 0], -d[..., 2]) / (2.0 * np.pi), 1.0)
     v = np.arccos(np.clip(d[..., 1], -1.0, 1.0)) / np.pi
     return u, v

@@ -29,7 +29,7 @@ from .directions import DirectionTree
 
 
 def camera_rays(eye, target, up, fov_y_deg: float, width: int, height: int, samples: int = 1, kernels=None):
-    """Primary rays through pixel centres, DESIGN.md §2 (pixel (0, 0) top-left, image right =
+    """Primary rays through pixel centres, docs/design/conventions.md (pixel (0, 0) top-left, image right =
     normalize(cross(forward, up))). Returns (origins (H*W*S, 3), dirs (H*W*S, 3)) float32; with
     samples S > 1, the S rays of pixel p are rows p·S … p·S + S − 1, through the sub-pixel
     positions of ``sample_offsets(S)``.
@@ -278,7 +278,7 @@ def env_lookup(dirs, envmap, rotation_deg: float, intensity: float, mask=None, o
 
 def env_coords(dirs, kernels=None) -> np.ndarray:
     """(P, 2) float32 equirectangular coordinates (u in [0, 1), v = acos(y)/π) of world
-    directions (P, 3) with the environment unrotated (DESIGN.md §2): once per view, so that a
+    directions (P, 3) with the environment unrotated (docs/design/conventions.md): once per view, so that a
     light change costs a lookup (``background``)."""
     return (kernels or _kernels()).env_coords(dirs)
 

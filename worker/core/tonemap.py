@@ -1,5 +1,5 @@
 """Tone mapping for display: exposure (stops), a named tone curve, then the sRGB transfer
-function, to 8-bit. Radiance stays linear float32 everywhere else (DESIGN.md §2).
+function, to 8-bit. Radiance stays linear float32 everywhere else (docs/design/conventions.md).
 
 Curves: ``linear`` (clip at 1), ``aces`` (Narkowicz's fit of the ACES filmic curve),
 ``neutral`` (identity up to 0.8, then a smooth shoulder to 1: keeps product colours and

@@ -1,6 +1,6 @@
 """A Mitsuba 3 scene folder: ``scene.xml`` (scene format 3.0.0), ``meshes/<object>.ply`` (world
 space, Glint's vertex normals) and ``envmap.exr`` (the map as Glint loaded it), with the
-conventions of worker/mitsuba_ref.py (DESIGN.md §2): the envmap's to_world is rotate(+Y, angle)
+conventions of worker/mitsuba_ref.py (docs/design/conventions.md): the envmap's to_world is rotate(+Y, angle)
 and scaled by the intensity, the camera a perspective sensor with fov_axis y and look_at.
 
 Materials: a lambert or ggx material is written exactly (mitsuba_ref.bsdf_dict: diffuse,

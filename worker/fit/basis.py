@@ -196,7 +196,7 @@ class SRBFBasis:
         return self._rows[n_l]
 
     def to_material(self, coefficients: np.ndarray, albedo) -> dict:
-        """The scene-file ``srbf`` material (DESIGN.md §3) for coefficients (J, 3). Fields beyond
+        """The scene-file ``srbf`` material (docs/design/conventions.md, scene file) for coefficients (J, 3). Fields beyond
         the paper's model (per-centre bandwidths, the static function) are written only when they
         differ from it, so a paper-model fit writes the same file as before they existed."""
         m = {"model": "srbf", "centers": self.centers.round(9).tolist(), "bandwidth": self.bandwidth,

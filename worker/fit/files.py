@@ -121,5 +121,5 @@ def _read_radiance(path: Path) -> np.ndarray:
     from ..envmap import _read_exr, _read_hdr
 
     img = _read_exr(path) if path.suffix.lower() == ".exr" else _read_hdr(path)
-    return np.maximum(img, 0.0)   # lossy EXR leaves small negatives (DESIGN.md §2)
+    return np.maximum(img, 0.0)   # lossy EXR leaves small negatives (docs/design/conventions.md)
 

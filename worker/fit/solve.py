@@ -71,7 +71,7 @@ def gram(T: np.ndarray) -> np.ndarray:
 
     Single-precision products (T is float32 already; sums of N ≤ 10⁴ terms keep ~1e-6 relative
     accuracy, below the solver's 1e-4 proximal term), one channel per thread: BLAS releases the
-    GIL and worker processes pin it to one thread each (DESIGN.md §7)."""
+    GIL and worker processes pin it to one thread each (docs/design/conventions.md, measured facts)."""
     global _POOL
     if _POOL is None:
         from concurrent.futures import ThreadPoolExecutor

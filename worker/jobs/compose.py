@@ -12,7 +12,7 @@ from PIL import Image
 from ..core.tonemap import tonemap
 from ..memory import trim_malloc
 
-DRAG_QUALITY = 60           # JPEG quality at most while the user drags (DESIGN.md §5)
+DRAG_QUALITY = 60           # JPEG quality at most while the user drags (docs/design/conventions.md, streaming protocol)
 # a frame of at least this many pixels gives its transient memory back at once (trim_malloc),
 # and a closed session's cached primary hits of such a camera are dropped (runtime ``close``):
 # at ~410 bytes a pixel (server/routes/sessions.py FRAME_BYTES_PER_PIXEL) that is ~400 MB and up

@@ -52,7 +52,7 @@ def worker_main(wid: int, requests, replies, settings: WorkerSettings, urgent=No
         # waited ~30 ms (p50) behind frames in the server's event loop and the pipes
         os.nice(settings.nice)
 
-    # before NumPy loads: BLAS must not spawn threads beside the OpenMP kernels (DESIGN.md §7)
+    # before NumPy loads: BLAS must not spawn threads beside the OpenMP kernels (docs/design/conventions.md, measured facts)
     os.environ["OPENBLAS_NUM_THREADS"] = "1"
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     from worker import native

@@ -1,7 +1,7 @@
 """What every BRDF model is, and the registry that makes a new one a single module.
 
 One place per model, as pbrt keeps one class per BxDF and Mitsuba one plugin per file: a model
-module defines a pydantic class (its JSON schema, DESIGN.md §3), how it packs into the kernels'
+module defines a pydantic class (its JSON schema, docs/design/conventions.md, scene file), how it packs into the kernels'
 flat form (``pack``), the NumPy reference of what the kernel evaluates, the name of its C kernel
 branch (looked up in the library at load time, never copied by hand), its studio controls and
 example instances that the generic conformance tests (tests/models) run (reciprocity, energy,

@@ -1,4 +1,4 @@
-"""The session stream's protocol, shared by the server and the workers (DESIGN.md §5); the one
+"""The session stream's protocol, shared by the server and the workers (docs/design/conventions.md, streaming protocol); the one
 worker package the server imports for sessions.
 
 state.py     SessionState (what is stored per session), new_state, restore_state

@@ -1,5 +1,5 @@
 """The stream's client messages, each with its meaning and its policy on its class, and ``apply``:
-the one function that applies a message to a session's state (DESIGN.md §5).
+the one function that applies a message to a session's state (docs/design/conventions.md, streaming protocol).
 
 The same ``apply(state, msg)`` runs where the server persists a message
 (server/sessions_store.py) and where the worker renders it (worker/jobs/runtime.py), so the

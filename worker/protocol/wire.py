@@ -41,7 +41,7 @@ class FrameHeader(BaseModel):
 
 
 def stream_schema() -> dict:
-    """JSON Schema of the stream (DESIGN.md §5): client messages, server events, frame header."""
+    """JSON Schema of the stream (docs/design/conventions.md, streaming protocol): client messages, server events, frame header."""
     return {"$schema": "https://json-schema.org/draft/2020-12/schema", "title": "Glint session stream",
             "description": "WebSocket /v1/sessions/{id}/stream: JSON client messages with increasing seq; "
                            "JSON server events; binary frames of 4-byte big-endian header length | JSON "

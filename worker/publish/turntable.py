@@ -3,7 +3,7 @@
 A published object is shown from ``A`` azimuths (evenly spaced, starting at the scene camera's)
 at each of a few elevations, all at the scene camera's distance, field of view and up vector,
 so the viewer can swap frames as the shopper drags (azimuth with the horizontal drag, elevation
-with the vertical one). World space is +Y up (DESIGN.md §2); azimuth is measured about +Y from
+with the vertical one). World space is +Y up (docs/design/conventions.md); azimuth is measured about +Y from
 +Z towards +X, elevation above the XZ plane, both in degrees.
 """
 from __future__ import annotations

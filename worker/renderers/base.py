@@ -1,6 +1,6 @@
 """The seam between a scene and the ways of drawing it: ``Renderer`` and ``Precomputation``.
 
-Glint has several renderers, each with a precomputation of its own (DESIGN.md §1):
+Glint has several renderers, each with a precomputation of its own (docs/architecture/index.md):
 
 ==========  ==========================================  ====================================
 kind        what it draws                                what it precomputes

@@ -1,6 +1,6 @@
 """Ray tracing through embreex (Embree 4): occlusion queries and first hits.
 
-DESIGN.md §7: the raw OCCLUDED query returns 0 for blocked and -1 for free; Embree's tnear is
+docs/design/conventions.md, measured facts: the raw OCCLUDED query returns 0 for blocked and -1 for free; Embree's tnear is
 0, so callers offset origins off the surface. Calls release the GIL, so Python threads scale.
 """
 from __future__ import annotations

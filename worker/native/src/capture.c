@@ -46,7 +46,7 @@ void glk_hdr_merge(int64_t n, int K, const uint8_t *z, const uint8_t *valid, con
     }
 }
 
-/* Where each pixel of an equirectangular map (DESIGN.md §2: direction of pixel (i, j) at
+/* Where each pixel of an equirectangular map (docs/design/conventions.md: direction of pixel (i, j) at
  * θ = (i+½)π/h from +Y, φ = (j+½)2π/w, d = (sinθ sinφ, cosθ, −sinθ cosφ)) lands in a fisheye
  * photo taken at yaw (radians, about +Y): cv2.remap coordinates (pixel centres at integers),
  * −10 outside the image circle (θ_cam > theta_max). projection 0 equidistant r = fθ,

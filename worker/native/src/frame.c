@@ -17,7 +17,7 @@
 /* n background samples: sample (n,) int64 index into out (rows of 3), dirs (n, 3) float32 unit
  * world ray directions, uv0 (n, 2) float32 map coordinates without rotation (u in [0, 1),
  * v = acos(y)/π); map (Hm, Wm, 3) float32; the environment rotated by rot radians about +Y
- * and scaled by intensity (DESIGN.md §2, as glk_env_lookup). shadow: NULL, or a (G, G, 3)
+ * and scaled by intensity (docs/design/conventions.md, as glk_env_lookup). shadow: NULL, or a (G, G, 3)
  * float32 factor grid over the plane y = gy with node (i, j) at (gx0 + i·gstep, gy, gz0 + j·gstep),
  * applied (bilinear, 1 outside the grid) to rays from eye that go down through the plane. */
 void glk_background(int64_t n, const int64_t *sample, const float *dirs, const float *uv0, const float *map,
@@ -103,7 +103,7 @@ void glk_rotate_dirs(int64_t P, const float *src, const float *basis, float *out
     }
 }
 
-/* Equirectangular coordinates of world directions (n, 3), unrotated (DESIGN.md §2):
+/* Equirectangular coordinates of world directions (n, 3), unrotated (docs/design/conventions.md):
  * out (n, 2) float32 u = atan2(x, −z)/2π wrapped into [0, 1), v = acos(y)/π (render.py env_coords). */
 void glk_env_coords(int64_t n, const float *dirs, float *out) {
 #pragma omp parallel for schedule(static)

@@ -160,7 +160,7 @@ void glk_interpolate(int64_t P, const int32_t *tri, const float *uv, const int32
     }
 }
 
-/* Bilinear lookup of an equirectangular map (DESIGN.md §2) for world directions, with the
+/* Bilinear lookup of an equirectangular map (docs/design/conventions.md) for world directions, with the
  * environment rotated by rot_rad about +Y (world φ reads map φ + rot) and scaled. */
 void glk_env_lookup(int64_t P, const float *dirs, const uint8_t *mask, const float *map, int Hm,
                     int Wm, double rot_rad, double intensity, float *out) {

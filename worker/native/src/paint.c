@@ -102,7 +102,7 @@ static inline double glp_atan2(double y, double x) {
     return y < 0 ? -r : r;
 }
 
-/* Equirectangular coordinates of a world direction (DESIGN.md §2), the environment rotated by
+/* Equirectangular coordinates of a world direction (docs/design/conventions.md), the environment rotated by
  * rot about +Y: u in [0, 1), v in [0, 1]. Computed once per direction, shared by every map. */
 static inline void glp_uv(v3 d, double rot, double *u, double *v) {
     double uu = glp_atan2(d.x, -d.z) / (2 * PI) + rot / (2 * PI);

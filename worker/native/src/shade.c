@@ -8,7 +8,7 @@
  * Nodes wider than the material's refine radius whose angle to the mirror direction is below
  * their radius plus the material's extent (PackedBRDF) are refined: their children inherit the
  * parent's visibility but have their own light and direction, so glossy highlights stay sharp
- * (DESIGN.md §4).
+ * (docs/design/conventions.md, precomputed data).
  *
  * How it is fast: each point first lists its clusters (node index, visibility) in a
  * scalar pass over the height-encoded cut, then evaluates the BRDF over that list eight

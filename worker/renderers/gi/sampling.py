@@ -20,7 +20,7 @@ GLOSS_EXPONENT = 200.0
 
 
 class EnvDistribution:
-    """Luminance distribution of an equirectangular map (DESIGN.md §2 mapping).
+    """Luminance distribution of an equirectangular map (docs/design/conventions.md mapping).
 
     row_cdf : (H + 1,) float64, col_cdf : (H, W + 1) float64, texel_pdf : (H, W) float64
     (probability of each texel, sums to 1); rotation_deg as Mitsuba's envmap to_world.

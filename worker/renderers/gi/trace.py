@@ -86,7 +86,7 @@ class Geometry:
         return pos, ng, ns, self.obj_of_face[prim], ok
 
     def trace(self, o, d, occluded: bool, threads: int = 2):
-        """Embree in ``threads`` Python threads (it releases the GIL, DESIGN.md §7)."""
+        """Embree in ``threads`` Python threads (it releases the GIL, docs/design/conventions.md, measured facts)."""
         n = len(o)
         if n == 0:
             return np.zeros(0, bool) if occluded else (np.zeros(0, np.int32), np.zeros((0, 2), np.float32))

@@ -3,7 +3,7 @@
 For a basis exponent E, the prefiltered map is the environment convolved with the normalised
 cosine lobe:
     P_E(R) = (E+1)/(2π) ∫_{ω·R>0} (ω·R)^E L(ω) dω        (a constant map stays unchanged)
-stored as an equirectangular map (DESIGN.md §2 mapping) and read bilinearly at R. The diffuse
+stored as an equirectangular map (docs/design/conventions.md mapping) and read bilinearly at R. The diffuse
 map of eq. 9 is P_1: albedo·P_1(N) is exactly the Lambertian radiance albedo/π·E(N).
 
 How (hierarchical, direct convolution; why not spherical harmonics: below):
