@@ -57,7 +57,8 @@ GLOSS_DISCOUNT = (0.97, 1.1)  # gloss weight cost / its luminance, on sharp and 
 ASPECULAR_FLOOR = 0.01        # reflectance-factor floor of the relative rows (a black paint's 110°)
 GLOSS_FLOOR = 1.0             # GU
 ITERATION_LIMIT = 5000        # warm solves take tens of iterations; beyond this, solve afresh
-MAX_WEIGHT = 1000.0           # weight of the largest relative residual (chosen in basis.py on the tuning paints)
+MAX_WEIGHT = 1000.0           # weight of the largest relative residual: chosen in basis.py on the tuning paints
+                              # (the objective kept falling up to this, the largest weight tried)
 TOLERANCE = 0.03              # a reading off by more than this (relative) is reported as unmet
 
 
