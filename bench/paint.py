@@ -64,20 +64,21 @@ def cmd_bench(a) -> int:
 
 
 def cmd_bench_fit(a) -> int:
-    """Fit time over the database's measurements: the warm HiGHS instance against linprog."""
+    """Fit time over the database's measurements (or the held-out generated paints' readings,
+    worker/paint/basis.py): the warm HiGHS instance against linprog."""
+    from worker.paint.basis import default_exponents, held_out_cases
     from worker.paint.database import load_paints
-    from worker.paint.exponents import default_exponents
     from worker.paint.fit import fit_measurements
     exps = default_exponents()
-    paints = load_paints()
-    res = {"paints": len(paints), "lobes": len(exps), "repeats": a.repeats}
+    meas = [p["measurements"] for p in load_paints()] if a.cases == "database" else list(held_out_cases())
+    res = {"cases": a.cases, "paints": len(meas), "lobes": len(exps), "repeats": a.repeats}
     for solver in ("warm", "linprog"):
-        fit_measurements(paints[0]["measurements"], exps, solver=solver)      # build once
+        fit_measurements(meas[0], exps, solver=solver)      # build once
         ts, errs = [], []
         for _ in range(a.repeats):
-            for p in paints:
+            for m in meas:
                 t0 = time.perf_counter()
-                r = fit_measurements(p["measurements"], exps, solver=solver)
+                r = fit_measurements(m, exps, solver=solver)
                 ts.append(time.perf_counter() - t0)
                 errs.append(r.error_l1)
         res[f"ms_{solver}_median"] = 1e3 * float(np.median(ts))
@@ -100,6 +101,8 @@ def add_paint_commands(ps) -> None:
     """``bench-fit`` and ``bench`` into the subparsers of ``glint paint``."""
     bf = ps.add_parser("bench-fit", help="fit time over the database (warm HiGHS vs linprog)")
     bf.add_argument("--repeats", type=int, default=5); bf.add_argument("--json", action="store_true")
+    bf.add_argument("--cases", choices=["database", "held-out"], default="database",
+                    help="the database's 30 paints or the held-out generated paints (worker/paint/basis.py)")
     bf.set_defaults(fn=cmd_bench_fit)
 
     b = ps.add_parser("bench", help="prefilter and frame times (--json)")

@@ -9,7 +9,7 @@ from worker.native.kernels import kernels
 from worker.core.brdf import evaluate, to_local
 from worker.core.lighting import pixel_directions
 from worker.envmap import load_envmap
-from worker.paint.exponents import default_exponents
+from worker.paint.basis import default_exponents
 from worker.renderers.paint.prefilter import prefilter_all
 from worker.renderers.paint.render import lobe_albedo, material_rows, shade, shade_numpy
 from worker.scene import Lobes

@@ -222,6 +222,14 @@ def test_canvas_stays_in_view_and_uses_the_width(server, bunny_scene, browser, a
     slider = page.locator("#paint-panel input[type=range]").first
     slider.scroll_into_view_if_needed()
     slider.fill(slider.get_attribute("max") or "1")
+    # a −15° reading far above the 15° one, which no cosine-lobe paint has (they read the same):
+    # the panel names the unmet readings and marks their rows
+    page.locator("#paint-panel input[aria-label='level -15°']").fill("2")
+    page.wait_for_function("() => (document.querySelector('#paint-panel .paint-status')?.textContent || '')"
+                           ".includes('cannot be met')", timeout=20_000)
+    warning = page.locator("#paint-panel .paint-status").inner_text()
+    assert "-15:" in warning or " 15:" in warning, warning
+    assert page.locator("#paint-panel .paint-unmet").count() >= 1
     page.locator("#capture-details summary").click()
     page.locator("#capture-panel").scroll_into_view_if_needed()
     page.screenshot(path=str(artifacts / "web-work-4-1280x720.png"))

@@ -92,10 +92,24 @@ export function createPaintPanel(container, { send, object = "", initial = null,
       }
       if (!silent) emit();
     },
-    // the session's answer: what the fitted paint measures and how far it is from the request
+    // the session's answer: what the fitted paint measures and how far it is from the request.
+    // Readings the fit cannot meet (ev.unmet, worker/paint/fit.py TOLERANCE) are named in the
+    // status and marked on their row, with every reading's residual in the row's tooltip.
     showEvent(ev) {
       status.textContent = `fit ${ev.ms_fit.toFixed(2)} ms, error ${(100 * ev.error_l1).toFixed(2)}% (max ${(100 * ev.error_max).toFixed(1)}%)` +
         (ev.flop_index != null ? `, flop index ${ev.flop_index.toFixed(1)}` : "");
+      const unmet = ev.unmet || [];
+      status.classList.toggle("paint-warning", unmet.length > 0);
+      if (ev.warning) status.textContent += ` — ${ev.warning}`;
+      const res = ev.residuals?.aspecular || {};
+      for (const a of angles) {
+        const miss = unmet.some((u) => u.split(":")[0] === a);
+        rows[a].out.classList.toggle("paint-unmet", miss);
+        rows[a].out.style.color = miss ? "#f84" : "";
+        rows[a].out.title = res[a] ? `fit − reading: ${res[a].map((r) => `${(100 * r).toFixed(1)}%`).join(" ")}` : "";
+      }
+      glv.classList.toggle("paint-unmet", unmet.includes("gloss"));
+      glv.style.color = unmet.includes("gloss") ? "#f84" : "";
     },
   };
 }

@@ -210,7 +210,8 @@ function onEvent(ev) {
     setMaterial(ev.material);
     paintPanel?.showEvent(ev);
     lobeView.update(ev.material, 45);
-    status(`paint: fitted in ${ev.ms_fit.toFixed(1)} ms, error ${(100 * ev.error_l1).toFixed(1)}%`);
+    status(`paint: fitted in ${ev.ms_fit.toFixed(1)} ms, error ${(100 * ev.error_l1).toFixed(1)}%` +
+      (ev.warning ? ` — ${ev.warning}` : ""));
   } else if (ev.type === "curve") {
     if (ev.object === state.object) { curveEditor.set(material, ev.curve); curveData = ev.curve; drawLobePlot(); }
   } else if (ev.type === "converted") {

@@ -3,6 +3,7 @@
   glint paint measure MATERIAL.json [--json]            industry measurements of any material
   glint paint fit --gloss G --aspecular 15=r,g,b:… --out MATERIAL.json [--json]
   glint paint exponents --lobes M [--json] [--recompute [--out FILE]]
+  glint paint basis [--json] [--recompute [--out FILE]]
   glint paint export MATERIAL.json --format json|csv
   glint paint render SCENE.json --out PNG [--raw NPY] [--material OBJ=M.json] [--fresnel] [--cosine vector|albedo|paper] [--visibility]
 
@@ -75,6 +76,27 @@ def cmd_fit(a) -> int:
     else:
         print(f"fit in {r.seconds * 1e3:.2f} ms, mean relative error {r.error_l1:.2e} (max {r.error_max:.2e})"
               + (f"; wrote {a.out}" if a.out else ""))
+        if r.warning:
+            print(f"warning: {r.warning}")
+    return 0
+
+
+def cmd_basis(a) -> int:
+    from .basis import BASIS_PATH, main_recompute, stored
+    doc = main_recompute(Path(a.out) if a.out else None) if a.recompute else stored()
+    if a.json:
+        print(json.dumps({"source": "recomputed" if a.recompute else str(BASIS_PATH), **doc}))
+    else:
+        pct = lambda d: (f"{d['cases']} cases: worst {100 * d['max']:.1f}%, p90 {100 * d['p90']:.2f}%, "
+                         f"{100 * d['within']:.0f}% within 3%")
+        print(f"basis ({len(doc['basis'])} lobes): {', '.join(f'{e:g}' for e in doc['basis'])}; "
+              f"max-residual weight {doc['max_weight']:g}")
+        print(f"  tuning   (seed {doc['tuning']['seed']}): {pct(doc['tuning'])}")
+        print(f"  held out (seed {doc['held_out']['seed']}): {pct(doc['held_out'])}")
+        print(f"  held out, old basis: {pct(doc['held_out_old_basis'])}")
+        inh = doc["inherent_microfacet"]
+        print(f"  microfacet paints, raw readings on any lobes material: {pct(inh['raw_round_trip'])}; "
+              f"misses by reading {inh['misses_by_reading']}")
     return 0
 
 
@@ -185,6 +207,12 @@ def add_commands(sub) -> None:
     e.add_argument("--recompute", action="store_true", help="rerun the LM search (minutes)")
     e.add_argument("--out", help="with --recompute: write the table here")
     e.set_defaults(fn=cmd_exponents)
+
+    bs = ps.add_parser("basis", help="the fit's basis exponents: tuning and held-out round-trip figures")
+    bs.add_argument("--json", action="store_true")
+    bs.add_argument("--recompute", action="store_true", help="choose the basis again on the tuning paints (minutes)")
+    bs.add_argument("--out", help="with --recompute: write the choice here (data/basis.json is the stored one)")
+    bs.set_defaults(fn=cmd_basis)
 
     x = ps.add_parser("export", help="a material's measurements as JSON or CSV (for paint formulation)")
     x.add_argument("material"); x.add_argument("--format", choices=["json", "csv"], default="json")

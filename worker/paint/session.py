@@ -20,7 +20,10 @@ def apply_paint(msg_fields: Mapping[str, Any], exponents=None) -> tuple[Lobes, d
     Returns (material, event) where event is
     ``{"type": "paint", "seq", "object", "material", "measured": {gloss, aspecular} of the fitted
     material (what the render shows), "requested": the message's values, "error_l1",
-    "error_max", "flop_index", "ms_fit"}``. Raises MeasurementError (a GlintError) on bad fields."""
+    "error_max", "residuals": signed relative residual of every reading (same form as the
+    readings), "unmet": the readings off by more than fit.TOLERANCE ("gloss", "45:r", …),
+    "warning": a sentence naming them or None, "flop_index", "ms_fit"}``.
+    Raises MeasurementError (a GlintError) on bad fields."""
     if "aspecular" not in msg_fields:
         raise MeasurementError("paint message needs aspecular readings")
     requested = {"gloss": msg_fields.get("gloss", 0.0), "aspecular": msg_fields["aspecular"]}
@@ -30,6 +33,7 @@ def apply_paint(msg_fields: Mapping[str, Any], exponents=None) -> tuple[Lobes, d
     measured["gloss"] = float(measured["gloss"])
     event = {"type": "paint", "seq": msg_fields.get("seq"), "object": msg_fields.get("object"),
              "material": r.material.model_dump(), "measured": measured, "requested": requested,
-             "error_l1": r.error_l1, "error_max": r.error_max, "flop_index": flop_index(measured),
+             "error_l1": r.error_l1, "error_max": r.error_max, "residuals": r.residuals,
+             "unmet": r.unmet, "warning": r.warning, "flop_index": flop_index(measured),
              "ms_fit": 1e3 * r.seconds}
     return r.material, event

@@ -139,6 +139,11 @@ class PaintEvent(_WorkerEvent):
     requested: dict
     error_l1: float
     error_max: float
+    residuals: dict = Field(default_factory=dict, description="signed relative residual (fit − reading)/(|reading| + "
+                            "floor) of every reading, same form as the readings")
+    unmet: list[str] = Field(default_factory=list, description="readings the fit misses by more than 3%: "
+                             "'gloss' or 'ANGLE:channel' (e.g. '-15:r')")
+    warning: str | None = Field(None, description="a sentence naming the unmet readings, or null when all are met")
     flop_index: float | None = None
     ms_fit: float
 

@@ -25,7 +25,7 @@ import numpy as np
 from ...core.lighting import direction_to_uv
 from ...core.render import camera_rays
 from ...keys import content_key
-from ...paint.exponents import default_exponents
+from ...paint.basis import default_exponents
 from ...scene import Lobes
 from ..base import FrameRequest, Part, Precomputation, Rendered, Renderer
 from . import DECLARATION
