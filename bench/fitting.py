@@ -46,6 +46,11 @@ def add_bench_commands(bsub) -> None:
     s.add_argument("--fit-scale", type=float, default=0.25)
     s.add_argument("--fit-albedo", choices=["no", "yes", "both"], default="both",
                    help="also fit the diffuse albedo (solve.solve fit_albedo)")
+    s.add_argument("--regions", action="store_true",
+                   help="also fit a region per stroke (worker/fit/regions.py) and measure both in rendered frames "
+                        "(achieved on painted pixels, spill beyond one brush diameter) and the frame cost")
+    s.add_argument("--env", action="append", help="light the scenes with this map instead (repeatable; --regions)")
+    s.add_argument("--frames", type=int, default=9, help="frames timed per material (--regions)")
     s.add_argument("--cuts"); s.add_argument("--tau", type=float, default=1.0)
     s.add_argument("--json", action="store_true")
     s.set_defaults(fn=cmd_bench_strokes)
@@ -150,6 +155,8 @@ def standard_strokes(fx, view: int = 0):
 
 
 def cmd_bench_strokes(a) -> int:
+    if a.regions:
+        return cmd_bench_regions(a)
     from worker.fit.fitter import Fitter
 
     res = []
@@ -178,4 +185,87 @@ def cmd_bench_strokes(a) -> int:
         for r in res:
             print(f"{r['scene']} {r['stroke']} w={r['unpainted_weight']:g} fit albedo {r['fit_albedo']}: "
                   f"achieved {100 * r['achieved']:.0f}%, spill {100 * r['spill']:.1f}%, albedo {r['albedo']}")
+    return 0
+
+
+def _frame_ms(r, cam, lighting, mats, frames: int) -> float:
+    """Median wall time (ms) of a full-quality vertex-mode frame of these materials (the view
+    and light tables cached by a first frame, so each timed frame is the shading and resolve a
+    material change costs)."""
+    import numpy as np
+
+    from worker.renderers import FrameRequest
+
+    req = FrameRequest(camera=cam, lighting=lighting, materials=mats)
+    r.render(req)
+    ts = []
+    for _ in range(frames):
+        t0 = time.perf_counter()
+        r.render(req)
+        ts.append((time.perf_counter() - t0) * 1e3)
+    return float(np.median(ts))
+
+
+def cmd_bench_regions(a) -> int:
+    """``glint bench strokes --regions``: per scene × map × standard stroke, a region fit and a
+    one-BRDF fit (unpainted weight 0.25, albedo fitted), each measured in rendered frames at the
+    view's resolution (worker/fit/regions.py ``rendered_effect``), and the frame cost of the
+    object with its region against the same object with one material."""
+    import os
+
+    from worker.fit.fitter import Fitter
+    from worker.fit.regions import fit_region, rendered_effect
+
+    res = []
+    envs = a.env or [None]
+    for s in a.scenes:
+        for env in envs:
+            rnd = _renderer_for(s, env, a.cuts, a.tau, a.json)
+            sc = rnd.scene
+            name = sc.spec.objects[0].name
+            fx = Fitter(rnd, name, fit_scale=a.fit_scale)
+            fx.add_view()
+            v = fx.views[0]
+            for label, st in standard_strokes(fx):
+                fx.history.clear()
+                fx.add_stroke(st)
+                fx._last = None
+                t0 = time.perf_counter()
+                reg = fit_region(fx, name=label)
+                t_reg = time.perf_counter() - t0
+                one = fx.fit(unpainted_weight=0.25, fit_albedo=True)
+                got = rendered_effect(rnd, 0, v.camera, v.lighting, fx.base_material, reg.material, [st])
+                ref = rendered_effect(rnd, 0, v.camera, v.lighting, fx.base_material, one.material, [st])
+                mats = list(sc.materials)
+                ms = {}
+                # alternate the materials so that load changes hit each alike
+                for key, m in (("base", fx.base_material), ("one_brdf", one.material), ("regions", reg.material),
+                               ("base_again", fx.base_material)):
+                    mats[0] = m
+                    ms[key] = _frame_ms(rnd, v.camera, v.lighting, list(mats), a.frames)
+                one_material = min(ms["base"], ms["base_again"])
+                res.append({"scene": Path(s).stem, "env": Path(env).name if env else Path(sc.spec.environment.map).name,
+                            "object": name, "vertices": int((sc.object_of_vertex == 0).sum()), "stroke": label,
+                            "region_vertices": len(reg.region.vertices),
+                            "rendered": {k: got[k] for k in ("achieved", "spill", "spill_far")},
+                            "predicted": {"achieved": reg.achieved, "spill": reg.spill, "spill_far": reg.spill_far},
+                            "one_brdf_rendered": {k: ref[k] for k in ("achieved", "spill", "spill_far")},
+                            "painted_pixels": got["painted_pixels"], "far_pixels": got["far_pixels"],
+                            "object_pixels": got["object_pixels"], "region_albedo": [float(x) for x in reg.solve.albedo],
+                            "notes": reg.notes, "seconds_region_fit": t_reg, "ms_transfer": reg.seconds_transfer * 1e3,
+                            "ms_solve": reg.solve.seconds * 1e3, "ms_frame": ms,
+                            "cost_vs_base": ms["regions"] / one_material, "cost_vs_one_brdf": ms["regions"] / ms["one_brdf"]})
+                if not a.json:
+                    r = res[-1]
+                    print(f"{r['scene']} {r['env']} {label}: region achieved {100 * got['achieved']:.0f}%, spill beyond D "
+                          f"{100 * got['spill_far']:.1f}% (one BRDF {100 * ref['achieved']:.0f}%, {100 * ref['spill_far']:.1f}%); "
+                          f"frame {ms['regions']:.1f} ms vs {one_material:.1f} ms base ({r['cost_vs_base']:.2f}×)", file=sys.stderr)
+    summary = {}
+    if res:
+        summary = {"cases": len(res), "min_achieved": min(r["rendered"]["achieved"] for r in res),
+                   "max_spill_far": max(r["rendered"]["spill_far"] for r in res),
+                   "max_cost_vs_base": max(r["cost_vs_base"] for r in res),
+                   "load_average": list(os.getloadavg())}
+    if a.json:
+        print(json.dumps({"summary": summary, "results": res}))
     return 0

@@ -172,6 +172,8 @@ def _fitter(r, a, sf=None):
 
 
 def cmd_fit(a) -> int:
+    import numpy as np
+
     from .fit import files
     from .fit.fitter import DEFAULT_UNPAINTED_WEIGHT
 
@@ -223,7 +225,8 @@ def cmd_fit(a) -> int:
         res.update(achieved=out.achieved, spill=out.spill, model=out.material.model)
         res["regions"] = [out.report()] if a.regions else []
         if a.regions:
-            res.update(spill_far=out.spill_far, region_albedo=[float(x) for x in s.albedo], rows=out.rows)
+            res.update(spill_far=out.spill_far, region_albedo=[float(x) for x in s.albedo], rows=out.rows,
+                       guidance=out.guidance)
     if a.json:
         print(json.dumps(res))
     else:
@@ -235,7 +238,7 @@ def cmd_fit(a) -> int:
             print(f"region {g['name']!r}: {g['vertices']} vertices, achieved {pct(out.achieved)} of the "
                   f"requested change, spill beyond one brush diameter {pct(out.spill_far)}", file=sys.stderr)
         print(f"wrote {dest}: {out.material.model}, J = {res['basis']}, {res['pixels']} pixels, residual {s.residual_rel * 100:.1f}%, "
-              f"largest directional albedo {s.energy_max + fx.albedo.max():.3f}; transfer {out.seconds_transfer:.2f} s, "
+              f"largest directional albedo {s.energy_max + float(np.max(s.albedo)):.3f}; transfer {out.seconds_transfer:.2f} s, "
               f"solve {s.seconds * 1000:.1f} ms")
     return 0
 

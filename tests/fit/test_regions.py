@@ -121,3 +121,25 @@ def test_a_stroke_off_the_object_is_refused(fitter):
     fitter.add_stroke(Stroke(points=[(1.0, 1.0)], color=(1, 1, 1), diameter=2))
     with pytest.raises(FitError, match="touch no vertex"):
         fit_region(fitter)
+
+
+def test_a_highlight_the_light_cannot_give_is_explained(fitter, across):
+    """Under the sunset the painted pixels' mirror directions see little light: a bright white
+    stroke falls short, and the notes say why and what would give it; one brighter than the sun
+    above the surface is impossible for any BRDF; a darkening asks for no guidance."""
+    pts = across(fitter, frac=(0.3, 0.6))
+    fitter.add_stroke(Stroke(points=pts, color=(3.0, 3.0, 3.0), diameter=12))
+    out = fit_region(fitter)
+    g = out.guidance
+    assert out.achieved < 0.8 and g is not None
+    assert g["asked"] > g["mirror"] and g["covered"] < 0.8 and g["impossible_share"] < 0.5
+    assert 0 <= g["rotate_to_deg"] < 360 and g["covered_at_rotation"] >= g["covered"]
+    assert any("little light near the mirror direction" in n and "sharper lobe" in n for n in out.notes), out.notes
+    fitter.history.clear()
+    fitter.add_stroke(Stroke(points=pts, color=(500.0, 500.0, 500.0), diameter=12))
+    out = fit_region(fitter)
+    assert out.guidance["impossible_share"] > 0.5
+    assert any(n.startswith("no BRDF can make this highlight here") for n in out.notes), out.notes
+    fitter.history.clear()
+    fitter.add_stroke(Stroke(points=pts, mode="scale", scale=0.3, diameter=12))
+    assert fit_region(fitter).guidance is None

@@ -34,6 +34,7 @@ from ..scene import SRBF
 from .basis import DEFAULT_NL
 from .brush import DEFAULT_UNPAINTED_WEIGHT, Stroke, apply_stroke, polyline_distance, stroke_effect, stroke_weights
 from .fitter import FitError, Fitter
+from .guidance import guidance_notes, highlight_guidance
 from .solve import FitRows, SolveResult, solve
 
 # the region's weight falls from the brush edge (d = D/2) to zero at d = TAPER_END · D
@@ -122,6 +123,7 @@ class RegionOutcome:
     spill_far: float | None = None
     extended: bool = False
     views: list = field(default_factory=list, repr=False)   # per view: (base, target, painted, far, pred)
+    guidance: dict | None = None        # guidance.highlight_guidance of a brightening stroke
 
     def report(self) -> dict:
         """The ``regions`` entry of ``glint fit --json``."""
@@ -241,12 +243,24 @@ def fit_region(fx: Fitter, name: str = "region 1", unpainted_weight: float = DEF
     bases, tgts, pnt, fars = ([x[i] for x in out_views] for i in range(4))
     achieved, spill = stroke_effect(bases, tgts, pnt, preds)
     _, spill_far = stroke_effect(bases, tgts, [~f for f in fars], preds)
-    notes = region_notes(achieved, res, uncovered, n_painted)
+    guide = _guidance(fx, out_views)
+    told = guidance_notes(guide, achieved)
+    notes = region_notes(achieved, res, uncovered, n_painted, guided=bool(told)) + told
     return RegionOutcome(material, region, res, n_pix, n_painted, int(sum(len(x.weight) for x in rows)), notes,
-                         t_transfer, achieved, spill, spill_far, old is not None, out_views)
+                         t_transfer, achieved, spill, spill_far, old is not None, out_views, guide)
 
 
-def region_notes(achieved, res: SolveResult, uncovered: int, painted: int) -> list[str]:
+def _guidance(fx: Fitter, views) -> dict | None:
+    """highlight_guidance over the painted pixels of the first view with any."""
+    for v, (base, tgt, painted, _, _) in zip(fx.views, views):
+        if painted.any():
+            s = v.samples
+            return highlight_guidance(fx.renderer.lighting.map, v.rotation_deg, v.intensity, s.normals[painted],
+                                      s.wo[painted], tgt[painted], base[painted])
+    return None
+
+
+def region_notes(achieved, res: SolveResult, uncovered: int, painted: int, guided: bool = False) -> list[str]:
     """What a designer should know about a region fit that falls short."""
     notes = []
     if painted and uncovered > 0.2 * painted:
@@ -257,7 +271,7 @@ def region_notes(achieved, res: SolveResult, uncovered: int, painted: int) -> li
         if hit:
             notes.append(f"{achieved * 100:.0f}% of the requested change: energy conservation caps the region's "
                          f"albedo in {'/'.join(hit)} (diffuse plus specular reflect at most all the light)")
-        else:
+        elif not guided:
             notes.append(f"{achieved * 100:.0f}% of the requested change: no non-negative BRDF of the region "
                          "reflects more of this lighting towards the eye there")
     return notes
