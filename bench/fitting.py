@@ -50,6 +50,8 @@ def add_bench_commands(bsub) -> None:
                    help="also fit a region per stroke (worker/fit/regions.py) and measure both in rendered frames "
                         "(achieved on painted pixels, spill beyond one brush diameter) and the frame cost")
     s.add_argument("--env", action="append", help="light the scenes with this map instead (repeatable; --regions)")
+    s.add_argument("--parts", default="auto", type=lambda x: x if x == "auto" else int(x),
+                   help="parts of a region (worker/fit/regions.py fit_region; default auto)")
     s.add_argument("--frames", type=int, default=9, help="frames timed per material (--regions)")
     s.add_argument("--cuts"); s.add_argument("--tau", type=float, default=1.0)
     s.add_argument("--json", action="store_true")
@@ -231,7 +233,7 @@ def cmd_bench_regions(a) -> int:
                 fx.add_stroke(st)
                 fx._last = None
                 t0 = time.perf_counter()
-                reg = fit_region(fx, name=label)
+                reg = fit_region(fx, name=label, parts=a.parts)
                 t_reg = time.perf_counter() - t0
                 one = fx.fit(unpainted_weight=0.25, fit_albedo=True)
                 got = rendered_effect(rnd, 0, v.camera, v.lighting, fx.base_material, reg.material, [st])
@@ -246,12 +248,13 @@ def cmd_bench_regions(a) -> int:
                 one_material = min(ms["base"], ms["base_again"])
                 res.append({"scene": Path(s).stem, "env": Path(env).name if env else Path(sc.spec.environment.map).name,
                             "object": name, "vertices": int((sc.object_of_vertex == 0).sum()), "stroke": label,
-                            "region_vertices": len(reg.region.vertices),
+                            "region_vertices": sum(len(g.vertices) for g in reg.regions), "parts": reg.parts,
+                            "tried": reg.tried,
                             "rendered": {k: got[k] for k in ("achieved", "spill", "spill_far")},
                             "predicted": {"achieved": reg.achieved, "spill": reg.spill, "spill_far": reg.spill_far},
                             "one_brdf_rendered": {k: ref[k] for k in ("achieved", "spill", "spill_far")},
                             "painted_pixels": got["painted_pixels"], "far_pixels": got["far_pixels"],
-                            "object_pixels": got["object_pixels"], "region_albedo": [float(x) for x in reg.solve.albedo],
+                            "object_pixels": got["object_pixels"], "region_albedo": reg.region_albedo,
                             "notes": reg.notes, "seconds_region_fit": t_reg, "ms_transfer": reg.seconds_transfer * 1e3,
                             "ms_solve": reg.solve.seconds * 1e3, "ms_frame": ms,
                             "cost_vs_base": ms["regions"] / one_material, "cost_vs_one_brdf": ms["regions"] / ms["one_brdf"]})

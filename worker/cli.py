@@ -198,7 +198,8 @@ def cmd_fit(a) -> int:
         if a.regions:
             from .fit.regions import fit_region
 
-            out = fit_region(fx, name=a.region_name, unpainted_weight=uw, constrained=not a.unconstrained)
+            out = fit_region(fx, name=a.region_name, unpainted_weight=uw, constrained=not a.unconstrained,
+                             parts=a.region_parts)
         else:
             out = fx.fit(constrained=not a.unconstrained, unpainted_weight=uw)
     else:
@@ -223,10 +224,10 @@ def cmd_fit(a) -> int:
     if sf is not None:
         # what the strokes got: brush.stroke_effect (and, for regions, spill beyond one brush diameter)
         res.update(achieved=out.achieved, spill=out.spill, model=out.material.model)
-        res["regions"] = [out.report()] if a.regions else []
+        res["regions"] = out.report() if a.regions else []
         if a.regions:
-            res.update(spill_far=out.spill_far, region_albedo=[float(x) for x in s.albedo], rows=out.rows,
-                       guidance=out.guidance)
+            res.update(spill_far=out.spill_far, region_albedo=out.region_albedo, rows=out.rows,
+                       guidance=out.guidance, parts_tried=out.tried)
     if a.json:
         print(json.dumps(res))
     else:
@@ -348,6 +349,9 @@ def add_commands(sub, bench=None) -> None:
                     help="make a region from the strokes' footprint and fit its own BRDF (the rest keeps its material)")
     ft.add_argument("--region-name", default="region 1",
                     help="the region's name; a region of this name in --base is extended (default 'region 1')")
+    ft.add_argument("--region-parts", default="auto", type=lambda x: x if x == "auto" else int(x),
+                    help="split the region into this many parts with a BRDF each (grouped by mirror direction), "
+                         "or auto: the fewest of 1, 2, 4 that achieve 80%% (default)")
     ft.add_argument("--base", metavar="MATERIAL.json",
                     help="the material the strokes paint over (default: the object's in the scene file)")
     ft.add_argument("--json", action="store_true")

@@ -143,3 +143,43 @@ def test_a_highlight_the_light_cannot_give_is_explained(fitter, across):
     fitter.history.clear()
     fitter.add_stroke(Stroke(points=pts, mode="scale", scale=0.3, diameter=12))
     assert fit_region(fitter).guidance is None
+
+
+def test_a_region_in_parts_aims_a_lobe_per_part(fitter, across):
+    """A highlight across a curved surface: the region's vertices grouped by mirror direction,
+    a BRDF each, fitted together (solve_blocks), give more of it than one BRDF for the region;
+    the parts partition the region. One part through solve_blocks is solve's fit_albedo problem."""
+    from worker.fit import regions as R
+    from worker.fit.solve import solve_blocks
+
+    fitter.set_base_material(Lambert(albedo=(0.7, 0.7, 0.7)))       # a bright base: little energy left
+    v = fitter.views[0]
+    C = 2.0 * float(v.base.max())
+    fitter.add_stroke(Stroke(points=across(fitter, frac=(0.25, 0.75)), color=(C, C, C), diameter=6))
+    one = fit_region(fitter, name="hl", parts=1)
+    two = fit_region(fitter, name="hl", parts=2)
+    print(f"highlight: 1 part {one.achieved:.2f}, 2 parts {two.achieved:.2f}")
+    assert [g.name for g in two.material.regions] == ["hl/1", "hl/2"]
+    a, b = (set(g.vertices) for g in two.regions)
+    assert not a & b and a | b == set(one.region.vertices)
+    assert two.achieved > one.achieved + 0.04          # measured 0.71 against 0.64
+    # extending "hl" replaces both parts
+    fitter.set_base_material(two.material)
+    again = fit_region(fitter, name="hl", parts=1)
+    assert [g.name for g in again.material.regions] == ["hl"] and again.extended
+    # the stacked solver with one block is the single solve with the albedo fitted
+    fitter.set_base_material(one.material.base)
+    w = R.footprint_weights(fitter, fitter.history.strokes)
+    off, n_o = R.object_range(fitter.renderer, 0)
+    p = R._prepare_view(fitter, 0, v, w, off, fitter.base_material, fitter.base_material, 0.25)
+    J = fitter.basis.J
+    A = np.zeros((3, len(p["R"]), J + 1), np.float32)
+    for c in range(3):
+        A[c, :, :J] = p["Pw"] @ p["T"][c].astype(np.float64)
+        A[c, :, J] = p["Pw"] @ p["E"][:, c].astype(np.float64)
+    blk = solve_blocks(A, p["target"][p["R"]] - p["fixed"], p["weight"], fitter.basis, 1,
+                       np.asarray(fitter.base_material.albedo)[None])
+    np.testing.assert_allclose(blk.albedo[0], one.solve.albedo, atol=2e-3)
+    pred_one = A[:, :, :J].astype(np.float64) @ one.solve.coefficients.T[:, :, None]
+    pred_blk = A[:, :, :J].astype(np.float64) @ blk.coefficients[0].T[:, :, None]
+    assert np.abs(pred_one - pred_blk).max() < 0.01 * np.abs(pred_one).max()
