@@ -53,6 +53,7 @@ def add_bench_commands(bsub) -> None:
     s.add_argument("--parts", default="auto", type=lambda x: x if x == "auto" else int(x),
                    help="parts of a region (worker/fit/regions.py fit_region; default auto)")
     s.add_argument("--frames", type=int, default=9, help="frames timed per material (--regions)")
+    s.add_argument("--images", help="write before | target | one BRDF | region JPEGs per case to this folder (--regions)")
     s.add_argument("--cuts"); s.add_argument("--tau", type=float, default=1.0)
     s.add_argument("--json", action="store_true")
     s.set_defaults(fn=cmd_bench_strokes)
@@ -238,6 +239,10 @@ def cmd_bench_regions(a) -> int:
                 one = fx.fit(unpainted_weight=0.25, fit_albedo=True)
                 got = rendered_effect(rnd, 0, v.camera, v.lighting, fx.base_material, reg.material, [st])
                 ref = rendered_effect(rnd, 0, v.camera, v.lighting, fx.base_material, one.material, [st])
+                if a.images:
+                    _write_case_image(Path(a.images) / f"{Path(s).stem}-{Path(env).stem if env else 'scene'}-"
+                                      f"{label.replace(' ', '-')}.jpg", rnd, v, fx.base_material, one.material,
+                                      reg.material, st)
                 mats = list(sc.materials)
                 ms = {}
                 # alternate the materials so that load changes hit each alike
@@ -272,3 +277,29 @@ def cmd_bench_regions(a) -> int:
     if a.json:
         print(json.dumps({"summary": summary, "results": res}))
     return 0
+
+
+def _write_case_image(path: Path, rnd, v, before, one, region, stroke) -> None:
+    """before | target (the stroke over before's frame) | one BRDF | region, tone-mapped alike."""
+    import numpy as np
+    from PIL import Image
+
+    from worker.core.tonemap import tonemap
+    from worker.fit.brush import apply_stroke, stroke_weights
+    from worker.renderers import FrameRequest
+
+    frames = []
+    for m in (before, one, region):
+        mats = list(rnd.scene.materials)
+        mats[0] = m
+        frames.append(rnd.render(FrameRequest(camera=v.camera, lighting=v.lighting, materials=mats)))
+    h, w = v.camera.height, v.camera.width
+    on = frames[0].object_id.reshape(-1) == 0
+    yy, xx = np.divmod(np.nonzero(on)[0], w)
+    tgt = frames[0].radiance.reshape(-1, 3).astype(np.float64).copy()
+    sub = tgt[on]
+    apply_stroke(sub, stroke, stroke_weights(stroke, np.stack([xx + 0.5, yy + 0.5], 1)))
+    tgt[on] = sub
+    imgs = [frames[0].radiance, tgt.reshape(h, w, 3).astype(np.float32), frames[1].radiance, frames[2].radiance]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(np.concatenate([tonemap(x) for x in imgs], 1)).save(path, quality=88)

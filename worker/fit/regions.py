@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from ..models.regions import Region, Regions, has_regions
+from ..models.regions import Region, Regions, has_regions, in_group, without_region
 from ..scene import SRBF
 from .basis import DEFAULT_NL
 from .brush import DEFAULT_UNPAINTED_WEIGHT, Stroke, apply_stroke, polyline_distance, stroke_effect, stroke_weights
@@ -150,20 +150,10 @@ class RegionOutcome:
         return out
 
 
-def in_group(region_name: str, name: str) -> bool:
-    """Whether a region belongs to the painted region ``name`` (itself, or one of its parts)."""
-    return region_name == name or region_name.startswith(name + "/")
-
-
 def _below(material, name: str):
     """What lies under the painted region ``name`` once it is (re)painted on top: the material
     without it (its base when it was the only one)."""
-    if not has_regions(material):
-        return material
-    rest = [r for r in material.regions if not in_group(r.name, name)]
-    if not rest:
-        return material.base
-    return Regions(base=material.base, vertex_count=material.vertex_count, regions=rest)
+    return without_region(material, name) if has_regions(material) else material
 
 
 def _strokes_by_view(fx: Fitter):

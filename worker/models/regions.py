@@ -214,3 +214,31 @@ def layer_weights(material, n_vertices: int) -> tuple[list[BRDFModel], np.ndarra
 
 def has_regions(material) -> bool:
     return isinstance(material, Regions)
+
+
+def region_names(material) -> list[str]:
+    """The painted regions of a material, bottom first (a region fitted in parts once)."""
+    if not has_regions(material):
+        return []
+    return list(dict.fromkeys(r.name.split("/")[0] for r in material.regions))
+
+
+def in_group(region_name: str, name: str) -> bool:
+    """Whether a region belongs to the painted region ``name``: itself or one of its parts
+    (``name/1``, ``name/2``, … of a region fitted in parts)."""
+    return region_name == name or region_name.startswith(name + "/")
+
+
+def rename_region(material: Regions, name: str, new_name: str) -> Regions:
+    """The material with region ``name`` (and its parts) called ``new_name``."""
+    regions = [r.model_copy(update={"name": new_name + r.name[len(name):]}) if in_group(r.name, name) else r
+               for r in material.regions]
+    return Regions(base=material.base, vertex_count=material.vertex_count, regions=regions)
+
+
+def without_region(material: Regions, name: str):
+    """The material without region ``name`` (and its parts): its base when none is left."""
+    rest = [r for r in material.regions if not in_group(r.name, name)]
+    if not rest:
+        return material.base
+    return Regions(base=material.base, vertex_count=material.vertex_count, regions=rest)
