@@ -28,6 +28,8 @@ class Layers:
     """
 
     def __init__(self, materials, object_of_vertex: np.ndarray):
+        self._memo = None           # (vids, expansion, blend matrix) of the last frame's points
+        self.gathered = None        # the renderer's gathered inputs of those points (renderer.py)
         self.flat = []
         self.objects: dict[int, tuple[np.ndarray, np.ndarray, int]] = {}
         offsets = None
@@ -58,6 +60,20 @@ class Layers:
             if o in self.objects:
                 out.update(int(s) for s in self.objects[o][0])
         return sorted(out)
+
+    def expand_cached(self, vids: np.ndarray, obj_of: np.ndarray, slot_of: np.ndarray):
+        """``expand`` and the blend as a matrix (n, M), kept for the same ``vids`` array (a
+        view's visible vertices, the same object from frame to frame): a frame of the same view
+        then costs the layers' shading alone."""
+        m = self._memo
+        if m is not None and m[0] is vids:
+            return m[1], m[2]
+        import scipy.sparse as sp
+
+        src, slot, wt = self.expand(vids, obj_of, slot_of)
+        B = sp.csr_matrix((wt.astype(np.float32), (src, np.arange(len(src)))), shape=(len(vids), len(src)))
+        self._memo = (vids, (src, slot, wt), B)
+        return self._memo[1], B
 
     def expand(self, vids: np.ndarray, obj_of: np.ndarray, slot_of: np.ndarray):
         """Points (P,) with vertex ids ``vids`` (global), objects ``obj_of`` and their plain

@@ -659,10 +659,14 @@ class CutRenderer(Renderer):
         nrm = self.scene.mesh.normals
         if layers is None:
             return shade_points(nrm[vi], wo, vi, mat_of, cuts, node_l, node_w, self.tree, mats, self.k, node8=node8)
-        src, slot, wt = layers.expand(vi, mat_of, mat_of)
-        vs = vi[src]
-        rad = shade_points(nrm[vs], wo[src], vs, slot, cuts, node_l, node_w, self.tree, mats, self.k, node8=node8)
-        return Layers.blend(rad, src, wt, len(vi))
+        (src, slot, wt), blend = layers.expand_cached(vi, mat_of, mat_of)
+        g = layers.gathered
+        if g is None or g[0] is not vi or g[1] is not wo:
+            vs = vi[src]
+            g = layers.gathered = (vi, wo, vs, np.ascontiguousarray(nrm[vs]), np.ascontiguousarray(wo[src]))
+        _, _, vs, n_s, wo_s = g
+        rad = shade_points(n_s, wo_s, vs, slot, cuts, node_l, node_w, self.tree, mats, self.k, node8=node8)
+        return np.asarray(blend @ rad, np.float32)
 
     def _shade(self, s: Samples, cuts, node_l, node_w, mats, mat_of_vertex, node8=None, layers=None) -> np.ndarray:
         n = len(s)
