@@ -46,6 +46,14 @@ def add_bench_commands(bsub) -> None:
     s.add_argument("--fit-scale", type=float, default=0.25)
     s.add_argument("--fit-albedo", choices=["no", "yes", "both"], default="both",
                    help="also fit the diffuse albedo (solve.solve fit_albedo)")
+    s.add_argument("--regions", action="store_true",
+                   help="also fit a region per stroke (worker/fit/regions.py) and measure both in rendered frames "
+                        "(achieved on painted pixels, spill beyond one brush diameter) and the frame cost")
+    s.add_argument("--env", action="append", help="light the scenes with this map instead (repeatable; --regions)")
+    s.add_argument("--parts", default="auto", type=lambda x: x if x == "auto" else int(x),
+                   help="parts of a region (worker/fit/regions.py fit_region; default auto)")
+    s.add_argument("--frames", type=int, default=15, help="rounds of frames timed per material (--regions)")
+    s.add_argument("--images", help="write before | target | one BRDF | region JPEGs per case to this folder (--regions)")
     s.add_argument("--cuts"); s.add_argument("--tau", type=float, default=1.0)
     s.add_argument("--json", action="store_true")
     s.set_defaults(fn=cmd_bench_strokes)
@@ -150,6 +158,8 @@ def standard_strokes(fx, view: int = 0):
 
 
 def cmd_bench_strokes(a) -> int:
+    if a.regions:
+        return cmd_bench_regions(a)
     from worker.fit.fitter import Fitter
 
     res = []
@@ -179,3 +189,134 @@ def cmd_bench_strokes(a) -> int:
             print(f"{r['scene']} {r['stroke']} w={r['unpainted_weight']:g} fit albedo {r['fit_albedo']}: "
                   f"achieved {100 * r['achieved']:.0f}%, spill {100 * r['spill']:.1f}%, albedo {r['albedo']}")
     return 0
+
+
+def _frame_times(r, cam, lighting, materials: dict, frames: int) -> dict:
+    """Per material list (name -> materials), the median wall and CPU time (ms) of a
+    full-quality vertex-mode frame, in interleaved rounds (each round renders every list once,
+    so a load change hits all alike); the view and light tables are cached by a first frame, so
+    each timed frame is the shading and resolve a material change costs. CPU time is the
+    process's (all threads): on a shared machine it is the cost, where wall time also counts
+    waiting for a core."""
+    import numpy as np
+
+    from worker.renderers import FrameRequest
+
+    reqs = {k: FrameRequest(camera=cam, lighting=lighting, materials=m) for k, m in materials.items()}
+    for q in reqs.values():
+        r.render(q)
+    wall = {k: [] for k in reqs}
+    cpu = {k: [] for k in reqs}
+    for _ in range(frames):
+        for k, q in reqs.items():
+            t0, c0 = time.perf_counter(), time.process_time()
+            r.render(q)
+            wall[k].append((time.perf_counter() - t0) * 1e3)
+            cpu[k].append((time.process_time() - c0) * 1e3)
+    return {"wall": {k: float(np.median(v)) for k, v in wall.items()},
+            "cpu": {k: float(np.median(v)) for k, v in cpu.items()}}
+
+
+def cmd_bench_regions(a) -> int:
+    """``glint bench strokes --regions``: per scene × map × standard stroke, a region fit and a
+    one-BRDF fit (unpainted weight 0.25, albedo fitted), each measured in rendered frames at the
+    view's resolution (worker/fit/regions.py ``rendered_effect``), and the frame cost of the
+    object with its region against the same object with one material."""
+    import os
+
+    from worker.fit.fitter import Fitter
+    from worker.fit.regions import fit_region, rendered_effect
+
+    res = []
+    envs = a.env or [None]
+    for s in a.scenes:
+        for env in envs:
+            rnd = _renderer_for(s, env, a.cuts, a.tau, a.json)
+            sc = rnd.scene
+            name = sc.spec.objects[0].name
+            fx = Fitter(rnd, name, fit_scale=a.fit_scale)
+            fx.add_view()
+            v = fx.views[0]
+            for label, st in standard_strokes(fx):
+                fx.history.clear()
+                fx.add_stroke(st)
+                fx._last = None
+                t0 = time.perf_counter()
+                reg = fit_region(fx, name=label, parts=a.parts)
+                t_reg = time.perf_counter() - t0
+                one = fx.fit(unpainted_weight=0.25, fit_albedo=True)
+                got = rendered_effect(rnd, 0, v.camera, v.lighting, fx.base_material, reg.material, [st])
+                ref = rendered_effect(rnd, 0, v.camera, v.lighting, fx.base_material, one.material, [st])
+                if a.images:
+                    _write_case_image(Path(a.images) / f"{Path(s).stem}-{Path(env).stem if env else 'scene'}-"
+                                      f"{label.replace(' ', '-')}.jpg", rnd, v, fx.base_material, one.material,
+                                      reg.material, st)
+                # the blend's own cost: the same regions with the base's material in every region
+                # (what the layers cost beyond the materials' own shading)
+                same = reg.material.model_copy(update={"regions": [g.model_copy(update={"material": fx.base_material})
+                                                                   for g in reg.material.regions]})
+                lists = {}
+                for key, m in (("base", fx.base_material), ("one_brdf", one.material), ("regions", reg.material),
+                               ("regions_base_material", same)):
+                    mats = list(sc.materials)
+                    mats[0] = m
+                    lists[key] = mats
+                tm = _frame_times(rnd, v.camera, v.lighting, lists, a.frames)
+                ms, cpu = tm["wall"], tm["cpu"]
+                res.append({"scene": Path(s).stem, "env": Path(env).name if env else Path(sc.spec.environment.map).name,
+                            "object": name, "vertices": int((sc.object_of_vertex == 0).sum()), "stroke": label,
+                            "region_vertices": sum(len(g.vertices) for g in reg.regions), "parts": reg.parts,
+                            "tried": reg.tried,
+                            "rendered": {k: got[k] for k in ("achieved", "spill", "spill_far")},
+                            "predicted": {"achieved": reg.achieved, "spill": reg.spill, "spill_far": reg.spill_far},
+                            "one_brdf_rendered": {k: ref[k] for k in ("achieved", "spill", "spill_far")},
+                            "painted_pixels": got["painted_pixels"], "far_pixels": got["far_pixels"],
+                            "object_pixels": got["object_pixels"], "region_albedo": reg.region_albedo,
+                            "notes": reg.notes, "seconds_region_fit": t_reg, "ms_transfer": reg.seconds_transfer * 1e3,
+                            "ms_solve": reg.solve.seconds * 1e3, "ms_frame": ms, "cpu_ms_frame": cpu,
+                            "cost_vs_base": cpu["regions"] / cpu["base"], "cost_vs_one_brdf": cpu["regions"] / cpu["one_brdf"],
+                            "blend_cost": cpu["regions_base_material"] / cpu["base"],
+                            "wall_cost_vs_base": ms["regions"] / ms["base"]})
+                if not a.json:
+                    r = res[-1]
+                    print(f"{r['scene']} {r['env']} {label}: region achieved {100 * got['achieved']:.0f}%, spill beyond D "
+                          f"{100 * got['spill_far']:.1f}% (one BRDF {100 * ref['achieved']:.0f}%, {100 * ref['spill_far']:.1f}%); "
+                          f"frame CPU {cpu['regions']:.1f} ms vs {cpu['base']:.1f} ms base ({r['cost_vs_base']:.2f}×, blend "
+                          f"{r['blend_cost']:.2f}×)", file=sys.stderr)
+    summary = {}
+    if res:
+        summary = {"cases": len(res), "min_achieved": min(r["rendered"]["achieved"] for r in res),
+                   "max_spill_far": max(r["rendered"]["spill_far"] for r in res),
+                   "max_cost_vs_base": max(r["cost_vs_base"] for r in res),
+                   "max_blend_cost": max(r["blend_cost"] for r in res),
+                   "max_cost_vs_one_brdf": max(r["cost_vs_one_brdf"] for r in res),
+                   "load_average": list(os.getloadavg())}
+    if a.json:
+        print(json.dumps({"summary": summary, "results": res}))
+    return 0
+
+
+def _write_case_image(path: Path, rnd, v, before, one, region, stroke) -> None:
+    """before | target (the stroke over before's frame) | one BRDF | region, tone-mapped alike."""
+    import numpy as np
+    from PIL import Image
+
+    from worker.core.tonemap import tonemap
+    from worker.fit.brush import apply_stroke, stroke_weights
+    from worker.renderers import FrameRequest
+
+    frames = []
+    for m in (before, one, region):
+        mats = list(rnd.scene.materials)
+        mats[0] = m
+        frames.append(rnd.render(FrameRequest(camera=v.camera, lighting=v.lighting, materials=mats)))
+    h, w = v.camera.height, v.camera.width
+    on = frames[0].object_id.reshape(-1) == 0
+    yy, xx = np.divmod(np.nonzero(on)[0], w)
+    tgt = frames[0].radiance.reshape(-1, 3).astype(np.float64).copy()
+    sub = tgt[on]
+    apply_stroke(sub, stroke, stroke_weights(stroke, np.stack([xx + 0.5, yy + 0.5], 1)))
+    tgt[on] = sub
+    imgs = [frames[0].radiance, tgt.reshape(h, w, 3).astype(np.float32), frames[1].radiance, frames[2].radiance]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(np.concatenate([tonemap(x) for x in imgs], 1)).save(path, quality=88)

@@ -99,3 +99,43 @@ def test_fit_strokes_file_and_bad_input(tmp_path, cache_dir, bunny):
         assert r.returncode == 2 and "Traceback" not in r.stderr and "error" in r.stderr, r.stderr
     r = glint("fit", SCENE, "--object", "teapot", "--strokes", str(strokes), "--out", str(mat), "--cuts", str(cache_dir), check=False)
     assert r.returncode == 2 and "teapot" in r.stderr
+
+
+def test_fit_regions_and_render_them(tmp_path, cache_dir, bunny_renderer):
+    """glint fit --regions writes a regions material and reports what the strokes got; glint
+    render --material draws it; a material painted on another mesh is refused."""
+    strokes = tmp_path / "strokes.json"
+    strokes.write_text(json.dumps({"version": 1, "fit_scale": 1.0, "strokes": [
+        {"points": [[60, 60], [95, 64]], "mode": "scale", "scale": 0.3, "diameter": 12}]}))
+    mat = tmp_path / "m.json"
+    res = json.loads(glint("fit", SCENE, "--object", "bunny", "--strokes", str(strokes), "--regions", "--region-name",
+                           "belly", "--out", str(mat), "--cuts", str(cache_dir), "--json").stdout)
+    assert res["model"] == "regions" and res["regions"][0]["name"] == "belly" and res["regions"][0]["vertices"] > 20
+    assert res["achieved"] > 0.8 and res["spill_far"] < 0.03 and res["spill"] < res["achieved"]
+    m = json.loads(mat.read_text())
+    assert m["model"] == "regions" and m["base"] == {"model": "lambert", "albedo": [0.7, 0.7, 0.7]}
+    assert m["vertex_count"] == 2826 and m["regions"][0]["material"]["model"] == "srbf"
+    from worker.renderers import FrameRequest
+
+    sc = bunny_renderer.scene
+    a = bunny_renderer.render(FrameRequest(camera=sc.spec.camera, materials=sc.materials)).radiance
+    painted = tmp_path / "b.npy"
+    glint("render", SCENE, "--out", str(tmp_path / "b.png"), "--raw", str(painted), "--material", f"bunny={mat}",
+          "--cuts", str(cache_dir))
+    b = np.load(painted)
+    changed = np.abs(b - a).max(axis=2) > 1e-4
+    # a darkening across the middle: a band changes, darker, most of the bunny does not
+    assert 100 < changed.sum() < 0.3 * (a.max(axis=2) > 0).sum() and b[changed].mean() < a[changed].mean()
+    # extending it from the command line: the region grows, one region still
+    res2 = json.loads(glint("fit", SCENE, "--object", "bunny", "--strokes", str(strokes), "--regions", "--region-name",
+                            "belly", "--base", str(mat), "--out", str(tmp_path / "m2.json"), "--cuts", str(cache_dir),
+                            "--json").stdout)
+    assert res2["regions"][0]["extended"] and res2["regions"][0]["vertices"] == res["regions"][0]["vertices"]
+    m["vertex_count"] = 3000
+    (tmp_path / "other.json").write_text(json.dumps(m))
+    r = glint("render", SCENE, "--out", str(tmp_path / "c.png"), "--material", f"bunny={tmp_path / 'other.json'}",
+              "--cuts", str(cache_dir), check=False)
+    assert r.returncode == 2 and "3000 vertices, but the object has 2826" in r.stderr and "Traceback" not in r.stderr
+    r = glint("fit", SCENE, "--object", "bunny", "--target", str(painted), "--regions", "--out", str(mat),
+              "--cuts", str(cache_dir), check=False)
+    assert r.returncode == 2 and "--regions goes with --strokes" in r.stderr

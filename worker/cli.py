@@ -164,10 +164,16 @@ def _fitter(r, a, sf=None):
     albedo = a.albedo if getattr(a, "albedo", None) else (sf.albedo if sf and sf.albedo is not None else None)
     scale = a.fit_scale if a.fit_scale is not None else (sf.fit_scale if sf and sf.fit_scale else 0.25)
     basis = default_basis(a.basis, a.sigma, f0)
-    return Fitter(r, a.object, basis=basis, fit_scale=scale, albedo=albedo)
+    base = None
+    if getattr(a, "base", None):
+        # what the strokes paint over: e.g. an earlier fit with regions, to add or extend one
+        base = load_material_overrides(r.scene, [f"{a.object}={a.base}"])[[o.name for o in r.scene.spec.objects].index(a.object)]
+    return Fitter(r, a.object, base_material=base, basis=basis, fit_scale=scale, albedo=albedo)
 
 
 def cmd_fit(a) -> int:
+    import numpy as np
+
     from .fit import files
     from .fit.fitter import DEFAULT_UNPAINTED_WEIGHT
 
@@ -175,6 +181,8 @@ def cmd_fit(a) -> int:
         raise _UsageError("give exactly one of --strokes and --target")
     if a.mask and not a.target:
         raise _UsageError("--mask goes with --target")
+    if a.regions and not a.strokes:
+        raise _UsageError("--regions goes with --strokes")
     r, _ = _renderer(a, quiet=a.json)
     sf = files.load_strokes(a.strokes) if a.strokes else None
     fx = _fitter(r, a, sf)
@@ -187,7 +195,13 @@ def cmd_fit(a) -> int:
             notes += fx.add_stroke(s)
         uw = a.unpainted_weight if a.unpainted_weight is not None else (
             sf.unpainted_weight if sf.unpainted_weight is not None else DEFAULT_UNPAINTED_WEIGHT)
-        out = fx.fit(constrained=not a.unconstrained, unpainted_weight=uw)
+        if a.regions:
+            from .fit.regions import fit_region
+
+            out = fit_region(fx, name=a.region_name, unpainted_weight=uw, constrained=not a.unconstrained,
+                             parts=a.region_parts)
+        else:
+            out = fx.fit(constrained=not a.unconstrained, unpainted_weight=uw)
     else:
         fx.add_view()
         target = files.load_target(a.target)
@@ -207,13 +221,25 @@ def cmd_fit(a) -> int:
            "energy_max": s.energy_max, "energy_bound": float(s.energy_bound.min()),
            "albedo": fx.albedo.tolist(), "notes": out.notes + (notes if sf is not None else [])}
     res["notes"] = list(dict.fromkeys(res["notes"]))
+    if sf is not None:
+        # what the strokes got: brush.stroke_effect (and, for regions, spill beyond one brush diameter)
+        res.update(achieved=out.achieved, spill=out.spill, model=out.material.model)
+        res["regions"] = out.report() if a.regions else []
+        if a.regions:
+            res.update(spill_far=out.spill_far, region_albedo=out.region_albedo, rows=out.rows,
+                       guidance=out.guidance, parts_tried=out.tried)
     if a.json:
         print(json.dumps(res))
     else:
         for n in res["notes"]:
             print(f"note: {n}", file=sys.stderr)
-        print(f"wrote {dest}: srbf, J = {res['basis']}, {res['pixels']} pixels, residual {s.residual_rel * 100:.1f}%, "
-              f"largest directional albedo {s.energy_max + fx.albedo.max():.3f}; transfer {out.seconds_transfer:.2f} s, "
+        if a.regions:
+            g = res["regions"][0]
+            pct = lambda x: "n/a" if x is None else f"{x * 100:.1f}%"  # noqa: E731
+            print(f"region {g['name']!r}: {g['vertices']} vertices, achieved {pct(out.achieved)} of the "
+                  f"requested change, spill beyond one brush diameter {pct(out.spill_far)}", file=sys.stderr)
+        print(f"wrote {dest}: {out.material.model}, J = {res['basis']}, {res['pixels']} pixels, residual {s.residual_rel * 100:.1f}%, "
+              f"largest directional albedo {s.energy_max + float(np.max(s.albedo)):.3f}; transfer {out.seconds_transfer:.2f} s, "
               f"solve {s.seconds * 1000:.1f} ms")
     return 0
 
@@ -314,11 +340,20 @@ def add_commands(sub, bench=None) -> None:
     ft.add_argument("scene"); ft.add_argument("--object", required=True)
     ft.add_argument("--strokes", help="STROKES.json"); ft.add_argument("--target", help="target .npy/.exr/.hdr/.png (linear; png is sRGB)")
     ft.add_argument("--mask", help="PNG: non-zero pixels of the target are used")
-    ft.add_argument("--out", required=True, help="MATERIAL.json (an srbf material)")
+    ft.add_argument("--out", required=True, help="MATERIAL.json (an srbf material; with --regions a regions material)")
     ft.add_argument("--unconstrained", action="store_true", help="drop non-negativity and energy conservation")
     ft.add_argument("--unpainted-weight", type=float, help="weight of unpainted pixels against painted ones (default 1)")
     ft.add_argument("--albedo", type=float, nargs=3, metavar=("R", "G", "B"),
                     help="diffuse albedo ρ_d (default: the object's current material's)")
+    ft.add_argument("--regions", action="store_true",
+                    help="make a region from the strokes' footprint and fit its own BRDF (the rest keeps its material)")
+    ft.add_argument("--region-name", default="region 1",
+                    help="the region's name; a region of this name in --base is extended (default 'region 1')")
+    ft.add_argument("--region-parts", default="auto", type=lambda x: x if x == "auto" else int(x),
+                    help="split the region into this many parts with a BRDF each (grouped by mirror direction), "
+                         "or auto: the fewest of 1, 2, 4 that achieve 80%% (default)")
+    ft.add_argument("--base", metavar="MATERIAL.json",
+                    help="the material the strokes paint over (default: the object's in the scene file)")
     ft.add_argument("--json", action="store_true")
     fit_options(ft)
     ft.set_defaults(fn=cmd_fit)

@@ -37,6 +37,7 @@ def apply_material_overrides(scene, overrides: Iterable[tuple[str, Any | Callabl
     a function is called only once its object name is known to be valid, so that a bad name is
     reported before a missing file. Raises UnknownObject or InvalidMaterial."""
     from .models import BRDFModel, parse_material
+    from .models.regions import RegionsError, has_regions, layer_weights
 
     names = [o.name for o in scene.spec.objects]
     mats = list(scene.materials if materials is None else materials)
@@ -49,5 +50,20 @@ def apply_material_overrides(scene, overrides: Iterable[tuple[str, Any | Callabl
                 data = parse_material(data)
             except ValueError as e:          # pydantic's ValidationError is a ValueError
                 raise InvalidMaterial(name, str(e).splitlines()[0]) from e
-        mats[names.index(name)] = data
+        o = names.index(name)
+        if has_regions(data):
+            # region weights index the object's own vertices: a material painted on another mesh
+            # is refused here, before a renderer would blend the wrong vertices
+            try:
+                layer_weights(data, object_vertex_count(scene, o))
+            except RegionsError as e:
+                raise InvalidMaterial(name, str(e)) from e
+        mats[o] = data
     return mats
+
+
+def object_vertex_count(scene, index: int) -> int:
+    """Vertices of object ``index`` of a loaded scene (its mesh as loaded)."""
+    import numpy as np
+
+    return int(np.count_nonzero(scene.object_of_vertex == index))

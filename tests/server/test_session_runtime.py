@@ -292,6 +292,7 @@ def test_apply_never_changes_the_state_it_is_given(bunny_renderer):
         "move": {"object": "bunny", "transform": {"translate": [0.1, 0, 0]}},
         "renderer": {"kind": "cuts"}, "paint": {"gloss": 80.0, "aspecular": {"15": [0.5, 0.5, 0.5]}},
         "object": {"object": "bunny"}, "pick": {"u": 0.5, "v": 0.5}, "convert": {"model": "ggx"},
+        "region": {"action": "paint", "name": "seat"},
     }
     assert set(examples) == set(_MESSAGES), set(_MESSAGES) ^ set(examples)
     applied = 0
@@ -336,3 +337,36 @@ def test_a_frame_that_may_give_way_reports_its_pause_apart(bunny_renderer):
     with pytest.raises(FrameCancelled):
         rt.frame(2, cancelled=lambda: True)         # the session's own stroke came
     assert rt.frame_no == n
+
+
+def test_strokes_paint_a_region_in_a_session(bunny_renderer):
+    """The region message: strokes then make a region (the rest of the bunny keeps its
+    material), undo and redo refit it, a rename and an erase change the material, and a stroke
+    after ``stop`` fits one BRDF over the regions material again."""
+    from worker.models import Regions
+
+    rt = _runtime(bunny_renderer)
+    base = rt.state.materials[0]
+    ev = rt.handle({"seq": 1, "type": "region", "action": "paint", "name": "ear"})
+    assert ev[0]["type"] == "fit" and ev[0]["stats"]["painting"] == "ear" and rt.state.region == "ear"
+    rt.handle({"seq": 2, "type": "stroke", "stroke": {**STROKE, "mode": "scale", "scale": 0.3}})
+    fit = rt.fit_if_needed()[0]
+    m = rt.state.materials[0]
+    assert isinstance(m, Regions) and fit["material"]["model"] == "regions" and m.base == base
+    assert fit["stats"]["regions"] == ["ear"] and fit["stats"]["achieved"] > 0.8 and fit["stats"]["spill_far"] < 0.03
+    assert rt._override() is None                # the renderer blends the layers itself
+    rt.handle({"seq": 3, "type": "undo"})
+    assert rt.fit_if_needed()[0]["material"] == base.model_dump(mode="json")
+    rt.handle({"seq": 4, "type": "redo"})
+    assert rt.fit_if_needed()[0]["material"]["model"] == "regions"
+    ev = rt.handle({"seq": 5, "type": "region", "action": "rename", "name": "ear", "new_name": "left ear"})
+    assert ev[0]["stats"]["regions"] == ["left ear"] and rt.state.region == "left ear"
+    assert rt.state.base_material == rt.state.materials[0]      # the strokes so far are part of it
+    with pytest.raises(Exception, match="no region 'ear'"):
+        rt.handle({"seq": 6, "type": "region", "action": "erase", "name": "ear"})
+    rt.handle({"seq": 7, "type": "region", "action": "stop"})
+    rt.handle({"seq": 8, "type": "stroke", "stroke": STROKE})
+    assert rt.fit_if_needed()[0]["material"]["model"] == "srbf"
+    rt.handle({"seq": 9, "type": "material", "material": rt.state.base_material.model_dump(mode="json")})
+    ev = rt.handle({"seq": 10, "type": "region", "action": "erase", "name": "left ear"})
+    assert ev[0]["material"] == base.model_dump(mode="json") and rt.state.region is None

@@ -110,7 +110,9 @@ export function fitSummary(s) {
   if (!s.strokes) return "no strokes";
   const parts = [`fit: ${s.strokes} stroke(s), ${s.painted} painted px, solve ${s.ms_solve?.toFixed(1)} ms`];
   if (s.achieved != null) parts.push(`achieved ${Math.round(100 * s.achieved)}% of the change`);
+  if (s.painting) parts.push(`region “${s.painting}”`);
   if (s.spill != null) parts.push(`spill ${Math.round(100 * s.spill)}% onto unpainted pixels`);
+  if (s.spill_far != null) parts.push(`${Math.round(100 * s.spill_far)}% beyond one brush diameter`);
   if (!s.constrained) parts.push("unconstrained");
   else if (s.energy_per_channel && s.energy_bound_per_channel) {
     parts.push("specular albedo R/G/B " + s.energy_per_channel.map((e, c) =>
@@ -233,6 +235,7 @@ function onEvent(ev) {
   } else if (ev.type === "fit") {
     if (ev.object !== state.object) return;
     setMaterial(ev.material, true, ev.curve);
+    showRegions(ev.material, ev.stats?.painting);
     // the figures and the notes together: the notes say why a stroke fell short
     status([fitSummary(ev.stats || {}), ...(ev.notes || [])].join("; "));
   } else if (ev.type === "stroke" && ev.notes?.length) {
@@ -372,6 +375,34 @@ $("redo").onclick = () => undoRedo("redo");
 document.addEventListener("keydown", (e) => {
   if ((e.ctrlKey || e.metaKey) && e.key.toLowerCase() === "z") { e.preventDefault(); undoRedo(e.shiftKey ? "redo" : "undo"); }
 });
+// -- painted regions (docs/guides/regions.md): strokes make or extend the named region ---------------
+const regionName = () => $("region-name").value.trim().replaceAll("/", " ") || "region 1";
+$("region-paint").onchange = () => {
+  stream?.send("region", $("region-paint").checked ? { action: "paint", name: regionName() } : { action: "stop" });
+  designs.edited();
+};
+function showRegions(material, painting) {
+  const names = [...new Set((material?.model === "regions" ? material.regions : []).map((r) => r.name.split("/")[0]))];
+  if (painting !== undefined) $("region-paint").checked = painting != null;
+  const list = $("region-list");
+  list.replaceChildren(...names.map((n) => {
+    const li = document.createElement("li");
+    li.dataset.region = n;
+    const pick = document.createElement("a");
+    pick.textContent = n + (n === painting ? " (painting)" : "");
+    pick.onclick = () => { $("region-name").value = n; $("region-paint").checked = true; stream?.send("region", { action: "paint", name: n }); };
+    const rename = document.createElement("button");
+    rename.textContent = "Rename";
+    rename.className = "region-rename";
+    rename.onclick = () => { stream?.send("region", { action: "rename", name: n, new_name: regionName() }); designs.edited(); };
+    const erase = document.createElement("button");
+    erase.textContent = "Erase";
+    erase.className = "region-erase";
+    erase.onclick = () => { stream?.send("region", { action: "erase", name: n }); designs.edited(); };
+    li.append(pick, " ", rename, erase);
+    return li;
+  }));
+}
 const sendFit = () => stream?.send("fit", { constrained: $("constrained").checked, unpainted_weight: +$("unpainted-weight").value });
 $("constrained").onchange = sendFit;
 $("unpainted-weight").onchange = sendFit;

@@ -459,8 +459,10 @@ def energy_maximum(basis: SRBFBasis, coefficients: np.ndarray, n_check: int = 2)
 def static_alpha_for(material) -> float:
     """The shadowing roughness of the smith static for fits that start from ``material``: a
     GGX's own α (its Smith G is then exact), an smith srbf's static_alpha, else the default."""
-    from ..models import GGX, SRBF
+    from ..models import GGX, SRBF, Regions
 
+    if isinstance(material, Regions):            # what the strokes paint over is mostly the base
+        material = material.base
     if isinstance(material, GGX):
         return float(np.clip(material.alpha, 0.02, 1.0))
     if isinstance(material, SRBF) and material.static == "smith":

@@ -263,3 +263,82 @@ def _augmented_normal_equations(rows: list[FitRows]):
             f[c, J] += e @ r.target[:, c]
     H[:, J, :J] = H[:, :J, J]
     return H, f
+
+
+@dataclass
+class BlockSolveResult:
+    """A stacked fit of several materials (``solve_blocks``): coefficients (k, J, 3), albedo
+    (k, 3) ρ_d, energy (k, 3) each block's largest specular albedo per channel, against
+    energy_bound (k, 3) = 1 − ρ_d."""
+    coefficients: np.ndarray
+    albedo: np.ndarray
+    energy: np.ndarray
+    energy_bound: np.ndarray
+    seconds: float
+    constrained: bool = True
+    iterations: list = field(default_factory=list)
+    residual_rms: float = 0.0           # radiance, over rows with w > 0 and channels, unweighted
+    residual_rel: float = 0.0           # residual_rms / RMS of the target
+
+    @property
+    def energy_max(self) -> float:
+        return float(self.energy.max())
+
+    @property
+    def at_bound(self) -> np.ndarray:
+        """(3,) bool: channels whose specular albedo reached its bound in any block."""
+        return np.any(self.energy + self.albedo >= (1.0 - 0.02) - 1e-12, axis=0)
+
+
+def solve_blocks(A: np.ndarray, target: np.ndarray, weight: np.ndarray, basis: SRBFBasis, blocks: int,
+                 albedo_prior: np.ndarray, constrained: bool = True, n_l: int = DEFAULT_NL,
+                 prox: float = DEFAULT_PROX, tol: float = 1e-9) -> BlockSolveResult:
+    """Several materials' SRBF coefficients and diffuse albedos in one least squares: the
+    unknowns of ``blocks`` materials stacked (each J coefficients then ρ_d), the rows
+    A (3, N, blocks·(J+1)) float32 holding each material's transfer rows times its weight at the
+    pixel (inverse-brdf-modeling eq. 21 with the weights of painted regions), target (N, 3),
+    weight (N,). Constraints per block as ``solve`` with ``fit_albedo``: c ≥ 0, 0 ≤ ρ_d ≤ 1 and
+    Σ_j g_j^l c_j + ρ_d ≤ 1 (eq. 14, 18-19): the energy rows are block diagonal. The proximal
+    term pulls unseen coefficients to 0 and ρ_d to albedo_prior (blocks, 3)."""
+    t0 = time.perf_counter()
+    J = basis.J
+    nb = J + 1
+    n = blocks * nb
+    if A.shape[2] != n:
+        raise ValueError(f"rows have {A.shape[2]} columns for {blocks} blocks of {nb}")
+    G1 = np.concatenate([basis.energy_rows(n_l), np.ones((len(basis.energy_rows(n_l)), 1))], axis=1)
+    G = sla.block_diag(*([G1] * blocks))
+    keep = 1.0 - basis.row_margin
+    prior = np.zeros((n, 3))
+    prior[J::nb] = np.asarray(albedo_prior, np.float64)
+    ub = np.tile(np.concatenate([np.full(J, np.inf), [1.0]]), blocks)
+    always = np.zeros(n, bool)
+    always[J::nb] = True
+    x = np.zeros((n, 3))
+    iters = []
+    seed = seed_vars = None
+    w = np.asarray(weight, np.float64)
+    for c in range(3):
+        Ac = A[c].astype(np.float64)
+        H = (Ac.T * w) @ Ac
+        f = (Ac.T * w) @ np.asarray(target[:, c], np.float64)
+        scale = max(np.trace(H) / n, 1e-30)
+        Hs = H / scale + prox * np.eye(n)
+        fs = f / scale + prox * prior[:, c]
+        if not constrained:
+            x[:, c] = sla.solve(Hs, fs, assume_a="pos")
+            continue
+        warm = x[:, c - 1].copy() if c > 0 else None
+        x[:, c], it, seed, seed_vars = _qp(Hs, fs, G, keep, warm, tol, seed, seed_vars, ub=ub, always=always)
+        iters.append(it)
+    xb = x.reshape(blocks, nb, 3)
+    coef, rho = xb[:, :J], np.clip(xb[:, J], 0.0, 1.0)
+    Gs = basis.energy_rows(n_l)
+    energy = np.stack([(Gs @ coef[b]).max(axis=0) for b in range(blocks)])
+    xs = np.concatenate([coef, rho[:, None]], axis=1).reshape(n, 3)
+    k = w > 0
+    pred = np.stack([A[c][k].astype(np.float64) @ xs[:, c] for c in range(3)], 1)
+    t = np.asarray(target, np.float64)[k]
+    rms = float(np.sqrt(((t - pred) ** 2).mean())) if k.any() else 0.0
+    rel = rms / max(float(np.sqrt((t ** 2).mean())) if k.any() else 0.0, 1e-30)
+    return BlockSolveResult(coef, rho, energy, 1.0 - rho, time.perf_counter() - t0, constrained, iters, rms, rel)

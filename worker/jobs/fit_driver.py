@@ -23,7 +23,7 @@ from ..fit.brush import Stroke
 from ..fit.fitter import QUICK_ROWS, FitError, Fitter, painted_select, quick_select
 from ..protocol import FitEvent, StrokeEvent
 from ..renderers.base import Lighting
-from ..scene import Camera
+from ..scene import SRBF, Camera
 from .curves import _dump, brdf_curve
 from .lod import STILL_SAMPLES, busy_sessions
 from .reporting import _msg
@@ -162,6 +162,8 @@ class FitDriver:
             self._set_material(i, self.state.base_material)
             return [FitEvent(object=self.state.object, material=_dump(self.state.base_material),
                              curve=brdf_curve(self.state.base_material), stats={"strokes": 0}).model_dump()]
+        if self.state.region is not None:
+            return self._fit_region()
         out = fx.fit(constrained=self.state.constrained, unpainted_weight=self.state.unpainted_weight)
         self._set_material(i, out.material)
         self._fitted = out.material
@@ -178,6 +180,26 @@ class FitDriver:
                 stats[k] = getattr(out, k)
         stats.setdefault("energy_bound_per_channel", bound.tolist())
         return [FitEvent(object=self.state.object, material=_dump(out.material), curve=brdf_curve(out.material),
+                         stats=stats, notes=out.notes).model_dump()]
+
+    def _fit_region(self) -> list[dict]:
+        """The strokes make or extend the state's region (fit/regions.py): one part, so a stroke's
+        frame does not wait for a stacked solve; the rest of the object keeps its material."""
+        from ..fit.regions import fit_region
+        from ..models.regions import region_names
+
+        fx, st = self.fitter, self.state
+        out = fit_region(fx, name=st.region, unpainted_weight=st.unpainted_weight, constrained=st.constrained)
+        self._set_material(st.object_index, out.material)
+        self._fitted = out.material
+        self._quick_next = True
+        s = out.solve
+        stats = {"strokes": len(fx.history), "pixels": out.pixels, "painted": out.painted, "views": len(fx.views),
+                 "ms_solve": s.seconds * 1e3, "ms_transfer": out.seconds_transfer * 1e3,
+                 "residual_rel": s.residual_rel, "energy_max": s.energy_max, "constrained": s.constrained,
+                 "achieved": out.achieved, "spill": out.spill, "spill_far": out.spill_far,
+                 "regions": region_names(out.material), "painting": st.region, "region": out.report()}
+        return [FitEvent(object=st.object, material=_dump(out.material), curve=brdf_curve(out.material),
                          stats=stats, notes=out.notes).model_dump()]
 
     # -- background work ----------------------------------------------------------------------------
@@ -264,6 +286,8 @@ class FitDriver:
         {object index: (ids, radiance)} for the renderer, or None."""
         i = self.state.object_index
         if self._fitted is None or self.materials[i] is not self._fitted or not self.renderer.can("vertex_transfer"):
+            return None
+        if not isinstance(self._fitted, SRBF):      # a material with regions: the renderer blends its layers
             return None
         vt = self._vertex_transfer()
         if vt is None:

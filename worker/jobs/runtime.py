@@ -21,8 +21,10 @@ import numpy as np
 
 from ..fit.fitter import FitError
 from ..models import SRBF
-from ..protocol import (ClientMsg, Convert, ConvertedEvent, CurveEvent, ExposureEvent, FitPaint, Moved, NewMaterial, NoEffect,
-                        NoteEvent, ObjectEvent, Pick, PickedEvent, RecordStroke, Redo, Refit, Relight, RendererEvent,
+from ..models.regions import region_names
+from ..protocol import (ClientMsg, Convert, ConvertedEvent, CurveEvent, ExposureEvent, FitEvent, FitPaint, Moved, NewMaterial,
+                        NoEffect, NoteEvent, ObjectEvent, Pick, PickedEvent, RecordStroke, Redo, Refit, RegionsChanged,
+                        Relight, RendererEvent,
                         Save, SaveRequest, SelectObject, SwitchRenderer, Undo, apply, client_msg, restore_state)
 from ..renderers.base import FrameRequest, Lighting
 from . import compose
@@ -357,6 +359,17 @@ def _new_material(rt: SessionRuntime, msg, eff: NewMaterial) -> list[dict]:
         rt._needs_fit = False
         rt._drop_fit_work()
     return [{"type": "curve", "seq": msg.seq, "object": eff.object, "curve": brdf_curve(msg.material)}]
+
+
+@handles(RegionsChanged)
+def _regions_changed(rt: SessionRuntime, msg, eff: RegionsChanged) -> list[dict]:
+    rt.fitter = None             # the strokes so far are part of the material now
+    rt._needs_fit = False
+    rt._fitted = None
+    rt._drop_fit_work()
+    m = rt.state.materials[rt.state.object_index]
+    return [FitEvent(object=eff.object, material=_dump(m), curve=brdf_curve(m),
+                     stats={"strokes": 0, "regions": region_names(m), "painting": rt.state.region}).model_dump()]
 
 
 @handles(RecordStroke)

@@ -9,3 +9,4 @@ from .curve import Curve  # noqa: F401
 from .lobes import Lobes  # noqa: F401
 from .srbf import SRBF  # noqa: F401
 from .ashikhmin_shirley import AshikhminShirley  # noqa: F401
+from .regions import Region, Regions, has_regions, layer_weights  # noqa: F401  (composes the others: last)

@@ -8,13 +8,14 @@ events.py    server → client events, worker → server events and ``apply_even
 wire.py      binary frames, the stream's JSON Schema, the size and depth checks of a message
 """
 from .effects import (NO_EFFECT, Convert, Effect, FitPaint, Pick, SelectObject, Moved, NewMaterial, NoEffect,  # noqa: F401
-                      RecordStroke, Redo, Refit, RejectStroke, Relight, Save, StoreEffect, StoreSave, SwitchRenderer, Undo)
+                      RecordStroke, Redo, Refit, RegionsChanged, RejectStroke, Relight, Save, StoreEffect, StoreSave, SwitchRenderer,
+                      Undo)
 from .events import (WORKER_EVENTS, ConvertedEvent, CurveEvent, ErrorEvent, ExposureEvent, FitEvent, FitStats,  # noqa: F401
                      HelloEvent, NoteEvent, ObjectEvent, PaintEvent, PeerEvent, PickedEvent, RendererEvent, SavedEvent,
                      SaveRequest, ServerEvent, StrokeEvent, apply_event,
                      server_event, worker_event)
 from .messages import (_MESSAGES, AnyClientMsg, ClientMsg, ConvertMsg, DisplayMsg, ObjectMsg, PickMsg, EnvironmentMsg, FitMsg, LightMsg,  # noqa: F401
-                       MaterialMsg, MoveMsg, PaintMsg, RedoMsg, RendererMsg, SaveMsg, Storage, StrokeMsg, UndoMsg,
+                       MaterialMsg, MoveMsg, PaintMsg, RedoMsg, RegionMsg, RendererMsg, SaveMsg, Storage, StrokeMsg, UndoMsg,
                        VariantMsg, ViewMsg, apply, client_msg, message)
 from .state import (EnvPreset, ObjectEdit, PendingSave, SessionState, StateError, Tone, Variant, copy_state,  # noqa: F401
                     new_state, restore_state)

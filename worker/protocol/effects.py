@@ -58,6 +58,13 @@ class NewMaterial:
 
 
 @dataclass(frozen=True, slots=True)
+class RegionsChanged:
+    """The edited object's painted regions changed (``RegionMsg``): its material is the state's,
+    and strokes of earlier epochs no longer apply (they are part of it)."""
+    object: str
+
+
+@dataclass(frozen=True, slots=True)
 class Moved:
     """A movable object was placed anew (fit views of the old placement are stale)."""
     object: str
@@ -118,7 +125,7 @@ class StoreSave:
 
 
 # what a client message's apply returns
-Effect = Union[NoEffect, RecordStroke, Undo, Redo, Refit, Save, NewMaterial, Moved, SwitchRenderer, Relight, FitPaint,
+Effect = Union[NoEffect, RecordStroke, Undo, Redo, Refit, Save, NewMaterial, RegionsChanged, Moved, SwitchRenderer, Relight, FitPaint,
                SelectObject, Pick, Convert]
 # what a worker event's apply returns (on the server)
 StoreEffect = Union[NoEffect, RejectStroke, StoreSave]

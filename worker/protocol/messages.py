@@ -38,7 +38,7 @@ from ..fit.brush import Stroke
 from ..models import Material, Vec3
 from ..scene import Camera, Transform
 from .effects import (NO_EFFECT, Convert, Effect, FitPaint, Moved, NewMaterial, Pick, RecordStroke, Redo, Refit,
-                      Relight, Save, SelectObject, SwitchRenderer, Undo)
+                      RegionsChanged, Relight, Save, SelectObject, SwitchRenderer, Undo)
 from .state import EnvPreset, ObjectEdit, PendingSave, SessionState, StateError, Tone, copy_state
 
 Storage = Literal["batched", "rows", "state"]
@@ -170,6 +170,54 @@ class StrokeMsg(ClientMsg):
         return RecordStroke({"stroke": self.stroke.model_dump(mode="json"),
                              "camera": st.camera.model_dump(mode="json"),
                              "rotation_deg": st.rotation_deg, "intensity": st.intensity})
+
+
+@message
+class RegionMsg(ClientMsg):
+    """The edited object's painted regions (docs/guides/regions.md). ``paint``: the strokes that
+    follow make the region ``name``, or extend it when the object's material has it, painted over
+    the look so far (the strokes before become part of the material: a new epoch, as a material
+    change); undo and redo then cover the region's strokes, and a save stores the material with
+    its regions as a design version. ``stop``: strokes fit one BRDF for the object again.
+    ``rename``: region ``name`` (with its parts ``name/1`` …) becomes ``new_name``. ``erase``:
+    region ``name`` is removed (the object shows what was under it)."""
+    type: Literal["region"] = "region"
+    action: Literal["paint", "stop", "rename", "erase"]
+    name: str | None = Field(None, min_length=1, max_length=100, pattern=r"^[^/]+$")
+    new_name: str | None = Field(None, min_length=1, max_length=100, pattern=r"^[^/]+$")
+
+    def apply(self, st):
+        from ..models.regions import has_regions, in_group as _in_group, rename_region, without_region
+
+        if self.action != "stop" and self.name is None:
+            raise StateError(f"region: {self.action} needs the region's name")
+        if self.action == "paint" and not st.allows("strokes"):
+            from ..renderers import why_not
+            raise StateError(f"region: {why_not(st.renderer, 'strokes')}")
+        i = st.object_index
+        cur = st.materials[i]
+        if self.action in ("rename", "erase"):
+            if not has_regions(cur) or not any(_in_group(r.name, self.name) for r in cur.regions):
+                raise StateError(f"region: object {st.object!r} has no region {self.name!r}")
+            if self.action == "rename":
+                if self.new_name is None:
+                    raise StateError("region: rename needs new_name")
+                if any(_in_group(r.name, self.new_name) for r in cur.regions):
+                    raise StateError(f"region: object {st.object!r} has a region {self.new_name!r} already")
+                cur = rename_region(cur, self.name, self.new_name)
+            else:
+                cur = without_region(cur, self.name)
+            mats = list(st.materials)
+            mats[i] = cur
+            st.materials = mats
+            if st.region == self.name:
+                st.region = self.new_name if self.action == "rename" else None
+        else:
+            st.region = self.name if self.action == "paint" else None
+        # what the strokes so far made is now what the next ones paint over
+        st.base_material = cur
+        st.epoch = st.fresh_epoch()
+        return RegionsChanged(st.object)
 
 
 @message

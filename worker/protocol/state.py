@@ -91,6 +91,9 @@ class SessionState(BaseModel):
     max_frame_pixels: int | None = None
     # objects edited before the current one, by name (``ObjectMsg``): each keeps its strokes
     edits: dict[str, ObjectEdit] = Field(default_factory=dict)
+    # the painted region the edited object's strokes make or extend (``RegionMsg``; None: the
+    # strokes fit one BRDF for the whole object)
+    region: str | None = None
 
     def fresh_epoch(self) -> int:
         """An epoch no object has used: the stroke rows of every object's epoch stay its own."""

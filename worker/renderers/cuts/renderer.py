@@ -62,9 +62,11 @@ from ...core.render import (
     resolve,
     shade_points,
 )
+from ...models.regions import has_regions
 from ...native.kernels import kernels as _kernels
 from ..base import FrameCancelled, FrameRequest, Lighting, Rendered, Renderer, Unsupported
 from . import DECLARATION
+from .layers import Layers, frame_layers
 from .precompute import CutData
 from . import refine as refinemod
 from .refine import Refinement
@@ -73,6 +75,13 @@ DRAG_REFINE = 0.1   # drag level of detail: clusters refined to no finer than 0.
 CANCEL_CHUNK = 1024  # vertices shaded between checkpoints (FrameRequest.cancelled): ~10 ms of a fitted srbf, one core
 DRAG_TAU = 16.0     # drag level of detail: cuts coarsened to τ = 16 (0.4% image change on the demo chair)
 _pool = None
+
+
+@lru_cache(maxsize=1)
+def _placeholder_model():
+    from ...models import Lambert
+
+    return Lambert()
 
 
 @lru_cache(maxsize=1)
@@ -166,6 +175,7 @@ class CutRenderer(Renderer):
         self._vert = np.zeros((len(scene.mesh.vertices), 3), np.float32)
         self._mats_key = None
         self._mats: MaterialTable | None = None
+        self._layers_key = self._layers = self._layers_refs = None
         self._packs: OrderedDict[str, object] = OrderedDict()   # content → PackedBRDF, most recent last
         self._drag_mats = self._drag_mats_of = None             # drag-level table, and the table it came from
         self._lock = threading.RLock()      # the session thread and its background builder
@@ -396,22 +406,24 @@ class CutRenderer(Renderer):
                 keep = ~np.isin(vi, np.concatenate([ids for ids, _ in known.values()]))
                 vi, wo = vi[keep], wo[keep]
             mat_of = self.scene.object_of_vertex[vi]
-            mats = self.material_table(materials, np.unique(mat_of).tolist())
+            layers = self.layers(materials)
+            objs = np.unique(mat_of).tolist()
+            mats = (self.material_table(materials, objs) if layers is None
+                    else self.material_table(layers.flat, layers.needed(objs)))
             # faces to shade per pixel, chosen by the materials' own lobes (not the drag level's)
-            radius = self._refine_radius(mats, mat_of) if req.shading == "refined" and not drag else None
+            radius = self._refine_radius(mats, mat_of, layers) if req.shading == "refined" and not drag else None
             if drag or quick:
                 mats = self._drag_materials(mats)
             if req.cancelled is None:
-                rad = shade_points(mesh.normals[vi], wo, vi, mat_of, cuts, node_l, node_w, self.tree, mats, self.k,
-                                   node8=node8)
+                rad = self._shade_vertices(vi, wo, mat_of, cuts, node_l, node_w, mats, node8, layers)
             else:                       # a frame that may give way: in parts, a checkpoint between them
                 rad = np.empty((len(vi), 3), np.float32)
                 for a in range(0, len(vi), CANCEL_CHUNK):
                     if req.cancelled():
                         raise FrameCancelled()
                     b = min(a + CANCEL_CHUNK, len(vi))
-                    rad[a:b] = shade_points(mesh.normals[vi[a:b]], wo[a:b], vi[a:b], mat_of[a:b], cuts, node_l,
-                                            node_w, self.tree, mats, self.k, node8=node8)
+                    rad[a:b] = self._shade_vertices(vi[a:b], wo[a:b], mat_of[a:b], cuts, node_l, node_w, mats,
+                                                    node8, layers)
             vert = self._vert            # only the visible vertices' rows are read
             vert[vi] = rad
             for ids, r in known.values():
@@ -425,7 +437,7 @@ class CutRenderer(Renderer):
                     part = self._pixel_samples(v, camera, rows)
                     # the refined rows are hit samples: the background buffer's rows there are never
                     # read as background, so they carry the per-pixel radiance into the resolve
-                    bg[rows] = self._shade_chunked(part, cuts, node_l, node_w, mats, node8, req.cancelled)
+                    bg[rows] = self._shade_chunked(part, cuts, node_l, node_w, mats, node8, req.cancelled, layers)
                     tri = v.tri.copy()
                     tri[rows] = -1
                     n_refined = len(rows)
@@ -434,10 +446,11 @@ class CutRenderer(Renderer):
             t["resolve"] = (time.perf_counter() - t5) * 1e3
         elif req.shading == "pixel":
             hit = np.nonzero(v.tri >= 0)[0]
-            mats = self.material_table(materials)
+            layers = self.layers(materials)
+            mats = self.material_table(materials if layers is None else layers.flat)
             s = self._pixel_samples(v, camera, hit)
             val = bg.copy()
-            val[hit] = self._shade(s, cuts, node_l, node_w, mats, self.scene.object_of_vertex, node8)
+            val[hit] = self._shade(s, cuts, node_l, node_w, mats, self.scene.object_of_vertex, node8, layers)
             img[:] = val.reshape(-1, samples, 3).mean(1)
             t["shade"] = (time.perf_counter() - t3) * 1e3
         else:
@@ -449,13 +462,17 @@ class CutRenderer(Renderer):
                          "ground_shadow": None if self.data.ground is None else shadow is not None})
 
     @staticmethod
-    def _refine_radius(mats: MaterialTable, mat_of: np.ndarray) -> np.ndarray:
+    def _refine_radius(mats: MaterialTable, mat_of: np.ndarray, layers: Layers | None = None) -> np.ndarray:
         """(O,) float32 radians: each object's refine radius (refine.py) where it is shaded now
         (mat_of: the object of each vertex shaded), inf elsewhere (objects whose radiance the
-        frame brings are not refined)."""
+        frame brings are not refined); an object with regions takes its narrowest layer's."""
         shaded = np.zeros(len(mats.refine), bool)
         shaded[np.unique(mat_of)] = True
-        return np.where(shaded, mats.refine, np.inf).astype(np.float32)
+        out = np.where(shaded, mats.refine, np.inf).astype(np.float32)
+        for o, (slots, _, _) in (layers.objects.items() if layers is not None else ()):
+            if shaded[o]:
+                out[o] = mats.refine[slots].min()
+        return out
 
     def _refinement(self, v: View, camera) -> Refinement:
         """The view's refinement geometry (refine.py Refinement), made once per view."""
@@ -465,10 +482,10 @@ class CutRenderer(Renderer):
                                               self.scene.object_of_face, self.k)
         return v.refinement
 
-    def _shade_chunked(self, s: Samples, cuts, node_l, node_w, mats, node8, cancelled) -> np.ndarray:
+    def _shade_chunked(self, s: Samples, cuts, node_l, node_w, mats, node8, cancelled, layers=None) -> np.ndarray:
         """_shade of samples, in parts with a checkpoint between them when the frame may give way."""
         if cancelled is None:
-            return self._shade(s, cuts, node_l, node_w, mats, self.scene.object_of_vertex, node8)
+            return self._shade(s, cuts, node_l, node_w, mats, self.scene.object_of_vertex, node8, layers)
         out = np.empty((len(s), 3), np.float32)
         step = max(1, CANCEL_CHUNK // 3)                     # three cuts a sample
         for a in range(0, len(s), step):
@@ -476,7 +493,7 @@ class CutRenderer(Renderer):
                 raise FrameCancelled()
             b = min(a + step, len(s))
             part = Samples(s.pix[a:b], s.positions[a:b], s.normals[a:b], s.wo[a:b], s.verts[a:b], s.bary[a:b])
-            out[a:b] = self._shade(part, cuts, node_l, node_w, mats, self.scene.object_of_vertex, node8)
+            out[a:b] = self._shade(part, cuts, node_l, node_w, mats, self.scene.object_of_vertex, node8, layers)
         return out
 
     def _index(self, name: str) -> int:
@@ -614,14 +631,54 @@ class CutRenderer(Renderer):
             nrm, wo, (node_l, node_w) = self._in_frame(samples, lighting)
             # the packed node records belong to the world frame's tables only
             node8 = self._node8 if self._node_light is not None and node_l is self._node_light[0] else None
-        mats = MaterialTable([material.pack()])
         s = Samples(samples.pix, samples.positions, nrm, wo, samples.verts, samples.bary)
-        return self._shade(s, self._fit_cuts(coarse), node_l, node_w, mats, None, node8).astype(np.float64)
+        if not has_regions(material):
+            mats = MaterialTable([material.pack()])
+            return self._shade(s, self._fit_cuts(coarse), node_l, node_w, mats, None, node8).astype(np.float64)
+        # a material with regions: its layers in the object's slot (the others are never shaded)
+        mlist = [_placeholder_model()] * len(self.scene.spec.objects)
+        mlist[object_index] = material
+        layers = Layers(mlist, self.scene.object_of_vertex)
+        mats = MaterialTable([self._pack(m) if i in layers.needed([object_index]) else _placeholder()
+                              for i, m in enumerate(layers.flat)])
+        return self._shade(s, self._fit_cuts(coarse), node_l, node_w, mats, self.scene.object_of_vertex, node8,
+                           layers).astype(np.float64)
 
-    def _shade(self, s: Samples, cuts, node_l, node_w, mats, mat_of_vertex, node8=None) -> np.ndarray:
+    def layers(self, materials) -> Layers | None:
+        """The frame's region layers (layers.py), or None when no material has regions; cached
+        by the identity of the list's items, as the material table is."""
+        key = tuple(id(m) for m in materials)
+        if key != self._layers_key:
+            self._layers = frame_layers(materials, self.scene.object_of_vertex)
+            self._layers_key, self._layers_refs = key, list(materials)
+        return self._layers
+
+    def _shade_vertices(self, vi, wo, mat_of, cuts, node_l, node_w, mats, node8, layers) -> np.ndarray:
+        """(K, 3) float32 vertex-mode radiance of vertices vi (K,) with view directions wo and
+        objects mat_of: one shading per vertex, or per layer of weight > 0 with regions."""
+        nrm = self.scene.mesh.normals
+        if layers is None:
+            return shade_points(nrm[vi], wo, vi, mat_of, cuts, node_l, node_w, self.tree, mats, self.k, node8=node8)
+        (src, slot, wt), blend = layers.expand_cached(vi, mat_of, mat_of)
+        g = layers.gathered
+        if g is None or g[0] is not vi or g[1] is not wo:
+            vs = vi[src]
+            g = layers.gathered = (vi, wo, vs, np.ascontiguousarray(nrm[vs]), np.ascontiguousarray(wo[src]))
+        _, _, vs, n_s, wo_s = g
+        rad = shade_points(n_s, wo_s, vs, slot, cuts, node_l, node_w, self.tree, mats, self.k, node8=node8)
+        return np.asarray(blend @ rad, np.float32)
+
+    def _shade(self, s: Samples, cuts, node_l, node_w, mats, mat_of_vertex, node8=None, layers=None) -> np.ndarray:
         n = len(s)
         flat = s.verts.reshape(-1)
         mat_of = np.zeros(3 * n, np.int32) if mat_of_vertex is None else mat_of_vertex[flat]
-        rad = shade_points(np.repeat(s.normals, 3, 0), np.repeat(s.wo, 3, 0), flat, mat_of, cuts, node_l, node_w,
-                           self.tree, mats, self.k, node8=node8).reshape(n, 3, 3)
-        return (s.bary[:, :, None] * rad).sum(1)
+        nrm, wo = np.repeat(s.normals, 3, 0), np.repeat(s.wo, 3, 0)
+        if layers is None or mat_of_vertex is None:
+            rad = shade_points(nrm, wo, flat, mat_of, cuts, node_l, node_w, self.tree, mats, self.k, node8=node8)
+        else:
+            # each corner blends its layers at its own vertex's weights (the pixel's normal and view)
+            src, slot, wt = layers.expand(flat, mat_of, mat_of)
+            r = shade_points(nrm[src], wo[src], flat[src], slot, cuts, node_l, node_w, self.tree, mats, self.k,
+                             node8=node8)
+            rad = Layers.blend(r, src, wt, len(flat))
+        return (s.bary[:, :, None] * rad.reshape(n, 3, 3)).sum(1)

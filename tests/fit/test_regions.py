@@ -1,0 +1,185 @@
+"""Regions from strokes (worker/fit/regions.py) and their rendering (renderers/cuts/layers.py):
+the stroke changes what it covers, the rest of the object keeps its material."""
+import numpy as np
+import pytest
+
+from worker.fit.brush import Stroke
+from worker.fit.regions import fit_region, footprint_weights, project, region_weight, rendered_effect
+from worker.models import GGX, Lambert, Region, Regions
+from worker.renderers import FrameRequest
+
+
+def _frame(r, material, shading="vertex"):
+    return r.render(FrameRequest(camera=r.scene.spec.camera, materials=[material], shading=shading)).radiance
+
+
+@pytest.mark.parametrize("shading", ["vertex", "pixel"])
+def test_the_renderer_blends_the_layers_per_vertex(bunny_renderer, shading):
+    """Radiance is linear in each layer's: with one weight w everywhere the frame is
+    (1 − w)·base + w·region exactly; where no corner of a pixel's triangle is in the region,
+    the pixel is the base's."""
+    r = bunny_renderer
+    n = len(r.scene.mesh.vertices)
+    base, top = Lambert(albedo=(0.6, 0.6, 0.6)), GGX(alpha=0.2, albedo=(0.1, 0.2, 0.5))
+    a, b = _frame(r, base, shading), _frame(r, top, shading)
+    even = Regions(base=base, vertex_count=n, regions=[Region(name="all", material=top, vertices=list(range(n)),
+                                                              weights=[0.3] * n)])
+    np.testing.assert_allclose(_frame(r, even, shading), 0.7 * a + 0.3 * b, rtol=1e-4, atol=1e-5)
+    half = np.arange(n // 2)
+    part = Regions(base=base, vertex_count=n, regions=[Region(name="half", material=top, vertices=half.tolist(),
+                                                              weights=[1.0] * len(half))])
+    c = _frame(r, part, shading).reshape(-1, 3)
+    v = r.view(r.scene.spec.camera)
+    outside = (v.tri >= 0) & np.all(r.scene.mesh.faces[np.maximum(v.tri, 0)] >= n // 2, axis=1)
+    inside = (v.tri >= 0) & np.all(r.scene.mesh.faces[np.maximum(v.tri, 0)] < n // 2, axis=1)
+    assert outside.sum() > 100 and inside.sum() > 100
+    np.testing.assert_allclose(c[outside], a.reshape(-1, 3)[outside], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(c[inside], b.reshape(-1, 3)[inside], rtol=1e-5, atol=1e-6)
+
+
+def test_projection_inverts_the_camera_rays(bunny_renderer):
+    """A surface point a pixel's ray hits projects back onto that pixel's centre."""
+    r = bunny_renderer
+    cam = r.scene.spec.camera
+    s = r.surface_samples(cam, 0)
+    xy, front = project(cam, s.positions)
+    assert front.all()
+    want = np.stack([s.pix % cam.width + 0.5, s.pix // cam.width + 0.5], 1)
+    np.testing.assert_allclose(xy, want, atol=2e-3)
+
+
+def test_footprint_is_the_brush_dilated_by_its_radius(fitter, across):
+    st = Stroke(points=across(fitter), color=(1, 1, 1), diameter=12, kappa=0.05)
+    d = np.array([0.0, 3.0, 6.0, 9.0, 12.0, 13.0])
+    w = region_weight(st, d)
+    np.testing.assert_allclose(w[:3], np.exp(-0.05 * d[:3]))
+    assert 0 < w[3] < np.exp(-0.05 * 9.0) and w[4] == 0 and w[5] == 0
+    fw = footprint_weights(fitter, [st])
+    cam = fitter.views[0].camera
+    vs = fitter.renderer.vertex_samples(cam, 0)
+    xy, _ = project(cam, vs.positions)
+    from worker.fit.brush import polyline_distance
+    dist = polyline_distance(xy, np.asarray(st.points))
+    np.testing.assert_allclose(fw[vs.pix], region_weight(st, dist), atol=1e-6)
+    assert (fw > 0).sum() == (dist <= 12.0).sum() - (dist == 12.0).sum()
+
+
+@pytest.mark.parametrize("kind", ["highlight", "darkening", "colour"])
+def test_a_region_changes_what_the_stroke_covers(fitter, across, kind):
+    """One BRDF for the object follows a stroke only partly and changes everything else; a
+    region follows it and leaves the object beyond one brush diameter as it was, in rendered
+    frames (vertex mode, what the studio shows), not only in the fit's prediction."""
+    v = fitter.views[0]
+    pts = across(fitter, frac=(0.3, 0.6))
+    if kind == "highlight":
+        C = 2.0 * float(v.base.max())
+        st = Stroke(points=pts, color=(C, C, C), diameter=12)
+    elif kind == "darkening":
+        st = Stroke(points=pts, mode="scale", scale=0.3, diameter=12)
+    else:
+        st = Stroke(points=pts, color=tuple((v.base.mean(0) * [1.6, 0.8, 0.5]).tolist()), diameter=12)
+    fitter.add_stroke(st)
+    out = fit_region(fitter, name="seat")
+    assert out.material.model == "regions" and out.material.base == fitter.base_material
+    assert out.region.name == "seat" and len(out.region.vertices) > 20
+    r, cam = fitter.renderer, v.camera
+    got = rendered_effect(r, 0, cam, v.lighting, fitter.base_material, out.material, [st])
+    one = rendered_effect(r, 0, cam, v.lighting, fitter.base_material, fitter.fit(fit_albedo=True).material, [st])
+    print(f"{kind}: region {got['achieved']:.2f} / {got['spill_far']:.3f} (predicted {out.achieved:.2f} / "
+          f"{out.spill_far:.3f}); one BRDF {one['achieved']:.2f} / {one['spill_far']:.3f}")
+    # measured (bunny, sunset): region 0.88-0.99 achieved, 0.4-1.5% spill beyond D;
+    # one BRDF 0.50-0.57 and 10-38%
+    assert got["achieved"] >= 0.8, got
+    assert got["spill_far"] <= 0.03, got
+    assert one["achieved"] < got["achieved"] - 0.2 and one["spill_far"] > 3 * got["spill_far"], (one, got)
+    # the fit predicts what the renderer draws
+    assert got["achieved"] == pytest.approx(out.achieved, abs=0.06)
+    assert got["spill_far"] == pytest.approx(out.spill_far, abs=0.01)
+
+
+def test_extending_and_adding_regions(fitter, across):
+    v = fitter.views[0]
+    C = 2.0 * float(v.base.max())
+    fitter.add_stroke(Stroke(points=across(fitter, frac=(0.2, 0.4)), color=(C, C, C), diameter=10))
+    first = fit_region(fitter, name="a")
+    fitter.set_base_material(first.material)
+    fitter.history.clear()
+    fitter.add_stroke(Stroke(points=across(fitter, frac=(0.5, 0.7)), color=(C, C, C), diameter=10))
+    ext = fit_region(fitter, name="a")
+    assert ext.extended and [g.name for g in ext.material.regions] == ["a"]
+    assert set(first.region.vertices) < set(ext.region.vertices)
+    # the base under the region is the first fit's base, not the first fit
+    assert ext.material.base == first.material.base
+    other = fit_region(fitter, name="b")
+    assert not other.extended and [g.name for g in other.material.regions] == ["a", "b"]
+    assert other.material.regions[0] == first.region
+
+
+def test_a_stroke_off_the_object_is_refused(fitter):
+    from worker.fit.fitter import FitError
+
+    fitter.add_stroke(Stroke(points=[(1.0, 1.0)], color=(1, 1, 1), diameter=2))
+    with pytest.raises(FitError, match="touch no vertex"):
+        fit_region(fitter)
+
+
+def test_a_highlight_the_light_cannot_give_is_explained(fitter, across):
+    """Under the sunset the painted pixels' mirror directions see little light: a bright white
+    stroke falls short, and the notes say why and what would give it; one brighter than the sun
+    above the surface is impossible for any BRDF; a darkening asks for no guidance."""
+    pts = across(fitter, frac=(0.3, 0.6))
+    fitter.add_stroke(Stroke(points=pts, color=(3.0, 3.0, 3.0), diameter=12))
+    out = fit_region(fitter)
+    g = out.guidance
+    assert out.achieved < 0.8 and g is not None
+    assert g["asked"] > g["mirror"] and g["covered"] < 0.8 and g["impossible_share"] < 0.5
+    assert 0 <= g["rotate_to_deg"] < 360 and g["covered_at_rotation"] >= g["covered"]
+    assert any("little light near the mirror direction" in n and "sharper lobe" in n for n in out.notes), out.notes
+    fitter.history.clear()
+    fitter.add_stroke(Stroke(points=pts, color=(500.0, 500.0, 500.0), diameter=12))
+    out = fit_region(fitter)
+    assert out.guidance["impossible_share"] > 0.5
+    assert any(n.startswith("no BRDF can make this highlight here") for n in out.notes), out.notes
+    fitter.history.clear()
+    fitter.add_stroke(Stroke(points=pts, mode="scale", scale=0.3, diameter=12))
+    assert fit_region(fitter).guidance is None
+
+
+def test_a_region_in_parts_aims_a_lobe_per_part(fitter, across):
+    """A highlight across a curved surface: the region's vertices grouped by mirror direction,
+    a BRDF each, fitted together (solve_blocks), give more of it than one BRDF for the region;
+    the parts partition the region. One part through solve_blocks is solve's fit_albedo problem."""
+    from worker.fit import regions as R
+    from worker.fit.solve import solve_blocks
+
+    fitter.set_base_material(Lambert(albedo=(0.7, 0.7, 0.7)))       # a bright base: little energy left
+    v = fitter.views[0]
+    C = 2.0 * float(v.base.max())
+    fitter.add_stroke(Stroke(points=across(fitter, frac=(0.25, 0.75)), color=(C, C, C), diameter=6))
+    one = fit_region(fitter, name="hl", parts=1)
+    two = fit_region(fitter, name="hl", parts=2)
+    print(f"highlight: 1 part {one.achieved:.2f}, 2 parts {two.achieved:.2f}")
+    assert [g.name for g in two.material.regions] == ["hl/1", "hl/2"]
+    a, b = (set(g.vertices) for g in two.regions)
+    assert not a & b and a | b == set(one.region.vertices)
+    assert two.achieved > one.achieved + 0.04          # measured 0.71 against 0.64
+    # extending "hl" replaces both parts
+    fitter.set_base_material(two.material)
+    again = fit_region(fitter, name="hl", parts=1)
+    assert [g.name for g in again.material.regions] == ["hl"] and again.extended
+    # the stacked solver with one block is the single solve with the albedo fitted
+    fitter.set_base_material(one.material.base)
+    w = R.footprint_weights(fitter, fitter.history.strokes)
+    off, n_o = R.object_range(fitter.renderer, 0)
+    p = R._prepare_view(fitter, 0, v, w, off, fitter.base_material, fitter.base_material, 0.25)
+    J = fitter.basis.J
+    A = np.zeros((3, len(p["R"]), J + 1), np.float32)
+    for c in range(3):
+        A[c, :, :J] = p["Pw"] @ p["T"][c].astype(np.float64)
+        A[c, :, J] = p["Pw"] @ p["E"][:, c].astype(np.float64)
+    blk = solve_blocks(A, p["target"][p["R"]] - p["fixed"], p["weight"], fitter.basis, 1,
+                       np.asarray(fitter.base_material.albedo)[None])
+    np.testing.assert_allclose(blk.albedo[0], one.solve.albedo, atol=2e-3)
+    pred_one = A[:, :, :J].astype(np.float64) @ one.solve.coefficients.T[:, :, None]
+    pred_blk = A[:, :, :J].astype(np.float64) @ blk.coefficients[0].T[:, :, None]
+    assert np.abs(pred_one - pred_blk).max() < 0.01 * np.abs(pred_one).max()

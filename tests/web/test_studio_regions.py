@@ -1,0 +1,88 @@
+"""Painted regions in the studio (headless Chromium, the shared server): with "Paint a region"
+on, a stroke changes what it covers and the rest of the bunny stays as it was; the region is
+listed, renamed and erased. Screenshot: test-artifacts/web-regions.png."""
+import json
+
+import numpy as np
+import pytest
+
+from helpers import drag, frame_no, settle, wait_new_frame
+
+pytest.importorskip("playwright.sync_api")
+
+GRID_JS = """() => {
+  const c = document.getElementById('view'), g = c.getContext('2d');
+  const d = g.getImageData(0, 0, c.width, c.height).data, W = 64, H = 48, out = [];
+  for (let j = 0; j < H; j++) for (let i = 0; i < W; i++) {
+    const x = Math.floor((i + 0.5) * c.width / W), y = Math.floor((j + 0.5) * c.height / H), k = 4 * (y * c.width + x);
+    out.push(0.2126 * d[k] + 0.7152 * d[k + 1] + 0.0722 * d[k + 2]);
+  }
+  return out;
+}"""
+
+
+def _grid(page):
+    return np.asarray(page.evaluate(GRID_JS), np.float64).reshape(48, 64)
+
+
+def _status_has(page, text, timeout=60_000):
+    page.wait_for_function(f"() => document.getElementById('status').textContent.includes({json.dumps(text)})",
+                           timeout=timeout)
+
+
+def _regions(page):
+    return page.evaluate("() => [...document.querySelectorAll('#region-list li')].map((li) => li.dataset.region)")
+
+
+def test_a_stroke_paints_a_region_and_the_rest_stays(server, bunny_scene, browser, artifacts):
+    errors = []
+    ctx = browser.new_context(viewport={"width": 1280, "height": 720})
+    page = ctx.new_page()
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(server["base"] + "/")
+    wait_new_frame(page, 0)
+    settle(page)
+    if page.locator("#scene-select").input_value() != bunny_scene:
+        page.select_option("#scene-select", bunny_scene)
+        page.click("#open-scene")
+        page.evaluate("() => { document.getElementById('view').dataset.frame = '0'; }")
+        wait_new_frame(page, 0)
+        settle(page)
+    g0 = _grid(page)
+    page.fill("#region-name", "belly")
+    page.check("#region-paint")
+    _status_has(page, "no strokes")
+    # a darkening across the middle of the bunny
+    page.check("#tool-brush")
+    page.select_option("#brush-mode", "scale")
+    page.fill("#brush-scale", "0.2")
+    page.fill("#brush-diameter", "30")
+    b = page.locator("#view").bounding_box()
+    n = frame_no(page)
+    drag(page, b["x"] + 0.42 * b["width"], b["y"] + 0.55 * b["height"], 0.14 * b["width"], 0, steps=10)
+    _status_has(page, "region “belly”")
+    _status_has(page, "achieved")
+    wait_new_frame(page, n)
+    settle(page)
+    g1 = _grid(page)
+    page.screenshot(path=str(artifacts / "web-regions.png"))
+    assert _regions(page) == ["belly"]
+    rows, cols = slice(int(0.55 * 48) - 1, int(0.55 * 48) + 2), slice(int(0.44 * 64), int(0.54 * 64))
+    assert (g0 - g1)[rows, cols].mean() > 8, "the stroke did not darken what it covers"
+    # the top and bottom of the frame (far from the stroke) are unchanged
+    far = np.r_[0:int(0.3 * 48), int(0.8 * 48):48]
+    assert np.abs(g1 - g0)[far].max() <= 2, np.abs(g1 - g0)[far].max()
+    # renamed to the name in the field, then erased: the bunny is as it was
+    page.fill("#region-name", "front")
+    n = frame_no(page)
+    page.click("#region-list li[data-region='belly'] .region-rename")
+    page.wait_for_function("() => document.querySelector(\"#region-list li[data-region='front']\") !== null",
+                           timeout=30_000)
+    page.click("#region-list li[data-region='front'] .region-erase")
+    page.wait_for_function("() => document.querySelectorAll('#region-list li').length === 0", timeout=30_000)
+    wait_new_frame(page, n)
+    settle(page)
+    assert np.abs(_grid(page) - g0).mean() < 1.0
+    assert not page.locator("#region-paint").is_checked()
+    assert not errors, errors
+    ctx.close()

@@ -1,0 +1,98 @@
+"""What to tell a designer when the light cannot give the highlight painted.
+
+A BRDF that conserves energy reflects towards ω_o at most the brightest radiance it receives:
+B(x, ω_o) = ∫ L(ω_i) f cosθ_i dω_i ≤ max_{ω_i·n > 0} L(ω_i), since ∫ f cosθ_i dω_i ≤ 1
+(inverse-brdf-modeling eq. 10). A glossy lobe gets close to that only where the bright light is
+near the mirror direction of the pixel; elsewhere a lobe has to be aimed off the mirror direction,
+differently at each pixel of a curved stroke, and every lobe draws on the same energy budget (the
+energy rows, eq. 19), so one BRDF gives each pixel a share of it.
+
+``highlight_guidance`` measures, for the painted pixels of a brightening stroke, the environment's
+radiance around each mirror direction (the map averaged over ~6° texels, unoccluded: an upper
+bound), the brightest radiance above each pixel's horizon, and the rotation of the environment
+that puts the most light in the mirror directions. The fit's notes then say which case it is: a
+highlight no BRDF can make under this light, or one that a rotated environment (or a sharper lobe
+aimed at the light) would give.
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from ..core.render import env_lookup_numpy
+
+LUMA = np.array([0.2126, 0.7152, 0.0722])
+MAP_W = 64                      # the averaged map's width (texels of 5.6°)
+ROTATIONS = 72                  # environment rotations tried (every 5°)
+BRIGHTEN = 1.05                 # a stroke asks for a highlight when its target is this much brighter
+
+
+def _small_map(envmap: np.ndarray) -> np.ndarray:
+    h = MAP_W // 2
+    return cv2.resize(np.ascontiguousarray(envmap[:, :, :3], np.float32), (MAP_W, h), interpolation=cv2.INTER_AREA)
+
+
+def _texel_dirs(h: int, w: int, rotation_deg: float) -> np.ndarray:
+    """(h·w, 3) world directions of the texel centres (render.env_lookup's convention)."""
+    v = (np.arange(h) + 0.5) / h
+    u = (np.arange(w) + 0.5) / w
+    th = np.pi * v[:, None]
+    ph = 2.0 * np.pi * (u[None, :] - rotation_deg / 360.0)
+    d = np.stack(np.broadcast_arrays(np.sin(th) * np.sin(ph), np.cos(th), -np.sin(th) * np.cos(ph)), -1)
+    return d.reshape(-1, 3)
+
+
+def highlight_guidance(envmap: np.ndarray, rotation_deg: float, intensity: float, normals: np.ndarray,
+                       wo: np.ndarray, asked: np.ndarray, before: np.ndarray) -> dict | None:
+    """Guidance for a highlight at painted pixels (P,): world unit normals and directions to the
+    eye (P, 3), the radiance asked for and shown before (P, 3). None when the stroke does not
+    brighten. Returns luminances (means over the pixels): ``asked``, ``mirror`` (the map around
+    the mirror direction), ``brightest_above`` (the brightest texel above the horizon), the share
+    of pixels asking for more than their ``brightest_above`` (``impossible_share``: no BRDF can),
+    the share of the ask the mirror light covers now (``covered``) and at the best rotation
+    (``rotate_to_deg``, ``covered_at_rotation``)."""
+    ya, yb = np.asarray(asked) @ LUMA, np.asarray(before) @ LUMA
+    if len(ya) == 0 or ya.mean() <= BRIGHTEN * max(yb.mean(), 1e-12):
+        return None
+    n = np.asarray(normals, np.float64)
+    o = np.asarray(wo, np.float64)
+    r = 2.0 * (n * o).sum(1, keepdims=True) * n - o
+    small = _small_map(envmap)
+    ym_now = env_lookup_numpy(r, small, rotation_deg, intensity) @ LUMA
+    lum = small.reshape(-1, 3) @ LUMA * intensity
+    top = np.zeros(len(n))
+    d = _texel_dirs(small.shape[0], small.shape[1], rotation_deg)
+    above = (n @ d.T) > 0                                    # (P, texels)
+    top = np.where(above, lum[None, :], 0.0).max(1)
+    ask = np.maximum(ya, 1e-12)
+
+    def covered(ym):
+        return float(np.mean(np.minimum(ym, ask) / ask))
+
+    best, best_cov = rotation_deg, covered(ym_now)
+    for k in range(ROTATIONS):
+        rot = 360.0 * k / ROTATIONS
+        c = covered(env_lookup_numpy(r, small, rot, intensity) @ LUMA)
+        if c > best_cov + 1e-9:
+            best, best_cov = rot, c
+    return {"asked": float(ya.mean()), "before": float(yb.mean()), "mirror": float(ym_now.mean()),
+            "brightest_above": float(top.mean()), "impossible_share": float(np.mean(ya > top)),
+            "covered": covered(ym_now), "rotate_to_deg": float(best % 360.0), "covered_at_rotation": best_cov}
+
+
+def guidance_notes(g: dict | None, achieved: float | None) -> list[str]:
+    """The fit's notes from highlight_guidance's result, when a highlight fell short (< 80%)."""
+    if g is None or achieved is None or achieved >= 0.8:
+        return []
+    if g["impossible_share"] > 0.5:
+        return [f"no BRDF can make this highlight here: {g['impossible_share'] * 100:.0f}% of the painted pixels ask for "
+                f"more light (luminance {g['asked']:.2f}) than the brightest part of the environment above them gives "
+                f"({g['brightest_above']:.2f}); paint a weaker highlight, or raise the environment's intensity"]
+    text = (f"the environment has little light near the mirror direction of the painted pixels (it covers "
+            f"{g['covered'] * 100:.0f}% of the highlight asked): ")
+    if g["covered_at_rotation"] > g["covered"] + 0.1:
+        text += (f"rotating the environment to {g['rotate_to_deg']:.0f}° puts light there "
+                 f"({g['covered_at_rotation'] * 100:.0f}% of the highlight asked), or ")
+    text += ("paint the highlight as a region with a sharper lobe aimed at the light (the energy a BRDF may reflect "
+             "then goes to the one lobe that catches it instead of being shared)")
+    return [text]

@@ -1,0 +1,114 @@
+"""Materials with painted regions in the cut renderer: each shading point of such an object is
+shaded once per layer that has weight there, and the layers' radiance is blended by the
+effective weights (models/regions.py: L(v) = Σ_l a_l(v) L_l(v)).
+
+A frame's material table holds the objects' own materials first (a regions material's base in
+its object's slot, so per-object lookups such as the refine radius keep working), then the
+regions' materials. Points of objects without regions shade as before (one entry, weight 1);
+a vertex inside a region at weight 1 shades only the region's material, so the extra cost is
+the vertices of the soft edges (0 < w < 1), where two materials are shaded.
+
+The blend is a scatter-add (``np.bincount``) over the expanded points: the shading itself stays
+in the C kernel (glk_shade_points), which takes one material per point already.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ...models.regions import has_regions, layer_weights
+
+
+class Layers:
+    """The layers of one frame's materials (one per object, scene order).
+
+    flat : the material table's entries (the objects' materials with a regions material's base
+        in its object's slot, then every region's material).
+    objects : object index -> (slots (L,) int32 into ``flat``, a (L, n_o) float32 effective
+        weights over the object's vertices, first global vertex id of the object).
+    """
+
+    def __init__(self, materials, object_of_vertex: np.ndarray):
+        self._memo = None           # (vids, expansion, blend matrix) of the last frame's points
+        self.gathered = None        # the renderer's gathered inputs of those points (renderer.py)
+        self.flat = []
+        self.objects: dict[int, tuple[np.ndarray, np.ndarray, int]] = {}
+        offsets = None
+        for o, m in enumerate(materials):
+            if not has_regions(m):
+                self.flat.append(m)
+                continue
+            if offsets is None:
+                offsets = np.searchsorted(object_of_vertex, np.arange(len(materials) + 1))
+            n_o = int(offsets[o + 1] - offsets[o])
+            mats, a = layer_weights(m, n_o)          # RegionsError: painted on another mesh
+            self.flat.append(mats[0])
+            self.objects[o] = (np.zeros(len(mats), np.int32), a, int(offsets[o]))
+        for o, (slots, a, off) in self.objects.items():
+            slots[0] = o
+            for k, m in enumerate(materials[o].layers()[0][1:], 1):
+                slots[k] = len(self.flat)
+                self.flat.append(m)
+
+    @property
+    def any(self) -> bool:
+        return bool(self.objects)
+
+    def needed(self, objects) -> list[int]:
+        """The table slots the points of these objects are shaded with."""
+        out = set(int(o) for o in objects)
+        for o in list(out):
+            if o in self.objects:
+                out.update(int(s) for s in self.objects[o][0])
+        return sorted(out)
+
+    def expand_cached(self, vids: np.ndarray, obj_of: np.ndarray, slot_of: np.ndarray):
+        """``expand`` and the blend as a matrix (n, M), kept for the same ``vids`` array (a
+        view's visible vertices, the same object from frame to frame): a frame of the same view
+        then costs the layers' shading alone."""
+        m = self._memo
+        if m is not None and m[0] is vids:
+            return m[1], m[2]
+        import scipy.sparse as sp
+
+        src, slot, wt = self.expand(vids, obj_of, slot_of)
+        B = sp.csr_matrix((wt.astype(np.float32), (src, np.arange(len(src)))), shape=(len(vids), len(src)))
+        self._memo = (vids, (src, slot, wt), B)
+        return self._memo[1], B
+
+    def expand(self, vids: np.ndarray, obj_of: np.ndarray, slot_of: np.ndarray):
+        """Points (P,) with vertex ids ``vids`` (global), objects ``obj_of`` and their plain
+        material slots ``slot_of``, as the layer points to shade: (src (M,) int64 the point
+        each comes from, slot (M,) int32, weight (M,) float32). Points of objects without
+        regions are one entry each; a region object's point one entry per layer of weight > 0."""
+        P = len(vids)
+        plain = np.ones(P, bool)
+        src, slot, wt = [], [], []
+        for o, (slots, a, off) in self.objects.items():
+            sel = np.nonzero(obj_of == o)[0]
+            if not len(sel):
+                continue
+            plain[sel] = False
+            aw = a[:, vids[sel] - off]                      # (L, n_sel)
+            lay, col = np.nonzero(aw > 0)
+            src.append(sel[col]); slot.append(slots[lay]); wt.append(aw[lay, col])
+        rest = np.nonzero(plain)[0]
+        src.insert(0, rest); slot.insert(0, slot_of[rest].astype(np.int32)); wt.insert(0, np.ones(len(rest), np.float32))
+        return (np.concatenate(src).astype(np.int64), np.concatenate(slot).astype(np.int32),
+                np.concatenate(wt).astype(np.float32))
+
+    @staticmethod
+    def blend(rad: np.ndarray, src: np.ndarray, wt: np.ndarray, n: int) -> np.ndarray:
+        """Σ over each point's layers of weight × radiance: (n, 3) float32 from the layer
+        points' radiance rad (M, 3)."""
+        out = np.empty((n, 3), np.float32)
+        for c in range(3):
+            out[:, c] = np.bincount(src, weights=rad[:, c] * wt, minlength=n)
+        return out
+
+
+def frame_layers(materials, object_of_vertex) -> Layers | None:
+    """Layers of a frame's materials, or None when no object has regions (the common case costs
+    one type check per object)."""
+    if not any(has_regions(m) for m in materials):
+        return None
+    return Layers(materials, object_of_vertex)
