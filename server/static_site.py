@@ -7,7 +7,8 @@ them, under its public name, as a hard link in ``<data>/blobs/published/``
 from that folder (sendfile, open-file cache, no Python in the path) with the same headers the
 service sends: ``Cache-Control: public, max-age=31536000, immutable``, the digest as a strong
 ETag, and 304 for an ``If-None-Match`` naming it. ``/web/`` (the viewer's scripts and styles)
-comes from the web folder; every other path (the viewer page, the API, the studio's
+comes from the web folder; the viewer page and the manifests are proxied and held one second
+(public answers, the same for every shopper); every other path (the viewer page, the API, the studio's
 WebSocket streams) is proxied to the service, with ``X-Forwarded-For`` for its rate limits
 (set ``GLINT_TRUSTED_PROXIES`` to the proxy's address so the service believes it).
 
@@ -55,8 +56,10 @@ def nginx_conf(site: NginxSite) -> str:
         d = Path(site.run_dir)
         run = (f"pid {d / 'nginx.pid'};\n")
         temps = "".join(f"    {k}_temp_path {d / k};\n" for k in ("client_body", "proxy", "fastcgi", "uwsgi", "scgi"))
+        cache = d / "pages"
     else:
         temps = ""
+        cache = Path("/var/cache/nginx/glint-pages")
     h2 = f"        listen {site.listen_h2} http2 backlog=4096;\n" if site.listen_h2 else ""
     log = "off" if site.access_log == "off" else f"{site.access_log} glint buffer=256k flush=1s"
     err = "stderr" if site.error_log == "stderr" else site.error_log
@@ -100,6 +103,9 @@ http {{
         default upgrade;
         "" "";
     }}
+    # the viewer page and the manifests, kept for a second: a thousand shoppers opening a product
+    # page cost the service one request a second each, not one each (a republish shows within 1 s)
+    proxy_cache_path {cache} levels=1:2 keys_zone=glint_pages:4m max_size=64m inactive=60s use_temp_path=off;
     upstream glint {{
         server {site.upstream};
         keepalive 64;
@@ -132,6 +138,22 @@ http {{
         location /web/ {{
             alias {site.web}/;
             add_header X-Content-Type-Options nosniff;
+        }}
+        location ~ "^/(view/[A-Za-z0-9_-]+|v1/publications/[A-Za-z0-9_-]+/manifest)$" {{
+            proxy_pass http://glint;
+            proxy_http_version 1.1;
+            proxy_set_header Host $http_host;
+            proxy_set_header X-Forwarded-For $proxy_add_x_forwarded_for;
+            proxy_set_header X-Forwarded-Proto $scheme;
+            proxy_set_header Connection "";
+            proxy_cache glint_pages;
+            proxy_cache_methods GET HEAD;
+            # the service says no-cache (browsers revalidate); the front may hold them a second
+            proxy_ignore_headers Cache-Control Expires Set-Cookie;
+            proxy_cache_valid 200 1s;
+            proxy_cache_lock on;
+            proxy_cache_use_stale updating;
+            add_header X-Cache $upstream_cache_status;
         }}
         location / {{
             proxy_pass http://glint;
