@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install build browser postgres tools test-assets serve test docs bench bench-ray clean
+.PHONY: install build browser postgres static tools test-assets serve test docs bench bench-ray clean
 
 $(STAMP): pyproject.toml setup.py $(wildcard worker/native/src/*.c worker/native/src/*.h)
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -31,6 +31,10 @@ browser:
 postgres:
 	./scripts/ensure-postgresql
 
+# Debian's nginx and h2load for the static front's test and `glint bench viewer --static`
+static:
+	./scripts/ensure-static
+
 # Node tools of the tests (tools/package.json, pinned in tools/package-lock.json): the Khronos
 # glTF-Validator that tests/export runs on every exported .glb
 tools: tools/node_modules/.package-lock.json
@@ -48,7 +52,7 @@ test-assets: install
 # the suite waits on servers, browsers and subprocesses, so two keep both cores busy. PYTEST_WORKERS=0
 # runs it in one process.
 PYTEST_WORKERS ?= 2
-test: install browser postgres tools test-assets
+test: install browser postgres static tools test-assets
 	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -ra --durations=15 -n $(PYTEST_WORKERS) --dist loadfile $(PYTEST_ARGS)
 
 # The docs site: reference pages generated from the code (CLI parser, openapi.yaml,

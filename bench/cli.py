@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import os
 import time
+from pathlib import Path
 
 
 def cmd_bench_render(a) -> int:
@@ -171,17 +172,26 @@ def cmd_bench_publish(a) -> int:
     from .publish import bench_publish, frame_cost
 
     if a.in_process:
-        res = frame_cost(a.scene, cameras=a.cameras, width=a.width, height=a.height)
+        res = frame_cost(a.scene, cameras=a.cameras, width=a.width, height=a.height,
+                         **({"env2": Path(a.env2)} if a.env2 else {}))
         print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items()))
         return 0
     res = bench_publish(azimuths=a.azimuths, elevations=a.elevations, width=a.width, height=a.height, port=a.port,
-                        data_dir=a.data_dir, workers=a.workers, scene=a.scene, quiet=a.json)
+                        data_dir=a.data_dir, workers=a.workers, scene=a.scene, quiet=a.json, env2=a.env2)
     print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items()))
     return 0
 
 
 def cmd_bench_viewer(a) -> int:
-    from .publish import bench_viewer
+    from .publish import bench_viewer, bench_viewer_static
+
+    if a.static:
+        if not (a.publication and a.data_dir):
+            raise SystemExit("--static needs --publication and --data-dir (a bundle built by glint bench publish --data-dir D, which prints its publication)")
+        res = bench_viewer_static(a.publication, a.data_dir, clients=a.clients,
+                                  rates=[int(x) for x in a.rates.split(",")], nice=a.client_nice, quiet=a.json)
+        print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items() if k != "runs"))
+        return 0
 
     res = bench_viewer(clients=a.clients, frames=a.frames, interval=a.interval, ramp=a.ramp, runs=a.runs,
                        port=a.port, publication=a.publication, data_dir=a.data_dir, browser=not a.no_browser,
@@ -232,6 +242,7 @@ def add_bench_commands(bsub) -> None:
     bp.add_argument("--azimuths", type=int, default=72); bp.add_argument("--elevations", type=int, default=2)
     bp.add_argument("--width", type=int, default=640); bp.add_argument("--height", type=int, default=480)
     bp.add_argument("--scene", help="scene file (default: tests/scenes/bunny-ground.json)")
+    bp.add_argument("--env2", help="the second environment map (default: tests/.cache/assets/env/sunset.exr)")
     bp.add_argument("--port", type=int); bp.add_argument("--data-dir"); bp.add_argument("--workers", type=int)
     bp.add_argument("--in-process", action="store_true",
                     help="only the CPU cost per view of the frames job, in this process (no service)")
@@ -246,6 +257,11 @@ def add_bench_commands(bsub) -> None:
     bv.add_argument("--port", type=int); bv.add_argument("--publication", help="a publication on --port (default: build one)")
     bv.add_argument("--azimuths", type=int, default=72, help="of the bundle built here")
     bv.add_argument("--data-dir"); bv.add_argument("--no-browser", action="store_true", help="skip the first-image measurement")
+    bv.add_argument("--static", action="store_true",
+                    help="through nginx in front of the service, real shoppers' requests (recorded from Chromium) "
+                         "replayed by h2load (bench/static.py)")
+    bv.add_argument("--rates", default="25,50,100,200", help="with --static: shoppers arriving per second, one run each")
+    bv.add_argument("--client-nice", type=int, default=5, help="with --static: the load generator's nice level")
     bv.add_argument("--json", action="store_true")
     bv.set_defaults(fn=cmd_bench_viewer)
 

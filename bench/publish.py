@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
 import random
 import sys
 import time
@@ -67,7 +68,7 @@ def publish_body(sid: str, env2: str, ids: list[str], bundle: dict) -> dict:
 
 def bench_publish(azimuths: int = 72, elevations: int = 2, width: int = 640, height: int = 480,
                   port: int | None = None, data_dir: str | None = None, workers: int | None = None,
-                  scene: str | None = None, quiet: bool = False, keep: bool = False):
+                  scene: str | None = None, quiet: bool = False, keep: bool = False, env2: str | None = None):
     """Build a bundle of 2 variants × 2 environments × ``azimuths`` × ``elevations`` at
     width × height (and its 2× set), then republish with one variant changed. Returns the
     figures (and, with keep, the running server and the publication id)."""
@@ -75,7 +76,7 @@ def bench_publish(azimuths: int = 72, elevations: int = 2, width: int = 640, hei
 
     srv = Server(port, data_dir, quiet, workers=workers, demo=False)
     try:
-        sid, env2, ids = setup(srv, Path(scene) if scene else SCENE)
+        sid, env2, ids = setup(srv, Path(scene) if scene else SCENE, Path(env2) if env2 else SECOND_ENV)
         cam = json.loads(Path(scene or SCENE).read_text())["camera"]
         from worker.publish.turntable import default_elevations
 
@@ -108,7 +109,7 @@ def bench_publish(azimuths: int = 72, elevations: int = 2, width: int = 640, hei
             b2 = _wait(c, f"/v1/publications/{pub['id']}", lambda d: d["bundle"])
             rebuild_s = time.perf_counter() - t1
         views = len(VARIANTS) * 2 * azimuths * len(els)
-        res = {"views": views, "width": width, "height": height, "azimuths": azimuths, "elevations_deg": els,
+        res = {"publication": pub["id"], "views": views, "width": width, "height": height, "azimuths": azimuths, "elevations_deg": els,
                "build_seconds": round(build_s, 2), "build_stats": b["stats"],
                "ms_per_view": round(1e3 * build_s / views, 1),
                "worker_cpu_seconds": round(cpu1["workers"] - cpu0["workers"], 1),
@@ -294,7 +295,7 @@ def frame_cost(scene: str | None = None, cameras: int = 4, width: int = 640, hei
     opts = {"azimuths": 72, "elevations_deg": default_elevations(spec["camera"]), "width": width, "height": height,
             "samples": 1, "shading": "vertex", "tone": "neutral", "exposure": 0.0,
             "ground_shadow": bool(spec.get("ground")),
-            "encode": {"webp_quality": 80, "webp_method": 2, "jpeg_quality": 85}}
+            "encode": {"webp_quality": 80, "webp_method": 0, "jpeg_quality": 85}}
     pl = plan(payload, spec["objects"][0]["name"], [v["material"] for v in VARIANTS], env_list, opts)
     views = pl["views"][:4 * cameras]
     with tempfile.TemporaryDirectory() as d:
@@ -310,3 +311,47 @@ def frame_cost(scene: str | None = None, cameras: int = 4, width: int = 640, hei
             "wall_s_per_view": round(wall / n, 4), "stage_ms_per_view": {k: round(v / n, 1) for k, v in res["ms"].items()},
             "bytes_per_view": round(sum(sum(m["bytes"].values()) for m in res["meta"].values()) / n),
             "idle_2core_estimate_s_576_views": round(576 * cpu / n / 2, 1)}
+
+
+def bench_viewer_static(publication: str, data_dir: str, clients: int = 1000, rates=(25, 50, 100, 200), nice: int = 5,
+                        port: int | None = None, quiet: bool = False) -> dict:
+    """``clients`` shoppers of a published object through nginx in front of the service
+    (bench/static.py): the requests a real Chromium viewer makes (recorded once), replayed by
+    h2load at each arrival rate (shoppers a second) of ``rates``, the client at ``nice``.
+    Reports per-request latency (client side, every request; nginx's own time per frame),
+    offered and served rates, every process's CPU seconds, and the service's memory and
+    workers' CPU (no frame rendered)."""
+    from .static import Nginx, h2load, server_times, shopper_requests
+
+    srv = Server(port, data_dir, quiet, demo=False)
+    ngx = None
+    try:
+        ngx = Nginx(data_dir, f"127.0.0.1:{srv.port}")
+        shop = shopper_requests(ngx.base, publication)
+        ngx.rotate_log()
+        frames = sum(1 for u in shop["urls"] if u.startswith("/v1/bundle-files/"))
+        out = {"publication": publication, "clients": clients, "shopper": {
+            "requests": len(shop["urls"]), "frame_requests": frames, "on_open": shop["on_open"],
+            "first_image_ms": shop["first_image_ms"],
+            "viewport": shop["viewport"], "dpr": shop["dpr"], "first": shop["urls"][:6]}, "runs": []}
+        mem0, cpu0 = srv.memory(), srv.cpu_seconds()
+        for rate in rates:
+            n0, s0 = ngx.cpu_seconds(), srv.cpu_seconds()
+            r = h2load(ngx.base_h2, shop["urls"], clients, int(rate), nice=nice)
+            n1, s1 = ngx.cpu_seconds(), srv.cpu_seconds()
+            r["server"] = server_times(ngx.rotate_log())
+            r["nginx_cpu_seconds"] = round(n1 - n0, 2)
+            r["service_cpu_seconds"] = round(s1["server"] - s0["server"], 2)
+            r["service_rss_mib"] = round(srv.memory()["rss_mib_server"], 1)
+            r["load_average"] = [round(x, 2) for x in os.getloadavg()]
+            out["runs"].append(r)
+            if not quiet:
+                print(json.dumps(r), file=sys.stderr)
+        cpu1 = srv.cpu_seconds()
+        out.update({"service_rss_mib_before": round(mem0["rss_mib_server"], 1),
+                    "worker_cpu_seconds": round(cpu1["workers"] - cpu0["workers"], 2)})
+        return out
+    finally:
+        if ngx is not None:
+            ngx.close()
+        srv.close()

@@ -1,4 +1,4 @@
-"""The server's commands of the ``glint`` command line: serve, token create, openapi, db upgrade.
+"""The server's commands of the ``glint`` command line: serve, token create, openapi, nginx-conf, db upgrade.
 
 They live here rather than in worker/cli.py because they start or describe the service, and
 worker never imports server. glint/cli.py composes them with worker's commands and the
@@ -8,6 +8,7 @@ the parser (``glint --help``) loads neither FastAPI nor the database driver.
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 
 def cmd_serve(a) -> int:
@@ -82,6 +83,20 @@ def cmd_openapi(a) -> int:
     return write_text_or_print(openapi_yaml(), a.out)
 
 
+def cmd_nginx_conf(a) -> int:
+    """The nginx configuration of a static front (server/static_site.py) for a data folder."""
+    from worker.cli import write_text_or_print
+
+    from .static_site import NginxSite, nginx_conf
+
+    d = NginxSite()
+    site = NginxSite(published=str(Path(a.data_dir) / "blobs" / "published") if a.data_dir else d.published,
+                     web=a.web_dir or d.web, upstream=a.upstream or d.upstream, listen=a.listen or d.listen,
+                     listen_h2=a.listen_h2, workers=a.nginx_workers or d.workers, run_dir=a.run_dir,
+                     access_log=a.access_log or d.access_log, user=a.user)
+    return write_text_or_print(nginx_conf(site), a.out)
+
+
 def add_commands(sub) -> None:
     """The server's commands into the subparsers ``sub`` of a ``glint`` parser."""
     sv = sub.add_parser("serve", help="run the service (FastAPI + worker processes)")
@@ -102,6 +117,19 @@ def add_commands(sub) -> None:
 
     oa = sub.add_parser("openapi", help="print (or write) the API description as YAML")
     oa.add_argument("--out"); oa.set_defaults(fn=cmd_openapi)
+
+    ng = sub.add_parser("nginx-conf", help="print (or write) an nginx configuration that serves published bundles "
+                                           "and the web client from disk in front of the service")
+    ng.add_argument("--data-dir", help="the service's data folder (default /data, as in docker/compose.yaml)")
+    ng.add_argument("--web-dir", help="the web client's folder (default /srv/glint/web)")
+    ng.add_argument("--upstream", help="the service's host:port (default glint:8000)")
+    ng.add_argument("--listen", help="port or host:port for HTTP/1.1 (default 8080)")
+    ng.add_argument("--listen-h2", help="port or host:port for HTTP/2 over cleartext (default: none)")
+    ng.add_argument("--nginx-workers", help="worker processes (default auto: one per core)")
+    ng.add_argument("--run-dir", help="folder for nginx's pid and temporary files (default: nginx's own)")
+    ng.add_argument("--access-log", help="access log path (default off)")
+    ng.add_argument("--user", help="the workers' user (default: nginx's own)")
+    ng.add_argument("--out"); ng.set_defaults(fn=cmd_nginx_conf)
 
     dbp = sub.add_parser("db", help="the service database"); dsub = dbp.add_subparsers(dest="what", required=True)
     du = dsub.add_parser("upgrade", help="apply schema migrations (also done at every start)")

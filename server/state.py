@@ -43,6 +43,10 @@ class AppState:
         # interactive sessions' stored state: the streams' write-behind cache and their locks
         self.sessions = SessionStore(self.db, self.blobs)
         self._sweep_temp()
+        from .services.bundle_files import relink_markers
+
+        if relink_markers(self):
+            log.info("published bundle files linked for static serving")
         self.pool = pool or make_pool(settings, restore=self.session_payload)
         self.precompute_tasks: dict[str, object] = {}
         self.demo: dict = {"state": "off"}       # the demo scene's preparation, for the studio

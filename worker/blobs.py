@@ -184,9 +184,11 @@ class PartStore:
         sha = self.sha(key)
         return None if sha is None else self.blobs.get(sha)
 
-    def put(self, key: str, data: bytes) -> None:
+    def put(self, key: str, data: bytes) -> str:
+        """Store data as the part ``key``; returns its blob's SHA-256."""
         sha = self.blobs.put(data)
         atomic_write(self._key_path(key), sha.encode())
+        return sha
 
     def adopt(self, key: str, sha: str) -> None:
         """Name an existing blob as the part under ``key``."""

@@ -37,10 +37,12 @@ async def serve(st, request: Request, name: str, cache_control: str = IMMUTABLE)
 
 
 @router.get("/v1/bundle-files/{name}", response_class=Response, responses={
-    200: {"description": "a frame (image/webp, image/jpeg) or a manifest (application/json); Cache-Control: "
-                         "public, max-age=31536000, immutable; ETag: its digest",
+    200: {"description": "a frame (image/webp, image/jpeg), a manifest (application/json) or the published "
+                         "object's glTF model (model/gltf-binary); Cache-Control: public, max-age=31536000, "
+                         "immutable; ETag: its digest",
           "content": {"image/webp": {"schema": {"type": "string", "format": "binary"}},
                       "image/jpeg": {"schema": {"type": "string", "format": "binary"}},
+                      "model/gltf-binary": {"schema": {"type": "string", "format": "binary"}},
                       "application/json": {}}},
     304: {"description": "If-None-Match named this file"}, 404: {"description": "no such published file"}})
 async def get_bundle_file(name: str, request: Request, st: State):

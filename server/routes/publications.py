@@ -44,7 +44,7 @@ class EnvironmentIn(BaseModel):
 class EncodeIn(BaseModel):
     model_config = ConfigDict(extra="forbid")
     webp_quality: int = Field(80, ge=1, le=100)
-    webp_method: int = Field(2, ge=0, le=6, description="libwebp effort: higher is smaller and slower")
+    webp_method: int = Field(0, ge=0, le=6, description="libwebp effort: higher is smaller and slower (0: the fastest; 2 makes files ~20% smaller at twice the time)")
     jpeg_quality: int = Field(85, ge=1, le=100)
 
 

@@ -41,7 +41,7 @@ log = logging.getLogger("glint")
 # the bundle options a publication has when its request names none (docs/guides/publishing.md)
 DEFAULT_BUNDLE = {"azimuths": 72, "elevations_deg": None, "width": None, "height": None, "samples": 1,
                   "shading": "vertex", "tone": "neutral", "exposure": 0.0, "ground_shadow": None,
-                  "encode": {"webp_quality": 80, "webp_method": 2, "jpeg_quality": 85}}
+                  "encode": {"webp_quality": 80, "webp_method": 0, "jpeg_quality": 85}}
 MAX_VIEWS = 20_000           # variants × environments × azimuths × elevations of one bundle
 # rendered pixels of one bundle (views × its 2× frame): 5.6× the 2 × 2 × 72 × 2 views at 640×480
 # a shop's product page needs, so one request cannot occupy the workers for hours
@@ -280,12 +280,15 @@ async def run_build(st, pub_id: str, bid: str) -> bool:
             rendered += res["rendered"]
             for k, x in res["ms"].items():
                 ms[k] = ms.get(k, 0.0) + x
-        await asyncio.gather(*(one(i, v) for i, v in enumerate(jobs)))
-        man = manifest(pl, files, meta, info)
+        # the glTF model is exported beside the frames (one more job for the pool)
+        _, model = await asyncio.gather(asyncio.gather(*(one(i, v) for i, v in enumerate(jobs))),
+                                        _model(st, pl, info))
+        man = manifest(pl, files, meta, {**info, "model": model})
         data = json.dumps(man, separators=(",", ":")).encode()
         sha = await run_in_threadpool(st.blobs.put, data)
         await run_in_threadpool(bundle_files.register, st, _file_names(man) + [f"{sha}.json"])
         stats = {"views": total, "rendered": rendered, "reused": reused, "files": man["files"], "bytes": man["bytes"],
+                 "model": model,
                  "manifest_bytes": len(data), "seconds": round(time.perf_counter() - t0, 2), "batches": len(jobs),
                  "ms": {k: round(v, 1) for k, v in ms.items()}}
         await run_in_threadpool(_update, st, pub_id, bid, status="done", progress=1.0, message="done",
@@ -303,7 +306,7 @@ async def run_build(st, pub_id: str, bid: str) -> bool:
 
 
 def _file_names(man: dict) -> list[str]:
-    """Every frame file a manifest names, once each."""
+    """Every file a manifest names (frames, the model), once each."""
     from worker.publish.keys import FILES
 
     out = {}
@@ -313,7 +316,52 @@ def _file_names(man: dict) -> list[str]:
                 for f in per_el:
                     for n in FILES:
                         out[f[n]] = None
+    if (man.get("model") or {}).get("glb"):
+        out[man["model"]["glb"]] = None
     return list(out)
+
+
+MODEL_FORMAT = 1     # part of the model's content key: bump when the glTF export changes its output
+
+
+async def _model(st, pl: dict, info: dict) -> dict | None:
+    """The published object with every variant as one glTF binary (worker/export, the
+    ``KHR_materials_variants`` extension, variants named as the viewer's swatches), for
+    standard viewers and AR ("open in your own viewer"): {"glb": file name, "bytes",
+    "summary": the approximation's worst errors}, or {"error": message} when the scene cannot
+    be exported. Content-keyed like the frames (scene inputs, variants and their labels), so a
+    republish exports again only when a variant changed."""
+    import hashlib
+
+    from worker.blobs import PartStore
+    from worker.publish.keys import scene_inputs
+
+    common = pl["common"]
+    scene, obj = common["scene"], common["object"]
+    labels = info["variants"]
+    key = hashlib.sha256(json.dumps({"glb": MODEL_FORMAT, "labels": labels,
+                                     "inputs": [scene_inputs(scene, obj, m) for m in common["variants"]]},
+                                    sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+    parts = PartStore(st.blobs)
+    meta_key = hashlib.sha256(f"{key}/meta".encode()).hexdigest()
+    stored = await run_in_threadpool(parts.get, meta_key)
+    if stored is not None:
+        meta = json.loads(stored)
+        if await run_in_threadpool(st.blobs.has, meta["glb"].split(".")[0]):
+            return meta
+    job = {"type": "export", "scene": scene, "format": "gltf", "render_check": False,
+           "variants": [{"label": lab, "materials": {obj: m}} for lab, m in zip(labels, common["variants"])]}
+    try:
+        res = await st.pool.run_job(job)
+    except asyncio.CancelledError:
+        raise
+    except Exception as e:                   # the bundle is still published; the viewer offers no model
+        log.warning("publication %s: no glTF model: %s", info.get("publication"), e)
+        return {"error": str(e)[:500]}
+    sha = await run_in_threadpool(st.blobs.put, res["bytes"])
+    meta = {"glb": f"{sha}.glb", "bytes": len(res["bytes"]), "summary": res["report"].get("summary", "")}
+    await run_in_threadpool(parts.put, meta_key, json.dumps(meta).encode())
+    return meta
 
 
 def manifest_sha(s, pub_id: str) -> str:

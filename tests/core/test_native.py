@@ -31,6 +31,27 @@ def test_interpolate_env_lookup_tonemap_agree(bunny):
         assert diff.max() <= 1  # rounding of the last bit
 
 
+def test_tonemap_pair_agrees_and_its_half_is_the_linear_block_mean():
+    from worker.core.tonemap import half_mean, tonemap_pair
+
+    rng = np.random.default_rng(2)
+    x = (rng.random((30, 46, 3)) ** 3 * 3).astype(np.float32)      # dark to over-exposed
+    x[4:8, 10:20] = 0.0
+    for curve in ("linear", "aces", "neutral"):
+        a2, a1 = tonemap_pair(x, -0.3, curve, kernels("native"))
+        b2, b1 = tonemap_pair(x, -0.3, curve, kernels("numpy"))
+        assert a2.shape == (30, 46, 3) and a1.shape == (15, 23, 3) and a1.dtype == np.uint8
+        assert np.abs(a2.astype(int) - b2.astype(int)).max() <= 1      # the OETF table's rounding
+        assert np.abs(a1.astype(int) - b1.astype(int)).max() <= 1
+        # the half frame is tone-mapped from the mean radiance, not the mean of the bytes
+        lin = tonemap_numpy(x.reshape(15, 2, 23, 2, 3).mean(axis=(1, 3)), -0.3, curve).astype(int)
+        disp = b2.reshape(15, 2, 23, 2, 3).mean(axis=(1, 3))
+        assert np.abs(b1 - lin).max() <= 1 and np.abs(b1 - disp).max() > 5
+    np.testing.assert_allclose(half_mean(x)[3, 7], x[6:8, 14:16].reshape(-1, 3).mean(0), rtol=1e-6)
+    with pytest.raises(ValueError):
+        tonemap_pair(x[:29], 0.0, "neutral")
+
+
 def test_coarsen_agrees(bunny):
     from worker.core.cuts import coarsen
 

@@ -76,3 +76,35 @@ def test_only_what_changed_is_recomputed(bunny_renderer):
     cam2 = cam.model_copy(update={"eye": (0.5, 0.6, 3.0)})
     r.render(FrameRequest(camera=cam2, lighting=Lighting(45.0), materials=[GGX()]))
     assert r._view is not view and r._node_light is light          # view change: same lighting
+    # back to a lighting drawn a moment ago (a bundle alternates environments): its tables again
+    r.render(FrameRequest(camera=cam2, lighting=Lighting(0.0), materials=[GGX()]))
+    r.render(FrameRequest(camera=cam2, lighting=Lighting(45.0), materials=[GGX()]))
+    assert r._node_light is light
+
+
+def test_primary_rays_outside_the_meshs_screen_box_are_not_traced(bunny_renderer):
+    """The hits of a view whose rays are culled to the projected bounding box equal tracing
+    every ray; a far camera traces a fraction of them, a camera inside the box all of them."""
+    from worker.core.render import camera_rays
+    from worker.renderers.cuts import CutRenderer
+
+    r0 = bunny_renderer
+    r = CutRenderer(r0.scene, r0.data)
+    cam = r.scene.spec.camera
+    lo, hi = r._bounds
+    centre = (lo + hi) / 2
+    far = cam.model_copy(update={"eye": tuple(centre + 3.0 * (np.asarray(cam.eye) - centre)), "width": 96,
+                                 "height": 72})
+    edge = cam.model_copy(update={"target": tuple(centre + [0.6 * (hi - lo)[0], 0, 0]), "width": 96, "height": 72})
+    inside = cam.model_copy(update={"eye": tuple(centre), "target": tuple(centre + [0, 0, 1.0]), "width": 48,
+                                    "height": 36})
+    for c, samples in ((far, 1), (edge, 4), (inside, 1)):
+        v = r.view(c, samples)
+        o, d = camera_rays(c.eye, c.target, c.up, c.fov_y_deg, c.width, c.height, samples)
+        tri, uv, _ = r.tracer.first_hit(o, d)
+        assert np.array_equal(v.tri, tri) and np.array_equal(v.uv[tri >= 0], uv[tri >= 0])
+        if c is inside:
+            assert v.traced == len(d)
+        else:
+            assert (v.tri >= 0).any() and (v.tri < 0).any()
+    assert r.view(far).traced < 0.25 * far.width * far.height

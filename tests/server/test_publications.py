@@ -121,6 +121,15 @@ def test_bundle_manifest_immutable_files_zip_and_incremental_rebuild(server, cli
     for g in other:
         img = np.asarray(Image.open(io.BytesIO(frame(client, g["webp1"]).content)).convert("RGB"), np.float64)
         assert np.abs(img - im1).mean() > 2
+    # the glTF model of every variant, published beside the frames (for standard viewers and AR)
+    glb = frame(client, man["model"]["glb"])
+    assert glb.headers["content-type"] == "model/gltf-binary" and glb.headers["cache-control"] == IMMUTABLE
+    assert glb.content[:4] == b"glTF" and len(glb.content) == man["model"]["bytes"]
+    assert "BRDF RMSE" in man["model"]["summary"]
+    # each public file is its blob under its public name (a static server in front serves that folder)
+    pub_dir = Path(server["data"]) / "blobs" / "published"
+    for name in (f["webp1"], man["model"]["glb"]):
+        assert (pub_dir / name).stat().st_ino == (Path(server["data"]) / "blobs" / name[:2] / name.split(".")[0]).stat().st_ino
     # only published files are served: not another blob of the store by its digest, not a bad name
     env_sha = client.get(f"/v1/assets/{sunset}").json()["sha256"]
     assert client.get(f"/v1/bundle-files/{env_sha}.jpg").status_code == 404
@@ -133,8 +142,9 @@ def test_bundle_manifest_immutable_files_zip_and_incremental_rebuild(server, cli
     names = set(zf.namelist())
     assert {"index.html", "player.js", "viewer.css", "manifest.json"} <= names
     files = {n for n in names if n.startswith("files/")}
-    assert len(files) == man["files"] == len({g[k] for per_v in fr for per_e in per_v for per_el in per_e
-                                               for g in per_el for k in ("webp1", "jpeg1", "webp2")})
+    assert len(files) == man["files"] == 1 + len({g[k] for per_v in fr for per_e in per_v for per_el in per_e
+                                                   for g in per_el for k in ("webp1", "jpeg1", "webp2")})
+    assert "files/" + man["model"]["glb"] in files
     assert json.loads(zf.read("manifest.json")) == man
     index = zf.read("index.html").decode()
     assert 'src="player.js"' in index and 'data-files="files/"' in index and 'id="swatches"' in index
@@ -153,6 +163,7 @@ def test_bundle_manifest_immutable_files_zip_and_incremental_rebuild(server, cli
     assert man2.status_code == 200 and man2.headers["etag"] != etag
     fr2 = man2.json()["frames"]
     assert fr2[0] == fr[0]                                  # the red frames: the same files
+    assert man2.json()["model"]["glb"] != man["model"]["glb"]   # a variant changed: exported again
     assert all(fr2[1][e][el][a] != fr[1][e][el][a] for e in range(2) for el in range(2) for a in range(6))
     assert man2.json()["live"] is True
     assert client.post(f"/v1/publications/{pub['id']}/sessions").status_code == 201
@@ -160,3 +171,114 @@ def test_bundle_manifest_immutable_files_zip_and_incremental_rebuild(server, cli
     client.put(f"/v1/publications/{pub['id']}", json={**body, "live": True})
     b3 = wait_built(client, pub["id"])
     assert b3["stats"]["rendered"] == 0 and b3["stats"]["reused"] == views, b3["stats"]
+    assert b3["stats"]["model"] == b2["stats"]["model"]
+
+
+def test_nginx_in_front_serves_published_files_as_the_service_does(server, client, ground_scene, tmp_path):
+    """The static front (server/static_site.py, docker/nginx.conf) serves a bundle's files from
+    the published folder with the service's own headers and answers, and passes the viewer page,
+    the manifest and everything else to the service."""
+    import os
+    import shutil
+    import socket
+    import subprocess
+
+    import httpx
+
+    from helpers import free_port
+    from server.static_site import NginxSite, nginx_conf
+
+    assert nginx_conf(NginxSite()) == (ROOT / "docker" / "nginx.conf").read_text(), \
+        "docker/nginx.conf is stale: python -m glint nginx-conf --out docker/nginx.conf"
+    exe = shutil.which("nginx") or "/usr/sbin/nginx"
+    assert os.path.exists(exe), "nginx is missing: apt-get install nginx (scripts/ensure-static, `make static`)"
+    sid, sunset = ground_scene
+    red = client.post("/v1/materials", json={"name": "Red", "material": {"model": "lambert",
+                                                                          "albedo": [0.6, 0.1, 0.1]}}).json()
+    r = client.post("/v1/publications", json={"name": "front", "scene_id": sid, "variants": [{"material_id": red["id"]}],
+                                              "bundle": {"azimuths": 4, "elevations_deg": [30.0], "width": 32,
+                                                         "height": 24}})
+    assert r.status_code == 201, r.text
+    pid = r.json()["id"]
+    wait_built(client, pid)
+    man = client.get(f"/v1/publications/{pid}/manifest").json()
+
+    port = free_port()
+    run = tmp_path / "nginx"
+    run.mkdir()
+    conf = run / "nginx.conf"
+    conf.write_text(nginx_conf(NginxSite(published=str(Path(server["data"]) / "blobs" / "published"),
+                                         web=str(ROOT / "web"), upstream=f"127.0.0.1:{server['port']}",
+                                         listen=f"127.0.0.1:{port}", workers="1", run_dir=str(run),
+                                         access_log=str(run / "access.log"), error_log=str(run / "error.log"),
+                                         user="root" if os.geteuid() == 0 else None)))
+    ngx = subprocess.Popen([exe, "-c", str(conf), "-p", str(run), "-e", str(run / "error.log"), "-g", "daemon off;"],
+                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        for _ in range(100):
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=0.5).close()
+                break
+            except OSError:
+                assert ngx.poll() is None, (run / "error.log").read_text()
+                time.sleep(0.1)
+        with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30) as c:
+            f = man["frames"][0][0][0][1]
+            for name, media in ((f["webp1"], "image/webp"), (f["jpeg1"], "image/jpeg"), (f["webp2"], "image/webp"),
+                                (man["model"]["glb"], "model/gltf-binary")):
+                a, b = c.get(f"/v1/bundle-files/{name}"), client.get(f"/v1/bundle-files/{name}")
+                assert a.status_code == 200 and a.content == b.content, (name, a.status_code)
+                assert a.headers["content-type"] == media and a.headers["cache-control"] == IMMUTABLE
+                assert a.headers["etag"] == b.headers["etag"] == f'"{name.split(".")[0]}"'
+                assert a.headers["x-content-type-options"] == "nosniff"
+                for inm in (a.headers["etag"], "W/" + a.headers["etag"]):
+                    nm = c.get(f"/v1/bundle-files/{name}", headers={"If-None-Match": inm})
+                    assert nm.status_code == 304 and nm.headers["etag"] == a.headers["etag"], inm
+                    assert nm.headers["cache-control"] == IMMUTABLE
+                assert c.get(f"/v1/bundle-files/{name}", headers={"If-None-Match": '"0000"'}).status_code == 200
+            # only published files: not another blob by its digest, not a bad name
+            env_sha = client.get(f"/v1/assets/{sunset}").json()["sha256"]
+            assert c.get(f"/v1/bundle-files/{env_sha}.jpg").status_code == 404
+            assert c.get("/v1/bundle-files/..%2F..%2Fkeys.json").status_code == 404
+            # the page, its scripts and the manifest: the viewer works through the front
+            page = c.get(f"/view/{pid}")
+            assert page.status_code == 200 and "/web/js/viewer.js" in page.text, page.status_code
+            assert c.get("/web/js/player.js").content == (ROOT / "web" / "js" / "player.js").read_bytes()
+            mf = c.get(f"/v1/publications/{pid}/manifest")
+            assert mf.status_code == 200 and mf.json() == man and mf.headers["cache-control"] == "no-cache"
+            # the page and the manifest are held a second by the front: shoppers arriving together
+            # cost the service one request, and browsers still revalidate (no-cache)
+            hits = [c.get(f"/v1/publications/{pid}/manifest").headers.get("x-cache") for _ in range(3)]
+            assert "HIT" in hits, hits
+        subprocess.run([exe, "-c", str(conf), "-p", str(run), "-e", str(run / "error.log"), "-s", "reopen"], check=True)
+        time.sleep(0.5)
+        log = (run / "access.log").read_text().splitlines()
+        frames = [line.split(" ") for line in log if "/v1/bundle-files/" in line and " 200 " in line]
+        assert frames and all(float(x[3]) >= 0 for x in frames)         # nginx's own time per request
+    finally:
+        ngx.terminate()
+        ngx.wait(timeout=20)
+
+
+def test_register_links_public_names_to_their_blobs(tmp_path):
+    """A public file is its blob under its public name (a hard link a static server can serve);
+    the empty markers of older versions are relinked at start-up."""
+    import os
+    import types
+
+    from server.services.bundle_files import load, register, relink_markers
+    from worker.blobs import BlobStore
+
+    st = types.SimpleNamespace(blobs=BlobStore(tmp_path / "blobs"))
+    a, b = st.blobs.put(b"frame a" * 100), st.blobs.put(b"frame b" * 100)
+    register(st, [f"{a}.webp"])
+    pub = tmp_path / "blobs" / "published"
+    assert os.path.samefile(pub / f"{a}.webp", st.blobs.path(a)) and (pub / f"{a}.webp").stat().st_mode & 0o004
+    assert load(st, f"{a}.webp") == b"frame a" * 100
+    (pub / f"{b}.jpg").touch()                       # an older version's empty marker
+    assert relink_markers(st) == 1 and (pub / f"{b}.jpg").read_bytes() == b"frame b" * 100
+    assert relink_markers(st) == 0
+    register(st, [f"{a}.webp"])                      # again: nothing changes
+    assert os.path.samefile(pub / f"{a}.webp", st.blobs.path(a))
+    with pytest.raises(ValueError):
+        register(st, ["../x.webp"])

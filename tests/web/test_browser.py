@@ -2,13 +2,16 @@
 against the real server fixture. Screenshots of every step go to test-artifacts/web-*.png."""
 import json
 import time
+import urllib.parse
 
 import numpy as np
 import pytest
 
-from helpers import drag, frame_no, settle, wait_new_frame
+from helpers import drag, frame_no, settle, validate_gltf, wait_new_frame
 
 pw = pytest.importorskip("playwright.sync_api")
+ANDROID_UA = ("Mozilla/5.0 (Linux; Android 14; Pixel 8) AppleWebKit/537.36 (KHTML, like Gecko) Chrome/131.0.0.0 "
+              "Mobile Safari/537.36")
 
 # luminance on a coarse grid of the frame canvas, read in the page (a few KB, not 1.2 MB)
 GRID_JS = """(id) => {
@@ -176,7 +179,8 @@ def test_viewer_plays_the_bundle_on_phones(server, bunny_scene, client, browser,
         time.sleep(0.25)
     assert b["status"] == "done", b
 
-    ctx = browser.new_context(viewport={"width": 390, "height": 844}, is_mobile=True, has_touch=True, accept_downloads=True)
+    ctx = browser.new_context(viewport={"width": 390, "height": 844}, is_mobile=True, has_touch=True, accept_downloads=True,
+                              user_agent=ANDROID_UA)
     page = ctx.new_page()
     errors, requests = [], []
     page.on("pageerror", lambda e: errors.append(str(e)))
@@ -195,6 +199,21 @@ def test_viewer_plays_the_bundle_on_phones(server, bunny_scene, client, browser,
     assert page.locator("#environment option").all_inner_texts() == ["Sunset", "Sunset, turned"]
     assert page.locator("#readout").count() == 0 and "fps" not in page.inner_text("body")   # no debug figures
     page.screenshot(path=str(artifacts / "web-7-phone.png"))
+
+    # the published design as a glTF model for any viewer, and on Android for Scene Viewer (AR)
+    href = page.get_attribute("#model-file", "href")
+    assert page.locator("#model-file").is_visible() and href.endswith(".glb"), href
+    ar = page.get_attribute("#ar", "href")
+    assert page.locator("#ar").is_visible() and ar.startswith("intent://arvr.google.com/scene-viewer/1.0?file=")
+    assert urllib.parse.unquote(ar.split("file=", 1)[1].split("&", 1)[0]) == href    # its absolute URL
+    glb = client.get(urllib.parse.urlsplit(href).path)
+    assert glb.status_code == 200 and glb.headers["content-type"] == "model/gltf-binary", glb.headers
+    assert "immutable" in glb.headers["cache-control"]
+    (tmp_path / "published.glb").write_bytes(glb.content)
+    rep = validate_gltf(tmp_path / "published.glb")
+    assert rep["issues"]["numErrors"] == 0, rep["issues"]
+    doc = json.loads(glb.content[20:20 + int.from_bytes(glb.content[12:16], "little")])
+    assert [v["name"] for v in doc["extensions"]["KHR_materials_variants"]["variants"]] == ["Cherry red", "Ocean blue"]
 
     # a swipe turns the object: frames swap locally, nothing goes to a session or a worker
     before = len(requests)
@@ -279,6 +298,10 @@ def test_viewer_plays_the_bundle_on_phones(server, bunny_scene, client, browser,
         wait_drawn(page, n)
         assert np.abs(grid(page) - g0).mean() > 1
         assert page.locator(".swatch").all_inner_texts() == ["Cherry red", "Ocean blue"]
+        assert not page.locator("#ar").is_visible()                     # a desktop: no Scene Viewer link
+        model = page.get_attribute("#model-file", "href")
+        assert model.startswith(f"http://127.0.0.1:{port}/files/") and model.endswith(".glb")
+        assert page.evaluate("async (u) => (await fetch(u)).status", model) == 200     # the static host has it
         assert set(hosts) == {f"127.0.0.1:{port}"}, set(hosts)        # everything from the static host
         page.screenshot(path=str(artifacts / "web-11-static-bundle.png"))
         assert not errors, errors

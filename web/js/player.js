@@ -263,6 +263,7 @@ export function buildUi(player, ui, name) {
   ui.environment.onchange = () => player.setEnvironment(+ui.environment.value);
   ui.zoomIn.onclick = () => player.setZoom(player.zoom * 1.5);
   ui.zoomOut.onclick = () => player.setZoom(player.zoom / 1.5);
+  modelLinks(m, player.files, ui, name);
   ui.screenshot.onclick = async () => {
     const blob = await player.screenshot();
     const a = document.createElement("a");
@@ -274,10 +275,30 @@ export function buildUi(player, ui, name) {
   };
 }
 
+/** The published object's glTF model (every variant, KHR_materials_variants), offered to any
+ *  3D viewer as a download, and on Android to Google's Scene Viewer (AR), which takes the
+ *  file by its absolute URL. iOS Quick Look reads USDZ only, which bundles do not carry. */
+export function modelLinks(m, files, ui, name, ua = navigator.userAgent) {
+  const glb = m.model && m.model.glb;
+  if (!ui.model || !glb) return;
+  const url = new URL(files + glb, location.href);
+  ui.model.href = url.href;
+  ui.model.download = `${(name || "glint").replace(/[^\w.-]+/g, "_")}.glb`;
+  ui.model.classList.remove("hidden");
+  if (ui.ar && /Android/i.test(ua)) {
+    const q = `file=${encodeURIComponent(url.href)}&mode=ar_preferred&title=${encodeURIComponent(name || "")}`;
+    ui.ar.href = `intent://arvr.google.com/scene-viewer/1.0?${q}#Intent;scheme=https;` +
+      "package=com.google.android.googlequicksearchbox;action=android.intent.action.VIEW;" +
+      `S.browser_fallback_url=${encodeURIComponent(url.href)};end;`;
+    ui.ar.classList.remove("hidden");
+  }
+}
+
 export function uiElements(doc = document) {
   const $ = (id) => doc.getElementById(id);
   return { stage: $("stage"), canvas: $("view"), swatches: $("swatches"), environment: $("environment"),
-    zoomIn: $("zoom-in"), zoomOut: $("zoom-out"), screenshot: $("screenshot"), status: $("status"), live: $("live") };
+    zoomIn: $("zoom-in"), zoomOut: $("zoom-out"), screenshot: $("screenshot"), status: $("status"), live: $("live"),
+    model: $("model-file"), ar: $("ar") };
 }
 
 /** Play a manifest in the page's viewer markup; returns the player. */

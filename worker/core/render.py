@@ -37,6 +37,13 @@ def camera_rays(eye, target, up, fov_y_deg: float, width: int, height: int, samp
     The unit directions in the camera frame depend only on the field of view, the image size and
     the samples (cached); a view change rotates them into the world with one 3×3 product
     (``rotate_dirs_numpy``, the reference of the C kernel glk_rotate_dirs)."""
+    d = camera_dirs(eye, target, up, fov_y_deg, width, height, samples, kernels)
+    return np.broadcast_to(np.asarray(eye, np.float32), d.shape).copy(), d
+
+
+def camera_dirs(eye, target, up, fov_y_deg: float, width: int, height: int, samples: int = 1, kernels=None):
+    """The (H*W*S, 3) float32 unit directions of ``camera_rays`` alone (every ray starts at the
+    eye: a renderer that traces some of them makes their origins itself)."""
     eye = np.asarray(eye, np.float64)
     fwd = np.asarray(target, np.float64) - eye
     fwd /= np.linalg.norm(fwd)
@@ -44,9 +51,8 @@ def camera_rays(eye, target, up, fov_y_deg: float, width: int, height: int, samp
     right /= np.linalg.norm(right)
     true_up = np.cross(right, fwd)
     basis = np.stack([right, true_up, fwd]).astype(np.float32)       # rows: camera axes in world
-    d = (kernels or _kernels()).rotate_dirs(_camera_space_dirs(float(fov_y_deg), int(width), int(height),
-                                                                int(samples)), basis)
-    return np.broadcast_to(eye.astype(np.float32), d.shape).copy(), d
+    return (kernels or _kernels()).rotate_dirs(_camera_space_dirs(float(fov_y_deg), int(width), int(height),
+                                                                   int(samples)), basis)
 
 
 def rotate_dirs_numpy(dirs, basis) -> np.ndarray:

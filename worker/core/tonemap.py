@@ -62,3 +62,29 @@ def tonemap(rgb: np.ndarray, exposure: float = 0.0, curve: str = "neutral", kern
     from ..native.kernels import kernels as _kernels
 
     return (kernels or _kernels()).tonemap(rgb, exposure, curve)
+
+
+def half_mean(rgb: np.ndarray) -> np.ndarray:
+    """(2H, 2W, 3) float32 linear radiance -> (H, W, 3) float32, the mean of each 2 × 2 block
+    (the pixel's mean radiance over its footprint), summed in the C kernel's order."""
+    h, w = rgb.shape[0] // 2, rgb.shape[1] // 2
+    r = np.asarray(rgb, np.float32)[:2 * h, :2 * w]
+    return ((r[0::2, 0::2] + r[0::2, 1::2]) + (r[1::2, 0::2] + r[1::2, 1::2])) * np.float32(0.25)
+
+
+def tonemap_pair_numpy(rgb: np.ndarray, exposure: float = 0.0, curve: str = "neutral"):
+    """NumPy reference of glk_tonemap_pair: a (2H, 2W, 3) float32 linear frame -> (its (2H, 2W, 3)
+    uint8 sRGB image, the (H, W, 3) uint8 sRGB image of its 2 × 2 block means in linear radiance)."""
+    return tonemap_numpy(rgb, exposure, curve), tonemap_numpy(half_mean(rgb), exposure, curve)
+
+
+def tonemap_pair(rgb: np.ndarray, exposure: float = 0.0, curve: str = "neutral", kernels=None):
+    """(2H, 2W, 3) float32 linear frame -> (2H × 2W uint8 sRGB, H × W uint8 sRGB of its 2 × 2 block
+    means); see tonemap_pair_numpy. kernels: the backend."""
+    if curve not in CURVES:
+        raise ValueError(f"unknown tone curve {curve!r}; choose one of {sorted(CURVES)}")
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.shape[0] % 2 or rgb.shape[1] % 2:
+        raise ValueError(f"tonemap_pair: a (2H, 2W, 3) frame, not {rgb.shape}")
+    from ..native.kernels import kernels as _kernels
+
+    return (kernels or _kernels()).tonemap_pair(rgb, exposure, curve)

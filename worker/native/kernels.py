@@ -129,6 +129,10 @@ class NumpyKernels(_Families):
         from ..core.tonemap import tonemap_numpy
         return tonemap_numpy(rgb, exposure, curve)
 
+    def tonemap_pair(self, rgb, exposure, curve):
+        from ..core.tonemap import tonemap_pair_numpy
+        return tonemap_pair_numpy(rgb, exposure, curve)
+
 
 class NativeKernels(_Families):
     """Typed wrappers of the C kernels in src/*.c (glintk.c, shade.c, lighting.c, frame.c, fit.c)."""
@@ -170,6 +174,9 @@ class NativeKernels(_Families):
             "glk_energy_rows", None, K=i64, wo=f64p, J=i32, centers=f64p, lam=f64p, xcut=f64, static_kind=i32,
             static_alpha=f64, f0=f64, nt=i32, tn=f64p, tw=f64p, nphi=i32, out=f64p)
         self._tonemap = bind("glk_tonemap", None, P=i64, rgb=f32p, exposure=f64, curve=i32, out=u8p)
+        self._tonemap_pair = bind("glk_tonemap_pair", None, H=i64, W=i64, rgb=f32p, lut=u8p, out2=u8p, out1=u8p)
+        self._tonemap_lut = bind("glk_tonemap_lut", None, exposure=f64, curve=i32, lut=u8p)
+        self._tonemap_lut_size = bind("glk_tonemap_lut_size", i64)
 
     def simd(self, want: int = -1) -> int:
         """The shading kernel's vector path: want −1 asks, 0 forces scalar, 1 the best the CPU
@@ -335,6 +342,25 @@ class NativeKernels(_Families):
         out = np.empty(src.shape, np.uint8)
         self._tonemap(src.size // 3, src, float(exposure), CURVES[curve], out)
         return out
+
+    def tonemap_pair(self, rgb, exposure, curve):
+        from ..core.tonemap import CURVES
+
+        src = c(rgb, np.float32)
+        h, w = src.shape[0] // 2, src.shape[1] // 2
+        out2 = np.empty(src.shape, np.uint8)
+        out1 = np.empty((h, w, 3), np.uint8)
+        self._tonemap_pair(h, w, src, self.tonemap_lut(float(exposure), CURVES[curve]), out2, out1)
+        return out2, out1
+
+    @lru_cache(maxsize=8)
+    def tonemap_lut(self, exposure: float, curve: int) -> np.ndarray:
+        """The (2¹⁹,) uint8 table of glk_tonemap_pair for one exposure and curve (512 KB; the
+        last few kept: a bundle uses one)."""
+        lut = np.empty(int(self._tonemap_lut_size()), np.uint8)
+        self._tonemap_lut(float(exposure), int(curve), lut)
+        lut.setflags(write=False)
+        return lut
 
 
 _CS: dict = {}

@@ -20,18 +20,21 @@ from __future__ import annotations
 import io
 import json
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
 from .keys import file_key
 
-DEFAULT_ENCODE = {"webp_quality": 80, "webp_method": 2, "jpeg_quality": 85}
+DEFAULT_ENCODE = {"webp_quality": 80, "webp_method": 0, "jpeg_quality": 85}
 
 
 def downsample2(radiance: np.ndarray) -> np.ndarray:
-    """(2H, 2W, 3) float32 linear radiance -> (H, W, 3) float32, the mean of each 2 × 2 block."""
-    h, w = radiance.shape[0] // 2, radiance.shape[1] // 2
-    return radiance[:2 * h, :2 * w].reshape(h, 2, w, 2, 3).mean(axis=(1, 3), dtype=np.float32)
+    """(2H, 2W, 3) float32 linear radiance -> (H, W, 3) float32, the mean of each 2 × 2 block
+    (the 1× frame's radiance; the job tone-maps both in one pass, core.tonemap.tonemap_pair)."""
+    from worker.core.tonemap import half_mean
+
+    return half_mean(radiance)
 
 
 def encode(rgb1: np.ndarray, rgb2: np.ndarray, enc: dict) -> dict[str, bytes]:
@@ -67,7 +70,7 @@ def render_frames(cache, p: dict, progress) -> dict:
     {"samples", "shading", "tone", "exposure", "ground_shadow"}, "encode": encoder settings}.
     Returns {"files": {key: {name: sha256}}, "meta": {key: meta}, "rendered", "skipped",
     "seconds", "ms": {stage: total ms}}. A view whose files are already stored is skipped."""
-    from worker.core.tonemap import tonemap
+    from worker.core.tonemap import tonemap_pair
     from worker.models import parse_material
     from worker.renderers import FrameRequest, Lighting
     from worker.scene import Camera
@@ -94,44 +97,56 @@ def render_frames(cache, p: dict, progress) -> dict:
     ms = {"render": 0.0, "tone": 0.0, "encode": 0.0, "store": 0.0}
     out_files, out_meta, rendered, skipped = {}, {}, 0, 0
     env_now = None
-    for n, v in enumerate(views):
-        key = v["key"]
-        mk = file_key(key, "meta")
-        if cache.parts.sha(mk) is not None:          # stored meanwhile (another batch, an earlier build)
-            out_files[key] = {k: cache.parts.sha(file_key(key, k)) for k in ("webp1", "jpeg1", "webp2")}
-            out_meta[key] = json.loads(cache.parts.get(mk))
-            skipped += 1
+    storer, stores = ThreadPoolExecutor(1, thread_name_prefix="glint-store"), []
+    try:
+        for n, v in enumerate(views):
+            key = v["key"]
+            mk = file_key(key, "meta")
+            if cache.parts.sha(mk) is not None:          # stored meanwhile (another batch, an earlier build)
+                out_files[key] = {k: cache.parts.sha(file_key(key, k)) for k in ("webp1", "jpeg1", "webp2")}
+                out_meta[key] = json.loads(cache.parts.get(mk))
+                skipped += 1
+                progress((n + 1) / len(views), f"{n + 1}/{len(views)} frames")
+                continue
+            e = p["environments"][v["environment"]]
+            if env_now != e["sha256"]:
+                r.set_environment(cache.envmap(e))
+                env_now = e["sha256"]
+            a = time.perf_counter()
+            res = r.render(FrameRequest(camera=Camera.model_validate(v["camera"]),
+                                        lighting=Lighting(e["rotation_deg"], e["intensity"]),
+                                        materials=mats[v["variant"]], samples=rend["samples"], shading=rend["shading"],
+                                        ground_shadow=rend["ground_shadow"]))
+            b = time.perf_counter()
+            rgb2, rgb1 = tonemap_pair(res.radiance, rend["exposure"], rend["tone"])
+            c = time.perf_counter()
+            files = encode(rgb1, rgb2, enc)
+            d = time.perf_counter()
+            colour, cover = swatch(rgb1, res.object_id[::2, ::2][:rgb1.shape[0], :rgb1.shape[1]] == oi)
+            meta = {"swatch": colour, "coverage": round(cover, 4),
+                    "bytes": {k: len(b_) for k, b_ in files.items()}}
+            # stored on the store thread (each file is fsynced: the waits overlap the next render)
+            stores.append(storer.submit(_store, cache.parts, key, files, meta))
+            ms["render"] += (b - a) * 1e3
+            ms["tone"] += (c - b) * 1e3
+            ms["encode"] += (d - c) * 1e3
+            out_files[key], out_meta[key] = None, meta
+            rendered += 1
             progress((n + 1) / len(views), f"{n + 1}/{len(views)} frames")
-            continue
-        e = p["environments"][v["environment"]]
-        if env_now != e["sha256"]:
-            r.set_environment(cache.envmap(e))
-            env_now = e["sha256"]
-        a = time.perf_counter()
-        res = r.render(FrameRequest(camera=Camera.model_validate(v["camera"]),
-                                    lighting=Lighting(e["rotation_deg"], e["intensity"]),
-                                    materials=mats[v["variant"]], samples=rend["samples"], shading=rend["shading"],
-                                    ground_shadow=rend["ground_shadow"]))
-        b = time.perf_counter()
-        rgb2 = tonemap(res.radiance, rend["exposure"], rend["tone"])
-        rgb1 = tonemap(downsample2(res.radiance), rend["exposure"], rend["tone"])
-        c = time.perf_counter()
-        files = encode(rgb1, rgb2, enc)
-        d = time.perf_counter()
-        colour, cover = swatch(rgb1, res.object_id[::2, ::2][:rgb1.shape[0], :rgb1.shape[1]] == oi)
-        meta = {"swatch": colour, "coverage": round(cover, 4),
-                "bytes": {k: len(b_) for k, b_ in files.items()}}
-        shas = {}
-        for name, data in files.items():
-            cache.parts.put(file_key(key, name), data)
-            shas[name] = cache.parts.sha(file_key(key, name))
-        cache.parts.put(mk, json.dumps(meta).encode())
-        ms["render"] += (b - a) * 1e3
-        ms["tone"] += (c - b) * 1e3
-        ms["encode"] += (d - c) * 1e3
-        ms["store"] += (time.perf_counter() - d) * 1e3
-        out_files[key], out_meta[key] = shas, meta
-        rendered += 1
-        progress((n + 1) / len(views), f"{n + 1}/{len(views)} frames")
+        for f in stores:
+            key, shas, dt = f.result()
+            out_files[key] = shas
+            ms["store"] += dt
+    finally:
+        storer.shutdown(wait=True)          # a failed frame's batch still finishes what it stored
     return {"files": out_files, "meta": out_meta, "rendered": rendered, "skipped": skipped,
             "seconds": time.perf_counter() - t0, "ms": {k: round(x, 1) for k, x in ms.items()}}
+
+
+def _store(parts, key: str, files: dict[str, bytes], meta: dict) -> tuple[str, dict, float]:
+    """Store one frame's files, then its meta (last: its presence means the frame is complete).
+    Returns (key, {name: sha256}, milliseconds)."""
+    t = time.perf_counter()
+    shas = {name: parts.put(file_key(key, name), data) for name, data in files.items()}
+    parts.put(file_key(key, "meta"), json.dumps(meta).encode())
+    return key, shas, (time.perf_counter() - t) * 1e3

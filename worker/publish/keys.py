@@ -14,7 +14,7 @@ from __future__ import annotations
 import hashlib
 import json
 
-FRAME_FORMAT = 1
+FRAME_FORMAT = 2          # 2: the 1× frame tone-mapped in the same pass as the 2× (glk_tonemap_pair)
 # the encoded files of one frame: its name in the manifest -> (PartStore key suffix, extension)
 FILES = {"webp1": ".webp", "jpeg1": ".jpg", "webp2": ".webp"}
 

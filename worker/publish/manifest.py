@@ -11,6 +11,7 @@ The manifest is the one file a viewer reads first (docs/guides/publishing.md doc
      "variants": [{"label": str, "swatch": "#rrggbb"}], "environments": [{"label": str}],
      "ground_shadow": bool, "live": bool,
      "frames": [[[[{"webp1": file, "jpeg1": file, "webp2": file} × A] × E] × environments] × variants],
+     "model": {"glb": file, "bytes": n, "summary": str} or None,   # every variant in one glTF binary
      "files": count, "bytes": total}
 
 A file is named ``<sha256 of its bytes>.<ext>``; the service serves it at
@@ -60,7 +61,7 @@ def file_name(sha: str, name: str) -> str:
 def manifest(pl: dict, files: dict, meta: dict, info: dict) -> dict:
     """The manifest of a plan whose views are all stored. files : key -> {name: sha256};
     meta : key -> frames.py meta; info : {"name", "publication", "variants": [labels],
-    "environments": [labels], "live"}."""
+    "environments": [labels], "live", "model": {"glb", "bytes", "summary"} or {"error"} or None}."""
     nv, ne = len(info["variants"]), len(info["environments"])
     ne_l, na = len(pl["elevations_deg"]), len(pl["azimuths_deg"])
     frames = [[[[None] * na for _ in range(ne_l)] for _ in range(ne)] for _ in range(nv)]
@@ -76,10 +77,13 @@ def manifest(pl: dict, files: dict, meta: dict, info: dict) -> dict:
                 total += m["bytes"][n]
         if v["environment"] == 0 and v["elevation"] == 0 and v["azimuth"] == 0:
             swatches[v["variant"]] = "#%02x%02x%02x" % tuple(m["swatch"])
+    model = info.get("model")
+    model = {k: model[k] for k in ("glb", "bytes", "summary")} if model and model.get("glb") else None
     return {"format": "glint-bundle", "version": 1, "name": info["name"], "publication": info["publication"],
             "width": pl["width"], "height": pl["height"], "azimuths_deg": pl["azimuths_deg"],
             "elevations_deg": pl["elevations_deg"], "start": {"elevation": 0, "azimuth": 0},
             "variants": [{"label": lab, "swatch": swatches[i]} for i, lab in enumerate(info["variants"])],
             "environments": [{"label": lab} for lab in info["environments"]],
             "ground_shadow": bool(info.get("ground_shadow")), "live": bool(info.get("live")),
-            "frames": frames, "files": len(names), "bytes": total}
+            "frames": frames, "model": model, "files": len(names) + (model is not None),
+            "bytes": total + (model["bytes"] if model else 0)}

@@ -227,4 +227,66 @@ void glk_tonemap(int64_t P, const float *rgb, double exposure, int curve, uint8_
     }
 }
 
+/* A frame and its half-resolution copy for display (worker/publish/frames.py): the (2H, 2W)
+ * linear frame tone-mapped to out2, and the mean of each 2 × 2 block of it, in linear radiance
+ * (the pixel's mean radiance over its footprint: four samples per pixel), tone-mapped to out1
+ * (H, W). One pass over the frame instead of a tone mapping, a NumPy block mean and another
+ * tone mapping. Reference: tonemap_pair_numpy (core/tonemap.py).
+ *
+ * The tone mapping itself is one table read per value: lut (TM_LUT_N bytes, glk_tonemap_lut,
+ * made once per exposure and curve by the caller) indexed by the float's top 19 bits (sign,
+ * exponent and 10 mantissa bits), read at the bucket's middle: within 0.05% of the value, so
+ * within 0.05 of an 8-bit level of evaluating the curve (the sRGB curve's slope in log terms is
+ * at most 106 levels per unit), at a fraction of its cost per value. */
+#define TM_LUT_SHIFT 13
+#define TM_LUT_N (1 << (32 - TM_LUT_SHIFT))
+
+int64_t glk_tonemap_lut_size(void) { return TM_LUT_N; }
+
+void glk_tonemap_lut(double exposure, int curve, uint8_t *lut) {
+    if (!oetf_ready) {
+        for (int i = 0; i <= OETF_N; i++) {
+            int v = (int)lrint(srgb_oetf((double)i / OETF_N) * 255.0);
+            oetf_lut[i] = (uint8_t)(v < 0 ? 0 : (v > 255 ? 255 : v));
+        }
+        oetf_ready = 1;
+    }
+    double scale = pow(2.0, exposure);
+#pragma omp parallel for schedule(static)
+    for (int64_t i = 0; i < TM_LUT_N; i++) {
+        uint32_t bits = ((uint32_t)i << TM_LUT_SHIFT) | (1u << (TM_LUT_SHIFT - 1));   /* the bucket's middle */
+        float x;
+        memcpy(&x, &bits, sizeof x);
+        if (x != x) x = 0.0f;                                  /* NaN: black */
+        double y = (double)x * scale;
+        if (y > 1e30) y = 1e30;                                 /* +inf: white */
+        lut[i] = oetf_lut[(int)(tm_curve(curve, y) * OETF_N + 0.5)];
+    }
+}
+
+static inline uint8_t tm_lookup(const uint8_t *lut, float x) {
+    uint32_t bits;
+    memcpy(&bits, &x, sizeof bits);
+    return lut[bits >> TM_LUT_SHIFT];
+}
+
+void glk_tonemap_pair(int64_t H, int64_t W, const float *rgb, const uint8_t *lut, uint8_t *out2, uint8_t *out1) {
+    int64_t W2 = 2 * W;
+#pragma omp parallel for schedule(static)
+    for (int64_t y = 0; y < H; y++) {
+        const float *r0 = rgb + (2 * y) * W2 * 3, *r1 = r0 + W2 * 3;
+        uint8_t *o0 = out2 + (2 * y) * W2 * 3, *o1 = o0 + W2 * 3, *h = out1 + y * W * 3;
+        for (int64_t j = 0; j < 6 * W; j++) {
+            o0[j] = tm_lookup(lut, r0[j]);
+            o1[j] = tm_lookup(lut, r1[j]);
+        }
+        for (int64_t x = 0; x < W; x++) {
+            for (int k = 0; k < 3; k++) {
+                int64_t a = (2 * x) * 3 + k, b = a + 3;
+                h[3 * x + k] = tm_lookup(lut, 0.25f * ((r0[a] + r0[b]) + (r1[a] + r1[b])));
+            }
+        }
+    }
+}
+
 /* The transfer functions of the SRBF basis (paint to BRDF) are in fit.c (glk_fit_transfer). */

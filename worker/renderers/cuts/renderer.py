@@ -57,6 +57,7 @@ from ...core.lighting import light_tables
 from ...core.render import (
     MaterialTable,
     background,
+    camera_dirs,
     camera_rays,
     env_coords,
     resolve,
@@ -73,6 +74,7 @@ from .refine import Refinement
 
 DRAG_REFINE = 0.1   # drag level of detail: clusters refined to no finer than 0.1 rad (a GGX α = 0.05's)
 CANCEL_CHUNK = 1024  # vertices shaded between checkpoints (FrameRequest.cancelled): ~10 ms of a fitted srbf, one core
+LIGHTS_KEPT = 4     # light tables (and ground shadows) of the last few lightings, for frames that alternate
 DRAG_TAU = 16.0     # drag level of detail: cuts coarsened to τ = 16 (0.4% image change on the demo chair)
 _pool = None
 
@@ -129,6 +131,7 @@ class View:
     bgbuf: np.ndarray | None = None
     bg_key: object = None
     refinement: Refinement | None = None
+    traced: int = 0          # primary rays traced (the others cannot hit the mesh: ``_screen_box``)
 
 
 @dataclass
@@ -170,9 +173,13 @@ class CutRenderer(Renderer):
         self._light_key = None
         self._node_light = None
         self._node8 = None
+        self._lights: OrderedDict = OrderedDict()   # light key -> (its LeafLighting, node_light, node8)
         self._ground_key = None
         self._ground_factor = None
+        self._grounds: OrderedDict = OrderedDict()  # ground key -> (its LeafLighting, factor grid)
         self._vert = np.zeros((len(scene.mesh.vertices), 3), np.float32)
+        vx = np.asarray(scene.mesh.vertices, np.float64)
+        self._bounds = (vx.min(0), vx.max(0)) if len(vx) else (np.zeros(3), np.zeros(3))
         self._mats_key = None
         self._mats: MaterialTable | None = None
         self._layers_key = self._layers = self._layers_refs = None
@@ -229,9 +236,19 @@ class CutRenderer(Renderer):
                 if v.samples == samples and v.camera == camera:
                     self._view = v
                     return v
-        o, d = camera_rays(camera.eye, camera.target, camera.up, camera.fov_y_deg, camera.width, camera.height,
-                           samples, kernels=self.k)
-        tri, uv = self._first_hit(o, d)
+        d = camera_dirs(camera.eye, camera.target, camera.up, camera.fov_y_deg, camera.width, camera.height,
+                        samples, kernels=self.k)
+        rows = self._box_rows(camera, samples)
+        eye = np.asarray(camera.eye, np.float32)
+        if rows is None:
+            tri, uv = self._first_hit(np.broadcast_to(eye, d.shape).copy(), d)
+            traced = len(d)
+        else:                   # the rest of the frame sees the background: its rays are not traced
+            tri = np.full(len(d), -1, np.int32)
+            uv = np.zeros((len(d), 2), np.float32)
+            if len(rows):
+                tri[rows], uv[rows] = self._first_hit(np.broadcast_to(eye, (len(rows), 3)).copy(), d[rows])
+            traced = len(rows)
         mesh = self.scene.mesh
         # faces and vertices seen, by marking (O(P + F), no sort)
         fmask = np.zeros(len(mesh.faces), bool)
@@ -243,7 +260,8 @@ class CutRenderer(Renderer):
         wo /= np.linalg.norm(wo, axis=1, keepdims=True)
         bg = np.nonzero(tri < 0)[0]
         bgdirs = d[bg]
-        v = View(camera, tri, uv, d, visible, samples, wo, bg, env_coords(bgdirs, self.k), bgdirs=bgdirs)
+        v = View(camera, tri, uv, d, visible, samples, wo, bg, env_coords(bgdirs, self.k), bgdirs=bgdirs,
+                 traced=traced)
         if samples == 1:
             obj = np.where(tri >= 0, self.scene.object_of_face[np.maximum(tri, 0)], -1).astype(np.int32)
             v.obj = obj.reshape(camera.height, camera.width)
@@ -253,6 +271,46 @@ class CutRenderer(Renderer):
             self._views = [v] + [x for x in self._views if x is not v][:2]
             self._view = v
         return v
+
+    def _screen_box(self, camera) -> tuple[int, int, int, int] | None:
+        """(row0, row1, col0, col1): the pixels (rows row0 ≤ y < row1, columns col0 ≤ x < col1)
+        whose footprints meet the projection of the mesh's bounding box, or None when every
+        pixel must be traced (a box corner at or behind the eye's plane). A pinhole projects the
+        box inside the rectangle spanned by its eight projected corners, so a ray through any
+        other pixel (any sub-pixel sample) misses the mesh: a big frame of a small object
+        traces a fraction of its rays. Same camera model as core.render.camera_rays."""
+        lo, hi = self._bounds
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        eye = np.asarray(camera.eye, np.float64)
+        fwd = np.asarray(camera.target, np.float64) - eye
+        fwd /= np.linalg.norm(fwd)
+        right = np.cross(fwd, np.asarray(camera.up, np.float64))
+        right /= np.linalg.norm(right)
+        up = np.cross(right, fwd)
+        q = corners - eye
+        z = q @ fwd
+        if (z <= 1e-6 * max(1.0, float(np.abs(q).max()))).any():
+            return None
+        w, h = int(camera.width), int(camera.height)
+        t = np.tan(np.radians(float(camera.fov_y_deg)) / 2.0)
+        px = ((q @ right) / (z * t * (w / h)) + 1.0) * (w / 2.0)     # continuous pixel coordinates
+        py = (1.0 - (q @ up) / (z * t)) * (h / 2.0)
+        # one pixel of margin on each side for the float32 rays
+        c0, c1 = max(0, int(np.floor(px.min())) - 1), min(w, int(np.ceil(px.max())) + 1)
+        r0, r1 = max(0, int(np.floor(py.min())) - 1), min(h, int(np.ceil(py.max())) + 1)
+        return (r0, max(r0, r1), c0, max(c0, c1))
+
+    def _box_rows(self, camera, samples: int) -> np.ndarray | None:
+        """(n,) int64 sample rows (p·S + s) of the pixels of ``_screen_box``, or None when all
+        rows must be traced (no box, or a box over most of the frame: then the gather costs
+        more than it saves)."""
+        box = self._screen_box(camera)
+        w, h = int(camera.width), int(camera.height)
+        if box is None or (box[1] - box[0]) * (box[3] - box[2]) > 0.7 * w * h:
+            return None
+        r0, r1, c0, c1 = box
+        pix = (np.arange(r0, r1, dtype=np.int64)[:, None] * w + np.arange(c0, c1, dtype=np.int64)[None, :]).ravel()
+        return (pix[:, None] * samples + np.arange(samples, dtype=np.int64)[None, :]).ravel()
 
     def _first_hit(self, o, d):
         """(tri, uv) of primary rays, traced in slices on the tracing threads (Embree releases
@@ -276,7 +334,13 @@ class CutRenderer(Renderer):
             old = self._light_key
             if key == old:
                 return self._node_light
-            if old is not None and old[0] == key[0] and old[2] == key[2] and old[1] > 0 and key[1] > 0:
+            hit = self._lights.get(key)
+            if hit is not None and hit[0] is self.lighting:
+                # a lighting drawn a moment ago (a bundle's views alternate between its
+                # environments camera by camera): its tables again, not rebuilt
+                self._node_light, self._node8 = hit[1], hit[2]
+                self._lights.move_to_end(key)
+            elif old is not None and old[0] == key[0] and old[2] == key[2] and old[1] > 0 and key[1] > 0:
                 # intensity alone: radiance scales, the light-weighted centroids do not move
                 f = np.float32(key[1] / old[1])
                 nl = self._node_light[0] * f
@@ -286,6 +350,10 @@ class CutRenderer(Renderer):
             else:
                 nl, nw, n8 = light_tables(self.lighting, lighting.rotation_deg, lighting.intensity, self.tree, self.k)
                 self._node_light, self._node8 = (nl, nw), n8
+            # the LeafLighting is kept with its tables: its id in the key is not reused meanwhile
+            self._lights[key] = (self.lighting, self._node_light, self._node8)
+            while len(self._lights) > LIGHTS_KEPT:
+                self._lights.popitem(last=False)
             self._light_key = key
             return self._node_light
 
@@ -303,9 +371,16 @@ class CutRenderer(Renderer):
         k = req.ground_intensity if req.ground_intensity is not None else (spec.intensity if spec is not None else 1.0)
         key = (self._light_key, float(k))
         if key != self._ground_key:
-            node_l, node_w = self._node_light
-            self._ground_factor = g.factor(g.shadow(node_l, node_w, self._node8, self.tree, self.k), k)
-            self._ground_key = key
+            hit = self._grounds.pop(key, None)
+            if hit is not None and hit[0] is self.lighting:
+                f = hit[1]
+            else:
+                node_l, node_w = self._node_light
+                f = g.factor(g.shadow(node_l, node_w, self._node8, self.tree, self.k), k)
+            self._grounds[key] = (self.lighting, f)   # most recent last; its lighting kept with it
+            while len(self._grounds) > LIGHTS_KEPT:
+                self._grounds.popitem(last=False)
+            self._ground_factor, self._ground_key = f, key
         return self._ground_factor, g.grid.geometry()
 
     def _background(self, v: View, lighting: Lighting, shadow, key) -> np.ndarray:

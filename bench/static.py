@@ -1,0 +1,240 @@
+"""Shoppers at scale through a static server: ``glint bench viewer --static``.
+
+A shopper is what the viewer page does in a real browser: the requests Chromium makes when it
+opens the published object's page and its player preloads the bundle (page, scripts, style,
+manifest, then the frames, the one on screen first; turning afterwards swaps frames already
+loaded and requests nothing). Those requests are recorded once from a real Chromium page load
+(``shopper_requests``), not assumed.
+
+The load: ``clients`` shoppers arriving at a fixed rate, each on one HTTP/2 connection with at
+most six requests in flight (a browser's HTTP/2 connection to an HTTPS site or CDN; here
+cleartext h2, nginx's ``listen … http2``), replaying that list, by h2load (nghttp2's load
+generator, C: a Python client of a thousand connections spent more CPU than the server it
+measured). nginx serves the bundle files and the web client from disk (server/static_site.py)
+and proxies the page and the manifest to the service. Latency per request is h2load's own
+(request sent → response complete, its per-request log); the server's time per request is
+nginx's ``$request_time``. Both processes' CPU time is read from /proc, so what the client cost
+is on the record next to what the server did.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+from .stream import ROOT, pct
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def need(tool: str) -> str:
+    path = shutil.which(tool) or (f"/usr/sbin/{tool}" if Path(f"/usr/sbin/{tool}").exists() else None)
+    if path is None:
+        pkg = {"nginx": "nginx", "h2load": "nghttp2-client"}[tool]
+        raise RuntimeError(f"{tool} is not installed: apt-get install {pkg} (scripts/ensure-static)")
+    return path
+
+
+def proc_cpu(pids) -> float:
+    """CPU seconds (user + system) of processes, including their reaped children."""
+    tick = os.sysconf("SC_CLK_TCK")
+    out = 0.0
+    for pid in pids:
+        try:
+            f = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+            out += (int(f[11]) + int(f[12]) + int(f[13]) + int(f[14])) / tick
+        except (OSError, ValueError, IndexError):
+            pass
+    return out
+
+
+class Nginx:
+    """nginx started on a data folder's published files in front of a service on ``upstream``,
+    with the configuration ``glint nginx-conf`` writes (server/static_site.py; asked of the
+    command line, as the service itself is started, since bench imports no server module), in
+    a temporary folder of its own."""
+
+    def __init__(self, data_dir: str, upstream: str, access_log: bool = True):
+        import sys
+
+        exe = need("nginx")
+        self.dir = Path(tempfile.mkdtemp(prefix="glint-nginx-"))
+        self.dir.chmod(0o755)                # nginx's workers run as another user
+        self.port, self.port_h2 = _free_port(), _free_port()
+        self.log = self.dir / "access.log"
+        conf = self.dir / "nginx.conf"
+        subprocess.run([sys.executable, "-m", "glint", "nginx-conf", "--data-dir", str(data_dir),
+                        "--web-dir", str(ROOT / "web"), "--upstream", upstream, "--listen", f"127.0.0.1:{self.port}",
+                        "--listen-h2", f"127.0.0.1:{self.port_h2}", "--run-dir", str(self.dir),
+                        "--access-log", str(self.log) if access_log else "off", "--out", str(conf)]
+                       # the data folder may be private to this user (e.g. under a 0700 temporary folder)
+                       + (["--user", "root"] if os.geteuid() == 0 else []),
+                       cwd=ROOT, check=True, capture_output=True)
+        self._err = open(self.dir / "error.log", "wb")     # noqa: SIM115 (closed by close())
+        self.proc = subprocess.Popen([exe, "-c", str(conf), "-p", str(self.dir), "-e", "stderr", "-g", "daemon off;"],
+                                     stdout=subprocess.DEVNULL, stderr=self._err)
+        for _ in range(100):
+            try:
+                socket.create_connection(("127.0.0.1", self.port), timeout=0.5).close()
+                break
+            except OSError:
+                if self.proc.poll() is not None:
+                    raise RuntimeError(f"nginx exited: {(self.dir / 'error.log').read_text(errors='replace')[-2000:]}")
+                time.sleep(0.1)
+        self.base = f"http://127.0.0.1:{self.port}"
+        self.base_h2 = f"http://127.0.0.1:{self.port_h2}"
+
+    def pids(self) -> list[int]:
+        out = [self.proc.pid]
+        for p in Path("/proc").iterdir():
+            if p.name.isdigit():
+                try:
+                    if int((p / "stat").read_text().rsplit(")", 1)[1].split()[1]) == self.proc.pid:
+                        out.append(int(p.name))
+                except (OSError, ValueError, IndexError):
+                    pass
+        return out
+
+    def cpu_seconds(self) -> float:
+        return proc_cpu(self.pids())
+
+    def rotate_log(self) -> list[str]:
+        """The access log's lines so far (emptied for the next run; nginx reopens it on USR1)."""
+        import signal
+
+        os.kill(self.proc.pid, signal.SIGUSR1)      # flush buffered lines
+        time.sleep(1.5)
+        lines = self.log.read_text().splitlines() if self.log.exists() else []
+        self.log.write_text("")
+        return lines
+
+    def close(self) -> None:
+        self.proc.terminate()
+        try:
+            self.proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+        self._err.close()
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+
+PRELOADED = ("() => { const p = window.glintViewer; if (!p || p.loading) return false;"
+             " for (const u of p.wanted()) if (!p.images.has(u)) return false; return true; }")
+
+
+def shopper_requests(base: str, pid: str, viewport=(1280, 860), dpr: float = 1.0, settle_s: float = 60.0) -> dict:
+    """The requests a real shopper's browser makes: Chromium opens ``/view/<pid>`` on ``base``
+    (a cold cache), its player preloads the bundle, then the shopper picks the second variant
+    and the player preloads that; recorded until the player has nothing left to load (turning
+    afterwards requests nothing). Returns {"urls": [path?query in request order],
+    "on_open": requests before the variant switch, "first_image_ms", "viewport", "dpr"}."""
+    from urllib.parse import urlsplit
+
+    from playwright.sync_api import sync_playwright
+
+    urls = []
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=shutil.which("chromium") or "/usr/bin/chromium", headless=True,
+                              args=["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage"])
+        try:
+            ctx = b.new_context(viewport={"width": viewport[0], "height": viewport[1]}, device_scale_factor=dpr)
+            page = ctx.new_page()
+            page.on("request", lambda r: urls.append(r.url) if urlsplit(r.url).netloc == urlsplit(base).netloc
+                    else None)
+            page.goto(f"{base}/view/{pid}")
+            page.wait_for_function("() => performance.getEntriesByName('glint-first-frame').length > 0",
+                                   timeout=30_000)
+            first = page.evaluate("() => performance.getEntriesByName('glint-first-frame')[0].startTime")
+            # the player's preload is done when nothing loads and every wanted file is here
+            page.wait_for_function(PRELOADED, timeout=int(settle_s * 1000))
+            time.sleep(0.5)
+            on_open = len(urls)
+            if page.locator(".swatch").count() > 1:
+                page.locator(".swatch").nth(1).click()
+                page.wait_for_function(PRELOADED, timeout=int(settle_s * 1000))
+                time.sleep(0.5)
+            ctx.close()
+        finally:
+            b.close()
+    paths = []
+    for u in urls:
+        s = urlsplit(u)
+        paths.append(s.path + (f"?{s.query}" if s.query else ""))
+    return {"urls": paths, "on_open": on_open, "first_image_ms": round(first, 1), "viewport": list(viewport),
+            "dpr": dpr}
+
+
+def h2load(base: str, paths: list[str], clients: int, rate: int, streams: int = 6, threads: int = 1,
+           nice: int = 0) -> dict:
+    """``clients`` shoppers replaying ``paths`` each, ``rate`` new ones a second, each on one
+    HTTP/2 connection with ``streams`` requests in flight at most; the client runs at
+    ``nice``. Returns latency percentiles (ms) over every request, the offered and served
+    rates and the client's CPU seconds."""
+    exe = need("h2load")
+    with tempfile.TemporaryDirectory(prefix="glint-h2load-") as d:
+        lst, log = Path(d) / "uris.txt", Path(d) / "requests.tsv"
+        lst.write_text("".join(f"{base}{p}\n" for p in paths))
+        cmd = ["nice", "-n", str(nice), exe, "-c", str(clients), "-n", str(clients * len(paths)),
+               "-m", str(streams), "-t", str(threads), "-r", str(max(1, rate)), "--rate-period", "1s",
+               "-T", "30s", "-N", "60s", "-i", str(lst), "--log-file", str(log)]
+        out = Path(d) / "h2load.txt"
+        t0 = time.perf_counter()
+        with open(out, "wb") as fo:
+            pr = subprocess.Popen(cmd, stdout=fo, stderr=subprocess.STDOUT)
+            try:
+                # the client's own CPU time: from its rusage when it is reaped
+                _, status, ru = os.wait4(pr.pid, 0)
+            except BaseException:
+                pr.kill()
+                raise
+        pr.returncode = os.waitstatus_to_exitcode(status)
+        wall = time.perf_counter() - t0
+        text = out.read_text(errors="replace")
+        rows = []
+        for line in log.read_text().splitlines() if log.exists() else []:
+            f = line.split("\t")
+            if len(f) >= 3:
+                rows.append((int(f[0]), int(f[1]), int(f[2])))
+    if not rows:
+        raise RuntimeError(f"h2load logged no request:\n{text[-3000:]}")
+    ms = [r[2] / 1e3 for r in rows]
+    ok = sum(1 for r in rows if r[1] in (200, 304))
+    span = (max(r[0] + r[2] for r in rows) - min(r[0] for r in rows)) / 1e6
+    n_total = clients * len(paths)
+    arrive = clients / max(1, rate)
+    return {"clients": clients, "requests_per_shopper": len(paths), "arrival_per_s": rate,
+            "arrival_seconds": round(arrive, 1), "requests": len(rows), "ok": ok, "failed": n_total - ok,
+            "seconds": round(span, 2), "wall_seconds": round(wall, 2),
+            "offered_per_s": round(n_total / arrive, 1) if arrive else None,
+            "served_per_s": round(len(rows) / span, 1) if span else None,
+            "p50_ms": round(pct(ms, 50), 2), "p95_ms": round(pct(ms, 95), 2), "p99_ms": round(pct(ms, 99), 2),
+            "max_ms": round(max(ms), 1), "client_cpu_seconds": round(ru.ru_utime + ru.ru_stime, 2),
+            "client_nice": nice, "h2load_exit": pr.returncode,
+            "h2load_summary": [x for x in text.splitlines() if x.startswith(("requests:", "status codes:", "finished in"))]}
+
+
+def server_times(lines: list[str]) -> dict:
+    """nginx's own time per request (``$request_time``, ms resolution; server/static_site.py's
+    log format) of the frames (bundle files) and of everything it passed to the service."""
+    frames, proxied = [], []
+    for line in lines:
+        f = line.split(" ", 6)
+        if len(f) < 7:
+            continue
+        t = float(f[3]) * 1e3
+        path = f[6].split(" ")[1] if " " in f[6] else ""
+        (frames if path.startswith("/v1/bundle-files/") else proxied).append(t)
+    out = {"frames": len(frames), "proxied": len(proxied)}
+    if frames:
+        out.update(frame_p50_ms=pct(frames, 50), frame_p95_ms=pct(frames, 95), frame_p99_ms=pct(frames, 99))
+    if proxied:
+        out.update(other_p95_ms=pct(proxied, 95))
+    return out
