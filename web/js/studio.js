@@ -171,7 +171,7 @@ function mountPaint(object, initial) {
 $("paint-keep").onclick = () => {
   if (!lastPaint) return status("move a paint slider first");
   const name = $("design-name").value || "paint";
-  palette.add({ name, measurements: lastPaint.measured, material: lastPaint.material });
+  palette.add({ name, measurements: lastPaint.measured, material: lastPaint.material, swatch: lastPaint.swatch });
   stream?.send("save", { name, material_id: designs.current() });
 };
 $("paint-export-json").onclick = () => lastPaint && downloadMeasurements(lastPaint.measured, $("design-name").value || "paint", "json");
@@ -208,8 +208,7 @@ function onEvent(ev) {
   } else if (ev.type === "paint") {
     lastPaint = ev;
     setMaterial(ev.material);
-    paintPanel?.showEvent(ev);
-    lobeView.update(ev.material, 45);
+    paintPanel?.showEvent(ev);          // its lobe plot follows with the curve event
     status(`paint: fitted in ${ev.ms_fit.toFixed(1)} ms, error ${(100 * ev.error_l1).toFixed(1)}%`);
   } else if (ev.type === "curve") {
     if (ev.object === state.object) { curveEditor.set(material, ev.curve); curveData = ev.curve; drawLobePlot(); }
@@ -400,7 +399,11 @@ const curveEditor = new CurveEditor($("curve"), {
   onNeedCurve: () => { status("converting to a curve…"); stream?.send("convert", { model: "curve" }); },
 });
 let curveData = null;             // the worker's curve of the edited object's material
-const drawLobePlot = () => drawLobe($("lobe"), curveData?.lobe, +$("lobe-angle").value);
+// both lobe plots draw the worker's lobe of the material its curve was evaluated for
+const drawLobePlot = () => {
+  drawLobe($("lobe"), curveData?.lobe, +$("lobe-angle").value);
+  lobeView.update(curveData?.lobe || null, curveEditor.base);
+};
 let pendingMaterial = false;
 function queueMaterial() {
   if (pendingMaterial) return;

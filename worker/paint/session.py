@@ -12,6 +12,7 @@ from typing import Any, Mapping
 from ..scene import Lobes
 from .fit import fit_measurements
 from .geometry import MeasurementError, flop_index, measure
+from .swatch import swatch_png
 
 
 def apply_paint(msg_fields: Mapping[str, Any], exponents=None) -> tuple[Lobes, dict]:
@@ -20,7 +21,8 @@ def apply_paint(msg_fields: Mapping[str, Any], exponents=None) -> tuple[Lobes, d
     Returns (material, event) where event is
     ``{"type": "paint", "seq", "object", "material", "measured": {gloss, aspecular} of the fitted
     material (what the render shows), "requested": the message's values, "error_l1",
-    "error_max", "flop_index", "ms_fit"}``. Raises MeasurementError (a GlintError) on bad fields."""
+    "error_max", "flop_index", "ms_fit", "swatch": the fitted paint on a sphere (swatch.py), a PNG data
+    URL}``. Raises MeasurementError (a GlintError) on bad fields."""
     if "aspecular" not in msg_fields:
         raise MeasurementError("paint message needs aspecular readings")
     requested = {"gloss": msg_fields.get("gloss", 0.0), "aspecular": msg_fields["aspecular"]}
@@ -31,5 +33,5 @@ def apply_paint(msg_fields: Mapping[str, Any], exponents=None) -> tuple[Lobes, d
     event = {"type": "paint", "seq": msg_fields.get("seq"), "object": msg_fields.get("object"),
              "material": r.material.model_dump(), "measured": measured, "requested": requested,
              "error_l1": r.error_l1, "error_max": r.error_max, "flop_index": flop_index(measured),
-             "ms_fit": 1e3 * r.seconds}
+             "ms_fit": 1e3 * r.seconds, "swatch": swatch_png(r.material)}
     return r.material, event

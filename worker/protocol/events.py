@@ -141,6 +141,9 @@ class PaintEvent(_WorkerEvent):
     error_max: float
     flop_index: float | None = None
     ms_fit: float
+    swatch: str = Field("", max_length=65_536,
+                        description="the fitted paint on a sphere under the palette's studio lights, as the worker "
+                                    "shades it (worker/paint/swatch.py): a PNG data URL")
 
     def apply(self, st):
         if self.object in st.objects:
