@@ -192,6 +192,7 @@ function onEvent(ev) {
       status(`${state.object}: ${ev.strokes} stroke(s) restored` + (ev.streams > 1 ? `; ${ev.streams} tabs share this session` : ""));
     }
     showRenderer(ev.renderer || "cuts", ev.controls || [], ev.renderers, ev.off || {});
+    objects.show(state.objects, state.object);     // the menu names the object the session edits
     mountPaint(ev.state.object, ev.state.paint?.[ev.state.object] || null);
     state.transforms = ev.state.transforms || state.transforms;
     movableNames = ev.state.movable || [];
@@ -281,7 +282,7 @@ $("view").addEventListener("pointerdown", (e) => {
   if (mode === "move") {
     const name = $("move-object").value;
     state.transforms = state.transforms || {};
-    dragging.move = new MoveDrag(state.camera);
+    dragging.move = new MoveDrag(state.camera, { cssPerFramePx: $("view").getBoundingClientRect().width / state.camera.width });
     dragging.turning = e.shiftKey;
     dragging.move.start(...view.toFrame(e, state.camera.width, state.camera.height), fullTransform(state.transforms[name]));
   }
