@@ -125,6 +125,32 @@ class StrokeRow(Base):
     created: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now)
 
 
+class SessionServer(Base):
+    """An API process serving streams of a session (server/sessions_store.py, sessions shared
+    across processes): ``origin`` names the process, ``seen`` is its last heartbeat, ``peers``
+    the other processes it knows serve the session too (its acknowledgement that it logs every
+    message it stores, so a joining process may start)."""
+    __tablename__ = "session_servers"
+    session_id: Mapped[str] = mapped_column(ForeignKey("sessions.id"), primary_key=True)
+    origin: Mapped[str] = mapped_column(String(32), primary_key=True)
+    seen: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now)
+    peers: Mapped[list] = mapped_column(JSON, default=list)
+
+
+class SessionLogRow(Base):
+    """A client message as stored (with its session seq) by a process serving a session that
+    other processes serve too: they forward it to their worker sessions and their streams. The
+    seq is unique per session, so two processes can never give two messages one number."""
+    __tablename__ = "session_log"
+    __table_args__ = (UniqueConstraint("session_id", "seq"),)
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    session_id: Mapped[str] = mapped_column(ForeignKey("sessions.id"), index=True)
+    seq: Mapped[int] = mapped_column(Integer)
+    origin: Mapped[str] = mapped_column(String(32))
+    body: Mapped[dict] = mapped_column(JSON)
+    created: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now, index=True)
+
+
 class SessionSave(Base):
     """A session's save, once stored: (session, seq) is unique, so a save re-run after a worker
     restart stores one version, and its client still gets ``saved``."""

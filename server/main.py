@@ -221,7 +221,7 @@ def create_app(settings: Settings | None = None, pool=None) -> FastAPI:
         # what start-up made (modules, routes, models) out of full collections, which stopped
         # the event loop (and every stream) for 50-170 ms at a time under load
         freeze_start_up()
-        tasks = [asyncio.create_task(_janitor(st))]
+        tasks = [asyncio.create_task(_janitor(st)), asyncio.create_task(sessions.share_loop(st))]
         if settings.demo:
             from .demo import ensure_demo
 

@@ -20,6 +20,18 @@ process writes only over the version it read (compare-and-set); when another pro
 first, it reads the row again and re-applies the changes it has not written yet on top, so
 neither loses the other's: a camera one moved survives the light the other changed.
 
+Such a session is *shared* (its tabs see each other's changes, as two tabs on one process do):
+each process serving a stream of it has a row in ``session_servers`` (``announce``), with a
+heartbeat. While a session has more than one, every process writes each client message before
+forwarding it, with a number the database makes unique (``session_log``, unique on session and
+seq, written in the transaction that writes the state), and every process forwards the others'
+logged messages to its worker session and its streams in seq order (``poll``, ``take_peers``),
+so the worker sessions of all processes apply the same messages in the same order. A process
+that joins waits (``ACK_WAIT_S`` at most) until the others have seen it (their row's ``peers``
+names it): by then they have written what they held and log what they store, so nothing falls
+between the state it starts from and the log. Alone on a session a process writes as above
+(batched), and logs nothing.
+
 The store also keeps the bookkeeping of the streams this process serves (``attach`` /
 ``detach``): a session may have several streams at once (a reload, a second tab), which share
 its one worker session and all receive its frames and events; the limits on open streams are
@@ -29,19 +41,21 @@ the next one), so two tabs never refuse each other's input.
 """
 from __future__ import annotations
 
+import datetime as dt
 import io
 import threading
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
-from sqlalchemy import select, update
+from sqlalchemy import delete, select, update
+from sqlalchemy.exc import IntegrityError
 
 from worker.protocol import (ClientMsg, EnvPreset, EnvironmentMsg, ErrorEvent, ObjectMsg, RecordStroke, Redo, RejectStroke,
                              SavedEvent, SessionState, StateError, StoreSave, Undo, apply, apply_event,
                              restore_state, worker_event)
 
-from .db import Asset, MaterialDesign, Scene, Session, SessionSave, StrokeRow, now
+from .db import Asset, MaterialDesign, Scene, Session, SessionLogRow, SessionSave, SessionServer, StrokeRow, new_id, now
 
 FLUSH_S = 0.5            # the longest a batched change (camera, light, object move, fit) stays unwritten
 CAS_TRIES = 20           # compare-and-set attempts before a write gives up (another process keeps winning)
@@ -49,6 +63,12 @@ CAS_TRIES = 20           # compare-and-set attempts before a write gives up (ano
 # JPEG of at most THUMB_MAX_BYTES (192×144 of the bunny studio frames: 4.1-4.6 KB at quality 80)
 THUMB_BOX = (192, 144)
 THUMB_MAX_BYTES = 32 * 1024
+# sessions shared across API processes (module docstring)
+POLL_S = 0.2             # how often a process looks for the others' messages of the sessions it streams
+HEARTBEAT_S = 2.0        # how often it says it still serves them
+STALE_S = 10.0           # a process not heard of for this long serves them no more (it stopped or died)
+ACK_WAIT_S = 3.0         # the longest a joining process waits for the others to see it
+LOG_KEEP_S = 120.0       # logged messages older than this are deleted (every process has long forwarded them)
 
 
 class StreamRefused(Exception):
@@ -72,6 +92,22 @@ class SessionStreams:
     ready: object = None
     failed: str | None = None
     last_frame: tuple[dict, bytes] | None = None
+    order: object = None      # an asyncio.Lock: what goes to the worker session, in seq order
+
+
+@dataclass
+class _Share:
+    """A session this process streams, as others may too. others : the other processes serving
+    it (empty: alone, nothing is logged); hwm : the highest session seq this process's worker
+    session has been given (its own and the others'); backlog : the others' messages read,
+    in seq order, not yet forwarded (``take_peers``)."""
+    others: frozenset = frozenset()
+    hwm: int = -1
+    backlog: list = field(default_factory=list)
+
+
+class _Lost(Exception):
+    """A shared write lost the race for the row's version or for a seq: start it again."""
 
 
 class WriteConflict(RuntimeError):
@@ -116,6 +152,12 @@ class SessionStore:
         # the streams this process serves, by session (attach/detach run on the event loop's
         # thread; the thumbnail's read of last_frame, on a worker thread, takes a reference)
         self._streams: dict[str, SessionStreams] = {}
+        # sessions shared across processes (module docstring): this process's name in
+        # session_servers and session_log, and its sessions there
+        self.origin = new_id()
+        self._share: dict[str, _Share] = {}
+        self._beat = 0.0                # time.monotonic() of the last heartbeat
+        self._pruned = 0.0              # of the last deletion of old log rows
 
     # -- streams ----------------------------------------------------------------------------------
     def attach(self, sid: str, conn: object, client: str, max_total: int, max_per_client: int
@@ -228,16 +270,19 @@ class SessionStore:
                 pass                # no longer applies to the other process's state: it wins
         return state
 
-    def _cas(self, s, sid: str, e: _Entry) -> bool:
+    def _cas(self, s, sid: str, e: _Entry, log: bool = False) -> bool:
         """Write ``e.state`` over the row's version ``e.version``; when another process wrote
         first, read its state and re-apply ``e.pending`` over it, and try again. Returns False
-        when the row is gone."""
+        when the row is gone. log : also log the pending client messages (a session another
+        process has just joined: what this one held, for it to forward)."""
         for _ in range(CAS_TRIES):
             res = s.execute(update(Session).where(Session.id == sid, Session.version == e.version)
                             .values(state=e.state.model_dump(mode="json"), version=e.version + 1,
                                     last_active=now())
                             .execution_options(synchronize_session=False))
             if res.rowcount == 1:
+                if log:
+                    self._log(s, sid, [m.model_dump(mode="json") for m in e.pending if isinstance(m, ClientMsg)])
                 e.base, e.version, e.pending, e.since = e.state, e.version + 1, [], None
                 return True
             fresh = self._read(s, sid)
@@ -247,14 +292,14 @@ class SessionStore:
             e.state = self._replay(fresh.base, e.pending)
         raise WriteConflict(f"session {sid}: its state changed {CAS_TRIES} times while it was being written")
 
-    def _write_locked(self, sid: str) -> None:
+    def _write_locked(self, sid: str, log: bool = False) -> None:
         """Write a session's unsaved state (the caller holds ``lock(sid)``)."""
         e = self._entries.get(sid)
         if e is None or e.since is None:
             return
         w = e.copy()
         with self.db() as s, s.begin():
-            written = self._cas(s, sid, w)
+            written = self._cas(s, sid, w, log)
         if written:
             self._entries[sid] = w
         else:
@@ -266,10 +311,15 @@ class SessionStore:
             self._write_locked(sid)
 
     def forget(self, sid: str) -> None:
-        """The stream ended: write its unsaved state and drop the copy."""
+        """The stream ended: write its unsaved state and drop the copy; this process no longer
+        serves the session."""
         with self.lock(sid):
             self._write_locked(sid)
             self._entries.pop(sid, None)
+            if self._share.pop(sid, None) is not None:
+                with self.db() as s, s.begin():
+                    s.execute(delete(SessionServer).where(SessionServer.session_id == sid,
+                                                          SessionServer.origin == self.origin))
 
     def has_unsaved(self, sid: str) -> bool:
         e = self._entries.get(sid)
@@ -290,6 +340,9 @@ class SessionStore:
         increase; another stream of the session used these), instead of being refused."""
         out = []
         with self.lock(sid):
+            sh = self._share.get(sid)
+            if sh is not None and sh.others:
+                return self._persist_shared(sid, msgs, sh)
             e = self._entries.get(sid)
             w = None if e is None else e.copy()
             if w is not None and all(m.storage != "state" for m in msgs):
@@ -316,6 +369,156 @@ class SessionStore:
                     self._cas(s, sid, w)
             self._entries[sid] = w
         return out
+
+    def _persist_shared(self, sid: str, msgs: list, sh: _Share) -> list:
+        """``persist_batch`` of a session other processes serve too (the caller holds the lock):
+        in one transaction, read the row (the others' changes), number the messages on from its
+        last seq, apply and log them, and write the state over the version read; a lost race
+        (the version, or a seq another process logged first) starts again from the new row. The
+        others' messages logged since this process's worker last got one go to ``sh.backlog``
+        first: they come before these (their seqs are lower)."""
+        for _ in range(CAS_TRIES):
+            e = self._entries.get(sid)
+            try:
+                with self.db() as s, s.begin():
+                    fresh = self._read(s, sid)
+                    if fresh is None:
+                        raise LookupError(f"no session {sid!r}")
+                    pend = list(e.pending) if e is not None else []       # worker events (fits) unwritten
+                    w = _Entry(base=fresh.base, version=fresh.version, state=self._replay(fresh.base, pend),
+                               pending=pend, since=(e.since if e is not None else None))
+                    peers = self._logged(s, sid, sh.hwm)
+                    out = [self._apply_one(s, sid, w, m, True) for m in msgs]
+                    self._log(s, sid, [fwd for err, fwd in out if err is None])
+                    res = s.execute(update(Session).where(Session.id == sid, Session.version == w.version)
+                                    .values(state=w.state.model_dump(mode="json"), version=w.version + 1,
+                                            last_active=now())
+                                    .execution_options(synchronize_session=False))
+                    if res.rowcount != 1:
+                        raise _Lost()
+                    s.flush()
+            except (_Lost, IntegrityError):
+                continue
+            self._entries[sid] = _Entry(base=w.state, version=w.version + 1, state=w.state)
+            sh.backlog += peers
+            sh.hwm = max([sh.hwm, w.state.last_seq] + [p["seq"] for p in peers])
+            return out
+        raise WriteConflict(f"session {sid}: its state changed {CAS_TRIES} times while it was being written")
+
+    def _log(self, s, sid: str, fwds: list[dict]) -> None:
+        for f in fwds:
+            s.add(SessionLogRow(session_id=sid, seq=f["seq"], origin=self.origin, body=f))
+        if fwds:
+            s.flush()               # a seq another process logged first fails here (IntegrityError)
+
+    def _logged(self, s, sid: str, after: int) -> list[dict]:
+        """The other processes' logged messages of ``sid`` with a seq above ``after``, in order."""
+        rows = s.scalars(select(SessionLogRow.body).where(
+            SessionLogRow.session_id == sid, SessionLogRow.seq > after, SessionLogRow.origin != self.origin)
+            .order_by(SessionLogRow.seq)).all()
+        return list(rows)
+
+    # -- sessions shared across processes ---------------------------------------------------------
+    def announce(self, sid: str) -> int:
+        """This process serves streams of ``sid`` from now on (its first stream here, before
+        the state it starts from is read): say so in session_servers, and wait (ACK_WAIT_S at
+        most) until every other process serving it has seen this one. Returns how many others
+        serve it."""
+        t = now()
+        with self.db() as s, s.begin():
+            row = s.get(SessionServer, (sid, self.origin))
+            if row is None:
+                s.add(SessionServer(session_id=sid, origin=self.origin, seen=t, peers=[]))
+            else:
+                row.seen, row.peers = t, []
+        deadline = time.monotonic() + ACK_WAIT_S
+        while True:
+            others = self._present(sid)
+            if all(self.origin in peers for peers in others.values()) or time.monotonic() > deadline:
+                break
+            time.sleep(0.05)
+        with self.lock(sid):
+            self._share[sid] = _Share(others=frozenset(others))
+        return len(others)
+
+    def started_at(self, sid: str, seq: int) -> None:
+        """The worker session of ``sid`` starts from the stored state whose last seq is ``seq``."""
+        with self.lock(sid):
+            sh = self._share.get(sid)
+            if sh is not None:
+                sh.hwm = max(sh.hwm, seq)
+
+    def _present(self, sid: str | None = None) -> dict:
+        """The other processes serving ``sid`` (None: any session this one serves) and heard of
+        within STALE_S: {origin: its peers} for one session, {sid: {origin: peers}} for all."""
+        cutoff = now() - dt.timedelta(seconds=STALE_S)
+        mine = select(SessionServer.session_id).where(SessionServer.origin == self.origin)
+        q = select(SessionServer.session_id, SessionServer.origin, SessionServer.peers).where(
+            SessionServer.origin != self.origin, SessionServer.seen > cutoff)
+        q = q.where(SessionServer.session_id == sid) if sid is not None else q.where(SessionServer.session_id.in_(mine))
+        out: dict = {}
+        with self.db() as s:
+            for r in s.execute(q):
+                out.setdefault(r.session_id, {})[r.origin] = list(r.peers or [])
+        return out.get(sid, {}) if sid is not None else out
+
+    def poll(self) -> list[str]:
+        """One look at the other processes (every POLL_S, from the routes' share loop): which
+        sessions streamed here others serve too. A session another process has just joined is
+        written now, with the client messages held (logged, for it to forward), before this
+        one's row names it (the acknowledgement the joiner waits for); the heartbeat goes out
+        every HEARTBEAT_S. Returns the shared sessions (for ``take_peers``)."""
+        if not self._share:
+            return []
+        present = self._present()
+        changed = False
+        for sid in list(self._share):
+            others = frozenset(present.get(sid, {}))
+            with self.lock(sid):
+                sh = self._share.get(sid)
+                if sh is None or others == sh.others:
+                    continue
+                if others - sh.others:
+                    self._write_locked(sid, log=True)
+                sh.others = others
+                changed = True
+        t = time.monotonic()
+        if changed or t - self._beat >= HEARTBEAT_S:
+            self._beat = t
+            with self.db() as s, s.begin():
+                s.execute(update(SessionServer).where(SessionServer.origin == self.origin)
+                          .values(seen=now()).execution_options(synchronize_session=False))
+                for sid, sh in list(self._share.items()):
+                    if changed:
+                        s.execute(update(SessionServer).where(SessionServer.session_id == sid,
+                                                              SessionServer.origin == self.origin)
+                                  .values(peers=sorted(sh.others)).execution_options(synchronize_session=False))
+        if t - self._pruned >= LOG_KEEP_S / 4:
+            self._pruned = t
+            with self.db() as s, s.begin():
+                s.execute(delete(SessionLogRow).where(SessionLogRow.created < now() - dt.timedelta(seconds=LOG_KEEP_S)))
+        return [sid for sid, sh in list(self._share.items()) if sh.others]
+
+    def take_peers(self, sid: str, read: bool = True) -> list[dict]:
+        """The other processes' messages of a shared session that this process's worker has not
+        had yet, in seq order: the backlog ``persist_batch`` read, then (read) those logged
+        since. Forward them before anything else of the session. After ``persist_batch``,
+        read=False: what the others logged since has higher seqs than the batch, and goes after it."""
+        sh = self._share.get(sid)
+        if sh is None or not (read or sh.backlog):
+            return []            # the common case after a batch (the caller orders them): no lock
+        with self.lock(sid):
+            sh = self._share.get(sid)
+            if sh is None:
+                return []
+            if read and sh.others:
+                with self.db() as s:
+                    new = self._logged(s, sid, sh.hwm)
+                if new:
+                    sh.backlog += new
+                    sh.hwm = max(sh.hwm, new[-1]["seq"])
+            out, sh.backlog = sh.backlog, []
+            return out
 
     def _apply_one(self, s, sid: str, e: _Entry, msg, renumber: bool = False) -> tuple[dict | None, dict | None]:
         """One message against the entry's state: (error event, None), or (None, forwarded) with
@@ -372,6 +575,16 @@ class SessionStore:
             with self.db() as s, s.begin():
                 out = store(self, s, sid, wev.apply(None))
             return ev if out is None else out
+        for attempt in range(2):
+            try:
+                return self._apply_worker_event(sid, ev, wev)
+            except IntegrityError:
+                # another process stored the same event first: a session several processes
+                # serve runs each save in each one's worker; the one stored is answered
+                if attempt:
+                    raise
+
+    def _apply_worker_event(self, sid: str, ev: dict, wev) -> dict | None:
         with self.lock(sid):
             e = self._entries.get(sid)
             if wev.storage == "batched" and e is not None:

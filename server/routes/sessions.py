@@ -33,10 +33,10 @@ from worker.memory import trim_malloc
 from worker.protocol import (BadMessage as BadFrame, ErrorEvent, HelloEvent, PeerEvent, StateError,  # noqa: F401
                              client_msg, encode_frame, json_depth, new_state, parse_message_text, restore_state)
 
-from ..db import Scene, Session, SessionSave, StrokeRow, new_secret, now, token_hash
+from ..db import Scene, Session, SessionLogRow, SessionSave, SessionServer, StrokeRow, new_secret, now, token_hash
 from ..deps import DB, Client, State, check_host, check_origin, client_key
 from ..schemas import SessionCreate, SessionOut
-from ..sessions_store import FLUSH_S, StreamRefused
+from ..sessions_store import FLUSH_S, POLL_S, StreamRefused
 from ..state import Conflict, NotFound
 
 router = APIRouter(prefix="/v1/sessions", tags=["sessions"])
@@ -211,6 +211,7 @@ class _Conn:
         self.mine: collections.deque = collections.deque(maxlen=MAX_PENDING)
         self.acked = -1                  # the client seq of the last frame's ack
         self.sender: asyncio.Task | None = None
+        self.readonly = False            # a shopper's viewer session (never shared across processes)
 
     def start(self, base: int) -> None:
         self.base = self.last_client = self.acked = base
@@ -298,6 +299,7 @@ async def stream(ws: WebSocket, sid: str, token: str | None = Query(None)):
     readonly = bool((row.state or {}).get("readonly"))
     client = f"addr:{ws.client.host if ws.client else '?'}" if readonly else row.client
     conn = _Conn(ws, client)
+    conn.readonly = readonly
     try:
         streams, first = st.sessions.attach(sid, conn, client, cfg.max_sessions, cfg.max_sessions_per_client)
     except StreamRefused as e:
@@ -319,7 +321,11 @@ async def _join(st, sid: str, conn: _Conn, streams, first: bool) -> bool:
     ws, cfg = conn.ws, st.settings
     if first:
         streams.ready = asyncio.Event()
+        streams.order = asyncio.Lock()
     try:
+        if first and not conn.readonly:
+            # other processes serving it too log what they store from now on (shared sessions)
+            await run_in_threadpool(st.sessions.announce, sid)
         payload = await run_in_threadpool(st.session_payload, sid)
         check_frame_size(cfg, (payload.get("state") or {}).get("camera"))
     except (Conflict, NotFound) as e:
@@ -333,6 +339,7 @@ async def _join(st, sid: str, conn: _Conn, streams, first: bool) -> bool:
         await _fail(ws, 4413, str(e.detail), 422)
         return False
     if first:
+        st.sessions.started_at(sid, int((payload.get("state") or {}).get("last_seq", -1)))
         st.pool.close_session(sid)       # a worker may still hold it from a stream that ended: start afresh
         q = st.pool.open_session(sid, payload)
         streams.pump = asyncio.create_task(_pump(st, sid, q, streams))
@@ -472,20 +479,23 @@ async def _store_and_forward(st, sid: str, conn: _Conn, inbox: asyncio.Queue) ->
             batch = [m for m in batch if m is not None]
             if not batch:
                 continue
-            done = await run_in_threadpool(st.sessions.persist_batch, sid, batch, True)
             streams = st.sessions.streams(sid)
-            peers = [c for c in (streams.conns if streams else ()) if c is not conn]
-            for msg, (err, fwd) in zip(batch, done):
-                if err is None:
-                    conn.sent_as(fwd["seq"], msg.seq)
-                    st.pool.send(sid, fwd)
-                    st.metrics.message(sid, fwd)
-                    if peers:
-                        peer = PeerEvent(message=fwd, streams=len(peers) + 1).model_dump()
-                        for c in peers:
-                            c.event(peer)
-                elif not ending:            # the stream is over: nobody to tell
-                    conn.event({**err, "seq": msg.seq})
+            async with (streams.order if streams is not None and streams.order is not None else _NO_LOCK):
+                done = await run_in_threadpool(st.sessions.persist_batch, sid, batch, True)
+                # a session other processes serve too: their messages numbered before these first
+                _forward_peers(st, sid, streams, st.sessions.take_peers(sid, read=False))
+                peers = [c for c in (streams.conns if streams else ()) if c is not conn]
+                for msg, (err, fwd) in zip(batch, done):
+                    if err is None:
+                        conn.sent_as(fwd["seq"], msg.seq)
+                        st.pool.send(sid, fwd)
+                        st.metrics.message(sid, fwd)
+                        if peers:
+                            peer = PeerEvent(message=fwd, streams=len(peers) + 1).model_dump()
+                            for c in peers:
+                                c.event(peer)
+                    elif not ending:            # the stream is over: nobody to tell
+                        conn.event({**err, "seq": msg.seq})
     except asyncio.CancelledError:
         raise
     except KeyError:            # the pool no longer has it: the session was closed meanwhile
@@ -500,6 +510,53 @@ async def _store_and_forward(st, sid: str, conn: _Conn, inbox: asyncio.Queue) ->
             await conn.fail(1011, f"the server could not store your input ({type(e).__name__}); reconnect", 500)
         except Exception:
             pass
+
+
+class _NoLock:
+    async def __aenter__(self):
+        return None
+
+    async def __aexit__(self, *a):
+        return False
+
+
+_NO_LOCK = _NoLock()
+
+
+def _forward_peers(st, sid: str, streams, msgs: list[dict]) -> None:
+    """Other processes' messages of a shared session (stored by them, in seq order): to this
+    process's worker session, and to every stream here as a PeerEvent (a change another tab
+    made), as a message of another stream here is."""
+    if not msgs:
+        return
+    conns = list(streams.conns) if streams is not None else []
+    for m in msgs:
+        try:
+            st.pool.send(sid, m)
+        except KeyError:         # the worker session was closed meanwhile
+            return
+        peer = PeerEvent(message=m, streams=len(conns) + 1).model_dump()
+        for c in conns:
+            c.event(peer)
+
+
+async def share_loop(st) -> None:
+    """Every POLL_S: the sessions streamed here that other API processes serve too get the
+    messages those stored (server/sessions_store.py, shared sessions), in seq order."""
+    while True:
+        await asyncio.sleep(POLL_S)
+        try:
+            shared = await run_in_threadpool(st.sessions.poll)
+            for sid in shared:
+                streams = st.sessions.streams(sid)
+                if streams is None or streams.order is None:
+                    continue
+                async with streams.order:
+                    _forward_peers(st, sid, streams, await run_in_threadpool(st.sessions.take_peers, sid))
+        except asyncio.CancelledError:
+            raise
+        except Exception as e:       # the database is away for a moment: try again next time
+            log.warning("shared sessions: %s", e)
 
 
 async def _session_ended(st, sid: str, streams) -> None:
@@ -573,6 +630,8 @@ def expire_idle(st, older_than: dt.timedelta, viewers_older_than: dt.timedelta |
         gone = [r.id for r in s.execute(q) if idle(r, viewer_cutoff)]
         if gone:
             s.execute(delete(StrokeRow).where(StrokeRow.session_id.in_(gone)))
+            s.execute(delete(SessionLogRow).where(SessionLogRow.session_id.in_(gone)))
+            s.execute(delete(SessionServer).where(SessionServer.session_id.in_(gone)))
             s.execute(delete(SessionSave).where(SessionSave.session_id.in_(gone)))
             s.execute(delete(Session).where(Session.id.in_(gone)))
     return n + len(gone)

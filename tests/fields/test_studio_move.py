@@ -1,5 +1,6 @@
 """The studio's Move tool in headless Chromium (as tests/web), on the crate scene precomputed by
-the real server: a drag slides the box over the floor under the pointer, Shift-drag turns it,
+the real server: a drag slides the box over the floor under the pointer, Shift-drag turns it (by
+CSS pixels, the same at any device pixel ratio),
 ``drag: true`` while dragging and a last message without it. Screenshots go to
 test-artifacts/web-move-*.png."""
 import json
@@ -45,7 +46,8 @@ def test_move_tool_slides_and_turns_the_object(server, crate, crate_scene, artif
         b = p.chromium.launch(executable_path=CHROMIUM, headless=True,
                               args=["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage"])
         try:
-            page = b.new_page(viewport={"width": 1280, "height": 860})
+            # a device pixel ratio above 1: frames have more pixels than the canvas has CSS pixels
+            page = b.new_page(viewport={"width": 1280, "height": 860}, device_scale_factor=1.5)
             errors, sent = [], []
             page.on("pageerror", lambda e: errors.append(str(e)))
             page.on("websocket", lambda ws: ws.on("framesent", lambda m: sent.append(m)))
@@ -80,7 +82,7 @@ def test_move_tool_slides_and_turns_the_object(server, crate, crate_scene, artif
             p0x, _ = project(cam, [box[0], h, box[2]])
             assert abs((qx - p0x) - 60) < 6 and t["translate"][1] == h, (t, qx - p0x)
             assert t["translate"][0] > box[0] + 5 and t["rotate_deg"] == [0, 0, 0]
-            # Shift-drag turns it about +Y, 0.5° per frame pixel
+            # Shift-drag turns it about +Y, 0.5° per CSS pixel, whatever the device pixel ratio
             sent.clear()
             n = frame_no(page)
             page.keyboard.down("Shift")
@@ -91,9 +93,10 @@ def test_move_tool_slides_and_turns_the_object(server, crate, crate_scene, artif
             page.screenshot(path=str(artifacts / "web-move-3-turned.png"))
             moves = [json.loads(m) for m in sent if isinstance(m, str) and '"move"' in m]
             last = moves[-1]["transform"]
-            # frames follow the canvas size: 0.5° per pixel of the frame drawn (its width: the canvas's)
+            # frames follow canvas × device pixel ratio, but the turn follows the hand's motion
             fw = page.evaluate("() => document.getElementById('view').width")
-            want = 0.5 * 40 * sx * fw / c["width"]
+            assert fw > 1.3 * c["width"], (fw, c["width"])     # frame pixels are not CSS pixels here
+            want = 0.5 * 40 * sx
             assert abs(last["rotate_deg"][1] - want) < 0.1 * want and last["translate"] == t["translate"], (last, want)
             assert not errors, errors
         finally:

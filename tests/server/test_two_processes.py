@@ -2,15 +2,19 @@
 other process, two tabs behind a load balancer): each keeps its own write-behind copy of the
 session's state, and writes it compare-and-set on the row's version (server/sessions_store.py),
 so neither overwrites what the other changed: a camera moved through one and a light turned
-through the other both stay."""
+through the other both stay. And the two tabs see each other's changes live (shared sessions):
+each process forwards the other's stored messages to its own worker session, so both draw the
+same frame, and to its streams as peer events."""
 import asyncio
 import json
 import time
 from pathlib import Path
 
 import httpx
+import numpy as np
 
-from helpers import GlintServer, connect, next_frame
+from helpers import GlintServer, connect
+from worker.protocol import decode_frame
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -33,6 +37,50 @@ def _precomputed_bunny(c: httpx.Client, assets) -> str:
         time.sleep(0.5)
     assert p["status"] == "done", p
     return sc
+
+
+class Tab:
+    """A stream read in the background: its newest frame (header, linear-ish RGB array), how many
+    frames came, and its events."""
+
+    def __init__(self, ws):
+        self.ws, self.frame, self.frames, self.events = ws, None, 0, []
+        self.task = asyncio.create_task(self._read())
+
+    async def _read(self):
+        import io
+
+        from PIL import Image
+
+        async for x in self.ws:
+            if isinstance(x, bytes):
+                hdr, img = decode_frame(x)
+                self.frame = (hdr, np.asarray(Image.open(io.BytesIO(img)).convert("RGB"), np.float64))
+                self.frames += 1
+            else:
+                self.events.append(json.loads(x))
+
+    async def until(self, pred, what: str, timeout: float = 30.0):
+        t = time.monotonic() + timeout
+        while time.monotonic() < t:
+            got = pred(self)
+            if got:
+                return got
+            await asyncio.sleep(0.05)
+        raise AssertionError(f"no {what} within {timeout} s; events: {[e['type'] for e in self.events][-10:]}")
+
+    def peer(self, kind: str):
+        return next((e for e in self.events if e["type"] == "peer" and e["message"]["type"] == kind), None)
+
+    async def settled(self, quiet: float = 1.5, timeout: float = 30.0) -> np.ndarray:
+        """The frame once none has come for ``quiet`` s (the anti-aliased still)."""
+        t = time.monotonic() + timeout
+        while time.monotonic() < t:
+            n = self.frames
+            await asyncio.sleep(quiet)
+            if n == self.frames and self.frame is not None:
+                return self.frame[1]
+        raise AssertionError(f"frames did not settle within {timeout} s")
 
 
 def test_two_api_processes_on_one_database_keep_each_others_changes(tmp_path, shared_assets):
@@ -58,20 +106,32 @@ def test_two_api_processes_on_one_database_keep_each_others_changes(tmp_path, sh
                     hb = json.loads(await wb.recv())
                     assert ha["type"] == hb["type"] == "hello", (ha, hb)
                     seq = max(ha["state"]["last_seq"], hb["state"]["last_seq"])
-                    await next_frame(wa)
-                    await next_frame(wb)
+                    ta, tb = Tab(wa), Tab(wb)
+                    fb0 = await tb.settled()
                     # through A the camera (batched: A writes it within half a second) ...
                     await wa.send(json.dumps({"seq": seq + 1, "type": "view", "eye": [0.3, 0.6, 3.1]}))
-                    await next_frame(wa, seq + 1)
-                    await asyncio.sleep(1.5)
+                    # ... which B's tab is told of, and B's own worker draws
+                    peer = await tb.until(lambda t: t.peer("view"), "peer event for A's camera")
+                    assert peer["message"]["eye"] == [0.3, 0.6, 3.1], peer
+                    fa1, fb1 = await asyncio.gather(ta.settled(), tb.settled())
+                    assert np.abs(fb1 - fb0).mean() > 2, "B's frame did not follow A's camera"
+                    assert np.abs(fb1 - fa1).mean() < 1, np.abs(fb1 - fa1).mean()
                     # ... then through B, whose copy still has the old camera, the light
                     await wb.send(json.dumps({"seq": seq + 2, "type": "light", "rotation_deg": 40}))
-                    await next_frame(wb, seq + 2)
-                    await asyncio.sleep(1.5)
+                    peer = await ta.until(lambda t: t.peer("light"), "peer event for B's light")
+                    assert peer["message"]["rotation_deg"] == 40, peer
+                    fa2, fb2 = await asyncio.gather(ta.settled(), tb.settled())
+                    assert np.abs(fa2 - fa1).mean() > 1, "A's frame did not follow B's light"
+                    assert np.abs(fb2 - fa2).mean() < 1, np.abs(fb2 - fa2).mean()
                     # and through A again, whose copy has the old light
                     await wa.send(json.dumps({"seq": seq + 3, "type": "display", "exposure": 1.5}))
-                    await next_frame(wa, seq + 3)
-                    await asyncio.sleep(1.5)
+                    await tb.until(lambda t: t.peer("display"), "peer event for A's exposure")
+                    await asyncio.sleep(1.0)
+                    # each process numbered the messages in the session: no seq twice
+                    seqs = [e["message"]["seq"] for t in (ta, tb) for e in t.events if e["type"] == "peer"]
+                    assert sorted(seqs) == [seq + 1, seq + 2, seq + 3], seqs
+                    for t in (ta, tb):
+                        t.task.cancel()
                 return seq
 
             seq = asyncio.run(go())

@@ -1,13 +1,19 @@
 """The studio and the shopper viewer in headless Chromium (Debian's, driven by Playwright),
 against the real server fixture. Screenshots of every step go to test-artifacts/web-*.png."""
+import base64
+import io
 import json
 import time
 import urllib.parse
 
 import numpy as np
 import pytest
+from PIL import Image
 
 from helpers import drag, frame_no, settle, validate_gltf, wait_new_frame
+from worker.jobs.curves import brdf_lobe
+from worker.models import parse_material
+from worker.paint.swatch import swatch_png
 
 pw = pytest.importorskip("playwright.sync_api")
 ANDROID_UA = ("Mozilla/5.0 (Linux; Android 14; Pixel 8) AppleWebKit/537.36 (KHTML, like Gecko) Chrome/131.0.0.0 "
@@ -388,6 +394,24 @@ def test_studio_paint_designer_and_lighting_capture(server, bunny_scene, browser
     assert page.locator("#model").input_value() == "lobes"
     assert np.abs(g1 - g0).mean() > 1, "the paint readings did not change the frame"
     assert "fit" in page.locator(".paint-status").inner_text()
+    # the lobe plot draws the worker's lobe of the fitted paint, and a kept paint's swatch is the
+    # worker's picture of it: the page evaluates no BRDF
+    page.wait_for_function("() => { const c = document.getElementById('paint-lobe');"
+                           " return c.dataset.drawn && JSON.parse(c.dataset.material || 'null')?.model === 'lobes'; }",
+                           timeout=60_000)
+    lobe = page.locator("#paint-lobe").evaluate("c => ({...c.dataset})")
+    fitted = parse_material(json.loads(lobe["material"]))
+    server_lobe = brdf_lobe(fitted)
+    k = server_lobe["rgb_theta_i_deg"].index(int(float(lobe["incident"])))
+    assert lobe["incident"] == "45"
+    drawn = np.asarray(json.loads(lobe["drawn"]))
+    assert np.allclose(drawn, server_lobe["rgb"][k], rtol=1e-3, atol=1e-9), np.abs(drawn - server_lobe["rgb"][k]).max()
+    page.fill("#design-name", "red flop")
+    page.click("#paint-keep")
+    img = page.locator("#paint-palette img[alt='red flop']")
+    img.wait_for(timeout=10_000)
+    png = lambda url: np.asarray(Image.open(io.BytesIO(base64.b64decode(url.split(",", 1)[1]))).convert("RGBA"), int)
+    assert np.abs(png(img.get_attribute("src")) - png(swatch_png(fitted))).max() <= 1
     page.screenshot(path=str(artifacts / "web-9-paint.png"))
     # the capture: photos chosen in the panel, stitched by the service, applied to the scene
     page.locator("#capture-details summary").click()

@@ -3,7 +3,9 @@ frame comes anti-aliased without input, the curve drawn is the worker's, a model
 the object's colour, a click picks the second object of a scene and a stroke changes only it,
 and GI and car-paint scenes are created from the studio's scene dialog. Screenshots go to
 test-artifacts/web-objects-*.png."""
+import asyncio
 import json
+import threading
 import time
 
 import numpy as np
@@ -154,7 +156,19 @@ def test_settled_frame_curve_and_model_switch(server, bunny_scene, browser, arti
 def test_click_picks_the_second_object_and_a_stroke_changes_only_it(server, client, shared_assets, browser, artifacts):
     sid = _upload_scene(client, shared_assets, "two-bunnies.json", "two bunnies")
     errors = []
-    page = _page(browser, server, errors)
+    # the page's session streams pass through here, so the test can cut one (a network drop)
+    # and hold the reconnect while another client changes the session
+    routes, hold = [], []
+
+    def on_ws(ws):
+        routes.append(ws)
+        if not hold:
+            ws.connect_to_server()
+    page = browser.new_page(viewport={"width": 1280, "height": 900})
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.route_web_socket("**/stream", on_ws)
+    page.goto(server["base"] + "/")
+    page.wait_for_function("() => document.getElementById('scene-select').options.length > 0", timeout=60_000)
     _open(page, sid)
     settle(page)
     assert page.locator("#object-select").input_value() == "left"
@@ -178,8 +192,49 @@ def test_click_picks_the_second_object_and_a_stroke_changes_only_it(server, clie
     left, right = change[:, : change.shape[1] // 2], change[:, change.shape[1] // 2:]
     assert right.max() > 0.05 and right.mean() > 5 * max(left.mean(), 1e-4), (left.mean(), right.mean())
     assert left.max() < 0.01, left.max()                  # the left bunny did not change at all
+
+    # a network drop: while this tab is away another client edits the left bunny; the hello of
+    # the reconnect names it, and the object menu follows (not only the material panel)
+    hold.append(True)
+    routes[-1].close()
+    page.wait_for_function("() => /disconnected/.test(document.getElementById('status').textContent)", timeout=30_000)
+    sess = page.evaluate("() => { const id = new URLSearchParams(location.search).get('session');"
+                         " return { id, ...JSON.parse(localStorage.getItem('glint.session.' + id)) }; }")
+    # (in a thread of its own: Playwright's sync API holds this one's event loop)
+    err = []
+    t = threading.Thread(target=lambda: err.extend(_run(_edit_object(server, sess, "left"))))
+    t.start()
+    t.join(120)
+    assert not err, err
+    hold.clear()
+    routes[-1].close()                                   # the held reconnect: the next one gets through
+    page.wait_for_function("() => document.getElementById('object-select').dataset.edited === 'left'", timeout=60_000)
+    assert page.locator("#object-select").input_value() == "left"
+    page.screenshot(path=str(artifacts / "web-objects-4-reconnected.png"))
     assert not errors, errors
     page.close()
+
+
+def _run(coro) -> list:
+    try:
+        asyncio.run(coro)
+        return []
+    except Exception as e:          # reported by the test's thread
+        return [repr(e)]
+
+
+async def _edit_object(server, sess, name):
+    """Another client (a second tab) of the session edits ``name`` and waits until it is stored."""
+    from helpers import connect
+
+    async with connect(server, f"/v1/sessions/{sess['id']}/stream", sess["token"]) as ws:
+        hello = json.loads(await ws.recv())
+        seq = hello["state"]["last_seq"] + 1
+        await ws.send(json.dumps({"seq": seq, "type": "object", "object": name}))
+        while True:
+            x = await asyncio.wait_for(ws.recv(), 60)
+            if isinstance(x, str) and json.loads(x)["type"] == "object":
+                return
 
 
 @pytest.mark.parametrize("kind, label", [("gi", "global illumination"), ("paint", "car paint")])

@@ -31,11 +31,16 @@ export function fullTransform(t = {}) {
   return { scale: t.scale ?? 1, rotate_deg: [...(t.rotate_deg || [0, 0, 0])], translate: [...(t.translate || [0, 0, 0])] };
 }
 
+export const TURN_DEG_PER_CSS_PX = 0.5;
+
 // A drag of the Move tool. start(px, py, transform) then to(px, py, turning) -> the new transform:
 // sliding keeps the point grabbed under the pointer on the plane through the object's origin
-// (parallel to the floor); turning adds 0.5° of yaw per pixel of horizontal motion.
+// (parallel to the floor); turning adds TURN_DEG_PER_CSS_PX of yaw per CSS pixel of horizontal
+// motion. px, py are frame pixels, and a frame has canvas × device-pixel-ratio pixels (capped):
+// cssPerFramePx (the canvas's CSS width / the frame's width) makes the turn the same on every
+// screen for the same hand motion.
 export class MoveDrag {
-  constructor(cam) { this.cam = cam; }
+  constructor(cam, { cssPerFramePx = 1 } = {}) { this.cam = cam; this.degPerPx = TURN_DEG_PER_CSS_PX * cssPerFramePx; }
 
   start(px, py, transform) {
     this.t0 = fullTransform(transform);
@@ -49,7 +54,7 @@ export class MoveDrag {
   to(px, py, turning) {
     const t = fullTransform(this.base);
     if (turning) {
-      t.rotate_deg[1] = this.base.rotate_deg[1] + 0.5 * (px - this.x0);
+      t.rotate_deg[1] = this.base.rotate_deg[1] + this.degPerPx * (px - this.x0);
       return t;
     }
     const p = onPlane(this.cam, px, py, this.h);

@@ -1,7 +1,10 @@
 // The car-paint designer's studio pieces (cacad-cosine-lobes §1.1: BRDF designer, lobe
 // visualiser, colour swatch palette), as self-contained ES modules. The studio wires them:
 //   const panel = createPaintPanel(el, {object: "car", send: (msg) => ws.send(JSON.stringify(msg))});
-//   on the session's "paint" event: panel.showEvent(ev); visualiser.update(ev.material); palette.current = ev;
+//   on the session's "paint" event: panel.showEvent(ev); on its "curve" event: visualiser.update(ev.curve.lobe, m);
+//   to keep it: palette.add({name, measurements: ev.measured, material: ev.material, swatch: ev.swatch}).
+// Every BRDF value they show is the worker's (the curve event's lobe, the paint event's swatch):
+// the browser draws, it does not evaluate.
 // Measurements follow worker/paint/geometry.py: gloss in GU (ASTM D523 20°), aspecular readings
 // as linear RGB reflectance factors (π·f) at 45° illumination (ASTM E2194).
 
@@ -114,90 +117,58 @@ export function createPaintPanel(container, { send, object = "", initial = null,
   };
 }
 
-// BRDF of Glint's lobes model (worker/scene.py Lobes) at local directions wi, wo (z = normal).
-export function evalLobes(m, wi, wo) {
-  if (wi[2] <= 0 || wo[2] <= 0) return [0, 0, 0];
-  const rv = Math.max(0, 2 * wi[2] * wo[2] - (wi[0] * wo[0] + wi[1] * wo[1] + wi[2] * wo[2]));
-  const f = m.albedo.map((a) => a / Math.PI);
-  m.exponents.forEach((e, i) => {
-    const s = ((e + 2) / (2 * Math.PI)) * rv ** e;
-    for (let c = 0; c < 3; c++) f[c] += (m.gloss[i] + m.directional_diffuse[i][c]) * s;
-  });
-  return f;
-}
-
-// Lobe visualiser: polar plot of f(wi, wo) in the plane of incidence for a chosen incidence
-// angle, one curve per channel plus luminance; log radius (decades) so flakes and gloss show.
+// Lobe visualiser: polar plot in the plane of incidence of the server's f(ωi, ωo)·cosθo (the
+// `lobe` of the worker's `curve` event, worker/jobs/curves.py brdf_lobe: the BRDF the frame is
+// rendered with), one curve per channel plus luminance, at the server's incident angle (of its
+// rgb_theta_i_deg) nearest incidenceDeg; log radius (decades below the peak) so flakes and
+// gloss both show. It draws, it does not evaluate.
 export function createLobeVisualiser(canvas, { incidenceDeg = 45, decades = 4 } = {}) {
-  let material = null;
+  let lobe = null, material = null;
   const ctx = canvas.getContext("2d");
   function draw() {
     const w = canvas.width, h = canvas.height, cx = w / 2, cy = h - 10, R = Math.min(w / 2, h) - 14;
     ctx.clearRect(0, 0, w, h);
-    ctx.strokeStyle = "#555"; ctx.lineWidth = 1;
+    ctx.strokeStyle = "#ccc"; ctx.lineWidth = 1;        // on the studio's light plot background
     for (let d = 1; d <= decades; d++) { ctx.beginPath(); ctx.arc(cx, cy, (R * d) / decades, Math.PI, 2 * Math.PI); ctx.stroke(); }
     ctx.beginPath(); ctx.moveTo(cx - R, cy); ctx.lineTo(cx + R, cy); ctx.stroke();
-    const ti = (incidenceDeg * Math.PI) / 180;
-    ctx.strokeStyle = "#fc3"; ctx.beginPath(); ctx.moveTo(cx, cy); ctx.lineTo(cx - R * Math.sin(ti), cy - R * Math.cos(ti)); ctx.stroke();
-    if (!material) return;
-    const wi = [-Math.sin(ti), 0, Math.cos(ti)];
-    const curves = [[], [], [], []];
-    for (let k = 0; k <= 360; k++) {
-      const t = -Math.PI / 2 + (Math.PI * k) / 360;
-      const f = evalLobes(material, wi, [Math.sin(t), 0, Math.cos(t)]);
-      [...f, luma(f)].forEach((v, c) => curves[c].push([t, v]));
-    }
-    const vmax = Math.max(...curves[3].map((p) => p[1]), 1e-9);
-    const colors = ["#e44", "#4c4", "#48f", "#fff"];
-    curves.forEach((pts, c) => {
+    if (!lobe?.rgb) { delete canvas.dataset.drawn; return; }
+    const angles = lobe.rgb_theta_i_deg;
+    let k = 0;
+    angles.forEach((t, i) => { if (Math.abs(t - incidenceDeg) < Math.abs(angles[k] - incidenceDeg)) k = i; });
+    const ti = (angles[k] * Math.PI) / 180;
+    ctx.strokeStyle = "#e90"; ctx.beginPath(); ctx.moveTo(cx, cy); ctx.lineTo(cx - R * Math.sin(ti), cy - R * Math.cos(ti)); ctx.stroke();
+    const rgb = lobe.rgb[k];
+    const curves = [0, 1, 2].map((c) => rgb.map((f) => f[c]));
+    curves.push(rgb.map(luma));
+    const vmax = Math.max(...curves[3], 1e-30);
+    const colors = ["#d33", "#3a3", "#36d", "#222"];
+    curves.forEach((vals, c) => {
       ctx.strokeStyle = colors[c]; ctx.lineWidth = c === 3 ? 2 : 1; ctx.beginPath();
-      pts.forEach(([t, v], k) => {
+      vals.forEach((v, i) => {
+        const t = (lobe.theta_o_deg[i] * Math.PI) / 180;
         const r = (R * Math.max(0, decades + Math.log10(Math.max(v, 1e-30) / vmax))) / decades;
         const x = cx + r * Math.sin(t), y = cy - r * Math.cos(t);
-        k ? ctx.lineTo(x, y) : ctx.moveTo(x, y);
+        i ? ctx.lineTo(x, y) : ctx.moveTo(x, y);
       });
       ctx.stroke();
     });
+    ctx.lineWidth = 1;
+    // what was drawn, as received (for assistive tools and tests): the incident angle, the
+    // server's RGB values at it, and the material they are of
+    canvas.dataset.incident = String(angles[k]);
+    canvas.dataset.drawn = JSON.stringify(rgb);
+    canvas.dataset.material = JSON.stringify(material);
   }
   return {
-    update(m, inc) { material = m; if (inc != null) incidenceDeg = inc; draw(); },
+    // lobe: a curve event's `lobe` (null: nothing evaluated yet); m: the material it is of
+    update(l, m = null, inc) { lobe = l; material = m; if (inc != null) incidenceDeg = inc; draw(); },
     setIncidence(deg) { incidenceDeg = deg; draw(); },
   };
 }
 
-// A swatch: a sphere shaded with the lobes BRDF under a fixed studio light set (key, fill,
-// rim and a sky dome), so saved paints compare side by side without a server round trip.
-export function renderSwatch(canvas, m) {
-  const ctx = canvas.getContext("2d");
-  const n = canvas.width, img = ctx.createImageData(n, n);
-  const lights = [[[-0.5, 0.6, 0.62], 2.5], [[0.7, 0.2, 0.68], 0.8], [[0.1, -0.3, -0.95], 1.2]];
-  for (let y = 0; y < n; y++) for (let x = 0; x < n; x++) {
-    const u = (2 * (x + 0.5)) / n - 1, v = 1 - (2 * (y + 0.5)) / n, r2 = u * u + v * v;
-    const o = 4 * (y * n + x);
-    if (r2 > 1) { img.data[o + 3] = 0; continue; }
-    const N = [u, v, Math.sqrt(1 - r2)];
-    // local frame: z = N, wo = view (0, 0, 1) expressed in it
-    const t = Math.abs(N[0]) < 0.9 ? [1, 0, 0] : [0, 1, 0];
-    const b = [N[1] * t[2] - N[2] * t[1], N[2] * t[0] - N[0] * t[2], N[0] * t[1] - N[1] * t[0]];
-    const bl = Math.hypot(...b); b.forEach((_, i) => (b[i] /= bl));
-    const tt = [b[1] * N[2] - b[2] * N[1], b[2] * N[0] - b[0] * N[2], b[0] * N[1] - b[1] * N[0]];
-    const loc = (d) => [d[0] * tt[0] + d[1] * tt[1] + d[2] * tt[2], d[0] * b[0] + d[1] * b[1] + d[2] * b[2], d[0] * N[0] + d[1] * N[1] + d[2] * N[2]];
-    const wo = loc([0, 0, 1]);
-    const col = m.albedo.map((a) => a * 0.25 * (0.6 + 0.4 * N[1]));      // sky dome, diffuse part
-    for (const [d, e] of lights) {
-      const len = Math.hypot(...d), wi = loc(d.map((x) => x / len));
-      if (wi[2] <= 0) continue;
-      const f = evalLobes(m, wi, wo);
-      for (let c = 0; c < 3; c++) col[c] += f[c] * wi[2] * e;
-    }
-    for (let c = 0; c < 3; c++) img.data[o + c] = Math.round(255 * linearToSrgb(clamp01(col[c] / (1 + col[c]))));
-    img.data[o + 3] = 255;
-  }
-  ctx.putImageData(img, 0, 0);
-}
-
-// Swatch palette: named collections of saved designs ({name, measurements, material}) in
-// localStorage; each shown as a rendered swatch; clicking one calls onSelect(design).
+// Swatch palette: named collections of saved designs ({name, measurements, material, swatch}) in
+// localStorage; each shown as its swatch, the worker's image of the paint on a sphere (a paint
+// event's `swatch`, worker/paint/swatch.py); clicking one calls onSelect(design).
 export function createSwatchPalette(container, { storageKey = "glint.paint.palette", onSelect } = {}) {
   const load = () => { try { return JSON.parse(localStorage.getItem(storageKey)) || {}; } catch { return {}; } };
   let collections = load();
@@ -212,10 +183,11 @@ export function createSwatchPalette(container, { storageKey = "glint.paint.palet
     pick.replaceChildren(...Object.keys({ [active]: 1, ...collections }).map((c) => el("option", c === active ? { selected: "" } : {}, [c])));
     grid.replaceChildren();
     for (const d of collections[active] || []) {
-      const cv = el("canvas", { width: "64", height: "64", title: d.name });
-      renderSwatch(cv, d.material);
-      cv.addEventListener("click", () => onSelect && onSelect(d));
-      grid.append(el("figure", { style: "margin:0;text-align:center" }, [cv, el("figcaption", {}, [d.name])]));
+      // a paint kept before swatches came from the worker has none: its name stands alone
+      const img = d.swatch ? el("img", { src: d.swatch, width: "64", height: "64", alt: d.name, title: d.name })
+        : el("div", { style: "width:64px;height:64px;border:1px dashed #888", title: d.name });
+      img.addEventListener("click", () => onSelect && onSelect(d));
+      grid.append(el("figure", { style: "margin:0;text-align:center" }, [img, el("figcaption", {}, [d.name])]));
     }
   }
   pick.addEventListener("change", () => { active = pick.value; draw(); });
@@ -224,8 +196,9 @@ export function createSwatchPalette(container, { storageKey = "glint.paint.palet
     element: root,
     get collections() { return structuredClone(collections); },
     useCollection(name) { active = name; draw(); },
-    add(design) {                       // design: {name, measurements, material} (a paint event)
-      (collections[active] ||= []).push({ name: design.name, measurements: design.measurements, material: design.material });
+    add(design) {                       // design: {name, measurements, material, swatch} (a paint event)
+      (collections[active] ||= []).push({ name: design.name, measurements: design.measurements, material: design.material,
+        swatch: design.swatch || "" });
       save(); draw();
     },
     remove(name) { collections[active] = (collections[active] || []).filter((d) => d.name !== name); save(); draw(); },

@@ -173,7 +173,7 @@ function mountPaint(object, initial) {
 $("paint-keep").onclick = () => {
   if (!lastPaint) return status("move a paint slider first");
   const name = $("design-name").value || "paint";
-  palette.add({ name, measurements: lastPaint.measured, material: lastPaint.material });
+  palette.add({ name, measurements: lastPaint.measured, material: lastPaint.material, swatch: lastPaint.swatch });
   stream?.send("save", { name, material_id: designs.current() });
 };
 $("paint-export-json").onclick = () => lastPaint && downloadMeasurements(lastPaint.measured, $("design-name").value || "paint", "json");
@@ -194,6 +194,7 @@ function onEvent(ev) {
       status(`${state.object}: ${ev.strokes} stroke(s) restored` + (ev.streams > 1 ? `; ${ev.streams} tabs share this session` : ""));
     }
     showRenderer(ev.renderer || "cuts", ev.controls || [], ev.renderers, ev.off || {});
+    objects.show(state.objects, state.object);     // the menu names the object the session edits
     mountPaint(ev.state.object, ev.state.paint?.[ev.state.object] || null);
     state.transforms = ev.state.transforms || state.transforms;
     movableNames = ev.state.movable || [];
@@ -210,8 +211,7 @@ function onEvent(ev) {
   } else if (ev.type === "paint") {
     lastPaint = ev;
     setMaterial(ev.material);
-    paintPanel?.showEvent(ev);
-    lobeView.update(ev.material, 45);
+    paintPanel?.showEvent(ev);          // its lobe plot follows with the curve event
     status(`paint: fitted in ${ev.ms_fit.toFixed(1)} ms, error ${(100 * ev.error_l1).toFixed(1)}%` +
       (ev.warning ? ` — ${ev.warning}` : ""));
   } else if (ev.type === "curve") {
@@ -286,7 +286,7 @@ $("view").addEventListener("pointerdown", (e) => {
   if (mode === "move") {
     const name = $("move-object").value;
     state.transforms = state.transforms || {};
-    dragging.move = new MoveDrag(state.camera);
+    dragging.move = new MoveDrag(state.camera, { cssPerFramePx: $("view").getBoundingClientRect().width / state.camera.width });
     dragging.turning = e.shiftKey;
     dragging.move.start(...view.toFrame(e, state.camera.width, state.camera.height), fullTransform(state.transforms[name]));
   }
@@ -432,7 +432,11 @@ const curveEditor = new CurveEditor($("curve"), {
   onNeedCurve: () => { status("converting to a curve…"); stream?.send("convert", { model: "curve" }); },
 });
 let curveData = null;             // the worker's curve of the edited object's material
-const drawLobePlot = () => drawLobe($("lobe"), curveData?.lobe, +$("lobe-angle").value);
+// both lobe plots draw the worker's lobe of the material its curve was evaluated for
+const drawLobePlot = () => {
+  drawLobe($("lobe"), curveData?.lobe, +$("lobe-angle").value);
+  lobeView.update(curveData?.lobe || null, curveEditor.base);
+};
 let pendingMaterial = false;
 function queueMaterial() {
   if (pendingMaterial) return;

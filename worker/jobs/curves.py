@@ -10,6 +10,9 @@ from ..models import SRBF
 CURVE_SAMPLES = 91
 LOBE_INCIDENT_DEG = tuple(range(0, 90, 5))     # the lobe plot's incident angles (its slider snaps to them)
 LOBE_SAMPLES = 91                              # θo from −90° to 90°
+# the incident angles of the lobe's RGB (the paint designer's plot; its 45° is the measurement
+# geometry's illumination): a few, so a curve event is ~36 KB rather than ~75 KB
+LOBE_RGB_INCIDENT_DEG = (15, 30, 45, 60, 75)
 
 
 def brdf_curve(material, n: int = CURVE_SAMPLES) -> dict:
@@ -42,9 +45,12 @@ def brdf_curve(material, n: int = CURVE_SAMPLES) -> dict:
 
 
 def brdf_lobe(material) -> dict:
-    """The BRDF in the plane of incidence for the lobe plot: luminance of f(ωi, ωo)·cosθo with
-    ωi at each of LOBE_INCIDENT_DEG on the −x side and ωo from −90° to 90° in the x-z plane.
-    Returns {"theta_i_deg": [...], "theta_o_deg": [...], "values": [[...], ...] (per θi)}."""
+    """The BRDF in the plane of incidence for the lobe plots: f(ωi, ωo)·cosθo with ωi at each of
+    LOBE_INCIDENT_DEG on the −x side and ωo from −90° to 90° in the x-z plane.
+    Returns {"theta_i_deg": [...], "theta_o_deg": [...], "values": [[...], ...] (luminance, per
+    θi), "rgb_theta_i_deg": LOBE_RGB_INCIDENT_DEG, "rgb": [[[r, g, b], ...], ...] (per one of
+    those θi and θo, rounded to 3 significant digits four decades below each θi's peak: the
+    paint designer's log-radius plot, where colour travel across angles shows)}."""
     from ..core.brdf import evaluate
 
     ti = np.radians(np.asarray(LOBE_INCIDENT_DEG, np.float64))
@@ -53,9 +59,25 @@ def brdf_lobe(material) -> dict:
     wi = np.stack([-np.sin(T), np.zeros_like(T), np.cos(T)], -1)
     wo = np.stack([np.sin(O), np.zeros_like(O), np.cos(O)], -1)
     f = evaluate(material, wi.reshape(-1, 3), wo.reshape(-1, 3)).reshape(*T.shape, 3)
-    lum = f @ np.array([0.2126, 0.7152, 0.0722]) * np.maximum(np.cos(O), 0.0)
+    fc = f * np.maximum(np.cos(O), 0.0)[..., None]
+    lum = fc @ np.array([0.2126, 0.7152, 0.0722])
+    rgb = fc[[LOBE_INCIDENT_DEG.index(t) for t in LOBE_RGB_INCIDENT_DEG]]
     return {"theta_i_deg": list(LOBE_INCIDENT_DEG), "theta_o_deg": np.degrees(to).round(3).tolist(),
-            "values": lum.round(6).tolist()}
+            "values": lum.round(6).tolist(), "rgb_theta_i_deg": list(LOBE_RGB_INCIDENT_DEG),
+            "rgb": _rounded(rgb).tolist()}
+
+
+def _rounded(a: np.ndarray, decades: int = 4, digits: int = 3) -> np.ndarray:
+    """``a`` (n_i, n_o, 3) rounded, per incident angle, to the decimals that keep ``digits``
+    significant digits ``decades`` below that angle's peak: a log plot of four decades needs
+    relative precision there, which one fixed number of decimals loses for a dark material, and
+    which every value's own significant digits would cost a Python loop to print."""
+    peak = np.maximum(a.max(axis=(1, 2)), 1e-30)
+    dec = np.clip(np.ceil(-np.log10(peak)) + decades + digits - 1, 0, 15).astype(int)
+    out = np.empty_like(a)
+    for i, d in enumerate(dec):
+        out[i] = np.round(a[i], int(d))
+    return out
 
 
 def _dump(m) -> dict:

@@ -12,6 +12,7 @@ from typing import Any, Mapping
 from ..scene import Lobes
 from .fit import fit_measurements
 from .geometry import MeasurementError, flop_index, measure
+from .swatch import swatch_png
 
 
 def apply_paint(msg_fields: Mapping[str, Any], exponents=None) -> tuple[Lobes, dict]:
@@ -22,7 +23,8 @@ def apply_paint(msg_fields: Mapping[str, Any], exponents=None) -> tuple[Lobes, d
     material (what the render shows), "requested": the message's values, "error_l1",
     "error_max", "residuals": signed relative residual of every reading (same form as the
     readings), "unmet": the readings off by more than fit.TOLERANCE ("gloss", "45:r", …),
-    "warning": a sentence naming them or None, "flop_index", "ms_fit"}``.
+    "warning": a sentence naming them or None, "flop_index", "ms_fit", "swatch": the fitted paint
+    on a sphere (swatch.py), a PNG data URL}``.
     Raises MeasurementError (a GlintError) on bad fields."""
     if "aspecular" not in msg_fields:
         raise MeasurementError("paint message needs aspecular readings")
@@ -35,5 +37,5 @@ def apply_paint(msg_fields: Mapping[str, Any], exponents=None) -> tuple[Lobes, d
              "material": r.material.model_dump(), "measured": measured, "requested": requested,
              "error_l1": r.error_l1, "error_max": r.error_max, "residuals": r.residuals,
              "unmet": r.unmet, "warning": r.warning, "flop_index": flop_index(measured),
-             "ms_fit": 1e3 * r.seconds}
+             "ms_fit": 1e3 * r.seconds, "swatch": swatch_png(r.material)}
     return r.material, event

@@ -146,6 +146,9 @@ class PaintEvent(_WorkerEvent):
     warning: str | None = Field(None, description="a sentence naming the unmet readings, or null when all are met")
     flop_index: float | None = None
     ms_fit: float
+    swatch: str = Field("", max_length=65_536,
+                        description="the fitted paint on a sphere under the palette's studio lights, as the worker "
+                                    "shades it (worker/paint/swatch.py): a PNG data URL")
 
     def apply(self, st):
         if self.object in st.objects:
