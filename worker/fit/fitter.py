@@ -319,18 +319,41 @@ class Fitter:
         view.T = np.concatenate([view.T, T], axis=1) if view.T.shape[1] else T
         view.E = np.concatenate([view.E, E])
         view.base = np.concatenate([view.base, base])
-        view.gram = view.gram + gram(T)          # Σ_i T_iᵀT_i: additive over rows
+        # Σ_i T_iᵀT_i: additive over rows; a polynomial renderer's rows are re-expanded at
+        # every Gauss-Newton step, so theirs is built when a fit needs it (``_gram``)
+        view.gram = None if self.polynomial else view.gram + gram(T)
         view.samples = _cat(view.samples, smp)
         view.cache.clear()
 
-    def _relinearise(self, view: FitView, material) -> None:
-        """A polynomial renderer's rows of a view, expanded around another material."""
+    def _relinearise(self, view: FitView, material, rows: np.ndarray | None = None) -> None:
+        """A polynomial renderer's rows of a view (all, or ``rows``: the ones a fit uses),
+        expanded around another material. Rows left out keep their expansion around an earlier
+        material: still an expansion of the same image, which a later fit's Gauss-Newton steps
+        refine when it uses them."""
         kw = {"coarse": True} if view.coarse else {}
-        view.T, view.E, view.offset = self.renderer.linearise(view.samples, self.basis, view.lighting, material,
-                                                              self.obj, **kw)
+        smp = view.samples if rows is None else _take(view.samples, rows)
+        T, E, R = self.renderer.linearise(smp, self.basis, view.lighting, material, self.obj, **kw)
+        if rows is None:
+            view.T, view.E, view.offset = T, E, R
+        else:
+            view.T[:, rows], view.E[rows], view.offset[rows] = T, E, R
         view.lin_material = material
-        view.gram = gram(view.T)
+        view.gram = None
         view.cache.clear()
+
+    def _used_rows(self, targets) -> list[np.ndarray | None]:
+        """Per view, the rows a fit reads (``_rows``): every stride-th one and the painted ones,
+        or None for all of them."""
+        stride = self.row_stride()
+        if stride == 1:
+            return [None] * len(self.views)
+        return [np.union1d(np.arange(0, v.n, stride), np.nonzero(p)[0]) for v, (_, p) in zip(self.views, targets)]
+
+    def _shade(self, view: FitView, material, rows: np.ndarray | None = None) -> np.ndarray:
+        """The renderer's radiance (N, 3) of a view's rows (or ``rows`` of them) under a material."""
+        smp = view.samples if rows is None else _take(view.samples, rows)
+        return self.renderer.shade_samples(smp, material, self.obj, view.lighting,
+                                           **({"coarse": True} if view.coarse else {}))
 
     def _shade_base(self, view: FitView) -> np.ndarray:
         """B' (N, 3): the base material at the view's fit pixels, shaded like the renderer's
@@ -398,6 +421,7 @@ class Fitter:
         painted = sum(int(p.sum()) for _, p in targets)
         prior = self._prior()
         steps, gap, exact = 0, None, None
+        used = self._used_rows(targets) if self.polynomial else None
         while True:
             rows = self._rows(targets, unpainted_weight)
             if not any(np.any(r.weight > 0) for r in rows):
@@ -410,18 +434,21 @@ class Fitter:
             mat = SRBF.model_validate(self.basis.to_material(res.coefficients, res.albedo))
             if not self.polynomial:
                 break
-            # the expansion against the exact radiance at its solution (polynomial-gi eq. 28)
-            exact = [self.renderer.shade_samples(v.samples, mat, self.obj, v.lighting,
-                                                 **({"coarse": True} if v.coarse else {})) for v in self.views]
-            lin = [self.predicted(res.coefficients, i, res.albedo) for i in range(len(self.views))]
+            # the expansion against the exact radiance at its solution (polynomial-gi eq. 28), on
+            # the rows the fit reads: a step costs those rows, not the view's (max_rows)
+            at = [slice(None) if u is None else u for u in used]
+            exact = [self._shade(v, mat, None if u is None else u) for v, u in zip(self.views, used)]
+            lin = [self.predicted(res.coefficients, i, res.albedo)[a] for i, a in enumerate(at)]
             num = sum(float(((e - p) ** 2).sum()) for e, p in zip(exact, lin))
-            den = sum(float((t ** 2).sum()) for t, _ in targets)
+            den = sum(float((t[a] ** 2).sum()) for (t, _), a in zip(targets, at))
             gap = float(np.sqrt(num / max(den, 1e-300)))
             self._lin_material = mat
             if gap <= GN_TOL or steps >= GN_STEPS:
                 break
-            for v in self.views:
-                self._relinearise(v, mat)
+            for v, u in zip(self.views, used):
+                self._relinearise(v, mat, u)
+        if exact is not None and any(u is not None for u in used):
+            exact = [self._shade(v, mat) for v in self.views]    # the fit's figures: every row
         achieved = spill = None
         if self.polynomial and gap is not None and gap > GN_TOL:
             notes = notes + [f"the fit under global illumination stopped after {steps} Gauss-Newton steps with its "
@@ -448,6 +475,8 @@ class Fitter:
             # pixel is built: the session extends a view under each stroke)
             uw = unpainted_weight * (v.n_object - npaint) / max(1, v.n - npaint) if v.partial else unpainted_weight
             if stride == 1:
+                if v.gram is None:
+                    v.gram = gram(v.T)
                 rows.append(FitRows(v.T, v.E, tgt, np.where(pmask, 1.0, uw), v.gram))
                 continue
             # every stride-th row stands for the unpainted rows around it; painted rows count once

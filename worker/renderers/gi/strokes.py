@@ -112,6 +112,10 @@ def extend_map(first: np.ndarray, ext: list[np.ndarray]) -> np.ndarray:
     coefficients (denoise.extend_coefficients, whose maps ``ext`` [(Kθ, R, K1)] are linear)."""
     if not ext:
         return first
+    if first.strides[0] == 0:             # one map for the three channels (no Fresnel split)
+        f = first[0]
+        one = np.concatenate([f, *[np.einsum("krs,ksj->krj", m, f) for m in ext]], axis=1)
+        return np.broadcast_to(one, (3,) + one.shape)
     return np.concatenate([first, *[np.einsum("krs,cksj->ckrj", m, first) for m in ext]], axis=2)
 
 
@@ -161,12 +165,25 @@ class Sampled:
             self.row = rows[r].astype(np.int64)
             self.val = fz.entries[idx, 1:].copy().view(np.float16).astype(np.float64) * w[r, None]
 
+        # per entry: its first-vertex cell at the pixel's lower view-angle node, and the weight
+        # of the upper node (gathers of every evaluation)
+        self._cell0 = None
+        self._et = self.t[self.row][:, None]
+
     # --- evaluation ------------------------------------------------------------------------------
 
     def _slot_coeffs(self, C1: np.ndarray) -> np.ndarray:
         """(n, 3) first-vertex coefficient of every entry at its pixel's view angle."""
-        k0, t = self.k0[self.row], self.t[self.row][:, None]
-        return C1[k0, self.slot] * (1.0 - t) + C1[k0 + 1, self.slot] * t
+        K1 = C1.shape[1]
+        if self._cell0 is None or self._cell0[0] != K1:
+            self._cell0 = (K1, self.k0[self.row] * K1 + self.slot)
+        flat = C1.reshape(-1, 3)
+        c0 = self._cell0[1]
+        lo, hi = flat[c0], flat[c0 + K1]
+        hi -= lo
+        hi *= self._et
+        hi += lo
+        return hi
 
     def _U(self, co: Coefficients) -> np.ndarray:
         """U (N, K2, NP, 3) = V + Σ_s c_s F_s (module docstring)."""
@@ -212,13 +229,25 @@ class Sampled:
         M = M.reshape(N, K1, 3)
         dd = np.einsum("pknc,kc,nc->pc", U, ck, ndp)                           # ∂B/∂d
         dck = np.einsum("pknc,nc->pkc", U, dp)                                 # ∂B/∂ĉ_k
-        Tx = np.zeros((3, N, Jc))
+        Tx = np.zeros((3, N, Jc), np.float32)
+        # single precision products (T is float32 for the solver anyway); one product for the
+        # three channels when their map is the same (no Fresnel split)
+        X = ext_first.astype(np.float32)
+        same = ext_first.strides[0] == 0
+        M32 = M.astype(np.float32)
+        for k in np.unique(self.k0):
+            sel = np.nonzero(self.k0 == k)[0]
+            t = self.t[sel, None, None].astype(np.float32)
+            lo, hi = (1.0 - t) * M32[sel], t * M32[sel]                        # (n, K1, 3)
+            if same:
+                n = len(sel)
+                lo2 = lo.transpose(2, 0, 1).reshape(3 * n, K1)
+                hi2 = hi.transpose(2, 0, 1).reshape(3 * n, K1)
+                Tx[:, sel] = (lo2 @ X[0, k] + hi2 @ X[0, k + 1]).reshape(3, n, Jc)
+            else:
+                for c in range(3):
+                    Tx[c, sel] = lo[:, :, c] @ X[c, k] + hi[:, :, c] @ X[c, k + 1]
         for c in range(3):
-            for k in np.unique(self.k0):
-                sel = np.nonzero(self.k0 == k)[0]
-                t = self.t[sel, None]
-                Ms = M[sel, :, c]
-                Tx[c, sel] = ((1.0 - t) * Ms) @ ext_first[c, k] + (t * Ms) @ ext_first[c, k + 1]
             Tx[c] += dd[:, c, None] * m.d[None, :]
             if m.second is not None and self.K2 > 1:
                 Tx[c] += dck[:, 1:, c] @ m.second
@@ -226,7 +255,7 @@ class Sampled:
         first = self._first_part(co)
         jg0 = first + dd * np.asarray(co.d)[None, :] + (dck[:, 1:] * ck[None, 1:]).sum(1)
         R = B0 - jg0
-        return Tx[:, :, :-1].astype(np.float32), Tx[:, :, -1].T.astype(np.float32).copy(), R, B0
+        return np.ascontiguousarray(Tx[:, :, :-1]), Tx[:, :, -1].T.copy(), R, B0
 
     def _first_part(self, co: Coefficients) -> np.ndarray:
         """(N, 3) Σ_s c_s ∂B/∂c_s: the part of B linear in the first-vertex coefficients."""
