@@ -155,8 +155,8 @@ class Sampled:
             self.val = F[r, n, :, s] * w[r, None]
         else:
             cnt = fz.offsets[q + 1] - fz.offsets[q]
-            idx = np.concatenate([np.arange(a, b) for a, b in zip(fz.offsets[q], fz.offsets[q + 1])]) \
-                if len(q) else np.zeros(0, np.int64)
+            # every entry of the sampled live pixels: each pixel's range, concatenated
+            idx = np.repeat(fz.offsets[q] - (np.cumsum(cnt) - cnt), cnt) + np.arange(int(cnt.sum()))
             r = np.repeat(np.arange(len(q)), cnt)
             key = fz.entries[idx, 0].astype(np.int64)
             s, rest = np.divmod(key, fz.K2 * fz.NP)
