@@ -41,9 +41,12 @@ def add_bench_commands(bsub) -> None:
     r.set_defaults(fn=cmd_bench_recovery)
 
     s = bsub.add_parser("strokes", help="share of the requested change achieved and spill, per stroke and weight")
-    s.add_argument("scenes", nargs="+", help="scene files (first object is painted; its material is the base)")
+    s.add_argument("scenes", nargs="+", help="scene files (first editable object is painted; its material is the "
+                                             "base); a GI scene (\"renderer\": \"gi\") is painted through its tensors")
     s.add_argument("--weights", type=_floats, default=[0.25, 1.0, 4.0], help="unpainted weights")
-    s.add_argument("--fit-scale", type=float, default=0.25)
+    s.add_argument("--fit-scale", type=float, default=None,
+                   help="fit resolution / view resolution (default: the renderer's, 0.25 cuts, 1 GI)")
+    s.add_argument("--store", help="precomputation store folder for GI scenes (default $GLINT_DATA_DIR)")
     s.add_argument("--fit-albedo", choices=["no", "yes", "both"], default="both",
                    help="also fit the diffuse albedo (solve.solve fit_albedo)")
     s.add_argument("--regions", action="store_true",
@@ -157,37 +160,99 @@ def standard_strokes(fx, view: int = 0):
             ("colour change", Stroke(points=pts, color=tuple(tint), diameter=d, kappa=0.05, view=view))]
 
 
+def _gi_renderer(path, store, quiet):
+    from worker.cli import open_renderer, scene_options
+    from worker.scene import load_scene
+
+    sc = load_scene(path)
+    r, _ = open_renderer(sc, store, quiet, scene_options(sc, 1.0))
+    return r
+
+
+def session_stroke(rnd, name: str, stroke) -> dict:
+    """One live stroke through a fresh session on the renderer (worker/jobs/runtime.py), as the
+    studio sends it: milliseconds from the stroke message to its frame (the fit view built on
+    the way), split into the stroke (its view), the fit and the frame."""
+    from worker.jobs.runtime import SessionRuntime
+    from worker.protocol import new_state
+
+    rt = SessionRuntime(rnd.scene, rnd, {"state": new_state(rnd.scene.spec, name).model_dump(mode="json"),
+                                         "strokes": []})
+    rt.frame(-1)
+    c0 = time.process_time()
+    t0 = time.perf_counter()
+    ev = rt.handle({"seq": 1, "type": "stroke", "stroke": stroke.model_dump(mode="json", exclude={"view"})})
+    t1 = time.perf_counter()
+    fit = rt.fit_if_needed()
+    t2 = time.perf_counter()
+    rt.frame(1)
+    t3 = time.perf_counter()
+    cpu = time.process_time() - c0
+    rt.close()
+    if ev[0].get("rejected"):
+        raise RuntimeError(f"stroke rejected: {ev[0]['notes']}")
+    return {"ms_stroke_to_frame": (t3 - t0) * 1e3, "cpu_ms_stroke_to_frame": cpu * 1e3, "ms_view": (t1 - t0) * 1e3, "ms_fit": (t2 - t1) * 1e3,
+            "ms_frame": (t3 - t2) * 1e3, "steps": fit[0]["stats"].get("steps")}
+
+
 def cmd_bench_strokes(a) -> int:
+    import os
+
+    from worker.fit.fitter import Fitter
+    from worker.renderers.base import FrameRequest, Lighting
+    from worker.scene import load_scene
+
     if a.regions:
         return cmd_bench_regions(a)
-    from worker.fit.fitter import Fitter
-
     res = []
     for s in a.scenes:
-        rnd = _renderer_for(s, None, a.cuts, a.tau, a.json)
+        gi = load_scene(s).spec.renderer == "gi"
+        rnd = _gi_renderer(s, a.store, a.json) if gi else _renderer_for(s, None, a.cuts, a.tau, a.json)
         sc = rnd.scene
-        name = sc.spec.objects[0].name
-        fx = Fitter(rnd, name, fit_scale=a.fit_scale)
+        oi = next(i for i, o in enumerate(sc.spec.objects) if o.editable or not gi)
+        name = sc.spec.objects[oi].name
+        scale = a.fit_scale or rnd.stroke_fit_scale
+        fx = Fitter(rnd, name, fit_scale=scale)
+        t0 = time.perf_counter()
         fx.add_view()
+        ms_view = (time.perf_counter() - t0) * 1e3
+        env = sc.spec.environment
         for label, st in standard_strokes(fx):
             fx.history.clear()
             fx.add_stroke(st)
             albedo_modes = {"no": (False,), "yes": (True,), "both": (False, True)}[a.fit_albedo]
             for w, fa in ((w, fa) for w in a.weights for fa in albedo_modes):
                 fx._last = None
+                c0, t0 = time.process_time(), time.perf_counter()
                 out = fx.fit(unpainted_weight=w, fit_albedo=fa)
-                res.append({"scene": Path(s).stem, "object": name, "base": sc.spec.objects[0].material.model,
+                ms_fit, cpu_fit = (time.perf_counter() - t0) * 1e3, (time.process_time() - c0) * 1e3
+                mats = list(sc.materials)
+                mats[oi] = out.material
+                t0 = time.perf_counter()
+                rnd.render(FrameRequest(sc.spec.camera, Lighting(env.rotation_deg, env.intensity), mats))
+                ms_frame = (time.perf_counter() - t0) * 1e3
+                res.append({"scene": Path(s).stem, "renderer": sc.spec.renderer, "object": name,
+                            "base": sc.spec.objects[oi].material.model, "width": sc.spec.camera.width,
+                            "height": sc.spec.camera.height, "fit_scale": scale,
                             "stroke": label, "unpainted_weight": w, "fit_albedo": fa,
                             "albedo": [float(x) for x in out.material.albedo],
                             "achieved": out.achieved, "spill": out.spill,
                             "painted": out.painted, "pixels": out.pixels, "energy": out.energy,
-                            "energy_bound": out.energy_bound, "ms_solve": out.solve.seconds * 1e3, "notes": out.notes})
+                            "energy_bound": out.energy_bound, "ms_solve": out.solve.seconds * 1e3,
+                            "ms_fit": ms_fit, "cpu_ms_fit": cpu_fit, "ms_frame": ms_frame, "ms_view": ms_view, "steps": out.steps,
+                            "gap": out.gap, "notes": out.notes})
+            if gi:
+                res[-1]["session"] = session_stroke(rnd, name, st)
+    load = os.getloadavg()
     if a.json:
-        print(json.dumps({"results": res}))
+        print(json.dumps({"results": res, "load": load}))
     else:
+        print(f"load average {load[0]:.1f} {load[1]:.1f} {load[2]:.1f}")
         for r in res:
             print(f"{r['scene']} {r['stroke']} w={r['unpainted_weight']:g} fit albedo {r['fit_albedo']}: "
-                  f"achieved {100 * r['achieved']:.0f}%, spill {100 * r['spill']:.1f}%, albedo {r['albedo']}")
+                  f"achieved {100 * r['achieved']:.0f}%, spill {100 * r['spill']:.1f}%, albedo {r['albedo']}, "
+                  f"fit {r['ms_fit']:.0f} ms ({r['steps']} steps), frame {r['ms_frame']:.0f} ms"
+                  + (f"; session stroke → frame {r['session']['ms_stroke_to_frame']:.0f} ms" if "session" in r else ""))
     return 0
 
 

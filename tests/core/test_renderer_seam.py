@@ -27,11 +27,14 @@ def test_a_renderer_declares_exactly_the_capabilities_it_has(kind):
         assert cls.can(c) == (c in cls.capabilities)
 
 
-def test_the_cut_renderer_has_every_capability_and_the_others_none():
+def test_which_renderer_has_which_capability():
     # what the session runtime and the fitter did with hasattr before: only the cut renderer
-    # places movable objects, builds a drag level, caches views and answers the fitter
-    assert renderers.get("cuts")[0].capabilities == set(CAPABILITIES)
-    assert not renderers.get("gi")[0].capabilities and not renderers.get("paint")[0].capabilities
+    # places movable objects, builds a drag level and caches views; it and the GI renderer
+    # answer the fitter, the GI one with an expansion (its image is polynomial in the BRDF),
+    # and the GI one freezes the other objects when one is picked
+    assert renderers.get("cuts")[0].capabilities == set(CAPABILITIES) - {"polynomial_transfer", "live_object"}
+    assert renderers.get("gi")[0].capabilities == {"stroke_fit", "polynomial_transfer", "live_object"}
+    assert not renderers.get("paint")[0].capabilities
 
 
 def test_a_capability_declared_without_its_methods_is_refused():

@@ -119,7 +119,7 @@ def test_render_requests(sofa_small):
     with pytest.raises(Unsupported, match="side_wall"):
         r.render(FrameRequest(camera=spec.camera, lighting=Lighting(spec.environment.rotation_deg), materials=bad))
     renderer, pre = get("gi")
-    assert renderer is type(r) and pre.kind == "gi" and renderer.controls == frozenset({"materials"})
+    assert renderer is type(r) and pre.kind == "gi" and renderer.controls == frozenset({"materials", "strokes"})
 
 
 def test_regions_weight_maps(tmp_path, shared_assets):

@@ -95,7 +95,7 @@ def test_a_gi_session_edits_materials_and_goes_back_to_direct_light(server, clie
     async def go():
         async with connect(server, ses["stream"], ses["token"]) as ws:
             hello = json.loads(await ws.recv())
-            assert hello["renderer"] == "gi" and hello["controls"] == ["materials"] and "cuts" in hello["renderers"], hello
+            assert hello["renderer"] == "gi" and hello["controls"] == ["materials", "strokes"] and "cuts" in hello["renderers"], hello
             _, f0 = await next_frame(ws)
             await ws.send(json.dumps({"seq": 1, "type": "material", "material": {"model": "lambert", "albedo": [0.9, 0.2, 0.1]}}))
             _, f1 = await next_frame(ws, 1)

@@ -259,10 +259,29 @@ def test_gi_and_paint_scenes_created_from_the_studio(server, bunny_scene, shared
     assert label in page.locator("#renderer-info").inner_text()
     assert rgb(page).std() > 0.01, "the new scene's frame is blank"
     # what the renderer does not offer is off, with its reason; nothing rejected is selected
-    assert page.locator("#tool-brush").is_disabled()
-    assert "strokes" in page.locator("#renderer-off").inner_text()
     checked = page.locator("input[name=tool]:checked")
     assert checked.count() == 0 or not checked.is_disabled()
+    if kind == "paint":
+        assert page.locator("#tool-brush").is_disabled()
+        assert "strokes" in page.locator("#renderer-off").inner_text()
+    else:
+        # GI: the brush paints through the multibounce tensors; a stroke across the bunny
+        # brightens it where it was painted
+        assert not page.locator("#tool-brush").is_disabled()
+        assert "strokes" not in page.locator("#renderer-off").inner_text()
+        before = rgb(page)
+        box = page.locator("#view").bounding_box()
+        x, y, w, h = box["x"], box["y"], box["width"], box["height"]
+        page.check("#tool-brush")
+        page.fill("#brush-diameter", "40")
+        page.locator("#brush-strength").fill("6")
+        n = frame_no(page)
+        drag(page, x + 0.42 * w, y + 0.5 * h, 0.16 * w, 0, steps=10)
+        wait_new_frame(page, n)
+        settle(page)
+        page.screenshot(path=str(artifacts / "web-objects-5-gi-stroke.png"))
+        change = np.abs(rgb(page) - before).mean(axis=2)
+        assert change.max() > 0.05, change.max()
     # the uploaded scene was exposed automatically (median object pixel middle grey)
     page.wait_for_function("() => +document.getElementById('exposure').value !== 0", timeout=60_000)
     assert not errors, errors

@@ -5,6 +5,12 @@ quarter of the view: 160×120 for 640×480), their transfer matrix for the SRBF 
 view's lighting, and the base rendering B' those pixels show with the material the design started
 from. The fit target is a pure function of (bases, stroke history): undo and redo re-fit
 exactly, and a session can be rebuilt from its stored strokes.
+
+Under global illumination (a renderer with ``polynomial_transfer``, renderers/gi) the image is
+polynomial, not linear, in the edited object's coefficients (polynomial-gi eq. 28): a view's
+rows are then the expansion ρ_d E + T c + R around a material, and ``fit`` is Gauss-Newton: the
+constrained least squares (eq. 17-19) on the expansion, re-linearised at its solution until the
+expansion and the renderer's exact radiance agree (GN_TOL), at most GN_STEPS solves.
 """
 from __future__ import annotations
 
@@ -29,6 +35,10 @@ MAX_FIT_ROWS = 4000     # the paper's largest N; see Fitter.row_stride
 # in a fraction of the full view's cost; the rest comes later (extend_view)
 QUICK_ROWS = 400
 DEFAULT_FIT_ALBEDO = False
+# Gauss-Newton under GI: stop when the expansion's prediction at the solution is within GN_TOL
+# (relative RMS over the fit rows) of the exact radiance, or after GN_STEPS solves
+GN_TOL = 2e-3
+GN_STEPS = 4
 
 
 def _take(smp, idx):
@@ -99,6 +109,10 @@ class FitView:
     # rows on the renderer's drag-level (coarser) cuts: a quick view's, at about half the
     # transfer's cost, replaced by a full build like a partial view (``provisional``)
     coarse: bool = False
+    # polynomial renderers (GI): the rows are the expansion around ``lin_material``, with the
+    # offset R (N, 3) (radiance ≈ ρ_d E + T c + R); None for linear ones
+    offset: np.ndarray | None = None
+    lin_material: object = field(repr=False, default=None)
 
     @property
     def partial(self) -> bool:
@@ -134,7 +148,9 @@ class FitOutcome:
     of the object could follow the strokes (brush.stroke_effect): the share of the requested
     change delivered on the painted pixels, and the relative change of the unpainted ones.
     ``energy`` (3,) is each channel's largest specular albedo, against ``energy_bound`` (3,) =
-    1 − ρ_d of the same channel."""
+    1 − ρ_d of the same channel. ``steps`` counts the solves (Gauss-Newton steps under GI) and
+    ``gap`` the last step's relative gap between the expansion and the exact radiance (None for
+    a linear renderer, where they are the same)."""
     material: SRBF
     solve: SolveResult
     pixels: int
@@ -143,6 +159,8 @@ class FitOutcome:
     seconds_transfer: float
     achieved: float | None = None
     spill: float | None = None
+    steps: int = 1
+    gap: float | None = None
 
     @property
     def energy(self) -> list[float]:
@@ -202,6 +220,9 @@ class Fitter:
         self.views: list[FitView] = []
         self.history = StrokeHistory()
         self._last: np.ndarray | None = None
+        # GI: rows are expansions around a material (new views: the latest fit's)
+        self.polynomial = renderer.can("polynomial_transfer")
+        self._lin_material = self.base_material
 
     # -- views ----------------------------------------------------------------------------------
     def fit_size(self, camera: Camera) -> tuple[int, int]:
@@ -248,6 +269,8 @@ class Fitter:
         view = FitView(camera, rot, inten, (fw, fh), pix[:0], xy[:0], np.zeros((3, 0, J), np.float32),
                        np.zeros((0, 3), np.float32), np.zeros((0, 3)), np.zeros((3, J, J)), 0.0,
                        _take(smp, np.zeros(0, np.int64)), coarse=coarse)
+        if self.polynomial:
+            view.offset, view.lin_material = np.zeros((0, 3)), self._lin_material
         first = np.arange(len(pix))
         if select is not None:
             keep = np.asarray(select(xy, view.footprint), bool)
@@ -285,16 +308,52 @@ class Fitter:
         # a coarse view's base rendering is on the same cuts as its transfer: the fit then sees
         # no difference between the two where nothing is painted
         kw = {"coarse": True} if view.coarse else {}
-        T, E = self.renderer.transfer(smp, self.basis, view.lighting, **kw)
+        if self.polynomial:
+            T, E, R = self.renderer.linearise(smp, self.basis, view.lighting, view.lin_material, self.obj, **kw)
+            view.offset = np.concatenate([view.offset, R])
+        else:
+            T, E = self.renderer.transfer(smp, self.basis, view.lighting, **kw)
         base = self.renderer.shade_samples(smp, self.base_material, self.obj, view.lighting, **kw)
         view.pix = np.concatenate([view.pix, smp.pix])
         view.xy = np.concatenate([view.xy, xy])
         view.T = np.concatenate([view.T, T], axis=1) if view.T.shape[1] else T
         view.E = np.concatenate([view.E, E])
         view.base = np.concatenate([view.base, base])
-        view.gram = view.gram + gram(T)          # Σ_i T_iᵀT_i: additive over rows
+        # Σ_i T_iᵀT_i: additive over rows; a polynomial renderer's rows are re-expanded at
+        # every Gauss-Newton step, so theirs is built when a fit needs it (``_gram``)
+        view.gram = None if self.polynomial else view.gram + gram(T)
         view.samples = _cat(view.samples, smp)
         view.cache.clear()
+
+    def _relinearise(self, view: FitView, material, rows: np.ndarray | None = None) -> None:
+        """A polynomial renderer's rows of a view (all, or ``rows``: the ones a fit uses),
+        expanded around another material. Rows left out keep their expansion around an earlier
+        material: still an expansion of the same image, which a later fit's Gauss-Newton steps
+        refine when it uses them."""
+        kw = {"coarse": True} if view.coarse else {}
+        smp = view.samples if rows is None else _take(view.samples, rows)
+        T, E, R = self.renderer.linearise(smp, self.basis, view.lighting, material, self.obj, **kw)
+        if rows is None:
+            view.T, view.E, view.offset = T, E, R
+        else:
+            view.T[:, rows], view.E[rows], view.offset[rows] = T, E, R
+        view.lin_material = material
+        view.gram = None
+        view.cache.clear()
+
+    def _used_rows(self, targets) -> list[np.ndarray | None]:
+        """Per view, the rows a fit reads (``_rows``): every stride-th one and the painted ones,
+        or None for all of them."""
+        stride = self.row_stride()
+        if stride == 1:
+            return [None] * len(self.views)
+        return [np.union1d(np.arange(0, v.n, stride), np.nonzero(p)[0]) for v, (_, p) in zip(self.views, targets)]
+
+    def _shade(self, view: FitView, material, rows: np.ndarray | None = None) -> np.ndarray:
+        """The renderer's radiance (N, 3) of a view's rows (or ``rows`` of them) under a material."""
+        smp = view.samples if rows is None else _take(view.samples, rows)
+        return self.renderer.shade_samples(smp, material, self.obj, view.lighting,
+                                           **({"coarse": True} if view.coarse else {}))
 
     def _shade_base(self, view: FitView) -> np.ndarray:
         """B' (N, 3): the base material at the view's fit pixels, shaded like the renderer's
@@ -359,16 +418,65 @@ class Fitter:
         strokes = targets is None
         if strokes:
             targets, notes = self.targets()
+        painted = sum(int(p.sum()) for _, p in targets)
+        prior = self._prior()
+        steps, gap, exact = 0, None, None
+        used = self._used_rows(targets) if self.polynomial else None
+        while True:
+            rows = self._rows(targets, unpainted_weight)
+            if not any(np.any(r.weight > 0) for r in rows):
+                raise FitError("nothing to fit: no painted pixel and unpainted_weight is 0")
+            res = solve(rows, self.basis, self.albedo, constrained=constrained, n_l=n_l, prior=prior,
+                        warm=self._last if constrained else None, fit_albedo=fit_albedo)
+            steps += 1
+            if constrained:
+                self._last = res.coefficients
+            mat = SRBF.model_validate(self.basis.to_material(res.coefficients, res.albedo))
+            if not self.polynomial:
+                break
+            # the expansion against the exact radiance at its solution (polynomial-gi eq. 28), on
+            # the rows the fit reads: a step costs those rows, not the view's (max_rows)
+            at = [slice(None) if u is None else u for u in used]
+            exact = [self._shade(v, mat, None if u is None else u) for v, u in zip(self.views, used)]
+            lin = [self.predicted(res.coefficients, i, res.albedo)[a] for i, a in enumerate(at)]
+            num = sum(float(((e - p) ** 2).sum()) for e, p in zip(exact, lin))
+            den = sum(float((t[a] ** 2).sum()) for (t, _), a in zip(targets, at))
+            gap = float(np.sqrt(num / max(den, 1e-300)))
+            self._lin_material = mat
+            if gap <= GN_TOL or steps >= GN_STEPS:
+                break
+            for v, u in zip(self.views, used):
+                self._relinearise(v, mat, u)
+        if exact is not None and any(u is not None for u in used):
+            exact = [self._shade(v, mat) for v in self.views]    # the fit's figures: every row
+        achieved = spill = None
+        if self.polynomial and gap is not None and gap > GN_TOL:
+            notes = notes + [f"the fit under global illumination stopped after {steps} Gauss-Newton steps with its "
+                             f"expansion {100 * gap:.1f}% from the exact radiance"]
+        if strokes and painted:
+            pred = exact if exact is not None else \
+                [self.predicted(res.coefficients, i, res.albedo) for i in range(len(self.views))]
+            achieved, spill = stroke_effect([v.base for v in self.views], [t for t, _ in targets],
+                                            [p for _, p in targets], pred)
+            notes = notes + stroke_notes(achieved, res, res.albedo)
+        return FitOutcome(mat, res, sum(v.n for v in self.views), painted, notes,
+                          sum(v.seconds_transfer for v in self.views), achieved, spill, steps, gap)
+
+    def _rows(self, targets, unpainted_weight: float) -> list[FitRows]:
+        """The solver's rows of every view for per-view (target, painted) (see ``fit``); a
+        polynomial renderer's offset R moves into the target."""
         rows = []
-        painted = 0
         stride = self.row_stride()
         for v, (tgt, pmask) in zip(self.views, targets):
+            if v.offset is not None:
+                tgt = tgt - v.offset
             npaint = int(pmask.sum())
-            painted += npaint
             # a partial view's unpainted rows stand for its unbuilt pixels too (every painted
             # pixel is built: the session extends a view under each stroke)
             uw = unpainted_weight * (v.n_object - npaint) / max(1, v.n - npaint) if v.partial else unpainted_weight
             if stride == 1:
+                if v.gram is None:
+                    v.gram = gram(v.T)
                 rows.append(FitRows(v.T, v.E, tgt, np.where(pmask, 1.0, uw), v.gram))
                 continue
             # every stride-th row stands for the unpainted rows around it; painted rows count once
@@ -378,22 +486,7 @@ class Fitter:
             extra = np.nonzero(pmask & (np.arange(v.n) % stride != 0))[0]
             if len(extra):
                 rows.append(FitRows(v.T[:, extra], v.E[extra], tgt[extra], np.ones(len(extra))))
-        if not any(np.any(r.weight > 0) for r in rows):
-            raise FitError("nothing to fit: no painted pixel and unpainted_weight is 0")
-        prior = self._prior()
-        res = solve(rows, self.basis, self.albedo, constrained=constrained, n_l=n_l, prior=prior,
-                    warm=self._last if constrained else None, fit_albedo=fit_albedo)
-        if constrained:
-            self._last = res.coefficients
-        mat = SRBF.model_validate(self.basis.to_material(res.coefficients, res.albedo))
-        achieved = spill = None
-        if strokes and painted:
-            pred = [self.predicted(res.coefficients, i, res.albedo) for i in range(len(self.views))]
-            achieved, spill = stroke_effect([v.base for v in self.views], [t for t, _ in targets],
-                                            [p for _, p in targets], pred)
-            notes = notes + stroke_notes(achieved, res, res.albedo)
-        return FitOutcome(mat, res, sum(v.n for v in self.views), painted, notes,
-                          sum(v.seconds_transfer for v in self.views), achieved, spill)
+        return rows
 
     def row_stride(self) -> int:
         """The bound on a fit's size: a fit holds at most ``max_rows`` unpainted rows
@@ -495,4 +588,5 @@ class Fitter:
         diffuse albedo (3,) (default: the fitter's)."""
         v = self.views[view]
         rho = self.albedo if albedo is None else np.asarray(albedo)
-        return rho * v.E + np.stack([v.T[c] @ coefficients[:, c] for c in range(3)], axis=1)
+        out = rho * v.E + np.stack([v.T[c] @ coefficients[:, c] for c in range(3)], axis=1)
+        return out + v.offset if v.offset is not None else out

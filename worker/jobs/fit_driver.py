@@ -60,7 +60,7 @@ class FitDriver:
             self._view_moves = {}
             try:
                 self.fitter = Fitter(self.renderer, self.state.object, base_material=self.state.base_material,
-                                     fit_scale=0.25)
+                                     fit_scale=self.renderer.stroke_fit_scale)
             except FitError as e:
                 raise FitError(f"strokes cannot apply: {e}") from None
         return self.fitter
@@ -174,7 +174,9 @@ class FitDriver:
                  "views": len(fx.views), "rows_stride": fx.row_stride(),
                  "ms_solve": s.seconds * 1e3, "ms_transfer": out.seconds_transfer * 1e3,
                  "residual_rel": s.residual_rel, "energy_max": s.energy_max,
-                 "energy_bound": float(bound.min()), "constrained": s.constrained}
+                 "energy_bound": float(bound.min()), "constrained": s.constrained, "steps": out.steps}
+        if out.gap is not None:
+            stats["gap"] = out.gap           # GI: the expansion's last gap to the exact radiance
         for k in ("achieved", "spill", "energy_per_channel"):
             if getattr(out, k, None) is not None:
                 stats[k] = getattr(out, k)

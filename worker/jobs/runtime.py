@@ -84,8 +84,12 @@ class SessionRuntime(FitDriver):
             b = default_basis(static_alpha=static_alpha_for(self.state.base_material))
             b.energy_rows()
             SRBF.model_validate(b.to_material(np.zeros((b.J, 3)), (0.0, 0.0, 0.0))).pack()
+            if renderer.can("polynomial_transfer"):
+                renderer.prepare_basis(b)
         if renderer.can("drag_level"):
             renderer.coarse_cuts()           # the drag-time level of detail
+        if not self.state.readonly:
+            self._make_live()
         self._last_ids = None            # the last frame's object ids (H, W) int32 (picking)
         self._replay(stored.get("strokes") or [])
         if self.state.auto_exposure and not self.state.readonly:
@@ -140,6 +144,14 @@ class SessionRuntime(FitDriver):
         self._pending.clear()
         self._completions.clear()
         self._env_key = ("switched",)            # the new renderer gets the session's map
+        if not self.state.readonly:
+            self._make_live()
+
+    def _make_live(self) -> None:
+        """A renderer that prepares per edited object (``live_object``: the GI one freezes the
+        others) does it now, when the object is picked, not on its first edit."""
+        if self.renderer.can("live_object") and not self.state.fixed(self.state.object):
+            self.renderer.make_live(self.state.object_index, self.state.materials)
 
     def _paint(self, name: str, seq) -> list[dict]:
         """The lobes material for the stored readings of an object (worker/paint/session.py)."""
@@ -456,6 +468,7 @@ def _select_object(rt: SessionRuntime, msg, eff: SelectObject) -> list[dict]:
     rt._replay(getattr(msg, "strokes", None) or [])
     out = rt.events
     rt.events = []
+    rt._make_live()
     m = rt.state.material_of(eff.object)
     n = len(rt.fitter.history) if rt.fitter is not None else 0
     return out + [ObjectEvent(seq=msg.seq, object=eff.object, material=_dump(m), curve=brdf_curve(m),

@@ -142,6 +142,7 @@ class MaterialMsg(ClientMsg):
         name = self.object or st.object
         if name not in st.objects:
             raise StateError(f"material: no object {name!r} (objects: {', '.join(st.objects)})")
+        st.refuse_fixed("material", name)
         mats = list(st.materials)
         mats[st.objects.index(name)] = self.material
         st.materials = mats
@@ -163,6 +164,7 @@ class StrokeMsg(ClientMsg):
         if not st.allows("strokes"):
             from ..renderers import why_not
             raise StateError(f"stroke: {why_not(st.renderer, 'strokes')}")
+        st.refuse_fixed("stroke", st.object)
         a = st.base_material.albedo
         if min(a) < 0 or max(a) > 1:
             raise StateError(f"stroke: strokes paint over the edited object's material, whose diffuse albedo "
@@ -389,6 +391,10 @@ class RendererMsg(ClientMsg):
     def apply(self, st):
         if self.kind not in st.renderers:
             raise StateError(f"renderer: {self.kind!r} is not available here (available: {', '.join(st.renderers)})")
+        from ..renderers import bakes_fixed
+        if st.object in st.baked and bakes_fixed(self.kind):
+            raise StateError(f"renderer: the edited object {st.object!r} is fixed (\"editable\": false) in the "
+                             f"{self.kind} precomputation; pick an editable object first")
         st.renderer = self.kind
         return SwitchRenderer()
 
@@ -429,6 +435,7 @@ class ObjectMsg(ClientMsg):
             raise StateError("object: a viewer session shows the published object only")
         if self.object not in st.objects:
             raise StateError(f"object: no object {self.object!r} (objects: {', '.join(st.objects)})")
+        st.refuse_fixed("object", self.object)
         if self.object != st.object:
             st.edits = {**st.edits, st.object: ObjectEdit(epoch=st.epoch, base_material=st.base_material)}
             back = st.edits.get(self.object)

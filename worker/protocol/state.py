@@ -94,10 +94,24 @@ class SessionState(BaseModel):
     # the painted region the edited object's strokes make or extend (``RegionMsg``; None: the
     # strokes fit one BRDF for the whole object)
     region: str | None = None
+    # objects marked "editable": false in the scene file: a renderer that bakes them into its
+    # precomputation (the GI one) keeps their BRDF (``fixed``)
+    baked: list[str] = Field(default_factory=list)
 
     def fresh_epoch(self) -> int:
         """An epoch no object has used: the stroke rows of every object's epoch stay its own."""
         return max([self.epoch, *(e.epoch for e in self.edits.values())]) + 1
+
+    def fixed(self, name: str) -> bool:
+        """Whether object ``name`` keeps its BRDF under the current renderer."""
+        from ..renderers import bakes_fixed
+
+        return name in self.baked and bakes_fixed(self.renderer)
+
+    def refuse_fixed(self, what: str, name: str) -> None:
+        if self.fixed(name):
+            raise StateError(f"{what}: object {name!r} is fixed (\"editable\": false): its BRDF is baked into "
+                             f"the {self.renderer} precomputation and cannot change (pick another object)")
 
     def allows(self, control: str) -> bool:
         from ..renderers import controls
@@ -116,12 +130,15 @@ def new_state(spec, object_name: str | None = None, camera=None, **fields) -> Se
     """The state of a new session on a scene file (``worker.scene.SceneFile`` or its dict)."""
     spec = spec if isinstance(spec, dict) else spec.model_dump(mode="json")
     names = [o["name"] for o in spec["objects"]]
-    obj = object_name or names[0]
+    kind = spec.get("renderer") or "cuts"
+    baked = [o["name"] for o in spec["objects"] if o.get("editable") is False]
+    from ..renderers import bakes_fixed
+    editable = [n for n in names if n not in baked] if bakes_fixed(kind) else names
+    obj = object_name or (editable or names)[0]
     if obj not in names:
         raise StateError(f"object: no object {obj!r} (objects: {', '.join(names)})")
     mats = [o.get("material") or {"model": "lambert"} for o in spec["objects"]]
     env = spec["environment"]
-    kind = spec.get("renderer") or "cuts"
     movable = [o["name"] for o in spec["objects"] if o.get("movable")]
     ex = spec.get("exposure")
     if ex is not None and "exposure" not in fields and "auto_exposure" not in fields:
@@ -130,7 +147,7 @@ def new_state(spec, object_name: str | None = None, camera=None, **fields) -> Se
         "objects": names, "object": obj, "camera": camera or spec["camera"],
         "rotation_deg": env.get("rotation_deg", 0.0), "intensity": env.get("intensity", 1.0),
         "materials": mats, "base_material": mats[names.index(obj)], "renderer": kind,
-        "renderers": [kind] + (["cuts"] if kind != "cuts" else []), "movable": movable,
+        "renderers": [kind] + (["cuts"] if kind != "cuts" else []), "movable": movable, "baked": baked,
         "transforms": {o["name"]: o.get("transform") or {} for o in spec["objects"] if o.get("movable")}, **fields})
 
 

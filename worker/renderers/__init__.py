@@ -56,6 +56,13 @@ def controls(kind: str) -> frozenset[str]:
     return decl.controls if decl is not None else frozenset()
 
 
+def bakes_fixed(kind: str) -> bool:
+    """Whether the ``kind`` renderer bakes objects marked ``"editable": false`` into its
+    precomputation (RendererDeclaration.bakes_fixed)."""
+    decl = declarations().get(kind)
+    return bool(decl is not None and decl.bakes_fixed)
+
+
 def why_not(kind: str, control: str) -> str:
     """Why the ``kind`` renderer does not offer ``control`` (a sentence for the designer, from
     its declaration's ``why_not``)."""

@@ -134,6 +134,20 @@ class Rendered:
 #                    what the stroke fitter (worker/fit/fitter.py) asks of a renderer; Samples
 #                    holds pix (N,), positions, normals, wo (N, 3) float32, verts (N, 3) int32,
 #                    bary (N, 3) float32 (worker/renderers/cuts/renderer.py).
+# "polynomial_transfer"  linearise(samples, basis, lighting, material, object_index: int,
+#                              coarse: bool = False) -> (T (3, N, J) float32, E (N, 3) float32,
+#                                                        R (N, 3) float64)
+#                    for a renderer whose image is not linear in the edited object's coefficients
+#                    (interreflections: polynomial-gi eq. 28): radiance ≈ ρ_d E + T c + R around
+#                    ``material``; the fitter then re-linearises at each solution (Gauss-Newton)
+#                    and judges a fit by ``shade_samples``. With stroke_fit.
+#                prepare_basis(basis) -> None
+#                    pay a fitting basis's one-time costs now (a session does it at open).
+# "live_object"  make_live(object_index: int, materials: Sequence | None = None) -> float
+#                    prepare to edit this object's material (the scene's other materials as
+#                    given): the GI renderer freezes every other object (polynomial-gi eq. 27),
+#                    the mode switch a session pays when the object is picked, not on its first
+#                    edit; returns seconds.
 # "vertex_transfer"  vertex_samples(camera, object_index: int, samples: int = 1) -> Samples
 #                    the object's visible vertices, whose transfer rows give the fitted
 #                    material's radiance there (FrameRequest.vertex_radiance); with transfer.
@@ -143,6 +157,8 @@ CAPABILITIES: dict[str, tuple[str, ...]] = {
     "view_cache": ("has_view", "forget_views"),
     "stroke_fit": ("surface_samples", "transfer", "shade_samples"),
     "vertex_transfer": ("vertex_samples", "transfer"),
+    "polynomial_transfer": ("linearise", "prepare_basis"),
+    "live_object": ("make_live",),
 }
 
 
@@ -168,6 +184,9 @@ class Renderer(ABC):
     kind: ClassVar[str]
     controls: ClassVar[frozenset[str]] = frozenset({"camera", "light", "materials", "environment"})
     capabilities: ClassVar[frozenset[str]] = frozenset()
+    # with stroke_fit: the fit resolution of a session's strokes, a fraction of the view's
+    # (fit rows cost the cut renderer a transfer each, so it fits at a quarter)
+    stroke_fit_scale: ClassVar[float] = 0.25
 
     def __init_subclass__(cls, **kw):
         super().__init_subclass__(**kw)

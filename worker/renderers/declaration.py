@@ -33,13 +33,16 @@ class RendererDeclaration:
         scene file's field named ``kind`` (``worker.scene.scene_model`` adds it): a pydantic model
         validated with the scene file, or "builtins:dict" for a JSON object the renderer
         validates itself at precomputation; None for a renderer without settings. The module
-        must be as light as this one's callers (pydantic, no numerical imports)."""
+        must be as light as this one's callers (pydantic, no numerical imports).
+    bakes_fixed : objects with ``"editable": false`` (scene.SceneObject) have their BRDF baked
+        into the precomputation: a session on this renderer cannot edit them."""
     kind: str
     controls: frozenset[str]
     renderer: str
     precomputation: str
     why_not: dict[str, str] = field(default_factory=dict, hash=False, compare=False)
     settings: str | None = None
+    bakes_fixed: bool = False
 
     def __post_init__(self):
         object.__setattr__(self, "controls", frozenset(self.controls))

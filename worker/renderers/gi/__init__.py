@@ -6,7 +6,7 @@ from renderer.py when first used."""
 from ..declaration import RendererDeclaration, lazy_exports
 
 DECLARATION = RendererDeclaration(
-    kind="gi", controls=frozenset({"materials"}),
+    kind="gi", controls=frozenset({"materials", "strokes"}), bakes_fixed=True,
     renderer="worker.renderers.gi.renderer:GIRenderer",
     settings="builtins:dict",  # the scene file's "gi" object, validated by options.py
     precomputation="worker.renderers.gi.renderer:GIPrecomputation",
@@ -15,8 +15,6 @@ DECLARATION = RendererDeclaration(
              "light": "the light transport is precomputed for the scene's lighting: it cannot turn",
              "environment": "the light transport is precomputed for the scene's environment map",
              "move": "objects are baked into the interreflections: they cannot move",
-             "ground": "the GI scene has no shadow-catcher ground",
-             "strokes": "strokes fit a BRDF through the direct-light transfer, which this renderer "
-                        "does not have (switch to direct light to paint)"})
+             "ground": "the GI scene has no shadow-catcher ground"})
 
 __getattr__ = lazy_exports(__name__, dict.fromkeys(("GIData", "GIPrecomputation", "GIRenderer"), ".renderer"))

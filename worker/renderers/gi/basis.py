@@ -144,12 +144,16 @@ class Projection:
     second : (1 + J2·J2_NODES, 3) float32, second-bounce functions (diffuse, then J2 bands ×
         J2_NODES view-angle nodes), J2 > 1 series only.
     d : (3,) float64, diffuse equivalent (Appendix B).
+    ok : see project_measure (isotropic, two layers), else None.
     """
 
-    def __init__(self, first, second, d):
+    def __init__(self, first, second, d, ok=None):
         self.first = first
         self.second = second
         self.d = d
+        # (THETA_NODES, J, 3) bool with the Fresnel layer: where the two-layer split is used
+        # (project_measure); None otherwise
+        self.ok = ok
 
 
 @lru_cache(maxsize=16)
@@ -186,16 +190,13 @@ def project(material, J: int, layers: int, J2: int = 1, anisotropic_nu: float | 
     basis of module docstring. ``layers`` is 1 (no Fresnel layer) or 2; ``qkind`` the quotient
     of the half-angle bands (quotient_s). Costs one BRDF evaluation per quadrature pair
     (THETA_NODES × 32 J)."""
-    K1 = 1 + J * layers
-    first = np.zeros((THETA_NODES, K1, 3))
     albedo = np.asarray(getattr(material, "albedo", (0.0, 0.0, 0.0)), np.float64)
-    first[:, 0] = albedo
-    _, edges = theta_nodes()
-    wk = np.sin(edges[1:]) ** 2 - np.sin(edges[:-1]) ** 2                 # ∫ 2 sin cos dθ per cell
-
     if anisotropic_nu is not None:
         if not isinstance(material, AshikhminShirley):
             raise TypeError("anisotropic units take an ashikhmin-shirley material")
+        K1 = 1 + J * layers
+        first = np.zeros((THETA_NODES, K1, 3))
+        first[:, 0] = albedo
         cA, cB = band_coefficients(material, J)
         first[:, 1:1 + J] = cA
         first[:, 1 + J:1 + 2 * J] = cB
@@ -203,43 +204,76 @@ def project(material, J: int, layers: int, J2: int = 1, anisotropic_nu: float | 
         wi, wo, w, Es = _aniso_basis(J, qkind)
         spec = _spec_part(material, wi, np.broadcast_to(wo[:, :, None, :], wi.shape))   # (K, A, Q, 3)
         Erho = np.einsum("kaq,kaqc->kqc", w, spec) / wi.shape[1]           # averaged over azimuths
+        d, second = _tails(Erho, albedo, Es, J2)
+        return Projection(first.astype(np.float32), None if second is None else second.astype(np.float32), d)
+    wi1, wo1, w1, *_ = _iso_basis(J, qkind)
+    Erho = w1[..., None] * _spec_part(material, wi1, wo1)                   # (K, Q, 3)
+    first, d, second, ok = project_measure(Erho, albedo, J, layers, J2, qkind)
+    p = Projection(first.astype(np.float32), None if second is None else second.astype(np.float32), d)
+    p.ok = ok
+    return p
+
+
+def project_measure(Erho: np.ndarray, albedo: np.ndarray, J: int, layers: int, J2: int = 1, qkind: int = 0,
+                    ok: np.ndarray | None = None):
+    """The isotropic projection from the measure of a BRDF's specular part on the quadrature
+    pairs of ``_iso_basis``: Erho (THETA_NODES, Q, M) = w·(ρ − albedo/π) for M channels (or M
+    basis BRDFs), albedo (M,). Returns (first (THETA_NODES, K1, M), d (M,), second
+    (1 + J2·J2_NODES, M) or None, ok (THETA_NODES, J, M) bool or None) float64.
+
+    Everything is linear in (Erho, albedo) except, with the Fresnel layer, the choice per band
+    between the two-layer split and the single-layer ratio (``ok``, True where the split is
+    used): given ``ok`` (e.g. a material's, to linearise around it) that choice is not made
+    here and the map is linear."""
+    wi1, wo1, w1, Es, per, m5, mu, a12, a22 = _iso_basis(J, qkind)
+    M = Erho.shape[-1]
+    K1 = 1 + J * layers
+    first = np.zeros((THETA_NODES, K1, M))
+    first[:, 0] = albedo
+    g_mu = Erho.reshape(THETA_NODES, J, per, M).sum(2)                       # μ(ρ/q) per band
+    one = np.where(mu[..., None] > 0, g_mu / np.maximum(mu[..., None], 1e-300), 0.0)
+    if layers == 1:
+        first[:, 1:1 + J] = one
+        okm = None
     else:
-        wi1, wo1, w1, Es, per, m5, mu, a12, a22 = _iso_basis(J, qkind)
-        Erho = w1[..., None] * _spec_part(material, wi1, wo1)               # (K, Q, 3)
-        g_mu = Erho.reshape(THETA_NODES, J, per, 3).sum(2)                   # μ(ρ/q) per band
-        one = np.where(mu[..., None] > 0, g_mu / np.maximum(mu[..., None], 1e-300), 0.0)
-        if layers == 1:
-            first[:, 1:1 + J] = one
-        else:
-            # weighted LSQ of g = ρ/q by a + b·m5 under μ = q cos θi dωi; its first normal
-            # equation is the energy constraint a μ(1) + b μ(m5) = μ(g). Where the ring is too
-            # thin for m5 to vary, or the fit goes negative, the single-layer ratio is used.
-            a11 = mu
-            b2 = (Erho * m5[..., None]).reshape(THETA_NODES, J, per, 3).sum(2)
-            det = (a11 * a22 - a12 * a12)[..., None]
-            ok = det > 1e-6 * (a11 * a22)[..., None] + 1e-300
-            dd = np.where(ok, det, 1.0)
-            a = (g_mu * a22[..., None] - a12[..., None] * b2) / dd
-            b = (a11[..., None] * b2 - a12[..., None] * g_mu) / dd
-            ok = ok & (a >= 0) & (b >= 0)
-            first[:, 1:1 + J] = np.where(ok, a, one)
-            first[:, 1 + J:1 + 2 * J] = np.where(ok, b, 0.0)
+        # weighted LSQ of g = ρ/q by a + b·m5 under μ = q cos θi dωi; its first normal
+        # equation is the energy constraint a μ(1) + b μ(m5) = μ(g). Where the ring is too
+        # thin for m5 to vary, or the fit goes negative, the single-layer ratio is used.
+        a11 = mu
+        b2 = (Erho * m5[..., None]).reshape(THETA_NODES, J, per, M).sum(2)
+        det = (a11 * a22 - a12 * a12)[..., None]
+        good = det > 1e-6 * (a11 * a22)[..., None] + 1e-300
+        dd = np.where(good, det, 1.0)
+        a = (g_mu * a22[..., None] - a12[..., None] * b2) / dd
+        b = (a11[..., None] * b2 - a12[..., None] * g_mu) / dd
+        okm = np.broadcast_to(good & (a >= 0) & (b >= 0), a.shape) if ok is None else np.broadcast_to(ok, a.shape)
+        first[:, 1:1 + J] = np.where(okm, a, one)
+        first[:, 1 + J:1 + 2 * J] = np.where(okm, b, 0.0)
+    d, second = _tails(Erho, albedo, Es, J2)
+    return first, d, second, okm
+
+
+def _tails(Erho, albedo, Es, J2):
+    """Diffuse equivalent d (M,) and, for J2 > 1, the second-vertex functions (1 + J2·J2_NODES,
+    M) from Erho (THETA_NODES, Q, M) and the quotient measure Es (THETA_NODES, Q)."""
+    _, edges = theta_nodes()
+    wk = np.sin(edges[1:]) ** 2 - np.sin(edges[:-1]) ** 2                 # ∫ 2 sin cos dθ per cell
+    M = Erho.shape[-1]
     # diffuse equivalent: d = (1/π)∬ρ cos cos = Σ_k wk · (albedo + ∫ρ_spec cos θi dωi)(θ_k)
-    a_spec = Erho.sum(axis=1)                                               # (K, 3)
+    a_spec = Erho.sum(axis=1)                                               # (K, M)
     d = albedo + (wk[:, None] * a_spec).sum(0)
-    second = None
-    if J2 > 1:
-        # J2 bands × J2_NODES view cells, each the cos θo-weighted ratio over its fine cells
-        second = np.zeros((1 + J2 * J2_NODES, 3))
-        second[0] = albedo
-        per2 = Es.shape[1] // J2
-        fine = THETA_NODES // J2_NODES
-        den = (wk[:, None] * Es.reshape(THETA_NODES, J2, per2).sum(-1)).reshape(J2_NODES, fine, J2).sum(1)
-        num = (wk[:, None, None] * Erho.reshape(THETA_NODES, J2, per2, 3).sum(2)).reshape(J2_NODES, fine, J2, 3).sum(1)
-        c2 = np.where(den[..., None] > 0, num / np.maximum(den[..., None], 1e-300), 0.0)   # (nodes, J2, 3)
-        second[1:] = c2.transpose(1, 0, 2).reshape(J2 * J2_NODES, 3)
-        second = second.astype(np.float32)
-    return Projection(first.astype(np.float32), second, d)
+    if J2 <= 1:
+        return d, None
+    # J2 bands × J2_NODES view cells, each the cos θo-weighted ratio over its fine cells
+    second = np.zeros((1 + J2 * J2_NODES, M))
+    second[0] = albedo
+    per2 = Es.shape[1] // J2
+    fine = THETA_NODES // J2_NODES
+    den = (wk[:, None] * Es.reshape(THETA_NODES, J2, per2).sum(-1)).reshape(J2_NODES, fine, J2).sum(1)
+    num = (wk[:, None, None] * Erho.reshape(THETA_NODES, J2, per2, M).sum(2)).reshape(J2_NODES, fine, J2, M).sum(1)
+    c2 = np.where(den[..., None] > 0, num / np.maximum(den[..., None], 1e-300), 0.0)   # (nodes, J2, M)
+    second[1:] = c2.transpose(1, 0, 2).reshape(J2 * J2_NODES, M)
+    return d, second
 
 
 def fixed_projection(J: int, layers: int, J2: int = 1) -> Projection:

@@ -5,6 +5,7 @@ being edited and draws each frame with one dot product per pixel (freeze.py).
 """
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import dataclass
 from typing import Any, Mapping
@@ -16,6 +17,7 @@ from ..base import FrameRequest, Part, Precomputation, Progress, Rendered, Rende
 from . import denoise as dn
 from . import DECLARATION
 from . import freeze as fzm
+from . import strokes as stm
 from . import tensors
 from .basis import QUOTIENTS, THETA_NODES, Projection, fixed_projection, project, theta_interp
 from .options import GIOptions, UnitLayout, parse_options, tensor_key, unit_layout
@@ -139,6 +141,17 @@ def denoise_tensors(scene, S, bounces, denoiser=None):
 
 
 @dataclass
+class GISamples:
+    """Fit rows of the GI renderer: pix (N,) int64 (indices into the asked pixels, or image
+    pixels), hit (N,) int64 indices into the precomputed hit pixels."""
+    pix: np.ndarray
+    hit: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.pix)
+
+
+@dataclass
 class GIData:
     """Loaded tensors: meta (series, units, sizes…), pixel (P,) int64 flat hit-pixel indices,
     obj (P,) int32, bounces (list of tensors.Bounce), opts (GIOptions)."""
@@ -166,10 +179,20 @@ class GIRenderer(Renderer):
     live unit's material and evaluates eq. 28. ``max_bounces`` (1..N) limits the bounces drawn
     (1 = direct light only). The environment's intensity may change (radiance is linear in
     it); its rotation and the camera may not (``Unsupported``).
+
+    Strokes (``stroke_fit`` with ``polynomial_transfer``): the fitter's rows are the edited
+    object's pixels of the precomputed view, whose radiance is polynomial in its srbf
+    coefficients (strokes.py); ``linearise`` gives the fitter its expansion at a material and
+    ``shade_samples`` the exact GI radiance. The renderer is shared by the session's frames and
+    the fitter's background builds: freezing and drawing hold ``_lock``.
     """
 
     kind = KIND
     controls = DECLARATION.controls
+    capabilities = frozenset({"stroke_fit", "polynomial_transfer", "live_object"})
+    # every precomputed pixel of the object is a fit row (a row costs a lookup into the frozen
+    # tensors, not a transfer; the fitter's row bound keeps the solve small)
+    stroke_fit_scale = 1.0
 
     def __init__(self, scene, data: GIData, kernels=None, max_bounces: int | None = None):
         super().__init__(scene, data, kernels)
@@ -206,6 +229,11 @@ class GIRenderer(Renderer):
         self._frozen_bounces = None
         self.last_timings: dict[str, float] = {}
         self._image = np.ascontiguousarray(self.prim.background.reshape(-1, 3), np.float32).copy()
+        self._lock = threading.RLock()
+        self.last_freeze_seconds = 0.0
+        self._hit_of_pixel = np.full(data.meta["width"] * data.meta["height"], -1, np.int64)
+        self._hit_of_pixel[self.prim.pixel] = np.arange(len(self.prim.pixel))
+        self._sampled: list = []          # [(Frozen, hit bytes, Sampled)], the latest few
 
     # --- projections ----------------------------------------------------------------------------
 
@@ -255,6 +283,10 @@ class GIRenderer(Renderer):
 
     def freeze(self, i: int) -> float:
         """Make unit i live with every other unit frozen at its current material; seconds."""
+        with self._lock:
+            return self._freeze(i)
+
+    def _freeze(self, i: int) -> float:
         t0 = time.perf_counter()
         _, C1, d, second = self._tables(self.materials)
         nb = self.max_bounces
@@ -263,7 +295,8 @@ class GIRenderer(Renderer):
         self.frozen = self.k.gi.freeze(bounces, tables, self.pu, C1, i, self.K1, self.K2, self.N)
         self._frozen_mats = list(self.materials)
         self._frozen_bounces = nb
-        return time.perf_counter() - t0
+        self.last_freeze_seconds = time.perf_counter() - t0
+        return self.last_freeze_seconds
 
     def set_unit_material(self, name_or_index, material) -> None:
         i = name_or_index if isinstance(name_or_index, int) else self.layout.index(name_or_index)
@@ -287,6 +320,10 @@ class GIRenderer(Renderer):
     def draw(self) -> np.ndarray:
         """(H, W, 3) float32 radiance with the current materials (freezing when needed). The
         array is the renderer's own buffer, overwritten by the next draw."""
+        with self._lock:
+            return self._draw()
+
+    def _draw(self) -> np.ndarray:
         t0 = time.perf_counter()
         timings = {}
         changed = [] if self._frozen_mats is None else \
@@ -326,13 +363,144 @@ class GIRenderer(Renderer):
         if abs(req.lighting.rotation_deg - env.rotation_deg) > 1e-9:
             raise Unsupported("the GI renderer's lighting is fixed by its precomputation: the environment "
                               "cannot rotate (use the direct-light renderer, or precompute again)")
-        self._apply(list(req.materials or []))
-        img = self.draw()
-        scale = req.lighting.intensity / env.intensity if env.intensity > 0 else 0.0
-        img = img * np.float32(scale) if scale != 1.0 else img.copy()
-        return Rendered(img, self.prim.object_id.copy(), dict(self.last_timings),
-                        {"live": self.layout.units[self.frozen.unit].name if self.frozen.unit >= 0 else None,
-                         "bounces": self.max_bounces, "series": list(self.opts.series)})
+        with self._lock:
+            self._apply(list(req.materials or []))
+            img = self._draw()
+            scale = req.lighting.intensity / env.intensity if env.intensity > 0 else 0.0
+            img = img * np.float32(scale) if scale != 1.0 else img.copy()
+            return Rendered(img, self.prim.object_id.copy(), dict(self.last_timings),
+                            {"live": self.layout.units[self.frozen.unit].name if self.frozen.unit >= 0 else None,
+                             "bounces": self.max_bounces, "series": list(self.opts.series)})
+
+    def make_live(self, object_index: int, materials=None) -> float:
+        """Freeze every unit but the object's own (eq. 27) with the scene's materials as given
+        (scene order, as FrameRequest.materials): the object a session picks is edited at frame
+        cost from its first change on. Seconds (0 when it is live already)."""
+        u = self._stroke_unit(object_index, strokes=False)
+        with self._lock:
+            if materials:
+                self._apply(list(materials))
+            before = self.frozen
+            fz = self._live_frozen(u)
+            return 0.0 if fz is before else self.last_freeze_seconds
+
+    # --- strokes (strokes.py) -----------------------------------------------------------------------
+
+    def _stroke_unit(self, object_index: int, strokes: bool = True) -> int:
+        """The unit a stroke (or, ``strokes`` False, any edit) on an object changes: its own
+        material's."""
+        objs = self.scene.spec.objects
+        if not 0 <= object_index < len(objs):
+            raise GlintError(f"no object {object_index}", status=404)
+        name = objs[object_index].name
+        if self.layout.fixed[object_index]:
+            raise GlintError(f"object {name!r} is fixed (\"editable\": false) in this GI precomputation: its "
+                             "material is baked in and strokes cannot change it", status=409)
+        if strokes and self.layout.aniso_of_object and self.layout.aniso_of_object[object_index] is not None:
+            raise GlintError(f"object {name!r} is precomputed for anisotropy editing (ashikhmin-shirley): strokes "
+                             "fit an isotropic srbf material", status=409)
+        return self.layout.of_object[object_index][0]
+
+    def _fixed_view(self, camera, lighting=None) -> float:
+        """The intensity scale of a fit question, which must be about the precomputed view and
+        lighting (Unsupported otherwise)."""
+        spec = self.scene.spec
+        if camera is not None and not _same(camera, spec.camera):
+            raise Unsupported("the GI renderer's camera is fixed by its precomputation: strokes are painted "
+                              "in its view")
+        if lighting is None:
+            return 1.0
+        env = spec.environment
+        if abs(lighting.rotation_deg - env.rotation_deg) > 1e-9:
+            raise Unsupported("the GI renderer's lighting is fixed by its precomputation: the environment "
+                              "cannot rotate")
+        return lighting.intensity / env.intensity if env.intensity > 0 else 0.0
+
+    def surface_samples(self, camera, object_index: int, pixels: np.ndarray | None = None) -> "GISamples":
+        """The object's hit pixels of the precomputed view (the fitter's rows). pixels : (M,)
+        int64 flat image indices to look at; ``pix`` then indexes ``pixels``."""
+        self._fixed_view(camera)
+        self._stroke_unit(object_index)
+        cam = self.scene.spec.camera
+        img = np.arange(cam.width * cam.height) if pixels is None else np.asarray(pixels, np.int64)
+        hp = self._hit_of_pixel[img]
+        ok = hp >= 0
+        ok[ok] = self.prim.obj[hp[ok]] == object_index
+        sel = np.nonzero(ok)[0]
+        return GISamples(sel.astype(np.int64), hp[sel])
+
+    def _live_frozen(self, u: int):
+        """The frozen tensors with unit u live and every other unit at its current material
+        (freezing now when they are not)."""
+        with self._lock:
+            fz = self.frozen
+            stale = fz is None or fz.unit != u or self._frozen_bounces != self.max_bounces or \
+                any(v != u and not _same(self.materials[v], self._frozen_mats[v]) for v in range(self.U))
+            if stale:
+                self._freeze(u)
+            return self.frozen
+
+    def _sampled_at(self, u: int, samples: "GISamples") -> stm.Sampled:
+        fz = self._live_frozen(u)
+        key = samples.hit.tobytes()
+        for f, k, smp in self._sampled:
+            if f is fz and k == key:
+                return smp
+        h, _ = fzm.pixel_weights(self.pu, u)
+        smp = stm.Sampled(fz, self.pu, samples.hit, h, self.K1)
+        self._sampled = [e for e in self._sampled[-3:] if e[0] is fz] + [(fz, key, smp)]
+        return smp
+
+    def _coefficients(self, u: int, material) -> stm.Coefficients:
+        p = self.projection(u, material)
+        ck = np.ones((self.K2, 3))
+        if self.K2 > 1:
+            ck[1:] = p.second
+        return stm.Coefficients(self._first(p, self._unit_q(u)), np.asarray(p.d, np.float64), ck)
+
+    def shade_samples(self, samples: "GISamples", material, object_index: int, lighting, coarse: bool = False) -> np.ndarray:
+        """(N, 3) float64 GI radiance at the samples with the object's material replaced (every
+        other unit at its current material): what a frame would show there."""
+        scale = self._fixed_view(None, lighting)
+        u = self._stroke_unit(object_index)
+        return self._sampled_at(u, samples).radiance(self._coefficients(u, material)) * scale
+
+    def linearise(self, samples: "GISamples", basis, lighting, material, object_index: int, coarse: bool = False):
+        """The fitter's rows around a material (strokes.Sampled.linearise): (T (3, N, J) float32,
+        E (N, 3) float32, R (N, 3) float64) with radiance ≈ ρ_d E + T c + R for srbf coefficients
+        c (J, 3) over ``basis`` (worker/fit/basis.py) near ``material``."""
+        scale = self._fixed_view(None, lighting)
+        u = self._stroke_unit(object_index)
+        smp = self._sampled_at(u, samples)
+        p = self.projection(u, material)
+        q = self._unit_q(u)
+        m = stm.srbf_map(basis, self.J, self.layers, self.J2, q, p.ok)
+        ext = []
+        if self.phis:
+            maps = self._maps.get(q)
+            if maps is None:
+                self._first(p, q)                 # builds the hat projectors of this quotient
+                maps = self._maps[q]
+            ext = maps
+        T, E, R, _ = smp.linearise(self._coefficients(u, material), m, stm.extend_map(m.first, ext))
+        return T * np.float32(scale), E * np.float32(scale), R * scale
+
+    def prepare_basis(self, basis) -> None:
+        """The projection of a fitting basis's lobes (strokes.srbf_map) for every editable
+        isotropic unit's quotient (without the Fresnel layer's split, which follows the
+        material), so the first stroke does not pay it."""
+        if self.layers != 1:
+            return
+        for u, unit in enumerate(self.layout.units):
+            if unit.anisotropic is None:
+                stm.srbf_map(basis, self.J, self.layers, self.J2, self._unit_q(u))
+
+    def transfer(self, samples: "GISamples", basis, lighting, coarse: bool = False):
+        """(T, E) of ``linearise`` around the object's current material: the Jacobian only (the
+        image is not linear in the coefficients; the fitter uses ``linearise``)."""
+        obj = int(self.prim.obj[samples.hit[0]]) if len(samples) else 0
+        T, E, _ = self.linearise(samples, basis, lighting, self.materials[self._stroke_unit(obj)], obj)
+        return T, E
 
     def object_mask(self, camera=None) -> np.ndarray:
         if camera is not None and not _same(camera, self.scene.spec.camera):
