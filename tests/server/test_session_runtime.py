@@ -52,6 +52,10 @@ def test_stroke_frames_use_the_vertex_transfer_once_built(bunny_renderer):
     a, b = fast.radiance, slow.radiance
     rel = np.sqrt(((a - b)[obj] ** 2).mean()) / np.sqrt((b[obj] ** 2).mean())
     assert rel < 0.02, rel          # exact SRBF sum against the renderer's p(h) table
+    # the stroke frame is the settled frame: its object is refined per pixel where the settled
+    # one is, although its vertex radiance comes from the transfer
+    n_fast, n_slow = fast.info["refined_samples"], slow.info["refined_samples"]
+    assert n_slow > 0 and abs(n_fast - n_slow) <= 0.05 * n_slow, (n_fast, n_slow)
     # a view change invalidates it: no override until one is built for the new view
     rt.handle({"seq": 3, "type": "view", "eye": [0.5, 0.6, 3.1]})
     assert rt._override() is None
@@ -336,3 +340,28 @@ def test_a_frame_that_may_give_way_reports_its_pause_apart(bunny_renderer):
     with pytest.raises(FrameCancelled):
         rt.frame(2, cancelled=lambda: True)         # the session's own stroke came
     assert rt.frame_no == n
+
+
+def test_a_view_that_keeps_changing_builds_nothing_for_strokes(bunny_renderer):
+    """What a stroke in the current view needs (its fit view) is built once the view has stayed
+    VIEW_SETTLE_S: an orbit without the drag flag (a new camera every frame) starts no build,
+    each of which took a core from its frames; the view it stops at gets its build."""
+    import time
+
+    from worker.jobs.fit_driver import VIEW_SETTLE_S
+
+    rt = _runtime(bunny_renderer)
+    rt.handle({"seq": 1, "type": "stroke", "stroke": STROKE})
+    rt.fit_if_needed()
+    _complete_views(rt)
+
+    def view_builds():
+        return [k for k in rt._pending if k[0] == "view"]
+    for k in range(3):
+        rt.handle({"seq": 2 + k, "type": "view", "eye": [0.2 * k, 0.6, 3.1]})
+        wait = rt.prefetch()
+        assert 0 < wait <= VIEW_SETTLE_S and not view_builds(), (wait, view_builds())
+    time.sleep(wait)
+    assert rt.prefetch() == 0.0
+    assert len(view_builds()) == 1 and view_builds()[0][3][0] == rt.state.camera.model_dump_json()
+    rt._pending[view_builds()[0]].result(timeout=120)
