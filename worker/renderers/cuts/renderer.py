@@ -10,7 +10,8 @@ cosine-weighted visibility and ω_k its light-weighted centroid. Three shading m
   (refine.py). Per-pixel accuracy for glossy lobes at a cost that scales with the visible
   vertices plus the refined pixels (none for Lambert). Vertices whose radiance the request
   brings (a stroke's transfer) are refined alike, their pixels shaded with the object's
-  material, so a stroke frame is the settled frame.
+  material, so a stroke's settled frame is the settled frame. The drag and quick levels of
+  detail are not refined (their anti-aliased still is).
 * ``vertex``: radiance at the vertices of the triangles the camera sees, barycentric
   interpolation per pixel (Gouraud). Its cost scales with the visible vertices; sharp lobes are
   smeared across a triangle.
@@ -401,7 +402,10 @@ class CutRenderer(Renderer):
                 keep = ~np.isin(vi, np.concatenate([ids for ids, _ in known.values()]))
                 vi, wo = vi[keep], wo[keep]
             mat_of = self.scene.object_of_vertex[vi]
-            refining = req.shading == "refined" and not drag
+            # a quick frame (one sample, drag-level clusters; the anti-aliased still follows when
+            # the session is idle) is not refined either: on the demo scene under load a refined
+            # quick frame cost 1.5-1.9× a vertex one, for an image shown ~0.2 s
+            refining = req.shading == "refined" and not drag and not quick
             needed = set(np.unique(mat_of).tolist())
             if refining:        # objects whose vertex radiance the request brings are refined too
                 needed |= set(known)
