@@ -88,8 +88,8 @@ def test_objects_are_refined_by_their_own_radiance(shared_assets, cache_dir):
     r = open_renderer(load_scene(scene_file("two-bunnies.json")))
     cam = r.scene.spec.camera
     glossy = GGX(alpha=0.15, albedo=(0.1, 0.1, 0.1), specular=(0.8, 0.8, 0.8))
-    a = r.render(FrameRequest(camera=cam, materials=[glossy, glossy]))
-    b = r.render(FrameRequest(camera=cam, materials=[glossy, Lambert(albedo=(0.95, 0.95, 0.95))]))
+    a = r.render(FrameRequest(camera=cam, materials=[glossy, glossy], shading="refined"))
+    b = r.render(FrameRequest(camera=cam, materials=[glossy, Lambert(albedo=(0.95, 0.95, 0.95))], shading="refined"))
     c = r.render(FrameRequest(camera=cam, materials=[glossy, glossy], shading="vertex"))
     left, right = a.object_id == 0, a.object_id == 1
     assert left.any() and right.any()

@@ -50,6 +50,12 @@ def test_stroke_frames_use_the_vertex_transfer_once_built(bunny_renderer):
     slow = rt.renderer.render(FrameRequest(**req))
     obj = slow.object_id == 0
     a, b = fast.radiance, slow.radiance
+    assert np.sqrt(((a - b)[obj] ** 2).mean()) / np.sqrt((b[obj] ** 2).mean()) < 0.02
+    # refined (opt-in): the stroke frame's object is refined too, so it stays the settled frame
+    fast = rt.renderer.render(FrameRequest(**req, vertex_radiance=ov, shading="refined"))
+    slow = rt.renderer.render(FrameRequest(**req, shading="refined"))
+    obj = slow.object_id == 0
+    a, b = fast.radiance, slow.radiance
     rel = np.sqrt(((a - b)[obj] ** 2).mean()) / np.sqrt((b[obj] ** 2).mean())
     assert rel < 0.02, rel          # exact SRBF sum against the renderer's p(h) table
     # the stroke frame is the settled frame: its object is refined per pixel where the settled

@@ -51,7 +51,7 @@ def render_errors(renderer, variants: list[Variant], exported: Callable[[BRDFMod
     exported materials against the original materials, for the scene's own materials and each
     variant; vertex (Gouraud) shading, both sides in the same mode (the exported glTF material
     has no C kernel and its NumPy reference shades every pixel ~10× slower than a vertex frame,
-    so the refined default's per-pixel rows would cost more than the frame), at the scene's
+    so the refined mode's per-pixel rows would cost more than the frame), at the scene's
     camera scaled to ``width``."""
     from scipy.ndimage import binary_erosion
 

@@ -1,4 +1,4 @@
-"""Per-pixel shading where vertex shading is wrong: the default (``refined``) mode's refinement.
+"""Per-pixel shading where vertex shading is wrong: the ``refined`` mode's refinement.
 
 Gouraud interpolation of vertex radiance is exact for what varies linearly over a face (the
 cut's visibility: inverse-brdf-modeling eq. 22 is linear in v_k, so blending a face's three cuts

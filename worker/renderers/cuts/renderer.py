@@ -4,7 +4,11 @@ cyber-worlds eq. 3 / inverse-brdf-modeling eq. 22: B(x, ωo) = Σ_k l_k v_k f_r(
 point's cut, with l_k the map integrated over cluster k (core/lighting.py), v_k its mean
 cosine-weighted visibility and ω_k its light-weighted centroid. Three shading modes:
 
-* ``refined`` (default): vertex shading (below) plus per-pixel shading on the faces where its
+* ``vertex`` (default): radiance at the vertices of the triangles the camera sees, barycentric
+  interpolation per pixel (Gouraud). Its cost scales with the visible vertices; sharp lobes are
+  smeared across a triangle.
+* ``refined`` (opt-in; not the default yet: its anti-aliased stills of a fitted srbf cost
+  several times vertex mode's): vertex shading plus per-pixel shading on the faces where its
   interpolation is wrong: those whose vertices' mirror directions span more than a fraction of
   their material's lobe and whose vertex radiance differs by more than their object's mean
   (refine.py). Per-pixel accuracy for glossy lobes at a cost that scales with the visible
@@ -12,9 +16,6 @@ cosine-weighted visibility and ω_k its light-weighted centroid. Three shading m
   brings (a stroke's transfer) are refined alike, their pixels shaded with the object's
   material, so a stroke's settled frame is the settled frame. The drag and quick levels of
   detail are not refined (their anti-aliased still is).
-* ``vertex``: radiance at the vertices of the triangles the camera sees, barycentric
-  interpolation per pixel (Gouraud). Its cost scales with the visible vertices; sharp lobes are
-  smeared across a triangle.
 * ``pixel``: every pixel shades the blend of its three vertices' cuts by barycentric weight
   (equal to blending their shading, the integral being linear in visibility) with its own
   interpolated normal and view direction, as one cluster list (core/render.py shade_blend).
