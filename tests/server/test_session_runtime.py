@@ -50,8 +50,18 @@ def test_stroke_frames_use_the_vertex_transfer_once_built(bunny_renderer):
     slow = rt.renderer.render(FrameRequest(**req))
     obj = slow.object_id == 0
     a, b = fast.radiance, slow.radiance
+    assert np.sqrt(((a - b)[obj] ** 2).mean()) / np.sqrt((b[obj] ** 2).mean()) < 0.02
+    # refined (opt-in): the stroke frame's object is refined too, so it stays the settled frame
+    fast = rt.renderer.render(FrameRequest(**req, vertex_radiance=ov, shading="refined"))
+    slow = rt.renderer.render(FrameRequest(**req, shading="refined"))
+    obj = slow.object_id == 0
+    a, b = fast.radiance, slow.radiance
     rel = np.sqrt(((a - b)[obj] ** 2).mean()) / np.sqrt((b[obj] ** 2).mean())
     assert rel < 0.02, rel          # exact SRBF sum against the renderer's p(h) table
+    # the stroke frame is the settled frame: its object is refined per pixel where the settled
+    # one is, although its vertex radiance comes from the transfer
+    n_fast, n_slow = fast.info["refined_samples"], slow.info["refined_samples"]
+    assert n_slow > 0 and abs(n_fast - n_slow) <= 0.05 * n_slow, (n_fast, n_slow)
     # a view change invalidates it: no override until one is built for the new view
     rt.handle({"seq": 3, "type": "view", "eye": [0.5, 0.6, 3.1]})
     assert rt._override() is None
@@ -370,3 +380,26 @@ def test_strokes_paint_a_region_in_a_session(bunny_renderer):
     rt.handle({"seq": 9, "type": "material", "material": rt.state.base_material.model_dump(mode="json")})
     ev = rt.handle({"seq": 10, "type": "region", "action": "erase", "name": "left ear"})
     assert ev[0]["material"] == base.model_dump(mode="json") and rt.state.region is None
+def test_a_view_that_keeps_changing_builds_nothing_for_strokes(bunny_renderer):
+    """What a stroke in the current view needs (its fit view) is built once the view has stayed
+    VIEW_SETTLE_S: an orbit without the drag flag (a new camera every frame) starts no build,
+    each of which took a core from its frames; the view it stops at gets its build."""
+    import time
+
+    from worker.jobs.fit_driver import VIEW_SETTLE_S
+
+    rt = _runtime(bunny_renderer)
+    rt.handle({"seq": 1, "type": "stroke", "stroke": STROKE})
+    rt.fit_if_needed()
+    _complete_views(rt)
+
+    def view_builds():
+        return [k for k in rt._pending if k[0] == "view"]
+    for k in range(3):
+        rt.handle({"seq": 2 + k, "type": "view", "eye": [0.2 * k, 0.6, 3.1]})
+        wait = rt.prefetch()
+        assert 0 < wait <= VIEW_SETTLE_S and not view_builds(), (wait, view_builds())
+    time.sleep(wait)
+    assert rt.prefetch() == 0.0
+    assert len(view_builds()) == 1 and view_builds()[0][3][0] == rt.state.camera.model_dump_json()
+    rt._pending[view_builds()[0]].result(timeout=120)

@@ -1,15 +1,18 @@
 """Radiance from cuts, lighting and BRDFs; images through primary rays.
 
 cyber-worlds eq. 3 / inverse-brdf-modeling eq. 22: B(x, ωo) = Σ_k l_k v_k f_r(ω_k, ωo) over the
-point's cut. Two shading modes:
+point's cut, evaluated two ways:
 
-* ``vertex`` (default): radiance at the vertices of the triangles the camera sees, then
-  barycentric interpolation per pixel. Fast: cost scales with visible vertices.
-* ``pixel``: every pixel shades its three vertices' cuts with its own interpolated normal and
-  view direction and blends them by barycentric weight (equal to interpolating the cuts, the
-  integral being linear in visibility). Sharper glossy highlights on coarse meshes.
+* at vertices (``shade_points``): radiance at the vertices of the triangles the camera sees,
+  then barycentric interpolation per pixel. Fast: cost scales with visible vertices.
+* inside faces (``shade_blend``): a pixel shades the blend of its three vertices' cuts by
+  barycentric weight (equal to blending their shading, the integral being linear in
+  visibility) with its own interpolated normal and view direction, as one cluster list over
+  the cuts' common refinement. Sharper glossy highlights on coarse meshes. The cut renderer's
+  modes (worker/renderers/cuts/renderer.py) combine the two.
 
-``shade_points_numpy`` is the reference of the C kernel ``glk_shade_points`` (and likewise
+``shade_points_numpy`` is the reference of the C kernel ``glk_shade_points``, ``shade_blend_numpy``
+of ``glk_shade_blend`` (and likewise
 ``interpolate_numpy``, ``env_lookup_numpy``); the public functions take the kernel backend
 (worker/native/kernels.py), defaulting to the process's.
 """
@@ -141,6 +144,23 @@ def shade_points_numpy(normals, wo, cut_of, mat_of, cuts: CutSet, node_l, node_w
     return out.astype(np.float32)
 
 
+def _cut_entries(cut_of, cuts: CutSet):
+    """Every entry of the points' cuts, in leaf order: (pt, h, start, q8) (M,) int64 point index,
+    height, first leaf and quantised visibility (int64, q/255)."""
+    a = cuts.offsets[cut_of]
+    b = cuts.offsets[cut_of + 1]
+    cnt = (b - a).astype(np.int64)
+    pt = np.repeat(np.arange(len(cut_of)), cnt)
+    node = np.concatenate([np.arange(x, y) for x, y in zip(a, b)]) if len(a) else np.zeros(0, np.int64)
+    h = cuts.heights[node].astype(np.int64)
+    w = np.int64(1) << h
+    # start leaf of each node: running sum within each point's cut
+    csum = np.cumsum(w)
+    first = np.repeat(np.cumsum(cnt) - cnt, cnt)
+    start = csum - w - (csum[first] - w[first]) if len(w) else np.zeros(0, np.int64)
+    return pt, h, start, cuts.quant[node].astype(np.int64)
+
+
 def expand_cut_entries(cut_of, cuts: CutSet, tree: DirectionTree, mirror, pairs):
     """The cluster list each point evaluates: its cut's nodes with non-zero visibility, split
     while any (refine radius, extent) pair asks for it (children inherit the parent's
@@ -153,20 +173,46 @@ def expand_cut_entries(cut_of, cuts: CutSet, tree: DirectionTree, mirror, pairs)
         direction is split when R > refine and a < R + extent.
     Returns (pt, idx, q): (M,) point index, flat tree-node index and visibility in [0, 1].
     """
-    a = cuts.offsets[cut_of]
-    b = cuts.offsets[cut_of + 1]
-    cnt = (b - a).astype(np.int64)
-    pt = np.repeat(np.arange(len(cut_of)), cnt)
-    node = np.concatenate([np.arange(x, y) for x, y in zip(a, b)]) if len(a) else np.zeros(0, np.int64)
-    h = cuts.heights[node].astype(np.int64)
-    w = np.int64(1) << h
-    # start leaf of each node: running sum within each point's cut
-    csum = np.cumsum(w)
-    first = np.repeat(np.cumsum(cnt) - cnt, cnt)
-    start = csum - w - (csum[first] - w[first])
-    q = cuts.quant[node].astype(np.float64) / 255.0
+    pt, h, start, q8 = _cut_entries(cut_of, cuts)
+    q = q8.astype(np.float64) / 255.0
     keep = q > 0
-    pt, h, start, q = pt[keep], h[keep], start[keep], q[keep]
+    return split_entries(pt[keep], h[keep], start[keep], q[keep], tree, mirror, pairs)
+
+
+def blend_cut_entries(verts, bary, cuts: CutSet, height: int):
+    """The blend of each point's three cuts by barycentric weight, as one entry list (the NumPy
+    reference of shade.c collect_blend before its split about the mirror direction).
+
+    The cuts' common refinement: its nodes start at every entry start of the three cuts, and
+    the node at a start is the finest of the three entries covering it; its visibility is
+    Σ_i w_i q_i/255 with q_i the entry of cut i covering it (B is linear in visibility,
+    inverse-brdf-modeling eq. 22, so shading it equals blending the three cuts' shading where
+    they agree, and is closer to the integral where one is coarser).
+
+    verts : (P, 3) cut (vertex) indices (≥ 0); bary : (P, 3) weights; height : the tree's H.
+    Returns (pt, h, start, q) (M,) int64, int64, int64, float64 with q > 0, in leaf order.
+    """
+    P = len(verts)
+    verts = np.asarray(verts, np.int64)
+    parts = [_cut_entries(verts[:, i], cuts) for i in range(3)]
+    keys = [pt * (np.int64(1) << height) + st for pt, _, st, _ in parts]     # sorted: by point, then leaf
+    allk = np.unique(np.concatenate(keys)) if P else np.zeros(0, np.int64)
+    pt = allk >> np.int64(height)
+    start = allk & ((np.int64(1) << height) - 1)
+    h = np.full(len(allk), 1 << 30, np.int64)
+    q = np.zeros(len(allk))
+    w = np.asarray(bary, np.float64)
+    for i, (k, (_, hi, _, qi)) in enumerate(zip(keys, parts)):
+        j = np.searchsorted(k, allk, side="right") - 1          # the entry of cut i covering each start
+        h = np.minimum(h, hi[j])
+        q += w[pt, i] * qi[j] / 255.0
+    keep = q > 0
+    return pt[keep], h[keep], start[keep], q[keep]
+
+
+def split_entries(pt, h, start, q, tree: DirectionTree, mirror, pairs):
+    """Cut entries (pt, h, start, q) split while any (refine, extent) pair asks for it
+    (expand_cut_entries); returns (pt, idx, q)."""
     pairs = [(np.asarray(r, np.float64), np.asarray(e, np.float64)) for r, e in pairs]
     while True:
         idx = tree.level_offset[h] + (start >> h)
@@ -204,13 +250,18 @@ def cluster_directions(node_w, idx, n):
 def _shade_chunk(n, wo, cut_of, mat_of, cuts, node_l, node_w, tree, mats):
     co = (n * wo).sum(1)
     live = np.nonzero((co > 0) & (cut_of >= 0))[0]
-    out = np.zeros((len(n), 3))
     if len(live) == 0:
-        return out
+        return np.zeros((len(n), 3))
     r = 2.0 * co[live, None] * n[live] - wo[live]                      # mirror directions
     m = mat_of[live]
     p, idx, q = expand_cut_entries(cut_of[live], cuts, tree, r, [(mats.refine[m], mats.extent[m])])
-    pt = live[p]
+    return _sum_entries(n, wo, live[p], idx, q, mat_of, node_l, node_w, mats)
+
+
+def _sum_entries(n, wo, pt, idx, q, mat_of, node_l, node_w, mats):
+    """(len(n), 3) float64 Σ l_k q_k f_r(ω_k, ωo) per point over cluster entries (pt point index,
+    idx tree node, q visibility) (inverse-brdf-modeling eq. 22)."""
+    out = np.zeros((len(n), 3))
     l = node_l[idx].astype(np.float64)
     dark = (l <= 0).all(1)
     npt = n[pt]
@@ -220,13 +271,47 @@ def _shade_chunk(n, wo, cut_of, mat_of, cuts, node_l, node_w, tree, mats):
     wop = wo[pt]
     wo_l = np.stack([(wop * t).sum(1), (wop * bt).sum(1), (wop * npt).sum(1)], 1)
     f = np.zeros((len(pt), 3))
-    for mi in np.unique(mat_of[live]):
+    for mi in np.unique(mat_of[pt]):
         sel = mat_of[pt] == mi
         f[sel] = eval_packed(mats.packed[mi], wi_l[sel], wo_l[sel])
     contrib = np.where(dark[:, None], 0.0, l * q[:, None] * f)
     for c in range(3):
         out[:, c] = np.bincount(pt, weights=contrib[:, c], minlength=len(n))
     return out
+
+
+def shade_blend_numpy(normals, wo, verts, bary, mat_of, cuts: CutSet, node_l, node_w, tree: DirectionTree,
+                      mats: MaterialTable, chunk: int = 512) -> np.ndarray:
+    """NumPy reference of glk_shade_blend: radiance at points inside faces, each shading the
+    blend of its face's three vertex cuts (blend_cut_entries) with its own normal and view
+    direction (pixel mode; inverse-brdf-modeling §4.1).
+
+    normals, wo : (P, 3) float32 unit; verts : (P, 3) int32 cut (vertex) indices; bary : (P, 3)
+    float32 weights; mat_of : (P,) int32. Returns (P, 3) float32.
+    """
+    out = np.zeros((len(normals), 3), np.float64)
+    verts = np.asarray(verts)
+    for s in range(0, len(normals), chunk):
+        e = min(s + chunk, len(normals))
+        n, w = normals[s:e].astype(np.float64), wo[s:e].astype(np.float64)
+        co = (n * w).sum(1)
+        live = np.nonzero((co > 0) & (verts[s:e, 0] >= 0))[0]
+        if len(live) == 0:
+            continue
+        r = 2.0 * co[live, None] * n[live] - w[live]
+        m = np.asarray(mat_of[s:e])[live]
+        pt, h, st, q = blend_cut_entries(verts[s:e][live], np.asarray(bary[s:e])[live], cuts, tree.height)
+        p, idx, q = split_entries(pt, h, st, q, tree, r, [(mats.refine[m], mats.extent[m])])
+        out[s:e] = _sum_entries(n, w, live[p], idx, q, np.asarray(mat_of[s:e]), node_l, node_w, mats)
+    return out.astype(np.float32)
+
+
+def shade_blend(normals, wo, verts, bary, mat_of, cuts: CutSet, node_l, node_w, tree: DirectionTree,
+                mats: MaterialTable, kernels=None, node8=None, face=None) -> np.ndarray:
+    """(P, 3) float32 per-pixel radiance from blended cuts (see shade_blend_numpy). face : (P,)
+    int the face of each point when known (the C kernel merges each face's cuts once)."""
+    return (kernels or _kernels()).shade_blend(normals, wo, verts, bary, mat_of, cuts, node_l, node_w, tree, mats,
+                                               node8=node8, face=face)
 
 
 def shade_points(normals, wo, cut_of, mat_of, cuts: CutSet, node_l, node_w, tree: DirectionTree,

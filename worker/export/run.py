@@ -49,9 +49,10 @@ def render_errors(renderer, variants: list[Variant], exported: Callable[[BRDFMod
                   width: int = RENDER_WIDTH) -> list[dict]:
     """Relative RMSE (over the objects' pixels, away from silhouettes) of Glint's render of the
     exported materials against the original materials, for the scene's own materials and each
-    variant; vertex shading (what the default frames show; the exported glTF material has no C
-    kernel and its NumPy reference shades every pixel ~10× slower than a vertex frame), at the
-    scene's camera scaled to ``width``."""
+    variant; vertex (Gouraud) shading, both sides in the same mode (the exported glTF material
+    has no C kernel and its NumPy reference shades every pixel ~10× slower than a vertex frame,
+    so the refined mode's per-pixel rows would cost more than the frame), at the scene's
+    camera scaled to ``width``."""
     from scipy.ndimage import binary_erosion
 
     from ..fit.recovery import rel_rmse

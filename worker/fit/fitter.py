@@ -42,13 +42,17 @@ GN_STEPS = 4
 
 
 def _take(smp, idx):
-    """Rows idx of a renderer's Samples (a dataclass of per-point arrays)."""
-    return dataclasses.replace(smp, **{f.name: getattr(smp, f.name)[idx] for f in dataclasses.fields(smp)})
+    """Rows idx of a renderer's Samples (a dataclass of per-point arrays; an optional one may be None)."""
+    def rows(x):
+        return None if x is None else x[idx]
+    return dataclasses.replace(smp, **{f.name: rows(getattr(smp, f.name)) for f in dataclasses.fields(smp)})
 
 
 def _cat(a, b):
     """Samples a followed by Samples b."""
-    return dataclasses.replace(a, **{f.name: np.concatenate([getattr(a, f.name), getattr(b, f.name)])
+    def cat(x, y):
+        return None if x is None or y is None else np.concatenate([x, y])
+    return dataclasses.replace(a, **{f.name: cat(getattr(a, f.name), getattr(b, f.name))
                                      for f in dataclasses.fields(a)})
 
 

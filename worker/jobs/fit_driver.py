@@ -29,6 +29,12 @@ from .lod import STILL_SAMPLES, busy_sessions
 from .reporting import _msg
 
 QUICK_ROWS_MIN = 100        # a quick view's unpainted rows under load (QUICK_ROWS / busy sessions)
+# what a stroke in the current view will need is built once the view (camera and light) has
+# stayed this long: views that change every frame (an orbit without the drag flag) built none
+# of it, but each build took a core from the frames (orbit at full quality: ~9 fps on 2 cores)
+# while the next message made it useless; below the still frame's wait (session_thread
+# STILL_DELAY_S), so the build starts with the settled frame
+VIEW_SETTLE_S = 0.1
 # one background builder per worker process: views are prepared one at a time, at low priority
 _builder = ThreadPoolExecutor(max_workers=1, thread_name_prefix="glint-prefetch")
 
@@ -49,6 +55,7 @@ class FitDriver:
         # fit views are valid for the placement they were built in (counted by moves)
         self._moves = 0
         self._view_moves: dict[int, int] = {}
+        self._view_changed_at = -1e9    # time.monotonic() of the last camera or light change
 
     def _drop_fit_work(self) -> None:
         """Queued and finished background builds no longer apply (a new placement, epoch or renderer)."""
@@ -205,19 +212,24 @@ class FitDriver:
                          stats=stats, notes=out.notes).model_dump()]
 
     # -- background work ----------------------------------------------------------------------------
-    def prefetch(self) -> None:
+    def prefetch(self) -> float:
         """When the session is idle and the user is not dragging: build the quick fit
         views in full (strokes painted mid-drag got them), and prepare what a stroke in the
         current view and light will need (its fit view; the per-vertex transfer of the edited
         object once the user paints a second time in one view), on the process's background
-        builder. Only for sessions that paint (a fitter exists in this epoch)."""
+        builder. Only for sessions that paint (a fitter exists in this epoch); the current view's
+        builds only once it has stayed VIEW_SETTLE_S. Returns the seconds until it will have
+        (0.0: nothing put off), after which the session calls this again if still idle."""
         if self.fitter is None or self._drag or self.state.readonly:
-            return
+            return 0.0
         cam, rot, inten = self.state.camera, self.state.rotation_deg, self.state.intensity
         fx = self.fitter
         for i, v in enumerate(fx.views):
             if v.provisional and self._view_moves.get(i, 0) == self._moves:
                 self._complete(i)
+        wait = VIEW_SETTLE_S - (time.monotonic() - self._view_changed_at)
+        if wait > 0:
+            return wait
         if not any(v.camera == cam and v.rotation_deg == rot and v.intensity == inten and
                    self._view_moves.get(i, 0) == self._moves for i, v in enumerate(fx.views)):
             key = ("view", self.state.epoch, self._moves, self._view_key(cam, rot, inten))
@@ -233,6 +245,7 @@ class FitDriver:
                 del self._pending[k]
             self._pending[vkey] = self._submit(self._build_vertex_transfer, cam, rot, inten)
             self._pending[vkey].add_done_callback(lambda _f: self.wake())
+        return 0.0
 
     def _submit(self, fn, *args) -> Future:
         """Queue background work on the process's builder; work of a session closed before it

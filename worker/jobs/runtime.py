@@ -188,7 +188,10 @@ class SessionRuntime(FitDriver):
         msg = client_msg.validate_python(raw)
         if msg.seq <= self.state.last_seq:
             return []                      # already in the restored state
+        before = (self.state.camera, self.state.rotation_deg, self.state.intensity)
         self.state, eff = apply(self.state, msg)
+        if (self.state.camera, self.state.rotation_deg, self.state.intensity) != before:
+            self._view_changed_at = time.monotonic()
         if msg.drags:
             self._drag = msg.drag
             mark_busy(id(self))

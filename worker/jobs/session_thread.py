@@ -160,6 +160,9 @@ class SessionThread(threading.Thread):
                 if idle:
                     rt.prefetch()
                     self._settle(rt, ack)
+                    wait = rt.prefetch()     # a view that stayed: what a stroke there will need
+                    if wait > 0 and self._quiet_for(wait):
+                        rt.prefetch()
         except Exception as ex:
             self._event({**error_event(ex), "fatal": True,
                          "message": f"cannot open the session: {error_event(ex)['message']}"})

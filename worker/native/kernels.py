@@ -81,6 +81,10 @@ class NumpyKernels(_Families):
         from ..core.render import shade_points_numpy
         return shade_points_numpy(normals, wo, cut_of, mat_of, cuts, node_l, node_w, tree, mats)
 
+    def shade_blend(self, normals, wo, verts, bary, mat_of, cuts, node_l, node_w, tree, mats, node8=None, face=None):
+        from ..core.render import shade_blend_numpy
+        return shade_blend_numpy(normals, wo, verts, bary, mat_of, cuts, node_l, node_w, tree, mats)
+
     def light_tables(self, lighting, rotation_deg, intensity, tree):
         from ..core.lighting import light_tables_numpy
         return light_tables_numpy(lighting, rotation_deg, intensity, tree)
@@ -144,6 +148,11 @@ class NativeKernels(_Families):
         self._shade = bind(
             "glk_shade_points", None, P=i64, normals=f32p, wo_dirs=f32p, cut_of=i32p, mat_of=i32p,
             cut_off=i64p, cut_h=u8p, cut_q=u8p, node8=f32p, node_dir=f32p, node_radius=f32p,
+            level_off=i64p, H=i32, mat_kind=i32p, mat_params=f32p, mat_refine=f32p, mat_extent=f32p,
+            tables=f32p, table_off=i64p, out=f32p)
+        self._blend = bind(
+            "glk_shade_blend", None, P=i64, normals=f32p, wo_dirs=f32p, verts=i32p, bary=f32p, mat_of=i32p,
+            G=i64, group=i64p, cut_off=i64p, cut_h=u8p, cut_q=u8p, node8=f32p, node_dir=f32p, node_radius=f32p,
             level_off=i64p, H=i32, mat_kind=i32p, mat_params=f32p, mat_refine=f32p, mat_extent=f32p,
             tables=f32p, table_off=i64p, out=f32p)
         self._simd = bind("glk_shade_simd", i32, want=i32)
@@ -223,6 +232,46 @@ class NativeKernels(_Families):
             k = np.nonzero(no_kernel)[0]
             out[k] = shade_points_numpy(normals[k], wo[k], np.asarray(cut_of)[k], mat_of[k], cuts, node_l,
                                         node_w, tree, mats)
+        return out
+
+    def shade_blend(self, normals, wo, verts, bary, mat_of, cuts, node_l, node_w, tree, mats, node8=None, face=None):
+        """(P, 3) float32 radiance at points inside faces from their three cuts blended (see
+        core.render.shade_blend_numpy). face : (P,) the face of each point, if known (points of
+        one face have the same three vertices; else they are grouped by their vertices): the
+        kernel merges a face's cuts once for all its points. Points whose material has no C
+        kernel branch are shaded by the NumPy reference."""
+        if node8 is None:
+            from ..core.lighting import pack_nodes
+            node8 = pack_nodes(node_l, node_w)
+        p = len(normals)
+        out = np.empty((p, 3), np.float32)
+        vc = np.asarray(verts, np.int32).reshape(-1, 3)
+        mat_of = np.asarray(mat_of, np.int32)
+        if p == 0:
+            return out
+        order = (np.argsort(np.asarray(face), kind="stable") if face is not None
+                 else np.lexsort((vc[:, 2], vc[:, 1], vc[:, 0])))
+        vs, ms = vc[order], mat_of[order]
+        cuts_at = np.nonzero((vs[1:] != vs[:-1]).any(axis=1))[0] + 1
+        group = np.concatenate([[0], cuts_at, [p]]).astype(np.int64)
+        no_kernel = mats.kind[ms] < 0
+        kind = np.where(mats.kind < 0, 0, mats.kind).astype(np.int32)
+        if no_kernel.any():
+            vs = vs.copy()
+            vs[no_kernel, 0] = -1                                      # the kernel writes zeros there
+        res = np.empty((p, 3), np.float32)
+        self._blend(p, c(np.asarray(normals)[order], np.float32), c(np.asarray(wo)[order], np.float32), c(vs, np.int32),
+                    c(np.asarray(bary, np.float32).reshape(-1, 3)[order], np.float32), c(ms, np.int32),
+                    len(group) - 1, group, c(cuts.offsets, np.int64), c(cuts.heights, np.uint8), c(cuts.quant, np.uint8),
+                    c(node8, np.float32), tree.node_dir, tree.node_radius, c(tree.level_offset, np.int64),
+                    tree.height, kind, mats.params, mats.refine, mats.extent, mats.tables, mats.table_off, res)
+        out[order] = res
+        if no_kernel.any():
+            from ..core.render import shade_blend_numpy
+
+            k = order[np.nonzero(no_kernel)[0]]
+            out[k] = shade_blend_numpy(np.asarray(normals)[k], np.asarray(wo)[k], vc[k],
+                                       np.asarray(bary)[k], mat_of[k], cuts, node_l, node_w, tree, mats)
         return out
 
     def interpolate(self, tri, uv, faces, vert_rgb, out):

@@ -67,7 +67,9 @@ class FrameRequest:
         "quick": a first frame shown at once before the anti-aliased still (full resolution;
         the cut renderer draws one sample with clusters refined to its drag level; renderers
         without such a level treat it as "full").
-    shading : renderer-specific shading mode ("vertex" or "pixel" for cuts).
+    shading : renderer-specific shading mode (for cuts: "vertex", the default, vertex shading
+        interpolated; "refined", per-pixel shading too where that interpolation is wrong;
+        "pixel", every pixel shaded).
     transforms : object name -> scene.Transform for movable objects (cut renderer).
     samples : primary-visibility samples per pixel (anti-aliasing), ≥ 1.
     vertex_radiance : object index -> (vertex ids (K,) int32, radiance (K, 3) float32), radiance

@@ -125,9 +125,11 @@ static inline void brdf_eval(int kind, const float *p, const float *tab, v3 wi, 
  * children inherit the parent's visibility. Writes node indices and quantised visibilities
  * (v = q/255); returns their number (at most 2^H: the clusters partition the leaves).
  */
-static int64_t refine_node(int h0, int64_t s0, unsigned q8, const int64_t *lev, const float *node_dir,
-                           const float *node_radius, v3 r, double refine_r, double extent,
-                           int32_t *idx, uint8_t *qv, int64_t n) {
+/* refine_node with the children's visibility written as q8 to qv, or (qv NULL) as the float qf to
+ * qfo: a blended cut's visibilities are not multiples of 1/255 (glk_shade_blend) */
+static int64_t refine_node_q(int h0, int64_t s0, unsigned q8, float qf, const int64_t *lev, const float *node_dir,
+                             const float *node_radius, v3 r, double refine_r, double extent,
+                             int32_t *idx, uint8_t *qv, float *qfo, int64_t n) {
     int64_t st[2 * 64];
     int sp = 0;
     st[sp++] = h0; st[sp++] = s0;
@@ -145,9 +147,17 @@ static int64_t refine_node(int h0, int64_t s0, unsigned q8, const int64_t *lev, 
                 continue;
             }
         }
-        idx[n] = (int32_t)id; qv[n] = (uint8_t)q8; n++;
+        idx[n] = (int32_t)id;
+        if (qv) qv[n] = (uint8_t)q8; else qfo[n] = qf;
+        n++;
     }
     return n;
+}
+
+static int64_t refine_node(int h0, int64_t s0, unsigned q8, const int64_t *lev, const float *node_dir,
+                           const float *node_radius, v3 r, double refine_r, double extent,
+                           int32_t *idx, uint8_t *qv, int64_t n) {
+    return refine_node_q(h0, s0, q8, 0.0f, lev, node_dir, node_radius, r, refine_r, extent, idx, qv, NULL, n);
 }
 
 /* hr: the lowest level with a node wider than refine_r (no node below it is ever split) */
@@ -168,6 +178,95 @@ static int64_t collect(int64_t c0, int64_t c1, const uint8_t *cut_h, const uint8
         }
         start += (int64_t)1 << h;
     }
+    return n;
+}
+
+/* A face's three vertex cuts merged (merge_cuts), per node of their common refinement: height
+ * uh, first leaf us, tree node uid, whether the face's material may split it about a mirror
+ * direction uf (h ≥ hr and radius > refine radius), and the three cuts' visibilities there
+ * q0, q1, q2 (q/255). Arrays of cap entries, grown as needed (one per thread). */
+typedef struct {
+    int64_t cap;
+    uint8_t *uh, *uf;
+    int64_t *us;
+    int32_t *uid;
+    float *q0, *q1, *q2;
+} merged_cuts;
+
+static void merged_reserve(merged_cuts *m, int64_t need) {
+    if (need <= m->cap) return;
+    m->cap = need;
+    m->uh = (uint8_t *)realloc(m->uh, need);
+    m->uf = (uint8_t *)realloc(m->uf, need);
+    m->us = (int64_t *)realloc(m->us, sizeof(int64_t) * need);
+    m->uid = (int32_t *)realloc(m->uid, sizeof(int32_t) * need);
+    m->q0 = (float *)realloc(m->q0, sizeof(float) * need);
+    m->q1 = (float *)realloc(m->q1, sizeof(float) * need);
+    m->q2 = (float *)realloc(m->q2, sizeof(float) * need);
+}
+
+static void merged_free(merged_cuts *m) {
+    free(m->uh); free(m->uf); free(m->us); free(m->uid); free(m->q0); free(m->q1); free(m->q2);
+}
+
+/* The common refinement of a face's three vertex cuts (c: their first entries), walked in
+ * leaf order (core/render.py blend_cut_entries is the reference): at each leaf position every
+ * cut has one entry covering it; the finest of the three starts there and is the union's
+ * node, carrying the three cuts' visibilities there (a coarser cut's entry gives its
+ * visibility to each of its parts). Returns the number of nodes (≤ the three cuts' lengths
+ * summed; m must hold that many). Made once per face: every pixel of the face blends the same
+ * list with its own weights (blend_list). */
+static int64_t merge_cuts(const int64_t c[3], const uint8_t *cut_h, const uint8_t *cut_q, int H, const int64_t *lev,
+                          const float *node_radius, double refine_r, int hr, merged_cuts *mc) {
+    const int64_t total = (int64_t)1 << H;
+    const float k = 1.0f / 255.0f;
+    int64_t m[3], e[3];
+    int h[3];
+    for (int i = 0; i < 3; i++) { m[i] = c[i]; h[i] = cut_h[m[i]]; e[i] = (int64_t)1 << h[i]; }
+    int64_t u = 0, cur = 0;
+    while (cur < total) {
+        int hh = h[0] < h[1] ? h[0] : h[1];
+        if (h[2] < hh) hh = h[2];
+        int64_t id = lev[hh] + (cur >> hh);
+        mc->uh[u] = (uint8_t)hh; mc->us[u] = cur; mc->uid[u] = (int32_t)id;
+        mc->uf[u] = (uint8_t)(hh >= hr && node_radius[id] > refine_r);
+        mc->q0[u] = k * cut_q[m[0]]; mc->q1[u] = k * cut_q[m[1]]; mc->q2[u] = k * cut_q[m[2]];
+        u++;
+        cur += (int64_t)1 << hh;
+        if (cur >= total) break;
+        for (int i = 0; i < 3; i++)
+            if (e[i] == cur) { m[i]++; h[i] = cut_h[m[i]]; e[i] = cur + ((int64_t)1 << h[i]); }
+    }
+    return u;
+}
+
+/* node u of merged cuts for one pixel of weights w: appended when its visibility is positive,
+ * split about the mirror direction r when its material may split it */
+static inline int64_t blend_one(const merged_cuts *mc, int64_t u, float w0, float w1, float w2, const int64_t *lev,
+                                const float *node_dir, const float *node_radius, v3 r, double refine_r,
+                                double extent, int32_t *idx, float *qf, int64_t n) {
+    float q = w0 * mc->q0[u] + w1 * mc->q1[u] + w2 * mc->q2[u];
+    if (!(q > 0.0f)) return n;
+    if (mc->uf[u])
+        return refine_node_q(mc->uh[u], mc->us[u], 0, q, lev, node_dir, node_radius, r, refine_r, extent, idx, NULL,
+                             qf, n);
+    idx[n] = mc->uid[u]; qf[n] = q;
+    return n + 1;
+}
+
+/* One pixel's clusters from its face's merged cuts: visibility v = Σ_i w_i q_i per node (B is
+ * linear in v, inverse-brdf-modeling eq. 22, so shading the blend equals blending the three
+ * cuts' shading where they agree; where one cut is coarser its clusters are evaluated at the
+ * finer cut's light centroids, closer to the integral and exact for the diffuse part), nodes
+ * with v > 0 kept and split about the mirror direction r as ``collect`` does. Writes node
+ * indices and float visibilities; returns their number (≤ 2^H). */
+static int64_t blend_list(int64_t U, const merged_cuts *mc, const double w[3], const int64_t *lev,
+                          const float *node_dir, const float *node_radius, v3 r, double refine_r, double extent,
+                          int32_t *idx, float *qf) {
+    int64_t n = 0;
+    for (int64_t u = 0; u < U; u++)
+        n = blend_one(mc, u, (float)w[0], (float)w[1], (float)w[2], lev, node_dir, node_radius, r, refine_r, extent,
+                      idx, qf, n);
     return n;
 }
 
@@ -334,11 +433,49 @@ T_AVX2 static int64_t collect_avx2(int64_t c0, int64_t c1, const uint8_t *cut_h,
     return n;
 }
 
-T_AVX2 static void sum_lambert(int64_t cnt, const int32_t *idx, const uint8_t *qv, const float *node8, double *E) {
+/* blend_list eight merged nodes at a time: v = w·q in one FMA chain, positive ones left-packed
+ * (pack_perm); a group of eight holding a node to split goes through blend_one. */
+T_AVX2 static int64_t blend_list_avx2(int64_t U, const merged_cuts *mc, const double w[3], const int64_t *lev,
+                                      const float *node_dir, const float *node_radius, v3 r, double refine_r,
+                                      double extent, int32_t *idx, float *qf) {
+    const float f0 = (float)w[0], f1 = (float)w[1], f2 = (float)w[2];
+    const __m256 w0 = _mm256_set1_ps(f0), w1 = _mm256_set1_ps(f1), w2 = _mm256_set1_ps(f2);
+    const __m256 zero = _mm256_setzero_ps();
+    int64_t n = 0, u = 0;
+    for (; u + 8 <= U; u += 8) {
+        __m256 q = _mm256_fmadd_ps(w2, _mm256_loadu_ps(mc->q2 + u),
+                                   _mm256_fmadd_ps(w1, _mm256_loadu_ps(mc->q1 + u),
+                                                   _mm256_mul_ps(w0, _mm256_loadu_ps(mc->q0 + u))));
+        int pos = _mm256_movemask_ps(_mm256_cmp_ps(q, zero, _CMP_GT_OQ));
+        uint64_t fl;
+        memcpy(&fl, mc->uf + u, 8);
+        if (__builtin_expect(fl != 0, 0)) {
+            for (int64_t k = u; k < u + 8; k++)
+                n = blend_one(mc, k, f0, f1, f2, lev, node_dir, node_radius, r, refine_r, extent, idx, qf, n);
+            continue;
+        }
+        __m256i perm = _mm256_loadu_si256((const __m256i *)pack_perm[pos]);
+        _mm256_storeu_si256((__m256i *)(idx + n),
+                            _mm256_permutevar8x32_epi32(_mm256_loadu_si256((const __m256i *)(mc->uid + u)), perm));
+        _mm256_storeu_ps(qf + n, _mm256_permutevar8x32_ps(q, perm));
+        n += __builtin_popcount(pos);
+    }
+    for (; u < U; u++)
+        n = blend_one(mc, u, f0, f1, f2, lev, node_dir, node_radius, r, refine_r, extent, idx, qf, n);
+    return n;
+}
+
+/* a point's eight visibilities: quantised (qv) or, when qf is given, float (a blended cut) */
+T_AVX2 static inline __m256 get_q(const uint8_t *qv, const float *qf, int64_t j) {
+    return qf ? _mm256_loadu_ps(qf + j) : load_q(qv + j);
+}
+
+T_AVX2 static void sum_lambert(int64_t cnt, const int32_t *idx, const uint8_t *qv, const float *qf, const float *node8,
+                               double *E) {
     __m256 er = _mm256_setzero_ps(), eg = er, eb = er;
     for (int64_t j = 0; j < cnt; j += 8) {
         __m256i off = _mm256_slli_epi32(_mm256_loadu_si256((const __m256i *)(idx + j)), 3);
-        __m256 q = load_q(qv + j);
+        __m256 q = get_q(qv, qf, j);
         er = _mm256_fmadd_ps(_mm256_i32gather_ps(node8 + 0, off, 4), q, er);
         eg = _mm256_fmadd_ps(_mm256_i32gather_ps(node8 + 1, off, 4), q, eg);
         eb = _mm256_fmadd_ps(_mm256_i32gather_ps(node8 + 2, off, 4), q, eb);
@@ -346,7 +483,8 @@ T_AVX2 static void sum_lambert(int64_t cnt, const int32_t *idx, const uint8_t *q
     E[0] = hsum8(er); E[1] = hsum8(eg); E[2] = hsum8(eb);
 }
 
-T_AVX2 static void sum_ggx(int64_t cnt, const int32_t *idx, const uint8_t *qv, const float *node8, const frame8 *f,
+T_AVX2 static void sum_ggx(int64_t cnt, const int32_t *idx, const uint8_t *qv, const float *qf, const float *node8,
+                           const frame8 *f,
                            v3 wol, float alpha, double *E, double *S) {
     const float a2 = alpha * alpha;
     const __m256 va2 = _mm256_set1_ps(a2), v1ma2 = _mm256_set1_ps(1.0f - a2);
@@ -355,7 +493,7 @@ T_AVX2 static void sum_ggx(int64_t cnt, const int32_t *idx, const uint8_t *qv, c
     __m256 er = zero, eg = zero, eb = zero, sr = zero, sg = zero, sb = zero;
     for (int64_t j = 0; j < cnt; j += 8) {
         __m256i off = _mm256_slli_epi32(_mm256_loadu_si256((const __m256i *)(idx + j)), 3);
-        __m256 q = load_q(qv + j);
+        __m256 q = get_q(qv, qf, j);
         __m256 lr, lg, lb, wt, wb, ci;
         local_dirs(node8, off, f, &lr, &lg, &lb, &wt, &wb, &ci);
         lr = _mm256_mul_ps(lr, q); lg = _mm256_mul_ps(lg, q); lb = _mm256_mul_ps(lb, q);
@@ -377,7 +515,8 @@ T_AVX2 static void sum_ggx(int64_t cnt, const int32_t *idx, const uint8_t *qv, c
     S[0] = hsum8(sr); S[1] = hsum8(sg); S[2] = hsum8(sb);
 }
 
-T_AVX2 static void sum_table(int64_t cnt, const int32_t *idx, const uint8_t *qv, const float *node8, const frame8 *f,
+T_AVX2 static void sum_table(int64_t cnt, const int32_t *idx, const uint8_t *qv, const float *qf, const float *node8,
+                             const frame8 *f,
                              v3 wol, const float *prm, const float *tab, double *E, double *S) {
     const __m256 zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1.0f);
     /* prm[3] = F0; prm[4] = static (0 paper, 1 smith), prm[5] = the smith static's α */
@@ -397,7 +536,7 @@ T_AVX2 static void sum_table(int64_t cnt, const int32_t *idx, const uint8_t *qv,
     __m256 er = zero, eg = zero, eb = zero, sr = zero, sg = zero, sb = zero;
     for (int64_t j = 0; j < cnt; j += 8) {
         __m256i off = _mm256_slli_epi32(_mm256_loadu_si256((const __m256i *)(idx + j)), 3);
-        __m256 q = load_q(qv + j);
+        __m256 q = get_q(qv, qf, j);
         __m256 lr, lg, lb, wt, wb, ci;
         local_dirs(node8, off, f, &lr, &lg, &lb, &wt, &wb, &ci);
         lr = _mm256_mul_ps(lr, q); lg = _mm256_mul_ps(lg, q); lb = _mm256_mul_ps(lb, q);
@@ -454,19 +593,57 @@ T_AVX2 static void sum_table(int64_t cnt, const int32_t *idx, const uint8_t *qv,
 }
 
 /* the vector path of one point (not inlined into the generic caller: it is compiled for AVX2) */
-T_AVX2 __attribute__((noinline)) static void sum_avx2(int kind, int64_t cnt, int32_t *idx, uint8_t *qv,
+T_AVX2 __attribute__((noinline)) static void sum_avx2(int kind, int64_t cnt, int32_t *idx, uint8_t *qv, float *qf,
                                                       const float *node8, const float *fr, v3 wol, const float *prm,
                                                       const float *tab, double *E, double *S) {
-    for (int64_t j = cnt; j < ((cnt + 7) & ~(int64_t)7); j++) { idx[j] = idx[0]; qv[j] = 0; }   /* pad: v = 0 */
+    for (int64_t j = cnt; j < ((cnt + 7) & ~(int64_t)7); j++) {      /* pad: v = 0 */
+        idx[j] = idx[0];
+        if (qf) qf[j] = 0.0f; else qv[j] = 0;
+    }
     frame8 f;
     f.tx = _mm256_set1_ps(fr[0]); f.ty = _mm256_set1_ps(fr[1]); f.tz = _mm256_set1_ps(fr[2]);
     f.bx = _mm256_set1_ps(fr[3]); f.by = _mm256_set1_ps(fr[4]); f.bz = _mm256_set1_ps(fr[5]);
     f.nx = _mm256_set1_ps(fr[6]); f.ny = _mm256_set1_ps(fr[7]); f.nz = _mm256_set1_ps(fr[8]);
-    if (kind == K_LAMBERT) sum_lambert(cnt, idx, qv, node8, E);
-    else if (kind == K_GGX) sum_ggx(cnt, idx, qv, node8, &f, wol, prm[6], E, S);
-    else sum_table(cnt, idx, qv, node8, &f, wol, prm, tab, E, S);
+    if (kind == K_LAMBERT) sum_lambert(cnt, idx, qv, qf, node8, E);
+    else if (kind == K_GGX) sum_ggx(cnt, idx, qv, qf, node8, &f, wol, prm[6], E, S);
+    else sum_table(cnt, idx, qv, qf, node8, &f, wol, prm, tab, E, S);
 }
 #endif
+
+/* ---------------------------------------------------------------------------------------
+ * One point's radiance from its cluster list (idx with visibilities qv q/255, or qf floats when
+ * qf is given): the vector path when the model has one, else f evaluated as the reference does.
+ * n, wo unit; (t, bt, n) its frame; co = n·ωo > 0; gpo GGX's per-point factor. */
+static void sum_point(int simd, int kind, const float *prm, const float *tab, v3 n, v3 wo, v3 t, v3 bt, double co,
+                      double gpo, int64_t cnt, int32_t *idx, uint8_t *qv, float *qf, const float *node8,
+                      double acc[3]) {
+    acc[0] = acc[1] = acc[2] = 0.0;
+    if (cnt <= 0) return;
+#ifdef GLK_X86
+    if (simd && (kind == K_LAMBERT || kind == K_GGX || (kind == K_TABLE && tab))) {
+        double E[3], S[3] = {0, 0, 0};
+        const float fr[9] = {(float)t.x, (float)t.y, (float)t.z, (float)bt.x, (float)bt.y, (float)bt.z,
+                             (float)n.x, (float)n.y, (float)n.z};
+        sum_avx2(kind, cnt, idx, qv, qf, node8, fr, mk(dot(wo, t), dot(wo, bt), co), prm, tab, E, S);
+        if (kind == K_GGX) { S[0] *= gpo * prm[3]; S[1] *= gpo * prm[4]; S[2] *= gpo * prm[5]; }
+        for (int c = 0; c < 3; c++) acc[c] = prm[c] * INV_PI * E[c] + S[c];
+        return;
+    }
+#else
+    (void)simd;
+#endif
+    for (int64_t j = 0; j < cnt; j++) {
+        const float *L = node8 + 8 * (int64_t)idx[j];
+        if (L[0] <= 0 && L[1] <= 0 && L[2] <= 0) continue;
+        v3 wi = mk(L[3], L[4], L[5]);
+        double ci = dot(wi, n);
+        if (ci < 1e-3) wi = nrm(add(wi, scl(n, 1e-3 - ci)));
+        double fr[3];
+        brdf_eval(kind, prm, tab, wi, wo, n, t, bt, gpo, fr);
+        double q = qf ? (double)qf[j] : qv[j] * (1.0 / 255.0);
+        acc[0] += L[0] * q * fr[0]; acc[1] += L[1] * q * fr[1]; acc[2] += L[2] * q * fr[2];
+    }
+}
 
 /* ---------------------------------------------------------------------------------------
  * normals, wo_dirs (P, 3) float32 unit; cut_of, mat_of (P,) int32 (cut −1: none → 0);
@@ -509,9 +686,7 @@ void glk_shade_points(
                  * in the upper hemisphere, so G1(ωo) does not depend on the cluster */
                 double gpo = kind == K_GGX ? ggx_G1(co, 1.0, prm[6]) / (4.0 * co) : 0.0;
                 int64_t c0 = cut_off[cut_of[p]], c1 = cut_off[cut_of[p] + 1], cnt;
-                int vec = 0;
 #ifdef GLK_X86
-                vec = simd && (kind == K_LAMBERT || kind == K_GGX || (kind == K_TABLE && tab));
                 if (simd && H <= 15)
                     cnt = collect_avx2(c0, c1, cut_h, cut_q, level_off, H, node_dir, node_radius, r, mat_refine[mi],
                                        mat_extent[mi], hr[mi], idx, qv);
@@ -519,33 +694,80 @@ void glk_shade_points(
 #endif
                     cnt = collect(c0, c1, cut_h, cut_q, level_off, node_dir, node_radius, r, mat_refine[mi],
                                   mat_extent[mi], hr[mi], idx, qv);
-#ifdef GLK_X86
-                if (vec && cnt > 0) {
-                    double E[3], S[3] = {0, 0, 0};
-                    const float fr[9] = {(float)t.x, (float)t.y, (float)t.z, (float)bt.x, (float)bt.y, (float)bt.z,
-                                         (float)n.x, (float)n.y, (float)n.z};
-                    sum_avx2(kind, cnt, idx, qv, node8, fr, mk(dot(wo, t), dot(wo, bt), co), prm, tab, E, S);
-                    if (kind == K_GGX) { S[0] *= gpo * prm[3]; S[1] *= gpo * prm[4]; S[2] *= gpo * prm[5]; }
-                    for (int c = 0; c < 3; c++) acc[c] = prm[c] * INV_PI * E[c] + S[c];
-                } else
-#endif
-                {
-                    for (int64_t j = 0; j < cnt; j++) {
-                        const float *L = node8 + 8 * (int64_t)idx[j];
-                        if (L[0] <= 0 && L[1] <= 0 && L[2] <= 0) continue;
-                        v3 wi = mk(L[3], L[4], L[5]);
-                        double ci = dot(wi, n);
-                        if (ci < 1e-3) wi = nrm(add(wi, scl(n, 1e-3 - ci)));
-                        double fr[3];
-                        brdf_eval(kind, prm, tab, wi, wo, n, t, bt, gpo, fr);
-                        double q = qv[j] * (1.0 / 255.0);
-                        acc[0] += L[0] * q * fr[0]; acc[1] += L[1] * q * fr[1]; acc[2] += L[2] * q * fr[2];
-                    }
-                }
+                sum_point(simd, kind, prm, tab, n, wo, t, bt, co, gpo, cnt, idx, qv, NULL, node8, acc);
             }
             out[3 * p] = (float)acc[0]; out[3 * p + 1] = (float)acc[1]; out[3 * p + 2] = (float)acc[2];
         }
         free(idx); free(qv);
+    }
+    free(hr);
+}
+
+/* ---------------------------------------------------------------------------------------
+ * Per-pixel shading inside faces (pixel mode, the refined mode's rows): point p shades the
+ * blend of its face's three vertex cuts verts[3p..3p+2] with weights bary[3p..3p+2] (one
+ * cluster list instead of three) with its own normal and view direction. Points come in G
+ * groups [group[g], group[g+1]) of one face each (the same three vertices): the cuts are merged
+ * once per group (merge_cuts), each point blends the merged list (blend_list). Same arrays as
+ * glk_shade_points otherwise; core/render.py shade_blend_numpy is the reference. */
+void glk_shade_blend(
+    int64_t P, const float *normals, const float *wo_dirs, const int32_t *verts, const float *bary,
+    const int32_t *mat_of, int64_t G, const int64_t *group, const int64_t *cut_off, const uint8_t *cut_h,
+    const uint8_t *cut_q, const float *node8, const float *node_dir, const float *node_radius,
+    const int64_t *level_off, int H, const int32_t *mat_kind, const float *mat_params,
+    const float *mat_refine, const float *mat_extent, const float *tables, const int64_t *table_off,
+    float *out) {
+    const int simd = glk_shade_simd(-1);
+    const int64_t cap = ((int64_t)1 << H) + 8;
+    int M = 0;
+    for (int64_t p = 0; p < P; p++) if (mat_of[p] + 1 > M) M = mat_of[p] + 1;
+    int *hr = (int *)malloc(sizeof(int) * (M > 0 ? M : 1));
+    for (int i = 0; i < M; i++) hr[i] = refine_level(node_radius, level_off, H, mat_refine[i]);
+#pragma omp parallel
+    {
+        int32_t *idx = (int32_t *)malloc(sizeof(int32_t) * cap);
+        float *qf = (float *)malloc(sizeof(float) * cap);
+        merged_cuts mc = {0, NULL, NULL, NULL, NULL, NULL, NULL, NULL};
+#pragma omp for schedule(dynamic, 4)
+        for (int64_t g = 0; g < G; g++) {
+            int64_t U = -1;                     /* merged lazily: a group's points may all face away */
+            for (int64_t p = group[g]; p < group[g + 1]; p++) {
+                v3 n = mk(normals[3 * p], normals[3 * p + 1], normals[3 * p + 2]);
+                v3 wo = mk(wo_dirs[3 * p], wo_dirs[3 * p + 1], wo_dirs[3 * p + 2]);
+                double acc[3] = {0, 0, 0};
+                double co = dot(n, wo);
+                int mi = mat_of[p];
+                if (co > 0 && verts[3 * p] >= 0) {
+                    if (U < 0) {
+                        const int64_t c3[3] = {cut_off[verts[3 * p]], cut_off[verts[3 * p + 1]],
+                                               cut_off[verts[3 * p + 2]]};
+                        int64_t need = 0;
+                        for (int i = 0; i < 3; i++) need += cut_off[verts[3 * p + i] + 1] - c3[i];
+                        merged_reserve(&mc, need);
+                        U = merge_cuts(c3, cut_h, cut_q, H, level_off, node_radius, mat_refine[mi], hr[mi], &mc);
+                    }
+                    int kind = mat_kind[mi];
+                    const float *prm = mat_params + (int64_t)mi * N_PARAMS;
+                    const float *tab = table_off[mi] >= 0 ? tables + table_off[mi] : NULL;
+                    v3 r = add(scl(n, 2.0 * co), scl(wo, -1.0));
+                    v3 t, bt; onb(n, &t, &bt);
+                    double gpo = kind == K_GGX ? ggx_G1(co, 1.0, prm[6]) / (4.0 * co) : 0.0;
+                    const double w3[3] = {bary[3 * p], bary[3 * p + 1], bary[3 * p + 2]};
+                    int64_t cnt;
+#ifdef GLK_X86
+                    if (simd)
+                        cnt = blend_list_avx2(U, &mc, w3, level_off, node_dir, node_radius, r, mat_refine[mi],
+                                              mat_extent[mi], idx, qf);
+                    else
+#endif
+                        cnt = blend_list(U, &mc, w3, level_off, node_dir, node_radius, r, mat_refine[mi],
+                                         mat_extent[mi], idx, qf);
+                    sum_point(simd, kind, prm, tab, n, wo, t, bt, co, gpo, cnt, idx, NULL, qf, node8, acc);
+                }
+                out[3 * p] = (float)acc[0]; out[3 * p + 1] = (float)acc[1]; out[3 * p + 2] = (float)acc[2];
+            }
+        }
+        free(idx); free(qf); merged_free(&mc);
     }
     free(hr);
 }

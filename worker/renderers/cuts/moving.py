@@ -510,8 +510,10 @@ class MovingFrames:
     # -- a frame ------------------------------------------------------------------------------------
     def render(self, req) -> Rendered:
         r = self.r
-        if req.shading != "vertex":
-            raise Unsupported("scenes with movable objects are shaded per vertex (shading: vertex)")
+        # per-pixel refinement needs the three cuts of a face, which a moved object's frame
+        # combines per vertex only: refined frames of these scenes are vertex shading
+        if req.shading not in ("vertex", "refined"):
+            raise Unsupported("scenes with movable objects are shaded per vertex (shading: vertex or refined)")
         t = {}
         t0 = time.perf_counter()
         drag = req.lod == "drag"
@@ -586,7 +588,7 @@ class MovingFrames:
         self.last_stats = stats
         return Rendered(img.reshape(camera.height, camera.width, 3), obj.reshape(camera.height, camera.width), t,
                         {"lod": req.lod, "tau": DRAG_TAU if drag else d.tau, "width": camera.width,
-                         "height": camera.height, "visible_vertices": len(vis), "moving": stats,
+                         "height": camera.height, "visible_vertices": len(vis), "refined_samples": 0, "moving": stats,
                          "hmin": lv.combiner.hmin})
 
     # -- the current placement: what the fitter's questions are answered for --------------------------

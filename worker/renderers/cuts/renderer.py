@@ -7,15 +7,18 @@ cosine-weighted visibility and ω_k its light-weighted centroid. Three shading m
 * ``vertex`` (default): radiance at the vertices of the triangles the camera sees, barycentric
   interpolation per pixel (Gouraud). Its cost scales with the visible vertices; sharp lobes are
   smeared across a triangle.
-* ``refined``: vertex mode plus pixel-mode shading on the faces where the interpolation is
-  wrong: those whose vertices' mirror directions span more than a fraction of their material's
-  lobe and whose vertex radiance differs by more than the frame's mean (refine.py). Per-pixel
-  accuracy for glossy lobes, at 2-7× vertex mode's cost on glossy materials (none for Lambert);
-  not the default yet: vertices whose radiance a request brings (a stroke's transfer) are not
-  refined, and the contrast threshold couples the objects of a frame.
-* ``pixel``: every pixel shades its three vertices' cuts with its own interpolated normal and
-  view direction and blends them by barycentric weight (equal to interpolating the cuts, the
-  integral being linear in visibility).
+* ``refined`` (opt-in; not the default yet: its anti-aliased stills of a fitted srbf cost
+  several times vertex mode's): vertex shading plus per-pixel shading on the faces where its
+  interpolation is wrong: those whose vertices' mirror directions span more than a fraction of
+  their material's lobe and whose vertex radiance differs by more than their object's mean
+  (refine.py). Per-pixel accuracy for glossy lobes at a cost that scales with the visible
+  vertices plus the refined pixels (none for Lambert). Vertices whose radiance the request
+  brings (a stroke's transfer) are refined alike, their pixels shaded with the object's
+  material, so a stroke's settled frame is the settled frame. The drag and quick levels of
+  detail are not refined (their anti-aliased still is).
+* ``pixel``: every pixel shades the blend of its three vertices' cuts by barycentric weight
+  (equal to blending their shading, the integral being linear in visibility) with its own
+  interpolated normal and view direction, as one cluster list (core/render.py shade_blend).
 
 It caches what a frame reuses (per camera and sample count: the hit buffer, the visible
 vertices and their view directions, the background's map coordinates and the object ids; per
@@ -25,7 +28,7 @@ of the visible vertices and the resolve, a light change adds the light tables an
 background, and a view change adds the primary rays. The drag level of detail shades cuts
 coarsened to τ = 16 at half resolution.
 
-Anti-aliasing (``FrameRequest.samples`` S > 1, vertex mode): S primary rays per pixel through
+Anti-aliasing (``FrameRequest.samples`` S > 1, vertex and refined modes): S primary rays per pixel through
 a pattern symmetric about the pixel centre (render.sample_offsets); the vertices of every
 sample's triangle are shaded once, and each pixel is the mean of its samples' interpolations
 or background (C glk_resolve). Inside a triangle this equals one sample exactly; silhouettes
@@ -61,6 +64,7 @@ from ...core.render import (
     camera_rays,
     env_coords,
     resolve,
+    shade_blend,
     shade_points,
 )
 from ...models.regions import has_regions
@@ -138,13 +142,15 @@ class View:
 class Samples:
     """Surface points to shade or fit: pix (N,) flat pixel index (or vertex id for vertex
     samples), positions (N, 3), normals (N, 3) unit, wo (N, 3) unit towards the eye, verts
-    (N, 3) int32 vertex (cut) indices, bary (N, 3) float32 weights of those cuts; all float32."""
+    (N, 3) int32 vertex (cut) indices, bary (N, 3) float32 weights of those cuts; all float32;
+    face (N,) int32 the face of each sample when it is one (pixel samples), else None."""
     pix: np.ndarray
     positions: np.ndarray
     normals: np.ndarray
     wo: np.ndarray
     verts: np.ndarray
     bary: np.ndarray
+    face: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.pix)
@@ -398,7 +404,8 @@ class CutRenderer(Renderer):
     def material_table(self, materials, needed=None) -> MaterialTable:
         """Packed materials (cached by the identity of the list's items). needed: the indices of
         the materials any point will be shaded with (default all); the others get a placeholder,
-        so a frame whose edited object is all known radiance (strokes) does not pack its srbf."""
+        so a vertex-mode frame whose edited object is all known radiance (strokes) does not pack
+        its srbf (a refined frame does: its refined pixels of that object are shaded with it)."""
         needed = frozenset(range(len(materials)) if needed is None else needed)
         key = (tuple(id(m) for m in materials), needed)
         if key != self._mats_key:
@@ -482,11 +489,18 @@ class CutRenderer(Renderer):
                 vi, wo = vi[keep], wo[keep]
             mat_of = self.scene.object_of_vertex[vi]
             layers = self.layers(materials)
-            objs = np.unique(mat_of).tolist()
+            # a quick frame (one sample, drag-level clusters; the anti-aliased still follows when
+            # the session is idle) is not refined either: on the demo scene under load a refined
+            # quick frame cost 1.5-1.9× a vertex one, for an image shown ~0.2 s
+            refining = req.shading == "refined" and not drag and not quick
+            needed = set(np.unique(mat_of).tolist())
+            if refining:        # objects whose vertex radiance the request brings are refined too
+                needed |= set(known)
+            objs = sorted(needed)
             mats = (self.material_table(materials, objs) if layers is None
                     else self.material_table(layers.flat, layers.needed(objs)))
             # faces to shade per pixel, chosen by the materials' own lobes (not the drag level's)
-            radius = self._refine_radius(mats, mat_of, layers) if req.shading == "refined" and not drag else None
+            radius = self._refine_radius(mats, needed, layers) if refining else None
             if drag or quick:
                 mats = self._drag_materials(mats)
             if req.cancelled is None:
@@ -505,14 +519,21 @@ class CutRenderer(Renderer):
                 vert[ids] = r
             t4 = time.perf_counter(); t["shade"] = (t4 - t3) * 1e3
             tri = v.tri
-            if radius is not None and np.isfinite(radius).any() and len(rad):
-                rows = self._refinement(v, camera).select(radius, vert, float(rad.max(1).mean()), self.k,
-                                                          refinemod.SPREAD_FRACTION, refinemod.CONTRAST)
+            if radius is not None and np.isfinite(radius).any() and len(v.visible):
+                scale = refinemod.object_scale(v.visible, self.scene.object_of_vertex, vert, len(materials))
+                rows, weight = self._refinement(v, camera).select(radius, vert, scale, self.k,
+                                                                  refinemod.SPREAD_FRACTION, refinemod.CONTRAST,
+                                                                  refinemod.RAMP)
                 if len(rows):
                     part = self._pixel_samples(v, camera, rows)
+                    px = self._shade_chunked(part, cuts, node_l, node_w, mats, node8, req.cancelled, layers)
+                    ramp = weight < 1
+                    if ramp.any():      # faces near a threshold: partly the interpolation
+                        g = (part.bary[ramp, :, None] * vert[part.verts[ramp]]).sum(1)
+                        px[ramp] = g + weight[ramp, None] * (px[ramp] - g)
                     # the refined rows are hit samples: the background buffer's rows there are never
                     # read as background, so they carry the per-pixel radiance into the resolve
-                    bg[rows] = self._shade_chunked(part, cuts, node_l, node_w, mats, node8, req.cancelled, layers)
+                    bg[rows] = px
                     tri = v.tri.copy()
                     tri[rows] = -1
                     n_refined = len(rows)
@@ -537,15 +558,16 @@ class CutRenderer(Renderer):
                          "ground_shadow": None if self.data.ground is None else shadow is not None})
 
     @staticmethod
-    def _refine_radius(mats: MaterialTable, mat_of: np.ndarray, layers: Layers | None = None) -> np.ndarray:
-        """(O,) float32 radians: each object's refine radius (refine.py) where it is shaded now
-        (mat_of: the object of each vertex shaded), inf elsewhere (objects whose radiance the
-        frame brings are not refined); an object with regions takes its narrowest layer's."""
-        shaded = np.zeros(len(mats.refine), bool)
-        shaded[np.unique(mat_of)] = True
-        out = np.where(shaded, mats.refine, np.inf).astype(np.float32)
+    def _refine_radius(mats: MaterialTable, seen, layers: Layers | None = None) -> np.ndarray:
+        """(O,) float32 radians: each object's refine radius (refine.py) for the objects in view
+        (seen: their indices, shaded now or with their vertex radiance brought by the request:
+        both are refined alike, so a stroke frame is the settled frame), inf elsewhere (their
+        material is a placeholder); an object with regions takes its narrowest layer's."""
+        on = np.zeros(len(mats.refine), bool)
+        on[list(seen)] = True
+        out = np.where(on, mats.refine, np.inf).astype(np.float32)
         for o, (slots, _, _) in (layers.objects.items() if layers is not None else ()):
-            if shaded[o]:
+            if on[o]:
                 out[o] = mats.refine[slots].min()
         return out
 
@@ -562,12 +584,13 @@ class CutRenderer(Renderer):
         if cancelled is None:
             return self._shade(s, cuts, node_l, node_w, mats, self.scene.object_of_vertex, node8, layers)
         out = np.empty((len(s), 3), np.float32)
-        step = max(1, CANCEL_CHUNK // 3)                     # three cuts a sample
+        step = CANCEL_CHUNK                                  # a blended cut a sample: about a vertex's cost
         for a in range(0, len(s), step):
             if cancelled():
                 raise FrameCancelled()
             b = min(a + step, len(s))
-            part = Samples(s.pix[a:b], s.positions[a:b], s.normals[a:b], s.wo[a:b], s.verts[a:b], s.bary[a:b])
+            part = Samples(s.pix[a:b], s.positions[a:b], s.normals[a:b], s.wo[a:b], s.verts[a:b], s.bary[a:b],
+                           None if s.face is None else s.face[a:b])
             out[a:b] = self._shade(part, cuts, node_l, node_w, mats, self.scene.object_of_vertex, node8, layers)
         return out
 
@@ -633,7 +656,7 @@ class CutRenderer(Renderer):
         wo = np.asarray(camera.eye, np.float32) - pos
         wo /= np.linalg.norm(wo, axis=1, keepdims=True)
         return Samples(pix, pos.astype(np.float32), nrm.astype(np.float32), wo.astype(np.float32),
-                       f.astype(np.int32), bary)
+                       f.astype(np.int32), bary, v.tri[pix])
 
     def surface_samples(self, camera, object_index: int, pixels: np.ndarray | None = None) -> Samples:
         """The object's pixels in a view at the camera's resolution, each with its own normal and
@@ -706,7 +729,7 @@ class CutRenderer(Renderer):
             nrm, wo, (node_l, node_w) = self._in_frame(samples, lighting)
             # the packed node records belong to the world frame's tables only
             node8 = self._node8 if self._node_light is not None and node_l is self._node_light[0] else None
-        s = Samples(samples.pix, samples.positions, nrm, wo, samples.verts, samples.bary)
+        s = Samples(samples.pix, samples.positions, nrm, wo, samples.verts, samples.bary, samples.face)
         if not has_regions(material):
             mats = MaterialTable([material.pack()])
             return self._shade(s, self._fit_cuts(coarse), node_l, node_w, mats, None, node8).astype(np.float64)
@@ -744,16 +767,24 @@ class CutRenderer(Renderer):
         return np.asarray(blend @ rad, np.float32)
 
     def _shade(self, s: Samples, cuts, node_l, node_w, mats, mat_of_vertex, node8=None, layers=None) -> np.ndarray:
+        """(N, 3) float32 per-pixel radiance of samples: each shades the blend of its triangle's
+        three cuts by barycentric weight with its own normal and view direction (one cluster
+        list, core/render.py shade_blend; B is linear in visibility, inverse-brdf-modeling
+        eq. 22). mat_of_vertex : (V,) object of each vertex (a face's three share it), or None:
+        every sample has material 0. With region layers (layers.py) every corner instead shades
+        its layers at its own vertex's weights with its own cut, and the corners are blended by
+        barycentric weight: a face's layers differ per corner, so one blended list per face
+        would need one per layer."""
         n = len(s)
-        flat = s.verts.reshape(-1)
-        mat_of = np.zeros(3 * n, np.int32) if mat_of_vertex is None else mat_of_vertex[flat]
-        nrm, wo = np.repeat(s.normals, 3, 0), np.repeat(s.wo, 3, 0)
         if layers is None or mat_of_vertex is None:
-            rad = shade_points(nrm, wo, flat, mat_of, cuts, node_l, node_w, self.tree, mats, self.k, node8=node8)
-        else:
-            # each corner blends its layers at its own vertex's weights (the pixel's normal and view)
-            src, slot, wt = layers.expand(flat, mat_of, mat_of)
-            r = shade_points(nrm[src], wo[src], flat[src], slot, cuts, node_l, node_w, self.tree, mats, self.k,
-                             node8=node8)
-            rad = Layers.blend(r, src, wt, len(flat))
+            mat_of = np.zeros(n, np.int32) if mat_of_vertex is None else mat_of_vertex[s.verts[:, 0]].astype(np.int32)
+            return shade_blend(s.normals, s.wo, s.verts, s.bary, mat_of, cuts, node_l, node_w, self.tree, mats,
+                               self.k, node8=node8, face=s.face)
+        flat = s.verts.reshape(-1)
+        mat_of = mat_of_vertex[flat]
+        nrm, wo = np.repeat(s.normals, 3, 0), np.repeat(s.wo, 3, 0)
+        src, slot, wt = layers.expand(flat, mat_of, mat_of)
+        r = shade_points(nrm[src], wo[src], flat[src], slot, cuts, node_l, node_w, self.tree, mats, self.k,
+                         node8=node8)
+        rad = Layers.blend(r, src, wt, len(flat))
         return (s.bary[:, :, None] * rad.reshape(n, 3, 3)).sum(1)
