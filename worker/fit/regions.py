@@ -391,7 +391,8 @@ def region_notes(achieved, res: SolveResult, uncovered: int, painted: int, guide
 
 
 def _take(smp, idx):
-    return dataclasses.replace(smp, **{f.name: getattr(smp, f.name)[idx] for f in dataclasses.fields(smp)})
+    return dataclasses.replace(smp, **{f.name: getattr(smp, f.name)[idx] for f in dataclasses.fields(smp)
+                                       if getattr(smp, f.name) is not None})
 
 
 def _vertex_samples(renderer, camera, obj: int, ids: np.ndarray):

@@ -771,10 +771,10 @@ class CutRenderer(Renderer):
         three cuts by barycentric weight with its own normal and view direction (one cluster
         list, core/render.py shade_blend; B is linear in visibility, inverse-brdf-modeling
         eq. 22). mat_of_vertex : (V,) object of each vertex (a face's three share it), or None:
-        every sample has material 0. With region layers (layers.py) every corner instead shades
-        its layers at its own vertex's weights with its own cut, and the corners are blended by
-        barycentric weight: a face's layers differ per corner, so one blended list per face
-        would need one per layer."""
+        every sample has material 0. With region layers (layers.py) a sample shades each layer
+        its corners carry, weighted by the corners' layer weights interpolated barycentrically, so
+        the frame stays linear in every layer's radiance (the blend of a face's cuts is the same
+        for every layer)."""
         n = len(s)
         if layers is None or mat_of_vertex is None:
             mat_of = np.zeros(n, np.int32) if mat_of_vertex is None else mat_of_vertex[s.verts[:, 0]].astype(np.int32)
@@ -782,9 +782,14 @@ class CutRenderer(Renderer):
                                self.k, node8=node8, face=s.face)
         flat = s.verts.reshape(-1)
         mat_of = mat_of_vertex[flat]
-        nrm, wo = np.repeat(s.normals, 3, 0), np.repeat(s.wo, 3, 0)
-        src, slot, wt = layers.expand(flat, mat_of, mat_of)
-        r = shade_points(nrm[src], wo[src], flat[src], slot, cuts, node_l, node_w, self.tree, mats, self.k,
-                         node8=node8)
-        rad = Layers.blend(r, src, wt, len(flat))
-        return (s.bary[:, :, None] * rad.reshape(n, 3, 3)).sum(1)
+        src, slot, wt = layers.expand(flat, mat_of, mat_of)              # per corner and layer
+        # a sample's weight of a layer: its corners' weights by barycentric weight
+        n_slots = int(slot.max()) + 1 if len(slot) else 1
+        key = (src // 3) * n_slots + slot
+        uk, inv = np.unique(key, return_inverse=True)
+        w = np.bincount(inv, weights=wt * s.bary.reshape(-1)[src]).astype(np.float32)
+        si, sl = uk // n_slots, (uk % n_slots).astype(np.int32)
+        # face grouping (shade_blend's ``face``) assumes one material per face: not passed here
+        rad = shade_blend(s.normals[si], s.wo[si], s.verts[si], s.bary[si], sl, cuts, node_l, node_w, self.tree,
+                          mats, self.k, node8=node8)
+        return Layers.blend(rad, si, w, n)
