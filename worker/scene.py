@@ -153,7 +153,8 @@ def scene_model() -> type[_SceneHead]:
             exposure=(float | Literal["auto"] | None, Field(
                 None, description="the display exposure (stops) a new session starts with; \"auto\": the worker exposes "
                                   "so that the median object pixel is middle grey (uploaded scenes)")))
-        _models.clear()
+        # kept per list of packages (never cleared): the built-in list's model must stay the
+        # module's SceneFile, which pickling (Ray, worker processes) finds by name
         _models[key] = model
     return model
 

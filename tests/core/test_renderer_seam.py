@@ -242,3 +242,17 @@ def test_an_unregistered_renderer_is_refused():
     # nor are the settings of a renderer that is not registered
     with pytest.raises(ValueError, match="normals"):
         SceneFile.model_validate({**_spec("cuts"), "normals": {"gain": 0.5}})
+
+
+def test_the_built_in_scene_model_stays_the_module_s(normals_renderer, monkeypatch):
+    """A scene model built for another list of renderers does not replace the built-in one:
+    worker processes and Ray pickle scene files by the module's name ``SceneFile``."""
+    import pickle
+
+    from worker.scene import SceneFile, parse_scene, scene_model
+
+    assert "normals" in scene_model().model_fields and scene_model() is not SceneFile
+    monkeypatch.undo()                           # the one registration line taken back
+    assert scene_model() is SceneFile
+    spec = parse_scene(_spec("cuts"))
+    assert pickle.loads(pickle.dumps(spec)) == spec
