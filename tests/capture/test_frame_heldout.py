@@ -24,8 +24,10 @@ CLEAN_LOST = 0.03      # at most this share of the image circle flagged in a cle
 
 @pytest.fixture(scope="module")
 def scored(cache_dir):
+    """The clean held-out cases, synthesised (cached) and scored: the housings are scored by the
+    benchmark only, as nothing here asserts their recall."""
     out = []
-    for case in CASES:
+    for case in (c for c in CASES if not c["frame"]):
         with cache_lock(str(cache_dir / "frame-bench" / case["hdri"])):
             m = merged(case, SIZE, cache_dir / "frame-bench")
         out.append(score(case, m))
@@ -44,6 +46,7 @@ def _line(r):
 
 def test_clean_held_out_captures_keep_their_circle(scored):
     clean = [r for r in scored if r["housing"] == "none"]
+    assert len(clean) >= 20, len(clean)
     msg = "; ".join(_line(r) for r in clean)
     print(msg)
     assert max(r["lost"] for r in clean) <= CLEAN_LOST, "frame-free captures: " + msg
