@@ -34,6 +34,14 @@ def _regions(page):
     return page.evaluate("() => [...document.querySelectorAll('#region-list li')].map((li) => li.dataset.region)")
 
 
+def _still(page, after: int, timeout=90_000):
+    """Wait for the anti-aliased still (samples > 1) drawn after frame ``after``, then for quiet:
+    a one-sample frame and a still differ along every silhouette."""
+    page.wait_for_function(f"() => {{ const c = document.getElementById('view'); "
+                           f"return +c.dataset.frame > {after} && +c.dataset.samples > 1; }}", timeout=timeout)
+    settle(page)
+
+
 def test_a_stroke_paints_a_region_and_the_rest_stays(server, bunny_scene, browser, artifacts):
     errors = []
     ctx = browser.new_context(viewport={"width": 1280, "height": 720})
@@ -48,6 +56,7 @@ def test_a_stroke_paints_a_region_and_the_rest_stays(server, bunny_scene, browse
         page.evaluate("() => { document.getElementById('view').dataset.frame = '0'; }")
         wait_new_frame(page, 0)
         settle(page)
+    _still(page, 0)
     g0 = _grid(page)
     page.fill("#region-name", "belly")
     page.check("#region-paint")
@@ -63,7 +72,7 @@ def test_a_stroke_paints_a_region_and_the_rest_stays(server, bunny_scene, browse
     _status_has(page, "region “belly”")
     _status_has(page, "achieved")
     wait_new_frame(page, n)
-    settle(page)
+    _still(page, n)
     g1 = _grid(page)
     page.screenshot(path=str(artifacts / "web-regions.png"))
     assert _regions(page) == ["belly"]
