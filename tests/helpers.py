@@ -258,3 +258,23 @@ def validate_gltf(path) -> dict:
     r = subprocess.run([node, str(tools / "validate-gltf.js"), str(path)], capture_output=True, text=True, timeout=300)
     assert r.returncode in (0, 1), r.stderr          # 1: the report has errors (the caller asserts on them)
     return json.loads(r.stdout)
+
+
+# the studio canvas's luminance (Rec. 709 weights of the drawn sRGB values) on a 64 × 48 grid of
+# pixel centres, whatever the canvas's size
+CANVAS_GRID_JS = """() => {
+  const c = document.getElementById('view'), g = c.getContext('2d');
+  const d = g.getImageData(0, 0, c.width, c.height).data, W = 64, H = 48, out = [];
+  for (let j = 0; j < H; j++) for (let i = 0; i < W; i++) {
+    const x = Math.floor((i + 0.5) * c.width / W), y = Math.floor((j + 0.5) * c.height / H), k = 4 * (y * c.width + x);
+    out.push(0.2126 * d[k] + 0.7152 * d[k + 1] + 0.0722 * d[k + 2]);
+  }
+  return out;
+}"""
+
+
+def canvas_grid(page):
+    """(48, 64) float64 luminance of the studio canvas (``#view``) sampled on a regular grid."""
+    import numpy as np
+
+    return np.asarray(page.evaluate(CANVAS_GRID_JS), np.float64).reshape(48, 64)

@@ -6,23 +6,9 @@ import json
 import numpy as np
 import pytest
 
-from helpers import drag, frame_no, settle, wait_new_frame
+from helpers import canvas_grid, drag, frame_no, settle, wait_new_frame
 
 pytest.importorskip("playwright.sync_api")
-
-GRID_JS = """() => {
-  const c = document.getElementById('view'), g = c.getContext('2d');
-  const d = g.getImageData(0, 0, c.width, c.height).data, W = 64, H = 48, out = [];
-  for (let j = 0; j < H; j++) for (let i = 0; i < W; i++) {
-    const x = Math.floor((i + 0.5) * c.width / W), y = Math.floor((j + 0.5) * c.height / H), k = 4 * (y * c.width + x);
-    out.push(0.2126 * d[k] + 0.7152 * d[k + 1] + 0.0722 * d[k + 2]);
-  }
-  return out;
-}"""
-
-
-def _grid(page):
-    return np.asarray(page.evaluate(GRID_JS), np.float64).reshape(48, 64)
 
 
 def _status_has(page, text, timeout=60_000):
@@ -57,7 +43,7 @@ def test_a_stroke_paints_a_region_and_the_rest_stays(server, bunny_scene, browse
         wait_new_frame(page, 0)
         settle(page)
     _still(page, 0)
-    g0 = _grid(page)
+    g0 = canvas_grid(page)
     page.fill("#region-name", "belly")
     page.check("#region-paint")
     _status_has(page, "no strokes")
@@ -73,7 +59,7 @@ def test_a_stroke_paints_a_region_and_the_rest_stays(server, bunny_scene, browse
     _status_has(page, "achieved")
     wait_new_frame(page, n)
     _still(page, n)
-    g1 = _grid(page)
+    g1 = canvas_grid(page)
     page.screenshot(path=str(artifacts / "web-regions.png"))
     assert _regions(page) == ["belly"]
     rows, cols = slice(int(0.55 * 48) - 1, int(0.55 * 48) + 2), slice(int(0.44 * 64), int(0.54 * 64))
@@ -91,7 +77,7 @@ def test_a_stroke_paints_a_region_and_the_rest_stays(server, bunny_scene, browse
     page.wait_for_function("() => document.querySelectorAll('#region-list li').length === 0", timeout=30_000)
     wait_new_frame(page, n)
     settle(page)
-    assert np.abs(_grid(page) - g0).mean() < 1.0
+    assert np.abs(canvas_grid(page) - g0).mean() < 1.0
     assert not page.locator("#region-paint").is_checked()
     assert not errors, errors
     ctx.close()

@@ -10,23 +10,9 @@ import httpx
 import numpy as np
 import pytest
 
-from helpers import drag, frame_no, settle, wait_new_frame
+from helpers import canvas_grid, drag, frame_no, settle, wait_new_frame
 
 pytest.importorskip("playwright.sync_api")
-
-GRID_JS = """() => {
-  const c = document.getElementById('view'), g = c.getContext('2d');
-  const d = g.getImageData(0, 0, c.width, c.height).data, W = 64, H = 48, out = [];
-  for (let j = 0; j < H; j++) for (let i = 0; i < W; i++) {
-    const x = Math.floor((i + 0.5) * c.width / W), y = Math.floor((j + 0.5) * c.height / H), k = 4 * (y * c.width + x);
-    out.push(0.2126 * d[k] + 0.7152 * d[k + 1] + 0.0722 * d[k + 2]);
-  }
-  return out;
-}"""
-
-
-def grid(page):
-    return np.asarray(page.evaluate(GRID_JS), np.float64).reshape(48, 64)
 
 
 def _open(ctx, url, errors, scene=None):
@@ -83,9 +69,9 @@ def test_reload_and_a_second_tab_reopen_the_session(server, bunny_scene, browser
     page = _open(ctx, base + "/", errors, scene=bunny_scene)
     sid = _sid(page)
     assert sid, page.url                                   # the URL names the session
-    g0 = grid(page)
+    g0 = canvas_grid(page)
     _stroke(page)
-    g1 = grid(page)
+    g1 = canvas_grid(page)
     assert (g1 - g0)[ROWS, COLS].mean() > 4, "the stroke did not brighten the frame"
     points = page.locator("#curve").get_attribute("data-points")
     model = page.locator("#model").input_value()
@@ -94,7 +80,7 @@ def test_reload_and_a_second_tab_reopen_the_session(server, bunny_scene, browser
     page.reload()
     wait_new_frame(page, 0)
     settle(page)
-    g2 = grid(page)
+    g2 = canvas_grid(page)
     page.screenshot(path=str(artifacts / "web-work-1-reloaded.png"))
     assert _sid(page) == sid
     assert np.abs(g2 - g1).mean() < 1.5 and (g2 - g0)[ROWS, COLS].mean() > 4, "the reload lost the stroke"
@@ -111,12 +97,12 @@ def test_reload_and_a_second_tab_reopen_the_session(server, bunny_scene, browser
     # a second tab on the same URL shares the session and sees the first one's next stroke
     other = _open(ctx, page.url, errors)
     assert _sid(other) == sid
-    assert np.abs(grid(other) - g2).mean() < 1.5, "the second tab does not show the session"
+    assert np.abs(canvas_grid(other) - g2).mean() < 1.5, "the second tab does not show the session"
     n_other = frame_no(other)
     _stroke(page, sign="-1")             # the first one is at the energy bound: take light away
     wait_new_frame(other, n_other)
     settle(other)
-    g3, g3o = grid(page), grid(other)
+    g3, g3o = canvas_grid(page), canvas_grid(other)
     other.screenshot(path=str(artifacts / "web-work-2-second-tab.png"))
     assert (g3 - g2)[ROWS, COLS].mean() < -3, (g3 - g2)[ROWS, COLS].mean()
     assert np.abs(g3o - g3).mean() < 1.5, "the second tab did not get the first tab's stroke"
@@ -129,7 +115,7 @@ def test_reload_and_a_second_tab_reopen_the_session(server, bunny_scene, browser
     wait_new_frame(page, n)
     settle(page)
     settle(other)
-    assert np.abs(grid(page) - g2).mean() < 1.5 and np.abs(grid(other) - g2).mean() < 1.5
+    assert np.abs(canvas_grid(page) - g2).mean() < 1.5 and np.abs(canvas_grid(other) - g2).mean() < 1.5
     assert not errors, errors
     ctx.close()
 
