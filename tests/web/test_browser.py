@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from helpers import drag, frame_no, settle, validate_gltf, wait_new_frame
+from helpers import canvas_grid, drag, frame_no, settle, validate_gltf, wait_new_frame
 from worker.jobs.curves import brdf_lobe
 from worker.models import parse_material
 from worker.paint.swatch import swatch_png
@@ -18,22 +18,6 @@ from worker.paint.swatch import swatch_png
 pw = pytest.importorskip("playwright.sync_api")
 ANDROID_UA = ("Mozilla/5.0 (Linux; Android 14; Pixel 8) AppleWebKit/537.36 (KHTML, like Gecko) Chrome/131.0.0.0 "
               "Mobile Safari/537.36")
-
-# luminance on a coarse grid of the frame canvas, read in the page (a few KB, not 1.2 MB)
-GRID_JS = """(id) => {
-  const c = document.getElementById(id), g = c.getContext('2d');
-  const d = g.getImageData(0, 0, c.width, c.height).data, W = 64, H = 48, out = [];
-  for (let j = 0; j < H; j++) for (let i = 0; i < W; i++) {
-    const x = Math.floor((i + 0.5) * c.width / W), y = Math.floor((j + 0.5) * c.height / H), k = 4 * (y * c.width + x);
-    out.push(0.2126 * d[k] + 0.7152 * d[k + 1] + 0.0722 * d[k + 2]);
-  }
-  return out;
-}"""
-
-
-def grid(page, cid="view"):
-    return np.asarray(page.evaluate(GRID_JS, cid), np.float64).reshape(48, 64)
-
 
 def test_studio_and_viewer(server, bunny_scene, browser, artifacts):
     base = server["base"]
@@ -45,7 +29,7 @@ def test_studio_and_viewer(server, bunny_scene, browser, artifacts):
     # 1. the studio loads and shows a non-blank frame
     wait_new_frame(page, 0)
     settle(page)
-    g0 = grid(page)
+    g0 = canvas_grid(page)
     page.screenshot(path=str(artifacts / "web-1-loaded.png"))
     assert g0.std() > 5, "the first frame is blank"
     assert page.locator("#readout").inner_text().split()[0].isdigit()
@@ -58,7 +42,7 @@ def test_studio_and_viewer(server, bunny_scene, browser, artifacts):
     drag(page, cx + 0.5 * w, cy + 0.5 * h, 96, 0)
     wait_new_frame(page, n)
     settle(page)
-    g1 = grid(page)
+    g1 = canvas_grid(page)
     page.screenshot(path=str(artifacts / "web-2-orbited.png"))
     assert np.abs(g1 - g0).mean() > 2, "dragging did not change the view"
 
@@ -70,7 +54,7 @@ def test_studio_and_viewer(server, bunny_scene, browser, artifacts):
     drag(page, cx + 0.42 * w, cy + 0.55 * h, 0.14 * w, 0, steps=10)
     wait_new_frame(page, n)
     settle(page)
-    g2 = grid(page)
+    g2 = canvas_grid(page)
     page.screenshot(path=str(artifacts / "web-3-stroke.png"))
     rows = slice(int(0.55 * 48) - 2, int(0.55 * 48) + 3)
     cols = slice(int(0.42 * 64), int(0.56 * 64) + 1)
@@ -95,7 +79,7 @@ def test_studio_and_viewer(server, bunny_scene, browser, artifacts):
     drag(page, box["x"] + px * box["width"], box["y"] + py * box["height"], 0, -50, steps=5)
     wait_new_frame(page, n)
     settle(page)
-    g3 = grid(page)
+    g3 = canvas_grid(page)
     page.screenshot(path=str(artifacts / "web-4-curve.png"))
     assert page.locator("#model").input_value() == "curve"
     assert np.abs(g3 - g2).mean() > 1, "editing the curve did not change the frame"
@@ -117,7 +101,7 @@ def test_studio_and_viewer(server, bunny_scene, browser, artifacts):
     viewer.goto(base + href)
     # the publication's bundle is built as a job: the viewer waits for it, then plays it
     wait_drawn(viewer, 0, timeout=240_000)
-    gv = grid(viewer)
+    gv = canvas_grid(viewer)
     viewer.screenshot(path=str(artifacts / "web-6-viewer.png"))
     assert gv.std() > 5
     assert viewer.locator(".swatch").count() == 1
@@ -194,7 +178,7 @@ def test_viewer_plays_the_bundle_on_phones(server, bunny_scene, client, browser,
     page.goto(server["base"] + f"/view/{pid}")
     wait_drawn(page, 0)
     page.wait_for_timeout(1500)                 # the ring preloads
-    g0 = grid(page)
+    g0 = canvas_grid(page)
     o = no_overflow(page)
     assert o["sw"] <= o["w"], o                                       # portrait: nothing sticks out sideways
     bb = page.locator("#view").bounding_box()
@@ -228,7 +212,7 @@ def test_viewer_plays_the_bundle_on_phones(server, bunny_scene, client, browser,
     drag(page, bb["x"] + 0.7 * bb["width"], bb["y"] + 0.5 * bb["height"], -0.4 * bb["width"], 0, steps=10)
     wait_drawn(page, n)
     assert page.evaluate("() => window.glintViewer.az") != az0
-    g1 = grid(page)
+    g1 = canvas_grid(page)
     assert np.abs(g1 - g0).mean() > 1, "swiping did not turn the object"
     during = requests[before:]
     assert not [u for u in during if "/sessions" in u or "/v1/renders" in u or "/stream" in u], during
@@ -237,11 +221,11 @@ def test_viewer_plays_the_bundle_on_phones(server, bunny_scene, client, browser,
     # another variant and another lighting preset
     page.locator(".swatch").nth(1).click()
     page.wait_for_timeout(800)
-    g2 = grid(page)
+    g2 = canvas_grid(page)
     assert np.abs(g2 - g1).mean() > 2
     page.select_option("#environment", "1")
     page.wait_for_timeout(800)
-    assert np.abs(grid(page) - g2).mean() > 1
+    assert np.abs(canvas_grid(page) - g2).mean() > 1
     page.screenshot(path=str(artifacts / "web-8-phone-variant.png"))
 
     # a pinch zooms in and switches to the 2× set
@@ -297,12 +281,12 @@ def test_viewer_plays_the_bundle_on_phones(server, bunny_scene, client, browser,
                 time.sleep(0.2)                 # the file server is starting
         wait_drawn(page, 0)
         page.wait_for_timeout(500)
-        g0 = grid(page)
+        g0 = canvas_grid(page)
         bb = page.locator("#view").bounding_box()
         n = drawn(page)
         drag(page, bb["x"] + 0.7 * bb["width"], bb["y"] + 0.5 * bb["height"], -0.3 * bb["width"], 0, steps=8)
         wait_drawn(page, n)
-        assert np.abs(grid(page) - g0).mean() > 1
+        assert np.abs(canvas_grid(page) - g0).mean() > 1
         assert page.locator(".swatch").all_inner_texts() == ["Cherry red", "Ocean blue"]
         assert not page.locator("#ar").is_visible()                     # a desktop: no Scene Viewer link
         model = page.get_attribute("#model-file", "href")
@@ -359,7 +343,7 @@ def test_studio_follows_the_demo_precomputation(browser, tmp_path, artifacts):
         # then the scene opens without a reload and frames arrive
         wait_new_frame(page, 0, timeout=240_000)
         settle(page)
-        assert grid(page).std() > 5, "the demo frame is blank"
+        assert canvas_grid(page).std() > 5, "the demo frame is blank"
         assert page.locator("#progress").evaluate("e => e.classList.contains('hidden')")
         assert not errors, errors
         page.close()
@@ -381,7 +365,7 @@ def test_studio_paint_designer_and_lighting_capture(server, bunny_scene, browser
     page.goto(server["base"] + "/")
     wait_new_frame(page, 0)
     settle(page)
-    g0 = grid(page)
+    g0 = canvas_grid(page)
     assert "direct light" in page.locator("#renderer-info").inner_text()
     # the paint designer: a brighter 15° reading makes a lobes material and a new frame
     page.locator("#paint-details summary").click()
@@ -390,7 +374,7 @@ def test_studio_paint_designer_and_lighting_capture(server, bunny_scene, browser
     page.wait_for_function("() => document.getElementById('status').textContent.includes('paint: fitted')", timeout=60_000)
     wait_new_frame(page, n)
     settle(page)
-    g1 = grid(page)
+    g1 = canvas_grid(page)
     assert page.locator("#model").input_value() == "lobes"
     assert np.abs(g1 - g0).mean() > 1, "the paint readings did not change the frame"
     assert "fit" in page.locator(".paint-status").inner_text()
@@ -424,7 +408,7 @@ def test_studio_paint_designer_and_lighting_capture(server, bunny_scene, browser
     apply.click()
     wait_new_frame(page, n)
     settle(page)
-    g2 = grid(page)
+    g2 = canvas_grid(page)
     page.screenshot(path=str(artifacts / "web-10-captured-lighting.png"))
     assert np.abs(g2 - g1).mean() > 1, "the captured lighting did not change the frame"
     assert not errors, errors
