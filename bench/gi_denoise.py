@@ -71,7 +71,6 @@ def main(argv=None) -> int:
     raw, den, info = [], [], []
     for seed in (0, 1):
         opts = {"spp": a.spp, "series": [64, 1, 1, 1], "seed": seed, **extra}
-        c0 = time.process_time()
         st = ensure(pre, sc, store, opts)
         (part,) = st["parts"].values()
         data = load(pre, sc, store, opts)

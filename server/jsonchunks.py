@@ -60,7 +60,7 @@ def _value(s: str, i: int, depth: int):
         if c == close:
             return out, i + 1
         if c != ",":
-            raise json.JSONDecodeError(f"Expecting ',' delimiter", s, i)
+            raise json.JSONDecodeError("Expecting ',' delimiter", s, i)
         i = _WS.match(s, i + 1).end()
 
 

@@ -14,7 +14,6 @@ from __future__ import annotations
 import asyncio
 import datetime as dt
 import logging
-import re
 from contextlib import asynccontextmanager
 from pathlib import Path
 

@@ -18,7 +18,6 @@ import logging
 import multiprocessing as mp
 import shutil
 import threading
-from pathlib import Path
 from typing import Callable
 
 from worker.jobs.ipc import Reply, Request

@@ -4,9 +4,6 @@ on a free loopback port, two worker processes); ``bunny_scene`` is the bunny und
 uploaded and precomputed through its API."""
 import json
 import os
-import socket
-import subprocess
-import sys
 import time
 from pathlib import Path
 

@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parent.parent
 CACHE = ROOT / "tests" / ".cache"
 
 
-def cache_lock(*key) -> "filelock.FileLock":
+def cache_lock(*key):
     """An inter-process lock for computing one cached fixture (``key``: any JSON-able parts, e.g. a
     scene spec and a renderer kind). The suite runs in several pytest-xdist processes: without it two
     of them would both pay for the same cold precomputation (or race on its temporary files). Hold

@@ -69,7 +69,6 @@ def test_measurement_matrix_matches_measure():
     a = measurement_matrix(tuple(exps), tuple(ASPECULAR_DEG))
     rng = np.random.default_rng(3)
     mat = _random_lobes(rng, exps, sparsity=1.0)
-    m = len(exps)
     x = np.concatenate([mat.albedo, np.asarray(mat.directional_diffuse).reshape(-1), mat.gloss])
     pred = a @ x
     ref = measure(mat)

@@ -102,7 +102,7 @@ def test_environment_switch_and_materials(tmp_path, assets, sphere_mesh, cache):
 
 def test_cli_render_and_bench(tmp_path, assets, sphere_mesh, capsys):
     from worker.cli import main
-    scene = _scene(tmp_path, assets, sphere_mesh)
+    _scene(tmp_path, assets, sphere_mesh)
     sp = tmp_path / "scene.json"
     mat = tmp_path / "m.json"
     mat.write_text(json.dumps({"model": "lambert", "albedo": [0.8, 0.8, 0.8]}))

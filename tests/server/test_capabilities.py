@@ -11,7 +11,7 @@ import zipfile
 import numpy as np
 import pytest
 
-from helpers import ROOT, connect, next_frame
+from helpers import connect, next_frame
 
 
 def _zip_of(folder) -> bytes:

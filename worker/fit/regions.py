@@ -423,7 +423,7 @@ def rendered_effect(renderer, obj: int, camera, lighting, before, after, strokes
         frames.append(renderer.render(FrameRequest(camera=camera, lighting=lighting, materials=list(mats),
                                                    shading=shading)))
     on = frames[0].object_id.reshape(-1) == obj
-    h, w = camera.height, camera.width
+    w = camera.width
     yy, xx = np.divmod(np.nonzero(on)[0], w)
     xy = np.stack([xx + 0.5, yy + 0.5], 1).astype(np.float64)
     b = frames[0].radiance.reshape(-1, 3)[on].astype(np.float64)

@@ -40,7 +40,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from .prefilter import LobeMaps, _c
+from .prefilter import LobeMaps
 
 F0 = 0.04
 TABLE_N = 64
