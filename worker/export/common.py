@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import GlintError
-from ..models import BRDFModel, parse_material
+from ..models import BRDFModel, has_regions, parse_material
 from ..scene import LoadedScene
 
 FORMATS = ("gltf", "mtlx", "mitsuba")
@@ -35,11 +35,14 @@ class Variant:
 @dataclass
 class ObjectMesh:
     """One object's triangles in world space: vertices (V, 3) float32, faces (F, 3) uint32,
-    normals (V, 3) float32 unit vectors."""
+    normals (V, 3) float32 unit vectors; vertex_ids (V,) int64, each exported vertex's id in the
+    object's own mesh (what a regions material's weights index), of n_vertices in all."""
     name: str
     vertices: np.ndarray
     faces: np.ndarray
     normals: np.ndarray
+    vertex_ids: np.ndarray | None = None
+    n_vertices: int = 0
 
 
 def check_format(fmt: str) -> str:
@@ -56,6 +59,7 @@ def object_meshes(scene: LoadedScene) -> list[ObjectMesh]:
                           "(GLINT_MAX_EXPORT_FACES)", 413)
     out = []
     order = np.argsort(scene.object_of_face, kind="stable")
+    first = np.searchsorted(scene.object_of_vertex, np.arange(len(scene.spec.objects) + 1))
     bounds = np.searchsorted(scene.object_of_face[order], np.arange(len(scene.spec.objects) + 1))
     for i, o in enumerate(scene.spec.objects):
         faces = mesh.faces[order[bounds[i]:bounds[i + 1]]]
@@ -64,7 +68,10 @@ def object_meshes(scene: LoadedScene) -> list[ObjectMesh]:
         remap[used] = np.arange(len(used))
         n = mesh.normals[used].astype(np.float64)
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
-        out.append(ObjectMesh(o.name, mesh.vertices[used], remap[faces].astype(np.uint32), n.astype(np.float32)))
+        # (an object's vertices are contiguous in the scene's mesh, scene.LoadedScene)
+        out.append(ObjectMesh(o.name, mesh.vertices[used], remap[faces].astype(np.uint32), n.astype(np.float32),
+                              vertex_ids=used.astype(np.int64) - int(first[i]),
+                              n_vertices=int(first[i + 1] - first[i])))
     return out
 
 
@@ -101,12 +108,47 @@ def material_key(m: BRDFModel) -> str:
     return hashlib.sha256(json.dumps(m.model_dump(mode="json"), sort_keys=True).encode()).hexdigest()[:16]
 
 
+def layer_materials(m: BRDFModel) -> list[BRDFModel]:
+    """The plain materials a material is made of: itself, or a regions material's base and then
+    each region's material, bottom first (worker/models/regions.py)."""
+    if has_regions(m):
+        return [m.base] + [r.material for r in m.regions]
+    return [m]
+
+
+def region_weights(m: BRDFModel, om: ObjectMesh) -> np.ndarray:
+    """A regions material's raw weights on the exported vertices of ``om``: w (K, V) float32, one
+    row per region (bottom first), the w_k of L_k = (1 − w_k) L_{k−1} + w_k L_region_k; (0, V) for a
+    plain material. ExportError when the regions were painted on a mesh of another size."""
+    if not has_regions(m):
+        return np.zeros((0, len(om.vertices)), np.float32)
+    if m.vertex_count != om.n_vertices:
+        raise ExportError(f"object {om.name!r}: its material's regions were painted on a mesh of "
+                          f"{m.vertex_count} vertices, but the object has {om.n_vertices}")
+    return np.stack([r.dense(om.n_vertices)[om.vertex_ids] for r in m.regions]).astype(np.float32)
+
+
+def region_attribute(m: BRDFModel, k: int) -> str:
+    """The name every format gives region k (bottom first) of the regions material ``m``'s weight
+    map: a glTF vertex attribute, a MaterialX geomprop, a Mitsuba mesh attribute (with its
+    prefix). From the material's content, so the same design is the same name in every file."""
+    return f"_GLINT_REGION_{material_key(m)[:8].upper()}_{k}"
+
+
+def effective_weights(m: BRDFModel, om: ObjectMesh) -> np.ndarray:
+    """The layers' effective weights a (L, V) float32 on the exported vertices of ``om``
+    (Regions.layers: Σ_l a_l = 1; one row of ones for a plain material)."""
+    if not has_regions(m):
+        return np.ones((1, len(om.vertices)), np.float32)
+    region_weights(m, om)           # the size check
+    return m.layers()[1][:, om.vertex_ids]
+
+
 def distinct_materials(scene: LoadedScene, variants: list[Variant]) -> dict[str, BRDFModel]:
-    """Every material the export holds (the scene's and the variants'), by material_key, in order."""
+    """Every plain material the export holds (the scene's and the variants', a regions material
+    as its layers, layer_materials), by material_key, in order."""
     out: dict[str, BRDFModel] = {}
-    for m in scene.materials:
-        out.setdefault(material_key(m), m)
-    for v in variants:
-        for m in v.materials.values():
-            out.setdefault(material_key(m), m)
+    for m in scene.materials + [m for v in variants for m in v.materials.values()]:
+        for layer in layer_materials(m):
+            out.setdefault(material_key(layer), layer)
     return out

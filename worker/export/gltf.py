@@ -2,6 +2,15 @@
 space: Glint's +Y up and metres are glTF's), one fitted metallic-roughness material per distinct
 Glint material (approx.py), and the design variants through ``KHR_materials_variants``.
 
+Painted regions (worker/models/regions.py) blend materials per vertex, which glTF's materials
+cannot: an object whose material (or a variant's) has regions is split into primitives by each
+face's dominant layer (the layer of the largest mean effective weight over its corners, under
+every material the object takes, so one split serves all variants), each primitive bound to its
+layer's fitted material; the primitives share the object's vertices. The raw weights travel
+with the mesh as application-specific vertex attributes (float, one per region,
+common.region_attribute, listed in the mesh's ``extras.glint.regions``), so a tool that can blend
+(or the MaterialX export's ``geompropvalue`` nodes, which read the same names) has them exactly.
+
 Written with pygltflib (the document model and the GLB container); the buffer layout (one
 buffer, a view per accessor, 4-byte aligned) is the plain one the spec describes.
 """
@@ -13,8 +22,17 @@ import numpy as np
 import pygltflib as gl
 
 from ..atomic import atomic_write
+from ..models import BRDFModel, has_regions
 from .approx import Approximation, GltfMaterial
-from .common import ObjectMesh, Variant, material_key
+from .common import (
+    ObjectMesh,
+    Variant,
+    effective_weights,
+    layer_materials,
+    material_key,
+    region_attribute,
+    region_weights,
+)
 
 GENERATOR = "Glint (worker/export/gltf.py)"
 
@@ -54,21 +72,43 @@ class _Blob:
         view = self.add(np.ascontiguousarray(a), target)
         acc = gl.Accessor(bufferView=view, componentType=ctype, count=len(a), type=kind)
         if bounds:
-            acc.min = a.min(0).astype(float).tolist()
-            acc.max = a.max(0).astype(float).tolist()
+            flat = a.reshape(len(a), -1)          # a scalar's bounds are one-element arrays too
+            acc.min = flat.min(0).astype(float).tolist()
+            acc.max = flat.max(0).astype(float).tolist()
         self.doc.accessors.append(acc)
         return len(self.doc.accessors) - 1
 
 
-def write_glb(path: Path, meshes: list[ObjectMesh], default: list[str], variants: list[Variant],
+def face_groups(om: ObjectMesh, materials: list[BRDFModel]) -> tuple[np.ndarray, np.ndarray]:
+    """Faces grouped by their dominant layer under each material: (groups (G, M) int64, the layer
+    index (into layer_materials) of each group under each of the M materials; group (F,) int64,
+    each face's group). A plain material is layer 0 everywhere."""
+    cols = []
+    for m in materials:
+        best = np.zeros(len(om.faces), np.int64)
+        if has_regions(m):
+            a = effective_weights(m, om)
+            top = np.full(len(om.faces), -1.0, np.float32)
+            for layer in range(len(a)):       # one layer at a time: (L, F, 3) would be GBs at the limits
+                f = a[layer][om.faces].mean(1)
+                better = f > top
+                best[better], top[better] = layer, f[better]
+        cols.append(best)
+    groups, group = np.unique(np.stack(cols, 1), axis=0, return_inverse=True)
+    return groups, group.reshape(-1)
+
+
+def write_glb(path: Path, meshes: list[ObjectMesh], default: list[BRDFModel], variants: list[Variant],
               approx: dict[str, Approximation], labels: dict[str, str], report: dict) -> int:
     """Write the .glb atomically; returns its size in bytes.
 
-    meshes : the objects' meshes; default : material_key of each object's own material;
-    variants : the design variants; approx : material_key -> its fitted glTF material;
-    labels : material_key -> a human name; report : the export's figures (asset extras)."""
+    meshes : the objects' meshes; default : each object's own material; variants : the design
+    variants; approx : material_key of every plain material (common.layer_materials) -> its fitted
+    glTF material; labels : material_key -> a human name; report : the export's figures (asset
+    extras)."""
     doc = gl.GLTF2(asset=gl.Asset(version="2.0", generator=GENERATOR, extras={"glint": report}))
-    keys = list(dict.fromkeys(default + [material_key(m) for v in variants for m in v.materials.values()]))
+    every = default + [m for v in variants for m in v.materials.values()]
+    keys = list(dict.fromkeys(material_key(x) for m in every for x in layer_materials(m)))
     index = {k: i for i, k in enumerate(keys)}
     for k in keys:
         doc.materials.append(material_json(labels[k], approx[k].material, {"material_key": k, **approx[k].public()}))
@@ -77,22 +117,52 @@ def write_glb(path: Path, meshes: list[ObjectMesh], default: list[str], variants
     for m in approx.values():
         used.update(m.material.extensions)
     for i, om in enumerate(meshes):
+        # the object's materials: its own, then each variant's (deduplicated by content)
+        own = [default[i]] + [v.materials.get(om.name, default[i]) for v in variants]
+        mats = list({material_key(m): m for m in own}.values())
+        which = [next(j for j, m in enumerate(mats) if material_key(m) == material_key(x)) for x in own]
+        groups, group = face_groups(om, mats)
         small = len(om.vertices) < 65535
-        idx = om.faces.reshape(-1).astype(np.uint16 if small else np.uint32)
         a_pos = blob.accessor(om.vertices.astype(np.float32), gl.FLOAT, gl.VEC3, gl.ARRAY_BUFFER, bounds=True)
         a_nrm = blob.accessor(om.normals.astype(np.float32), gl.FLOAT, gl.VEC3, gl.ARRAY_BUFFER)
-        a_idx = blob.accessor(idx, gl.UNSIGNED_SHORT if small else gl.UNSIGNED_INT, gl.SCALAR, gl.ELEMENT_ARRAY_BUFFER)
-        prim = gl.Primitive(attributes=gl.Attributes(POSITION=a_pos, NORMAL=a_nrm), indices=a_idx,
-                            material=index[default[i]], mode=gl.TRIANGLES)
-        mappings = {}
-        for vi, v in enumerate(variants):
-            m = v.materials.get(om.name)
-            k = default[i] if m is None else material_key(m)
-            mappings.setdefault(index[k], []).append(vi)
-        if variants:
-            prim.extensions = {"KHR_materials_variants": {"mappings": [
-                {"material": mi, "variants": vs} for mi, vs in mappings.items()]}}
-        doc.meshes.append(gl.Mesh(name=om.name, primitives=[prim]))
+        attrs = {"POSITION": a_pos, "NORMAL": a_nrm}
+        extras = []
+        for m in (m for m in mats if has_regions(m)):
+            w = region_weights(m, om)
+            names = []
+            for k, r in enumerate(m.regions):
+                attrs[region_attribute(m, k)] = blob.accessor(np.ascontiguousarray(w[k]), gl.FLOAT, gl.SCALAR,
+                                                              gl.ARRAY_BUFFER, bounds=True)
+                names.append({"region": r.name, "attribute": region_attribute(m, k),
+                              "material_key": material_key(r.material)})
+            extras.append({"material_key": material_key(m), "base_material_key": material_key(m.base),
+                           "regions": names})
+        prims = []
+        for g, layers in enumerate(groups):
+            faces = om.faces[group == g]
+            idx = faces.reshape(-1).astype(np.uint16 if small else np.uint32)
+            a_idx = blob.accessor(idx, gl.UNSIGNED_SHORT if small else gl.UNSIGNED_INT, gl.SCALAR,
+                                  gl.ELEMENT_ARRAY_BUFFER)
+
+            def material_of(j: int) -> int:
+                return index[material_key(layer_materials(mats[j])[layers[j]])]
+
+            at = gl.Attributes(POSITION=a_pos, NORMAL=a_nrm)
+            for name, acc in attrs.items():
+                if name.startswith("_"):
+                    setattr(at, name, acc)      # application-specific semantics (glTF 2.0 §3.7.2.1)
+            prim = gl.Primitive(attributes=at, indices=a_idx, material=material_of(which[0]), mode=gl.TRIANGLES)
+            if variants:
+                mappings = {}
+                for vi in range(len(variants)):
+                    mappings.setdefault(material_of(which[vi + 1]), []).append(vi)
+                prim.extensions = {"KHR_materials_variants": {"mappings": [
+                    {"material": mi, "variants": vs} for mi, vs in mappings.items()]}}
+            prims.append(prim)
+        mesh = gl.Mesh(name=om.name, primitives=prims)
+        if extras:
+            mesh.extras = {"glint": {"regions": extras}}
+        doc.meshes.append(mesh)
         doc.nodes.append(gl.Node(name=om.name, mesh=i))
     if variants:
         used.add("KHR_materials_variants")

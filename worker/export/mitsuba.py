@@ -5,8 +5,12 @@ and scaled by the intensity, the camera a perspective sensor with fov_axis y and
 
 Materials: a lambert or ggx material is written exactly (mitsuba_ref.bsdf_dict: diffuse,
 roughconductor, or their blendbsdf); any other model as the Lambert + GGX material closest to it
-(approx.approximate_ggx), whose error the report gives. The folder is built beside its target
-and renamed into place, so a reader never sees half of it.
+(approx.approximate_ggx), whose error the report gives. A material with painted regions
+(worker/models/regions.py) is its layers' BSDFs nested in ``blendbsdf``s, bottom first, as Glint
+blends them: L_k = blend(L_{k−1}, region k, weight = w_k), each w_k a ``mesh_attribute`` texture
+of a vertex property of the object's PLY (Mitsuba reads a property ``<name>_0`` as the
+attribute ``vertex_<name>``). The folder is built beside its target and renamed into place, so a
+reader never sees half of it.
 """
 from __future__ import annotations
 
@@ -35,6 +39,9 @@ def _add(parent: ET.Element, name: str | None, value) -> None:
     nested plugins with "type", {"type": "rgb", "value"}, numbers, booleans and strings)."""
     if isinstance(value, dict) and value.get("type") == "rgb":
         ET.SubElement(parent, "rgb", name=name, value=_vec(value["value"]))
+    elif isinstance(value, dict) and value.get("type") == "mesh_attribute":
+        el = ET.SubElement(parent, "texture", type="mesh_attribute", name=name)
+        ET.SubElement(el, "string", name="name", value=value["name"])
     elif isinstance(value, dict):
         tag = "bsdf" if name is None or name.startswith("bsdf") else name
         # nested BSDFs go in order (blendbsdf's bsdf_0, bsdf_1), as Mitsuba's XML reads them
@@ -89,14 +96,35 @@ def scene_xml(scene: LoadedScene, meshes: list[ObjectMesh], bsdfs: list[dict], s
     return ET.tostring(root, encoding="unicode", xml_declaration=True) + "\n"
 
 
+def ply_property(attribute: str) -> str:
+    """The PLY vertex property of a region's weight map (common.region_attribute): Mitsuba takes
+    the text before a property's last '_' as the attribute's name, so the name keeps no '_'."""
+    return attribute.replace("_", "").lower() + "_0"
+
+
+def layered_bsdf(layers: list[dict], attributes: list[str]) -> dict:
+    """A regions material's BSDF (load_dict form): layers (K + 1,) the base's and each region's
+    BSDF, attributes (K,) the regions' weight map names (common.region_attribute)."""
+    top = layers[0]
+    for b, attr in zip(layers[1:], attributes):
+        top = {"type": "blendbsdf",
+               "weight": {"type": "mesh_attribute", "name": "vertex_" + ply_property(attr)[:-2]},
+               "bsdf_0": top, "bsdf_1": b}
+    return top
+
+
 def _safe(name: str, i: int) -> str:
     keep = "".join(c if c.isalnum() or c in "-_" else "_" for c in name)[:64]
     return f"{i:03d}-{keep or 'object'}.ply"
 
 
-def write_folder(out: Path, scene: LoadedScene, meshes: list[ObjectMesh], materials: list, spp: int = 256) -> int:
+def write_folder(out: Path, scene: LoadedScene, meshes: list[ObjectMesh], materials: list[list],
+                 regions: list[tuple[list[str], np.ndarray]] | None = None, spp: int = 256) -> int:
     """Write the folder ``out`` (replacing an earlier export there); returns its size in bytes.
-    materials : one lambert or ggx material per object (within Mitsuba's blend bound)."""
+    materials : per object, its layers' lambert or ggx materials (within Mitsuba's blend bound):
+    one for a plain material, the base's then each region's for one with regions; regions : per
+    object, its regions' weight map names (K,) (common.region_attribute) and raw weights (K, V)
+    float32 on the exported vertices (common.region_weights)."""
     import trimesh
 
     out = Path(out)
@@ -106,14 +134,20 @@ def write_folder(out: Path, scene: LoadedScene, meshes: list[ObjectMesh], materi
     tmp = Path(tempfile.mkdtemp(prefix=out.name + ".", suffix=".tmp", dir=out.parent))
     try:
         (tmp / "meshes").mkdir()
-        files = []
-        for i, om in enumerate(meshes):
+        files, bsdfs = [], []
+        regions = regions or [([], np.zeros((0, len(om.vertices)), np.float32)) for om in meshes]
+        for i, (om, layers, (attrs, w)) in enumerate(zip(meshes, materials, regions)):
+            if len(layers) != len(w) + 1:
+                raise ValueError(f"object {om.name!r}: {len(layers)} layer materials for {len(w)} regions")
             tm = trimesh.Trimesh(om.vertices, om.faces.astype(np.int64), vertex_normals=om.normals, process=False)
+            for a, wk in zip(attrs, w):
+                tm.vertex_attributes[ply_property(a)] = wk.astype(np.float32)
             rel = f"meshes/{_safe(om.name, i)}"
-            (tmp / rel).write_bytes(trimesh.exchange.ply.export_ply(tm, include_attributes=False, vertex_normal=True))
+            (tmp / rel).write_bytes(trimesh.exchange.ply.export_ply(tm, include_attributes=len(w) > 0,
+                                                                    vertex_normal=True))
             files.append(rel)
+            bsdfs.append(layered_bsdf([bsdf_dict(m) for m in layers], attrs))
         save_exr(tmp / "envmap.exr", scene.envmap.astype(np.float32))
-        bsdfs = [bsdf_dict(m) for m in materials]
         (tmp / "scene.xml").write_text(scene_xml(scene, meshes, bsdfs, spp, files, "envmap.exr"))
         size = sum(p.stat().st_size for p in tmp.rglob("*") if p.is_file())
         old = None

@@ -11,6 +11,11 @@ glTF → OpenPBR (both are a GGX dielectric-metal mix with a coat and a fuzz lay
   brightness, F0 = min(0.04·max c, 1), and specular_color the tint c / max c;
 * coat_weight, coat_roughness ← clearcoat, clearcoatRoughness, coat_ior 1.5 (glTF's coat F0 0.04);
 * fuzz_weight, fuzz_color, fuzz_roughness ← max sheenColor, sheenColor / max, sheenRoughness.
+
+A material with painted regions (worker/models/regions.py) is its layers' shaders mixed per vertex,
+bottom first, as Glint blends them: L_k = mix(bg = L_{k−1}, fg = region k's shader, mix = w_k),
+with w_k a ``geompropvalue`` of the region's weight map (the name common.region_attribute gives,
+which the glTF export writes as the mesh's vertex attribute).
 """
 from __future__ import annotations
 
@@ -21,8 +26,9 @@ import MaterialX as mx
 import numpy as np
 
 from ..atomic import atomic_write
+from ..models import BRDFModel, has_regions
 from .approx import Approximation, GltfMaterial
-from .common import ObjectMesh, Variant, material_key
+from .common import ObjectMesh, Variant, layer_materials, material_key, region_attribute
 
 SHADER = "open_pbr_surface"
 
@@ -71,32 +77,56 @@ def _name(text: str) -> str:
     return mx.createValidName(text)
 
 
-def document(meshes: list[ObjectMesh], default: list[str], variants: list[Variant],
+def _unique(doc: mx.Document, base: str) -> str:
+    n, i = base or "material", 1
+    while doc.getChild(f"{n}_shader") is not None or doc.getChild(n) is not None:
+        i += 1
+        n = f"{base}_{i}"
+    return n
+
+
+def document(meshes: list[ObjectMesh], default: list[BRDFModel], variants: list[Variant],
              approx: dict[str, Approximation], labels: dict[str, str], report: dict) -> mx.Document:
-    """The MaterialX document (no libraries imported into it)."""
+    """The MaterialX document (no libraries imported into it). default : each object's own
+    material; approx : material_key of every plain material -> its fitted glTF material."""
     doc = mx.createDocument()
     doc.setDocString(f"Glint export: OpenPBR fits of Glint materials; relative BRDF RMSE per material "
                      f"in each shader's doc. {report.get('summary', '')}".strip())
-    keys = list(dict.fromkeys(default + [material_key(m) for v in variants for m in v.materials.values()]))
-    names = {}
-    for k in keys:
-        base = _name(labels[k]) or "material"
-        n, i = base, 1
-        while doc.getChild(f"{n}_shader") is not None:
-            i += 1
-            n = f"{base}_{i}"
-        names[k] = n
-        sh = doc.addNode(SHADER, f"{n}_shader", "surfaceshader")
+    every = default + [m for v in variants for m in v.materials.values()]
+    shaders: dict[str, mx.Node] = {}
+    for k in dict.fromkeys(material_key(x) for m in every for x in layer_materials(m)):
+        n = _unique(doc, _name(labels[k]))
+        sh = shaders[k] = doc.addNode(SHADER, f"{n}_shader", "surfaceshader")
         sh.setDocString(f"fitted to Glint material {k}: rel_rmse {approx[k].rel_rmse:.4f}, "
                         f"albedo_rel_rmse {approx[k].albedo_rel_rmse:.4f}")
         for inp, (t, v) in openpbr_inputs(approx[k].material).items():
             val = mx.Color3(*map(float, v)) if t == "color3" else float(v)
             sh.setInputValue(inp, val, t)
-        mat = doc.addMaterialNode(n, sh)
-        mat.setAttribute("uiname", labels[k])
-    looks = [("default", {om.name: default[i] for i, om in enumerate(meshes)})]
+    names = {}
+    for m in dict((material_key(m), m) for m in every).values():
+        k = material_key(m)
+        if has_regions(m):
+            n = _unique(doc, _name(f"regions_{k}"))
+            top = shaders[material_key(m.base)]
+            for i, r in enumerate(m.regions):
+                gp = doc.addNode("geompropvalue", f"{n}_w{i}", "float")
+                gp.setInputValue("geomprop", region_attribute(m, i), "string")
+                gp.setDocString(f"weight map of region {r.name!r}")
+                mix = doc.addNode("mix", f"{n}_mix{i}", "surfaceshader")
+                mix.setConnectedNode("bg", top)
+                mix.setConnectedNode("fg", shaders[material_key(r.material)])
+                mix.setConnectedNode("mix", gp)
+                top = mix
+            mat = doc.addMaterialNode(n, top)
+            mat.setAttribute("uiname", "regions: " + ", ".join(r.name for r in m.regions))
+        else:
+            n = shaders[k].getName()[:-len("_shader")]
+            mat = doc.addMaterialNode(n, shaders[k])
+            mat.setAttribute("uiname", labels[k])
+        names[k] = mat.getName()
+    looks = [("default", {om.name: material_key(default[i]) for i, om in enumerate(meshes)})]
     for v in variants:
-        looks.append((v.label, {om.name: (material_key(v.materials[om.name]) if om.name in v.materials else default[i])
+        looks.append((v.label, {om.name: material_key(v.materials.get(om.name, default[i]))
                                 for i, om in enumerate(meshes)}))
     for j, (label, assign) in enumerate(looks):
         lk = doc.addLook(_name(f"look_{label}") if j else "look_default")

@@ -7,7 +7,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from ..models import BRDFModel
+from ..models import BRDFModel, has_regions
 from ..scene import LoadedScene
 from .approx import Approximation, GltfPBR, approximate, approximate_ggx
 from .common import (
@@ -15,8 +15,11 @@ from .common import (
     Variant,
     check_format,
     distinct_materials,
+    layer_materials,
     material_key,
     object_meshes,
+    region_attribute,
+    region_weights,
 )
 
 RENDER_WIDTH = 160         # the render check's width (height by the camera's aspect)
@@ -35,24 +38,44 @@ def gltf_approximation(m: BRDFModel) -> Approximation:
 
 
 def labels_of(scene: LoadedScene, variants: list[Variant]) -> dict[str, str]:
-    """material_key -> a name: the object's for the scene's materials, the variant's for others."""
+    """material_key -> a name: the object's for the scene's materials, the variant's for others;
+    a regions material's layers by their region ("chair (seat, ggx)")."""
     out: dict[str, str] = {}
+
+    def name(m: BRDFModel, owner: str, where: str = "") -> None:
+        if has_regions(m):
+            out.setdefault(material_key(m.base), f"{owner} ({where}base, {m.base.model})")
+            for r in m.regions:
+                out.setdefault(material_key(r.material), f"{owner} ({where}{r.name}, {r.material.model})")
+        else:
+            out.setdefault(material_key(m), f"{owner} ({where}{m.model})")
+
     for o in scene.spec.objects:
-        out.setdefault(material_key(o.material), f"{o.name} ({o.material.model})")
+        name(o.material, o.name)
     for v in variants:
         for obj, m in v.materials.items():
-            out.setdefault(material_key(m), f"{v.label} ({obj}, {m.model})")
+            name(m, v.label, f"{obj}, ")
     return out
 
 
+def exported_material(m: BRDFModel, layer: Callable[[BRDFModel], BRDFModel]) -> BRDFModel:
+    """``m`` with each of its plain materials replaced by ``layer(material)`` (a regions material
+    keeps its weights, so the render check compares what the formats carry)."""
+    if not has_regions(m):
+        return layer(m)
+    return m.model_copy(update={"base": layer(m.base), "regions": [
+        r.model_copy(update={"material": layer(r.material)}) for r in m.regions]})
+
+
 def render_errors(renderer, variants: list[Variant], exported: Callable[[BRDFModel], BRDFModel],
-                  width: int = RENDER_WIDTH) -> list[dict]:
+                  width: int = RENDER_WIDTH, own: list[BRDFModel] | None = None) -> list[dict]:
     """Relative RMSE (over the objects' pixels, away from silhouettes) of Glint's render of the
     exported materials against the original materials, for the scene's own materials and each
     variant; vertex (Gouraud) shading, both sides in the same mode (the exported glTF material
     has no C kernel and its NumPy reference shades every pixel ~10× slower than a vertex frame,
     so the refined mode's per-pixel rows would cost more than the frame), at the scene's
-    camera scaled to ``width``."""
+    camera scaled to ``width``. own : the objects' own materials (the exported scene's; default
+    the renderer's scene's)."""
     from scipy.ndimage import binary_erosion
 
     from ..fit.recovery import rel_rmse
@@ -64,11 +87,13 @@ def render_errors(renderer, variants: list[Variant], exported: Callable[[BRDFMod
     cam = cam.model_copy(update={"width": w, "height": max(1, round(cam.height * w / cam.width))})
     mask = binary_erosion(renderer.object_mask(cam) >= 0, iterations=1)
     names = [o.name for o in sc.spec.objects]
+    own = own or [o.material for o in sc.spec.objects]
     out = []
     for label, over in [(None, {})] + [(v.label, v.materials) for v in variants]:
-        mats = [over.get(n, o.material) for n, o in zip(names, sc.spec.objects)]
+        mats = [over.get(n, m) for n, m in zip(names, own)]
         ref = renderer.render(FrameRequest(camera=cam, materials=mats, shading="vertex")).radiance
-        exp = renderer.render(FrameRequest(camera=cam, materials=[exported(m) for m in mats], shading="vertex")).radiance
+        exp = renderer.render(FrameRequest(camera=cam, materials=[exported_material(m, exported) for m in mats],
+                                           shading="vertex")).radiance
         out.append({"variant": label, "rel_rmse": rel_rmse(exp, ref, mask), "pixels": int(mask.sum()),
                     "width": cam.width, "height": cam.height})
     return out
@@ -87,7 +112,13 @@ def export(scene: LoadedScene, fmt: str, out: Path, variants: list[Variant] | No
     meshes = object_meshes(scene)
     mats = distinct_materials(scene, variants)
     labels = labels_of(scene, variants)
-    default = [material_key(o.material) for o in scene.spec.objects]
+    default = [o.material for o in scene.spec.objects]
+    for om, m in zip(meshes, default):       # regions painted on another mesh: refused before any fit
+        region_weights(m, om)
+    for v in variants:
+        for om in meshes:
+            if om.name in v.materials:
+                region_weights(v.materials[om.name], om)
     report = {"format": fmt, "objects": len(meshes), "faces": int(sum(len(m.faces) for m in meshes)),
               "variants": [v.label for v in variants], "materials": []}
     if fmt == "mitsuba":
@@ -102,10 +133,13 @@ def export(scene: LoadedScene, fmt: str, out: Path, variants: list[Variant] | No
                                         "as": g.material.model_dump(mode="json"), "rel_rmse": g.rel_rmse,
                                         "albedo_rel_rmse": g.albedo_rel_rmse})
         if renderer is not None:
-            report["render"] = render_errors(renderer, [], lambda m: fits[material_key(m)].material)
+            report["render"] = render_errors(renderer, [], lambda m: fits[material_key(m)].material, own=default)
         from .mitsuba import write_folder
 
-        report["bytes"] = write_folder(out, scene, meshes, [fits[k].material for k in default], spp=mitsuba_spp)
+        layers = [[fits[material_key(x)].material for x in layer_materials(o.material)] for o in scene.spec.objects]
+        regions = [([region_attribute(o.material, k) for k in range(len(getattr(o.material, "regions", [])))],
+                    region_weights(o.material, om)) for o, om in zip(scene.spec.objects, meshes)]
+        report["bytes"] = write_folder(out, scene, meshes, layers, regions, spp=mitsuba_spp)
     else:
         approx = {}
         for i, (k, m) in enumerate(mats.items()):
@@ -115,7 +149,7 @@ def export(scene: LoadedScene, fmt: str, out: Path, variants: list[Variant] | No
         if renderer is not None:
             progress(0.9, "render check")
             report["render"] = render_errors(renderer, variants,
-                                             lambda m: GltfPBR(gltf=a_dict(approx[material_key(m)])))
+                                             lambda m: GltfPBR(gltf=a_dict(approx[material_key(m)])), own=default)
         report["summary"] = summary(report)
         if fmt == "gltf":
             from .gltf import write_glb
