@@ -29,6 +29,19 @@ lens, whatever the scene, and together they separate it from the scene:
    ``ENCIRCLE`` of the rim (a centred housing is at the same place in both shots, so their
    agreement proves nothing).
 
+7. **Bright when polished** (a second pass). A polished barrel edge glints with the room's
+   light, so darkness cannot find it; fixed to the sensor, it reads ``GLINT_STOPS`` brighter
+   than another shot's view of the same direction in some shot and not that much darker in
+   any, within ``RIM_BAND`` of the radius from the rim. The other shot's view must be neither
+   dark nor inside a housing the first pass found: a black housing makes the scene facing it,
+   in the other shot, read brighter than it (in both shots, when the housing is at the same
+   pixels of both).
+8. **Occluding in every shot.** A pixel ``OCCLUDED_STOPS`` darker than another shot's view at
+   the same sensor pixel of *every* shot is fixed to the sensor, which the texture test stands
+   for elsewhere: it seeds even where the housing's soft edge (a vignetting ramp, a gradient of
+   several stops over a few pixels) is not flat; the hysteresis also grows through pixels
+   ``DIMMED_STOPS`` darker than the other view in every shot (the ramp's lighter part).
+
 Detection runs at about 512 px across the circle. Rim-attached components of the candidates
 are seeds; they grow (hysteresis, at most ``GROW_PX`` working pixels) through pixels that are
 dark in every shot or occluding, texture or not and not seen alike by another shot, which
@@ -40,7 +53,7 @@ Where another shot sees the same directions, stitching fills the frame from it (
 pixels get zero weight and a feathered edge); what no shot sees is inpainted (stitch.py).
 How the constants were chosen and what they achieve: bench/frame_detector.py chooses them on
 its TUNING HDRIs only and reports on its HELD_OUT HDRIs, which no choice saw (the figures:
-docs/benchmarks/history/2026-12-01-frame-detector.md).
+docs/benchmarks/history/2026-12-01-frame-detector.md and 2026-12-02-frame-detector-rims.md).
 """
 from __future__ import annotations
 
