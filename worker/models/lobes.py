@@ -14,7 +14,7 @@ from pydantic import AliasChoices, ConfigDict, Field, model_validator
 
 from .base import BRDFModel, Color, Geometry, PackedBRDF, register
 
-MAX_LOBES = 16      # the packed layout: 4 + 4·16 ≤ N_PARAMS
+MAX_LOBES = 32      # the packed layout: 4 + 4·32 ≤ N_PARAMS (base.py)
 
 
 @register
