@@ -42,6 +42,10 @@ SEARCH = {
     "AGREE_STOPS": [0.35, 0.5, 0.75],
     "SEEN_FRACTION": [0.4, 0.6, 0.8],
     "GROW_PX": [8, 16, 32],
+    # the polished-rim pass and the fixed-to-the-sensor seeds (bright rims, soft vignetting edges)
+    "GLINT_STOPS": [0.5, 1.0, 1.5],
+    "RIM_BAND": [0.05, 0.08, 0.12],
+    "DIMMED_STOPS": [0.5, 0.75, 1.0],
 }
 
 

@@ -29,6 +29,19 @@ lens, whatever the scene, and together they separate it from the scene:
    ``ENCIRCLE`` of the rim (a centred housing is at the same place in both shots, so their
    agreement proves nothing).
 
+7. **Bright when polished** (a second pass). A polished barrel edge glints with the room's
+   light, so darkness cannot find it; fixed to the sensor, it reads ``GLINT_STOPS`` brighter
+   than another shot's view of the same direction in some shot and not that much darker in
+   any, within ``RIM_BAND`` of the radius from the rim. The other shot's view must be neither
+   dark nor inside a housing the first pass found: a black housing makes the scene facing it,
+   in the other shot, read brighter than it (in both shots, when the housing is at the same
+   pixels of both).
+8. **Occluding in every shot.** A pixel ``OCCLUDED_STOPS`` darker than another shot's view at
+   the same sensor pixel of *every* shot is fixed to the sensor, which the texture test stands
+   for elsewhere: it seeds even where the housing's soft edge (a vignetting ramp, a gradient of
+   several stops over a few pixels) is not flat; the hysteresis also grows through pixels
+   ``DIMMED_STOPS`` darker than the other view in every shot (the ramp's lighter part).
+
 Detection runs at about 512 px across the circle. Rim-attached components of the candidates
 are seeds; they grow (hysteresis, at most ``GROW_PX`` working pixels) through pixels that are
 dark in every shot or occluding, texture or not and not seen alike by another shot, which
@@ -40,7 +53,7 @@ Where another shot sees the same directions, stitching fills the frame from it (
 pixels get zero weight and a feathered edge); what no shot sees is inpainted (stitch.py).
 How the constants were chosen and what they achieve: bench/frame_detector.py chooses them on
 its TUNING HDRIs only and reports on its HELD_OUT HDRIs, which no choice saw (the figures:
-docs/benchmarks/history/2026-12-01-frame-detector.md).
+docs/benchmarks/history/2026-12-01-frame-detector.md and 2026-12-02-frame-detector-rims.md).
 """
 from __future__ import annotations
 
@@ -58,7 +71,10 @@ AGREE_STOPS = 0.75     # a region's pixel agrees with another shot's view of its
 SEEN_FRACTION = 0.8    # a region whose overlap pixels agree this often is scene, seen by both shots
 ENCIRCLE = 0.9         # ... unless it runs along this fraction of the rim (a centred housing,
                        # which both shots see at the same place: their agreement proves nothing)
-GROW_PX = 16           # hysteresis: how far (working pixels) a region grows from its seeds
+GLINT_STOPS = 1.0      # a polished rim reads this much brighter than another shot's view of its direction
+RIM_BAND = 0.05        # ... within this fraction of the radius from the rim (a barrel edge is thin)
+DIMMED_STOPS = 1.0     # hysteresis: a housing's soft edge reads this much darker than another shot's view
+GROW_PX = 32           # hysteresis: how far (working pixels) a region grows from its seeds
 WORK_DIAMETER = 512    # working resolution across the image circle
 LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
 
@@ -88,12 +104,13 @@ def flatness(ell: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return cv2.medianBlur(np.sqrt(gx * gx + gy * gy), 5)
 
 
-def _cross_views(small: Lens, ells, oks, yaws) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+def _cross_views(small: Lens, ells, oks, yaws, extra=None) -> list[tuple]:
     """Per shot a, what another shot sees of the same directions (the overlap of the shots):
     a list of (lb (h, w) float32 the other shot's log₂ luminance of the direction a's pixel sees,
     valid (h, w) bool where some other shot sees it inside its circle, away from its own rim,
     outer (h, w) bool where a's pixel is nearer a's rim than the other shot's view is to its
-    own). With more than two shots the view nearest its own centre is kept."""
+    own, xb (h, w) float32 the per-shot image ``extra[b]`` read at that view, or None without
+    ``extra``). With more than two shots the view nearest its own centre is kept."""
     import cv2
 
     from .fisheye import yaw_matrix
@@ -107,6 +124,7 @@ def _cross_views(small: Lens, ells, oks, yaws) -> list[tuple[np.ndarray, np.ndar
     for a in range(len(ells)):
         world = cam @ yaw_matrix(yaws[a]).T
         lb_best = np.full((hs, ws), -1e9, np.float32)
+        xb_best = None if extra is None else np.zeros((hs, ws), np.float32)
         th_best = np.full((hs, ws), np.inf)
         for b in range(len(ells)):
             if b == a:
@@ -117,10 +135,58 @@ def _cross_views(small: Lens, ells, oks, yaws) -> list[tuple[np.ndarray, np.ndar
             okb = cv2.remap(oks[b].astype(np.float32), mx, my, cv2.INTER_LINEAR, borderValue=0) > 0.99
             better = (th <= edge) & okb & (th < th_best)
             lb_best = np.where(better, lb, lb_best)
+            if extra is not None:
+                xb = cv2.remap(extra[b], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+                xb_best = np.where(better, xb, xb_best)
             th_best = np.where(better, th, th_best)
         valid = np.isfinite(th_best) & oks[a]
-        out.append((lb_best, valid, valid & (th_a >= th_best)))
+        out.append((lb_best, valid, valid & (th_a >= th_best), xb_best))
     return out
+
+
+def _regions(cand, allowed, seen, agree, rim, small: Lens, min_area: int):
+    """The frame's regions at the working resolution: rim-attached components of ``cand``
+    ((h, w) bool candidates) of at least ``min_area`` pixels seed a hysteresis through
+    ``allowed`` (at most GROW_PX pixels), and regions another shot sees alike (``agree`` on
+    ``SEEN_FRACTION`` of their ``seen`` overlap pixels) are dropped unless they run along
+    ``ENCIRCLE`` of the rim. Returns (keep (n,) bool per label, labels (h, w) int32)."""
+    import cv2
+
+    hs, ws = cand.shape
+    cand = cv2.morphologyEx(cand.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(cand, connectivity=8)
+    # "touches the rim": within 7 working pixels of it (the circle's edge is itself textured:
+    # JPEG rings against the black surround, so the last pixels are rarely candidates)
+    keep = np.zeros(n, bool)
+    keep[np.unique(lab[rim & (lab > 0)])] = True
+    keep &= stats[:, cv2.CC_STAT_AREA] >= min_area
+    keep[0] = False
+    seeds = keep[lab]
+    # hysteresis: grow the seeds through pixels dark in every shot (texture not required), which
+    # recovers the frame's thin parts, where the texture window also sees the scene
+    # at most GROW_PX working pixels from a seed, and not into pixels another shot sees alike
+    allowed = allowed | seeds
+    m = seeds.astype(np.uint8)
+    cross = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
+    for _ in range(GROW_PX):
+        m = cv2.dilate(m, cross) & allowed
+    n2, lab2 = cv2.connectedComponents(m, connectivity=8)
+    grown = np.ones(n2, bool)
+    grown[0] = False
+    # seen through: a region whose overlap pixels read what the other shot sees in the same
+    # directions is scene (a dark ceiling at the top of both shots), not a housing hiding it; a
+    # housing that reads the same as the scene it hides would not change the light either
+    n_seen = np.bincount(lab2[seen], minlength=n2)
+    n_agree = np.bincount(lab2[agree], minlength=n2)
+    yy, xx = np.mgrid[0:hs, 0:ws].astype(np.float64) + 0.5
+    phi = np.arctan2(small.centre[1] - yy, xx - small.centre[0])
+    bins = ((phi + np.pi) / (2 * np.pi) * 72).astype(int) % 72
+    along = np.zeros((n2, 72), bool)
+    along[lab2[rim], bins[rim]] = True
+    encircles = along.mean(axis=1) >= ENCIRCLE
+    through = (n_seen >= min_area) & (n_agree >= SEEN_FRACTION * np.maximum(n_seen, 1)) & ~encircles
+    grown &= ~through
+    return grown, lab2
 
 
 def detect_frame(radiance: list[np.ndarray], lens: Lens, max_shift: int = 0,
@@ -144,7 +210,7 @@ def detect_frame(radiance: list[np.ndarray], lens: Lens, max_shift: int = 0,
     cos_axis = np.clip(np.cos(small.theta_of_radius(small.pixel_radius())), 0.0, None)
     cand = (r >= 0.5) & circle
     dark_all = cand.copy()
-    ells, oks, flats = [], [], []
+    ells, oks, flats, thrs = [], [], [], []
     for rad in radiance:
         lum = cv2.resize(rad, (ws, hs), interpolation=cv2.INTER_AREA) @ LUMA
         ok = circle & (lum > 0)
@@ -154,7 +220,9 @@ def detect_frame(radiance: list[np.ndarray], lens: Lens, max_shift: int = 0,
         ell = np.log2(np.maximum(lum, floor)).astype(np.float32)
         med = float(np.median(ell[ok & (r < 0.9)]))
         e_pi = float((lum * sa * cos_axis)[ok].sum() / np.pi)      # E/π on a surface facing forward
-        dark = ell < min(med - DARK_STOPS, np.log2(DARK_ALBEDO * e_pi))
+        thr = min(med - DARK_STOPS, np.log2(DARK_ALBEDO * e_pi))
+        dark = ell < thr
+        thrs.append(thr)
         flat = flatness(ell, ok) < FLAT_STOPS_PER_PX
         cand &= dark & flat & ok
         dark_all &= dark & ok
@@ -162,48 +230,45 @@ def detect_frame(radiance: list[np.ndarray], lens: Lens, max_shift: int = 0,
     occl = np.zeros_like(cand)
     agree = np.ones_like(cand)
     seen = np.zeros_like(cand)
-    if yaws is not None and len(radiance) > 1:
-        for ell, flat, (lb, valid, outer) in zip(ells, flats, _cross_views(small, ells, oks, yaws)):
-            occl |= flat & valid & (ell < lb - OCCLUDED_STOPS)
-            agree &= ~outer | (np.abs(ell - lb) < AGREE_STOPS)
-            seen |= outer
+    dimmed = np.ones_like(cand)
+    hidden_all = np.ones_like(cand)
+    multi = yaws is not None and len(radiance) > 1
+    views = _cross_views(small, ells, oks, yaws) if multi else []
+    for ell, flat, (lb, valid, outer, _) in zip(ells, flats, views):
+        occl |= flat & valid & (ell < lb - OCCLUDED_STOPS)
+        agree &= ~outer | (np.abs(ell - lb) < AGREE_STOPS)
+        seen |= outer
+        dimmed &= ~valid | (ell < lb - DIMMED_STOPS)
+        hidden_all &= ~valid | (ell < lb - OCCLUDED_STOPS)
+    # the soft edge of a housing (a vignetting ramp, anti-aliasing) dims the scene without
+    # hiding it: in every shot darker than another shot's view, a grow-only criterion
+    any_valid = np.stack([v[1] for v in views]).any(axis=0) if views else np.zeros_like(cand)
+    dimmed &= any_valid
+    # occluding at the same pixels of every shot is being fixed to the sensor, which the
+    # texture test stands for elsewhere: a seed even where the housing's soft edge is textured
+    occl |= hidden_all & any_valid
     agree &= seen
-    cand = cv2.morphologyEx((cand | occl).astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-    n, lab, stats, _ = cv2.connectedComponentsWithStats(cand, connectivity=8)
-    # "touches the rim": within 7 working pixels of it (the circle's edge is itself textured:
-    # JPEG rings against the black surround, so the last pixels are rarely candidates)
     rim = circle & (r >= 1.0 - 7.0 / small.radius)
     min_area = max(16, int(1e-4 * circle.sum()))
-    keep = np.zeros(n, bool)
-    touching = np.unique(lab[rim & (lab > 0)])
-    keep[touching] = True
-    keep &= stats[:, cv2.CC_STAT_AREA] >= min_area
-    keep[0] = False
-    seeds = keep[lab]
-    # hysteresis: grow the seeds through pixels dark in every shot (texture not required), which
-    # recovers the frame's thin parts, where the texture window also sees the scene
-    # at most GROW_PX working pixels from a seed, and not into pixels another shot sees alike
-    allowed = ((dark_all | occl) & ~agree) | seeds
-    m = seeds.astype(np.uint8)
-    cross = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
-    for _ in range(GROW_PX):
-        m = cv2.dilate(m, cross) & allowed
-    n2, lab2 = cv2.connectedComponents(m, connectivity=8)
-    grown = np.ones(n2, bool)
-    grown[0] = False
-    # seen through: a region whose overlap pixels read what the other shot sees in the same
-    # directions is scene (a dark ceiling at the top of both shots), not a housing hiding it; a
-    # housing that reads the same as the scene it hides would not change the light either
-    n_seen = np.bincount(lab2[seen], minlength=n2)
-    n_agree = np.bincount(lab2[agree], minlength=n2)
-    yy, xx = np.mgrid[0:hs, 0:ws].astype(np.float64) + 0.5
-    phi = np.arctan2(small.centre[1] - yy, xx - small.centre[0])
-    bins = ((phi + np.pi) / (2 * np.pi) * 72).astype(int) % 72
-    along = np.zeros((n2, 72), bool)
-    along[lab2[rim], bins[rim]] = True
-    encircles = along.mean(axis=1) >= ENCIRCLE
-    through = (n_seen >= min_area) & (n_agree >= SEEN_FRACTION * np.maximum(n_seen, 1)) & ~encircles
-    grown &= ~through
+    grown, lab2 = _regions(cand | occl, (dark_all | occl | dimmed) & ~agree, seen, agree, rim, small, min_area)
+    if multi:
+        # second pass, the bright polished rim: fixed to the sensor, it reads brighter than
+        # another shot's view of its direction in some shot and darker in none. The other
+        # shot's view must be neither dark nor a housing found by the first pass: a black
+        # housing makes the scene facing it, in the other shot, read brighter than it (and a
+        # housing at the same pixels of both shots does so in both)
+        dark_mask = cv2.dilate(grown[lab2].astype(np.uint8), np.ones((5, 5), np.uint8)).astype(np.float32)
+        glint = circle & (r >= 1.0 - RIM_BAND)
+        glint_any = np.zeros_like(cand)
+        for a, (ell, (lb, valid, _, hidden)) in enumerate(
+                zip(ells, _cross_views(small, ells, oks, yaws, [dark_mask] * len(ells)))):
+            lit = max(t for b, t in enumerate(thrs) if b != a)
+            glint_any |= valid & (ell > lb + GLINT_STOPS) & (lb > lit) & (hidden < 0.01)
+            glint &= ~valid | (ell > lb - GLINT_STOPS)
+        glint &= glint_any
+        if glint.any():
+            grown, lab2 = _regions(cand | occl | glint, ((dark_all | occl | dimmed | glint) & ~agree), seen, agree, rim,
+                                   small, min_area)
     keep_regions = int(grown.sum())
     m = grown[lab2].astype(np.uint8)
     grow = 2 + int(np.ceil(max_shift * scale))

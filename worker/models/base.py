@@ -28,7 +28,7 @@ Vec3 = tuple[float, float, float]
 Color = Annotated[tuple[float, float, float], Field(description="linear RGB")]
 
 # the kernels' packed layout (worker/native/src/glintk.c checks the same numbers at load)
-N_PARAMS = 72
+N_PARAMS = 132   # 4 + 4·32: the lobes model's MAX_LOBES lobes
 # p(h) tables over the upper hemisphere in hemi-octahedral coordinates: N×N samples, ~0.9°
 # apart; a lookup costs one division instead of an acos and an atan2
 TABLE_N = 160

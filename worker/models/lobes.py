@@ -14,7 +14,7 @@ from pydantic import AliasChoices, ConfigDict, Field, model_validator
 
 from .base import BRDFModel, Color, Geometry, PackedBRDF, register
 
-MAX_LOBES = 16      # the packed layout: 4 + 4·16 ≤ N_PARAMS
+MAX_LOBES = 32      # the packed layout: 4 + 4·32 ≤ N_PARAMS (base.py)
 
 
 @register
@@ -60,4 +60,8 @@ class Lobes(BRDFModel):
         return [cls(exponents=[5, 50, 500], gloss=[0.02, 0.05, 0.1], directional_diffuse=[(0.1, 0.05, 0.02)] * 3,
                     albedo=(0.4, 0.1, 0.1)),
                 cls(exponents=[10, 300], gloss=[0.1, 0.2], directional_diffuse=[(0.1, 0.0, 0.0), (0.0, 0.1, 0.0)],
-                    albedo=(0.3, 0.3, 0.3))]
+                    albedo=(0.3, 0.3, 0.3)),
+                # the full packed layout (MAX_LOBES lobes, E over [1, 10⁴] as the paint basis):
+                # the kernel must read every lobe of a 4 + 4·MAX_LOBES row
+                cls(exponents=[float(e) for e in np.geomspace(1.0, 1e4, MAX_LOBES)], gloss=[0.004] * MAX_LOBES,
+                    directional_diffuse=[(0.01, 0.006, 0.002)] * MAX_LOBES, albedo=(0.2, 0.1, 0.05))]
