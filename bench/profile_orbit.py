@@ -45,8 +45,6 @@ def main() -> None:
     ap.add_argument("--model", default="ggx", choices=["ggx", "srbf", "lambert"])
     ap.add_argument("--primary", default=None, choices=["embree", "project"])
     a = ap.parse_args()
-    if a.primary:
-        os.environ["GLINT_PRIMARY"] = a.primary
 
     from worker.assets import ensure_repo_scene
     from worker.cli import open_renderer
@@ -56,6 +54,8 @@ def main() -> None:
     ensure_repo_scene(a.scene)
     scene = load_scene(a.scene)
     r, _ = open_renderer(scene, None, True)
+    if a.primary:
+        r.primary = a.primary
     cam = scene.spec.camera
     mats = [material(a.model)] * len(scene.spec.objects)
     r.render(FrameRequest(camera=cam, materials=mats, samples=a.samples))    # warm
@@ -83,7 +83,7 @@ def main() -> None:
     res = {"wall_ms": {k: round(statistics.median(x), 2) for k, x in wall.items()},
            "cpu_ms": {k: round(statistics.median(x), 2) for k, x in cpu.items()},
            "scene": a.scene, "model": a.model, "samples": a.samples, "frames": a.frames,
-           "primary": os.environ.get("GLINT_PRIMARY", "default"), "load": os.getloadavg()[0],
+           "primary": getattr(r, "primary", None), "load": os.getloadavg()[0],
            "faces": int(len(scene.mesh.faces)), "pixels": int(cam.width * cam.height)}
     print(json.dumps(res, indent=1))
 

@@ -171,6 +171,7 @@ class NativeKernels(_Families):
                              W=i32, H=i32, S=i32, omax=f64, tri=i32p, uv=f32p, t=f32p, box=i32p)
         self._rotate = bind("glk_rotate_dirs", None, P=i64, src=f32p, basis=f32p, out=f32p)
         self._env_coords = bind("glk_env_coords", None, n=i64, dirs=f32p, out=f32p)
+        self._env_simd = bind("glk_env_simd", i32, want=i32)
         self._resolve = bind("glk_resolve", None, P=i64, S=i32, tri=i32p, uv=f32p, faces=i32p, vert_rgb=f32p,
                              bg=f32p, out=f32p)
         self._env = bind("glk_env_lookup", None, P=i64, dirs=f32p, mask=voidp, map=f32p, Hm=i32, Wm=i32,
@@ -321,6 +322,11 @@ class NativeKernels(_Families):
         out = np.empty_like(src)
         self._rotate(len(src), src, c(basis, np.float32), out)
         return out
+
+    def env_simd(self, want: int = -1) -> int:
+        """env_coords' build: want −1 asks, 0 forces the baseline, 1 the best the CPU has
+        (AVX2 + FMA, chosen at run time). Returns the one in use (0 baseline, 1 AVX2)."""
+        return int(self._env_simd(int(want)))
 
     def env_coords(self, dirs):
         """(n, 2) float32 map coordinates of directions (see core.render.env_coords_numpy)."""
