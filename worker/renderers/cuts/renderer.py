@@ -264,11 +264,28 @@ class CutRenderer(Renderer):
             obj = np.where(tri >= 0, self.scene.object_of_face[np.maximum(tri, 0)], -1).astype(np.int32)
             v.obj = obj.reshape(camera.height, camera.width)
         else:
-            v.obj = self.view(camera, 1).obj
+            v.obj = self._object_map(camera)
         with self._lock:
             self._views = [v] + [x for x in self._views if x is not v][:2]
             self._view = v
         return v
+
+    def _object_map(self, camera) -> np.ndarray:
+        """(H, W) int32 object per pixel centre (−1 background) of a camera: the one-sample
+        view's when it is cached; else, projecting, the one-sample hits alone (a tenth of a
+        one-sample view, which also gathers vertices and background coordinates); traced, the
+        one-sample view."""
+        with self._lock:
+            for x in self._views:
+                if x.samples == 1 and x.camera == camera:
+                    return x.obj
+        if self.primary != "project":
+            return self.view(camera, 1).obj
+        d = camera_dirs(camera.eye, camera.target, camera.up, camera.fov_y_deg, camera.width, camera.height, 1,
+                        kernels=self.k)
+        tri, _, _ = self._primary_hits(camera, 1, d)
+        obj = np.where(tri >= 0, self.scene.object_of_face[np.maximum(tri, 0)], -1).astype(np.int32)
+        return obj.reshape(camera.height, camera.width)
 
     def _primary_hits(self, camera, samples: int, d: np.ndarray):
         """(tri (P·S,) int32, uv (P·S, 2) float32, traced: rays traced through Embree) of the
