@@ -90,6 +90,7 @@ def test_primary_rays_outside_the_meshs_screen_box_are_not_traced(bunny_renderer
 
     r0 = bunny_renderer
     r = CutRenderer(r0.scene, r0.data)
+    r.primary = "embree"        # the traced path (the default projects faces: tests/core/test_primary.py)
     cam = r.scene.spec.camera
     lo, hi = r._bounds
     centre = (lo + hi) / 2

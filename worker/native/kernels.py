@@ -101,6 +101,10 @@ class NumpyKernels(_Families):
         from ..core.render import resolve_numpy
         return resolve_numpy(tri, uv, faces, vert_rgb, bg, samples, out)
 
+    def primary_hits(self, vertices, faces, cam, dirs, width, height, samples, omax):
+        from ..core.primary import primary_hits_numpy
+        return primary_hits_numpy(vertices, faces, cam, dirs, width, height, samples, omax)
+
     def rotate_dirs(self, dirs, basis):
         from ..core.render import rotate_dirs_numpy
         return rotate_dirs_numpy(dirs, basis)
@@ -163,8 +167,11 @@ class NativeKernels(_Families):
         self._background = bind(
             "glk_background", None, n=i64, sample=i64p, dirs=f32p, uv0=f32p, map=f32p, Hm=i32, Wm=i32, rot=f64,
             intensity=f64, shadow=voidp, G=i32, gx0=f64, gz0=f64, gstep=f64, gy=f64, ex=f64, ey=f64, ez=f64, out=f32p)
+        self._primary = bind("glk_primary_hits", None, nv=i64, V=f32p, nf=i64, F=i32p, cam=f64p, dirs=f32p,
+                             W=i32, H=i32, S=i32, omax=f64, tri=i32p, uv=f32p, t=f32p, box=i32p)
         self._rotate = bind("glk_rotate_dirs", None, P=i64, src=f32p, basis=f32p, out=f32p)
         self._env_coords = bind("glk_env_coords", None, n=i64, dirs=f32p, out=f32p)
+        self._env_simd = bind("glk_env_simd", i32, want=i32)
         self._resolve = bind("glk_resolve", None, P=i64, S=i32, tri=i32p, uv=f32p, faces=i32p, vert_rgb=f32p,
                              bg=f32p, out=f32p)
         self._env = bind("glk_env_lookup", None, P=i64, dirs=f32p, mask=voidp, map=f32p, Hm=i32, Wm=i32,
@@ -293,12 +300,33 @@ class NativeKernels(_Families):
                          grid.shape[0] if grid is not None else 0, *geo, *e, out)
         return out
 
+    def primary_hits(self, vertices, faces, cam, dirs, width, height, samples, omax):
+        """(tri, uv, t) of the primary rays dirs (H·W·S, 3) by face projection (see
+        core.primary.primary_hits_numpy)."""
+        W, H, S = int(width), int(height), int(samples)
+        d = c(dirs, np.float32)
+        if d.shape != (W * H * S, 3):
+            raise ValueError(f"dirs: {d.shape}, expected ({W * H * S}, 3)")
+        V, F = c(vertices, np.float32), c(faces, np.int32)
+        P = W * H * S
+        tri = np.empty(P, np.int32)
+        uv = np.empty((P, 2), np.float32)
+        t = np.empty(P, np.float32)
+        box = np.empty((len(F), 4), np.int32)
+        self._primary(len(V), V, len(F), F, c(cam, np.float64), d, W, H, S, float(omax), tri, uv, t, box)
+        return tri, uv, t
+
     def rotate_dirs(self, dirs, basis):
         """(P, 3) float32 dirs @ basis (see core.render.rotate_dirs_numpy)."""
         src = c(dirs, np.float32)
         out = np.empty_like(src)
         self._rotate(len(src), src, c(basis, np.float32), out)
         return out
+
+    def env_simd(self, want: int = -1) -> int:
+        """env_coords' build: want −1 asks, 0 forces the baseline, 1 the best the CPU has
+        (AVX2 + FMA, chosen at run time). Returns the one in use (0 baseline, 1 AVX2)."""
+        return int(self._env_simd(int(want)))
 
     def env_coords(self, dirs):
         """(n, 2) float32 map coordinates of directions (see core.render.env_coords_numpy)."""

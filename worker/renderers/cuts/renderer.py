@@ -57,6 +57,7 @@ import numpy as np
 from ...core import cuts as cutmod
 from ...core.directions import get_tree
 from ...core.lighting import light_tables
+from ...core.primary import primary_hits
 from ...core.render import (
     MaterialTable,
     background,
@@ -166,6 +167,7 @@ class CutRenderer(Renderer):
     controls = DECLARATION.controls
     capabilities = frozenset({"place", "drag_level", "view_cache", "stroke_fit", "vertex_transfer"})
     _moving = None          # MovingFrames (moving.py) of a scene with movable objects
+    primary = "project"     # how a view finds its primary hits: "project" (core.primary) or "embree"
 
     def __init__(self, scene, data: CutData, kernels=None):
         super().__init__(scene, data, kernels)
@@ -244,17 +246,7 @@ class CutRenderer(Renderer):
                     return v
         d = camera_dirs(camera.eye, camera.target, camera.up, camera.fov_y_deg, camera.width, camera.height,
                         samples, kernels=self.k)
-        rows = self._box_rows(camera, samples)
-        eye = np.asarray(camera.eye, np.float32)
-        if rows is None:
-            tri, uv = self._first_hit(np.broadcast_to(eye, d.shape).copy(), d)
-            traced = len(d)
-        else:                   # the rest of the frame sees the background: its rays are not traced
-            tri = np.full(len(d), -1, np.int32)
-            uv = np.zeros((len(d), 2), np.float32)
-            if len(rows):
-                tri[rows], uv[rows] = self._first_hit(np.broadcast_to(eye, (len(rows), 3)).copy(), d[rows])
-            traced = len(rows)
+        tri, uv, traced = self._primary_hits(camera, samples, d)
         mesh = self.scene.mesh
         # faces and vertices seen, by marking (O(P + F), no sort)
         fmask = np.zeros(len(mesh.faces), bool)
@@ -272,11 +264,57 @@ class CutRenderer(Renderer):
             obj = np.where(tri >= 0, self.scene.object_of_face[np.maximum(tri, 0)], -1).astype(np.int32)
             v.obj = obj.reshape(camera.height, camera.width)
         else:
-            v.obj = self.view(camera, 1).obj
+            v.obj = self._object_map(camera)
         with self._lock:
             self._views = [v] + [x for x in self._views if x is not v][:2]
             self._view = v
         return v
+
+    def _object_map(self, camera) -> np.ndarray:
+        """(H, W) int32 object per pixel centre (−1 background) of a camera: the one-sample
+        view's when it is cached; else, projecting, the one-sample hits alone (a tenth of a
+        one-sample view, which also gathers vertices and background coordinates); traced, the
+        one-sample view."""
+        with self._lock:
+            for x in self._views:
+                if x.samples == 1 and x.camera == camera:
+                    return x.obj
+        if self.primary != "project":
+            return self.view(camera, 1).obj
+        d = camera_dirs(camera.eye, camera.target, camera.up, camera.fov_y_deg, camera.width, camera.height, 1,
+                        kernels=self.k)
+        tri, _, _ = self._primary_hits(camera, 1, d)
+        obj = np.where(tri >= 0, self.scene.object_of_face[np.maximum(tri, 0)], -1).astype(np.int32)
+        return obj.reshape(camera.height, camera.width)
+
+    def _primary_hits(self, camera, samples: int, d: np.ndarray):
+        """(tri (P·S,) int32, uv (P·S, 2) float32, traced: rays traced through Embree) of the
+        primary rays d (P·S, 3) float32 of a camera. ``primary = "project"`` (the default)
+        projects the faces into the image (core.primary: the rays all start at the eye, so no
+        ray is traced; the hits are the tracer's but on shared edges and silhouettes within
+        rounding); ``"embree"`` traces the rays of the mesh's screen box."""
+        if self.primary == "project":
+            tri, uv, _ = primary_hits(self.scene.mesh.vertices, self._faces32, camera, samples, d, self.k)
+            return tri, uv, 0
+        rows = self._box_rows(camera, samples)
+        eye = np.asarray(camera.eye, np.float32)
+        if rows is None:
+            tri, uv = self._first_hit(np.broadcast_to(eye, d.shape).copy(), d)
+            return tri, uv, len(d)
+        # the rest of the frame sees the background: its rays are not traced
+        tri = np.full(len(d), -1, np.int32)
+        uv = np.zeros((len(d), 2), np.float32)
+        if len(rows):
+            tri[rows], uv[rows] = self._first_hit(np.broadcast_to(eye, (len(rows), 3)).copy(), d[rows])
+        return tri, uv, len(rows)
+
+    @property
+    def _faces32(self) -> np.ndarray:
+        """(F, 3) int32 C-contiguous faces of the mesh, converted once (the scene's static mesh)."""
+        f = self.__dict__.get("_f32")
+        if f is None:
+            f = self.__dict__["_f32"] = np.ascontiguousarray(self.scene.mesh.faces, np.int32)
+        return f
 
     def _screen_box(self, camera) -> tuple[int, int, int, int] | None:
         """(row0, row1, col0, col1): the pixels (rows row0 ≤ y < row1, columns col0 ≤ x < col1)
