@@ -260,8 +260,12 @@ def prune_sparse(fz: Frozen, pu: PixelUnits, C1i: np.ndarray, frac: float,
     key = fz.key.astype(np.int64)[drop]
     s, rest = np.divmod(key, fz.K2 * fz.NP)
     qd = q[drop]
-    c = lerp_coeffs(C1i.astype(np.float64), pu.k0[fz.live], pu.t[fz.live])     # (Q, K1, 3)
-    add = val[drop] * (fz.h * fz.scale)[qd, None] * c[qd, s]               # (md, 3)
+    # the edited unit's coefficient of each dropped entry's slot at its pixel's view angle (only
+    # those: the full (Q, K1, 3) table would be most of the pass)
+    k0, t = pu.k0[fz.live[qd]], pu.t[fz.live[qd]].astype(np.float64)[:, None]
+    C = C1i.astype(np.float64)
+    c = C[k0, s] * (1.0 - t) + C[k0 + 1, s] * t                                # (md, 3)
+    add = val[drop] * (fz.h * fz.scale)[qd, None] * c                         # (md, 3)
     cell = fz.live[qd] * (fz.K2 * fz.NP) + rest                            # flat (pixel, k, n)
     V = fz.V.reshape(-1, 3).astype(np.float64)
     for ch in range(3):
