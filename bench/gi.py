@@ -28,6 +28,7 @@ def cmd_gi_bench(a) -> int:
     r = open_renderer(a, a.json)
     u = r.layout.index(a.object)
     other = next((k for k in range(r.U) if k != u), None)
+    r.prune = a.prune
     r.draw()                                       # warm-up; a unit is live
     # wall-clock and process CPU times: on a loaded machine the CPU time (all threads) is the
     # better measure of the work; with one thread it is the time on a quiet core
@@ -51,6 +52,21 @@ def cmd_gi_bench(a) -> int:
             proj.append(r.last_timings["project"]); dots.append(r.last_timings["frame"])
         assert "freeze" not in r.last_timings, "a frame re-froze"
     ms = float(np.median(frames) * 1000)
+    pruned = r.last_pruned
+    prune_err = None
+    if a.prune > 0:
+        # the pruned frame against the unpruned one at another material of the edited object,
+        # relative RMSE over its pixels: the cost of the entries folded into V at the freeze-time
+        # material
+        on = r.prim.pixel[r.frozen.live]
+        r.set_unit_material(u, sweep(r, u, a.frames + 7))
+        got = r.draw().reshape(-1, 3)[on].astype(np.float64)
+        r.prune = 0.0
+        r.freeze(u)
+        ref = r.draw().reshape(-1, 3)[on].astype(np.float64)
+        prune_err = float(np.sqrt(np.mean((got - ref) ** 2)) / max(np.sqrt(np.mean(ref ** 2)), 1e-30))
+        r.prune = a.prune
+        r.freeze(u)
     cam = r.scene.spec.camera
     fz = r.frozen
     res = {"ms_freeze": float(np.median(t_freeze) * 1000), "ms_per_frame": ms, "fps": 1000.0 / ms,
@@ -61,7 +77,8 @@ def cmd_gi_bench(a) -> int:
            "live_pixels": int(len(fz.live)), "live_values": fz.live_values, "live_layout": "dense" if fz.dense is not None else "sparse",
            "live_powers": fz.NPe, "frozen_bytes": int(fz.nbytes),
            "tensor_bytes": r.data.nbytes, "series": list(r.opts.series), "bounces": r.N, "spp": r.opts.spp,
-           "native": r.k.name == "native", "threads": native.max_threads()}
+           "native": r.k.name == "native", "threads": native.max_threads(),
+           "prune": a.prune, "pruned_fraction": pruned, "prune_rel_rmse": prune_err}
     print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items()))
     return 0
 
@@ -75,5 +92,8 @@ def add_gi_commands(gsub) -> None:
     b.add_argument("--object", required=True, help="the edited object (or region)")
     b.add_argument("--frames", type=int, default=30)
     b.add_argument("--repeat", type=int, default=3, help="freezes timed (median)")
+    b.add_argument("--prune", type=float, default=0.0,
+                   help="drop live entries below this fraction of their row's magnitude at freezing, "
+                        "folded into the frozen part (e.g. 0.005); 0 keeps every entry")
     b.add_argument("--json", action="store_true")
     b.set_defaults(fn=cmd_gi_bench)

@@ -229,3 +229,49 @@ def frame_numpy(fz: Frozen, pu: PixelUnits, C1i: np.ndarray, ck: np.ndarray, d: 
         np.add.at(acc, q, v)
         B[fz.live] += fz.h[:, None] * acc
     return B.astype(np.float32)
+
+
+def prune_sparse(fz: Frozen, pu: PixelUnits, C1i: np.ndarray, frac: float,
+                 slot_weight: np.ndarray | None = None) -> tuple[Frozen, float]:
+    """Re-sparsify the live rows of a sparse Frozen: drop every entry whose magnitude
+    (Σ_rgb |F_e|) is below ``frac`` of its row's total, and fold what it contributes at the
+    freeze-time material into V, so the frame at that material is unchanged up to float
+    rounding and the error grows only with the edit's change of c_slot (eq. 28-29: the dropped
+    term is h·scale·c_slot(θo)·ĉ_k·d^n·F_e, of which ĉ_k·d^n is V's factor already).
+
+    C1i (Kθ, K1, 3) the edited unit's first-vertex table at freeze time; frac ≥ 0 (0: no-op).
+    Returns (the pruned Frozen, the fraction of the live rows' total magnitude dropped).
+    The dense layout is returned as is (its loop has no per-entry cost to save)."""
+    if frac <= 0 or fz.dense is not None or fz.entries is None or not len(fz.entries):
+        return fz, 0.0
+    Q = len(fz.live)
+    cnt = np.diff(fz.offsets)
+    q = np.repeat(np.arange(Q), cnt)
+    val = fz.val.astype(np.float64)                                   # (m, 3)
+    mag = np.abs(val).sum(1)
+    if slot_weight is not None:
+        # what an entry can contribute: its magnitude times the largest coefficient its slot takes
+        mag = mag * slot_weight[fz.key.astype(np.int64) // (fz.K2 * fz.NP)]
+    row = np.bincount(q, weights=mag, minlength=Q)
+    drop = mag < frac * row[q]
+    if not drop.any():
+        return fz, 0.0
+    # fold the dropped entries into V at the current coefficients of the edited unit
+    key = fz.key.astype(np.int64)[drop]
+    s, rest = np.divmod(key, fz.K2 * fz.NP)
+    qd = q[drop]
+    # the edited unit's coefficient of each dropped entry's slot at its pixel's view angle (only
+    # those: the full (Q, K1, 3) table would be most of the pass)
+    k0, t = pu.k0[fz.live[qd]], pu.t[fz.live[qd]].astype(np.float64)[:, None]
+    C = C1i.astype(np.float64)
+    c = C[k0, s] * (1.0 - t) + C[k0 + 1, s] * t                                # (md, 3)
+    add = val[drop] * (fz.h * fz.scale)[qd, None] * c                         # (md, 3)
+    cell = fz.live[qd] * (fz.K2 * fz.NP) + rest                            # flat (pixel, k, n)
+    V = fz.V.reshape(-1, 3).astype(np.float64)
+    for ch in range(3):
+        V[:, ch] += np.bincount(cell, weights=add[:, ch], minlength=len(V))
+    keep = ~drop
+    offsets = np.concatenate([[0], np.cumsum(np.bincount(q[keep], minlength=Q))]).astype(np.int64)
+    out = Frozen(fz.unit, fz.K2, fz.NP, V.astype(np.float32).reshape(fz.V.shape), fz.live, fz.h, fz.scale,
+                 offsets, np.ascontiguousarray(fz.entries[keep]))
+    return out, float(mag[drop].sum() / max(mag.sum(), 1e-30))
