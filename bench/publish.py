@@ -92,7 +92,7 @@ def bench_publish(azimuths: int = 72, elevations: int = 2, width: int = 640, hei
             build_s = time.perf_counter() - t0
             cpu1 = srv.cpu_seconds()
             man = c.get(f"/v1/publications/{pub['id']}/manifest").json()
-            sizes = {"webp1": 0, "jpeg1": 0, "webp2": 0}
+            sizes = {"avif1": 0, "jpeg1": 0, "avif2": 0}
             seen = set()
             for per_v in man["frames"]:
                 for per_e in per_v:
@@ -152,7 +152,7 @@ async def _shopper(base: str, pid: str, man: dict, frames: int, interval: float,
             a = random.randrange(len(ring))
             for k in range(frames + 1):
                 t1 = time.perf_counter()
-                r = await c.get(f"/v1/bundle-files/{ring[(a + k) % len(ring)]['webp1']}")
+                r = await c.get(f"/v1/bundle-files/{ring[(a + k) % len(ring)]['avif1']}")
                 dt = time.perf_counter() - t1
                 if r.status_code != 200:
                     errors.append(f"frame: {r.status_code}")
@@ -295,7 +295,7 @@ def frame_cost(scene: str | None = None, cameras: int = 4, width: int = 640, hei
     opts = {"azimuths": 72, "elevations_deg": default_elevations(spec["camera"]), "width": width, "height": height,
             "samples": 1, "shading": "vertex", "tone": "neutral", "exposure": 0.0,
             "ground_shadow": bool(spec.get("ground")),
-            "encode": {"webp_quality": 80, "webp_method": 0, "jpeg_quality": 85}}
+            "encode": {"avif_quality": 60, "avif_quality_2x": 40, "avif_speed": 10, "jpeg_quality": 85}}
     pl = plan(payload, spec["objects"][0]["name"], [v["material"] for v in VARIANTS], env_list, opts)
     views = pl["views"][:4 * cameras]
     with tempfile.TemporaryDirectory() as d:

@@ -115,10 +115,10 @@ http {{
         listen {site.listen} backlog=4096;
 {h2}
         # a published bundle's files: <sha256 of the bytes>.<ext>, immutable
-        location ~ "^/v1/bundle-files/(?<bundle_digest>[0-9a-f]{{64}})\\.(?<bundle_ext>webp|jpg|json|glb)$" {{
+        location ~ "^/v1/bundle-files/(?<bundle_digest>[0-9a-f]{{64}})\\.(?<bundle_ext>avif|jpg|json|glb)$" {{
             alias {site.published}/$bundle_digest.$bundle_ext;
             types {{
-                image/webp webp;
+                image/avif avif;
                 image/jpeg jpg;
                 application/json json;
                 model/gltf-binary glb;

@@ -37,10 +37,10 @@ async def serve(st, request: Request, name: str, cache_control: str = IMMUTABLE)
 
 
 @router.get("/v1/bundle-files/{name}", response_class=Response, responses={
-    200: {"description": "a frame (image/webp, image/jpeg), a manifest (application/json) or the published "
+    200: {"description": "a frame (image/avif, image/jpeg), a manifest (application/json) or the published "
                          "object's glTF model (model/gltf-binary); Cache-Control: public, max-age=31536000, "
                          "immutable; ETag: its digest",
-          "content": {"image/webp": {"schema": {"type": "string", "format": "binary"}},
+          "content": {"image/avif": {"schema": {"type": "string", "format": "binary"}},
                       "image/jpeg": {"schema": {"type": "string", "format": "binary"}},
                       "model/gltf-binary": {"schema": {"type": "string", "format": "binary"}},
                       "application/json": {}}},

@@ -20,8 +20,8 @@ import threading
 from collections import OrderedDict
 from pathlib import Path
 
-NAME = re.compile(r"^([0-9a-f]{64})\.(webp|jpg|json|glb)$")
-MEDIA = {"webp": "image/webp", "jpg": "image/jpeg", "json": "application/json", "glb": "model/gltf-binary"}
+NAME = re.compile(r"^([0-9a-f]{64})\.(avif|jpg|json|glb)$")
+MEDIA = {"avif": "image/avif", "jpg": "image/jpeg", "json": "application/json", "glb": "model/gltf-binary"}
 CACHE_BYTES = 256 * 2**20
 
 

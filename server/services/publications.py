@@ -41,7 +41,7 @@ log = logging.getLogger("glint")
 # the bundle options a publication has when its request names none (docs/guides/publishing.md)
 DEFAULT_BUNDLE = {"azimuths": 72, "elevations_deg": None, "width": None, "height": None, "samples": 1,
                   "shading": "vertex", "tone": "neutral", "exposure": 0.0, "ground_shadow": None,
-                  "encode": {"webp_quality": 80, "webp_method": 0, "jpeg_quality": 85}}
+                  "encode": {"avif_quality": 60, "avif_quality_2x": 40, "avif_speed": 10, "jpeg_quality": 85}}
 MAX_VIEWS = 20_000           # variants × environments × azimuths × elevations of one bundle
 # rendered pixels of one bundle (views × its 2× frame): 5.6× the 2 × 2 × 72 × 2 views at 640×480
 # a shop's product page needs, so one request cannot occupy the workers for hours
@@ -424,7 +424,7 @@ def bundle_zip(st, sha: str) -> Path:
     try:
         with tmp:
             with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED) as z:
-                # frames are WebP/JPEG already: storing them compressed again would only cost time
+                # frames are AVIF/JPEG already: storing them compressed again would only cost time
                 z.writestr("index.html", INDEX_HTML.format(title=_html_escape(man["name"]), body=viewer_body(web)),
                            compress_type=zipfile.ZIP_DEFLATED)
                 z.write(web / "js" / "player.js", "player.js", compress_type=zipfile.ZIP_DEFLATED)

@@ -31,17 +31,17 @@ def test_frame_keys_follow_what_the_pixels_depend_on():
     red, blue = {"model": "lambert", "albedo": [0.6, 0.1, 0.1]}, {"model": "lambert", "albedo": [0.1, 0.1, 0.6]}
     env = {"sha256": "env", "rotation_deg": 0.0, "intensity": 1.0}
     render = {"samples": 1, "shading": "vertex", "tone": "neutral", "exposure": 0.0, "ground_shadow": True}
-    enc = {"webp_quality": 80}
+    enc = {"avif_quality": 60}
     k = frame_key(scene_inputs(scene, "bunny", red), env, CAM, render, enc)
     assert k == frame_key(scene_inputs(scene, "bunny", dict(red)), dict(env), dict(CAM), dict(render), dict(enc))
     changed = [frame_key(scene_inputs(scene, "bunny", blue), env, CAM, render, enc),
                frame_key(scene_inputs(scene, "bunny", red), {**env, "rotation_deg": 90.0}, CAM, render, enc),
                frame_key(scene_inputs(scene, "bunny", red), env, {**CAM, "eye": [0, 3.6, 3.7]}, render, enc),
                frame_key(scene_inputs(scene, "bunny", red), env, CAM, {**render, "ground_shadow": False}, enc),
-               frame_key(scene_inputs(scene, "bunny", red), env, CAM, render, {"webp_quality": 90}),
+               frame_key(scene_inputs(scene, "bunny", red), env, CAM, render, {"avif_quality": 70}),
                frame_key(scene_inputs({**scene, "parts": {"k1": "sha-b"}}, "bunny", red), env, CAM, render, enc)]
     assert len(set(changed + [k])) == 7
-    assert file_key(k, "webp1") != file_key(k, "webp2") and len(file_key(k, "meta")) == 64
+    assert file_key(k, "avif1") != file_key(k, "avif2") and len(file_key(k, "meta")) == 64
 
 
 def test_the_1x_frame_is_the_mean_of_the_2x_frame():

@@ -97,29 +97,30 @@ def test_bundle_manifest_immutable_files_zip_and_incremental_rebuild(server, cli
 
     # files: content-addressed, immutable, ETag and 304
     f = fr[0][0][0][0]
-    r1 = frame(client, f["webp1"])
-    assert r1.headers["content-type"] == "image/webp" and r1.headers["cache-control"] == IMMUTABLE
-    assert hashlib.sha256(r1.content).hexdigest() == f["webp1"].split(".")[0]
-    assert r1.headers["etag"] == f'"{f["webp1"].split(".")[0]}"'
-    nm = client.get(f"/v1/bundle-files/{f['webp1']}", headers={"If-None-Match": r1.headers["etag"]})
+    r1 = frame(client, f["avif1"])
+    assert r1.headers["content-type"] == "image/avif" and r1.headers["cache-control"] == IMMUTABLE
+    assert hashlib.sha256(r1.content).hexdigest() == f["avif1"].split(".")[0]
+    assert r1.headers["etag"] == f'"{f["avif1"].split(".")[0]}"'
+    nm = client.get(f"/v1/bundle-files/{f['avif1']}", headers={"If-None-Match": r1.headers["etag"]})
     assert nm.status_code == 304 and nm.content == b"" and nm.headers["cache-control"] == IMMUTABLE
     # again, now from the server's memory (routes/bundle_files.py CachedBundleFiles): the same answers
-    again = frame(client, f["webp1"])
+    again = frame(client, f["avif1"])
     assert again.content == r1.content and all(again.headers[h] == r1.headers[h] for h in
                                                 ("etag", "cache-control", "content-type", "content-length"))
-    nm = client.get(f"/v1/bundle-files/{f['webp1']}", headers={"If-None-Match": f'"x", {r1.headers["etag"]}'})
+    nm = client.get(f"/v1/bundle-files/{f['avif1']}", headers={"If-None-Match": f'"x", {r1.headers["etag"]}'})
     assert nm.status_code == 304 and nm.headers["etag"] == r1.headers["etag"]
-    assert client.get(f"/v1/bundle-files/{f['webp1']}", headers={"If-None-Match": '"x"'}).status_code == 200
+    assert client.get(f"/v1/bundle-files/{f['avif1']}", headers={"If-None-Match": '"x"'}).status_code == 200
     im1 = np.asarray(Image.open(io.BytesIO(r1.content)).convert("RGB"), np.float64)
-    im2 = np.asarray(Image.open(io.BytesIO(frame(client, f["webp2"]).content)).convert("RGB"), np.float64)
+    im2 = np.asarray(Image.open(io.BytesIO(frame(client, f["avif2"]).content)).convert("RGB"), np.float64)
     jp = Image.open(io.BytesIO(frame(client, f["jpeg1"]).content))
     assert im1.shape == (48, 64, 3) and im2.shape == (96, 128, 3) and jp.format == "JPEG" and jp.size == (64, 48)
+    assert Image.open(io.BytesIO(r1.content)).format == "AVIF"
     # the 1× frame is the 2× one averaged (up to tone mapping and lossy coding)
     assert np.abs(im2.reshape(48, 2, 64, 2, 3).mean((1, 3)) - im1).mean() < 6
     # turning changes the frame; another variant and another environment change it too
     other = [fr[0][0][0][3], fr[1][0][0][0], fr[0][1][0][0]]
     for g in other:
-        img = np.asarray(Image.open(io.BytesIO(frame(client, g["webp1"]).content)).convert("RGB"), np.float64)
+        img = np.asarray(Image.open(io.BytesIO(frame(client, g["avif1"]).content)).convert("RGB"), np.float64)
         assert np.abs(img - im1).mean() > 2
     # the glTF model of every variant, published beside the frames (for standard viewers and AR)
     glb = frame(client, man["model"]["glb"])
@@ -128,7 +129,7 @@ def test_bundle_manifest_immutable_files_zip_and_incremental_rebuild(server, cli
     assert "BRDF RMSE" in man["model"]["summary"]
     # each public file is its blob under its public name (a static server in front serves that folder)
     pub_dir = Path(server["data"]) / "blobs" / "published"
-    for name in (f["webp1"], man["model"]["glb"]):
+    for name in (f["avif1"], man["model"]["glb"]):
         assert (pub_dir / name).stat().st_ino == (Path(server["data"]) / "blobs" / name[:2] / name.split(".")[0]).stat().st_ino
     # only published files are served: not another blob of the store by its digest, not a bad name
     env_sha = client.get(f"/v1/assets/{sunset}").json()["sha256"]
@@ -143,12 +144,12 @@ def test_bundle_manifest_immutable_files_zip_and_incremental_rebuild(server, cli
     assert {"index.html", "player.js", "viewer.css", "manifest.json"} <= names
     files = {n for n in names if n.startswith("files/")}
     assert len(files) == man["files"] == 1 + len({g[k] for per_v in fr for per_e in per_v for per_el in per_e
-                                                   for g in per_el for k in ("webp1", "jpeg1", "webp2")})
+                                                   for g in per_el for k in ("avif1", "jpeg1", "avif2")})
     assert "files/" + man["model"]["glb"] in files
     assert json.loads(zf.read("manifest.json")) == man
     index = zf.read("index.html").decode()
     assert 'src="player.js"' in index and 'data-files="files/"' in index and 'id="swatches"' in index
-    assert zf.read("files/" + f["webp1"]) == r1.content
+    assert zf.read("files/" + f["avif1"]) == r1.content
 
     # the live mode is the publisher's choice: this one plays its bundle only
     assert client.post(f"/v1/publications/{pub['id']}/sessions").status_code == 403
@@ -224,7 +225,7 @@ def test_nginx_in_front_serves_published_files_as_the_service_does(server, clien
                 time.sleep(0.1)
         with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30) as c:
             f = man["frames"][0][0][0][1]
-            for name, media in ((f["webp1"], "image/webp"), (f["jpeg1"], "image/jpeg"), (f["webp2"], "image/webp"),
+            for name, media in ((f["avif1"], "image/avif"), (f["jpeg1"], "image/jpeg"), (f["avif2"], "image/avif"),
                                 (man["model"]["glb"], "model/gltf-binary")):
                 a, b = c.get(f"/v1/bundle-files/{name}"), client.get(f"/v1/bundle-files/{name}")
                 assert a.status_code == 200 and a.content == b.content, (name, a.status_code)
@@ -271,14 +272,14 @@ def test_register_links_public_names_to_their_blobs(tmp_path):
 
     st = types.SimpleNamespace(blobs=BlobStore(tmp_path / "blobs"))
     a, b = st.blobs.put(b"frame a" * 100), st.blobs.put(b"frame b" * 100)
-    register(st, [f"{a}.webp"])
+    register(st, [f"{a}.avif"])
     pub = tmp_path / "blobs" / "published"
-    assert os.path.samefile(pub / f"{a}.webp", st.blobs.path(a)) and (pub / f"{a}.webp").stat().st_mode & 0o004
-    assert load(st, f"{a}.webp") == b"frame a" * 100
+    assert os.path.samefile(pub / f"{a}.avif", st.blobs.path(a)) and (pub / f"{a}.avif").stat().st_mode & 0o004
+    assert load(st, f"{a}.avif") == b"frame a" * 100
     (pub / f"{b}.jpg").touch()                       # an older version's empty marker
     assert relink_markers(st) == 1 and (pub / f"{b}.jpg").read_bytes() == b"frame b" * 100
     assert relink_markers(st) == 0
-    register(st, [f"{a}.webp"])                      # again: nothing changes
-    assert os.path.samefile(pub / f"{a}.webp", st.blobs.path(a))
+    register(st, [f"{a}.avif"])                      # again: nothing changes
+    assert os.path.samefile(pub / f"{a}.avif", st.blobs.path(a))
     with pytest.raises(ValueError):
-        register(st, ["../x.webp"])
+        register(st, ["../x.avif"])

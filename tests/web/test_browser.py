@@ -179,6 +179,11 @@ def test_viewer_plays_the_bundle_on_phones(server, bunny_scene, client, browser,
     wait_drawn(page, 0)
     page.wait_for_timeout(1500)                 # the ring preloads
     g0 = canvas_grid(page)
+    # Chromium decodes AVIF: the frames come from the AVIF set; a browser without it gets the JPEGs
+    shown = [u for u in requests if "/v1/bundle-files/" in u and u.endswith((".avif", ".jpg"))]
+    assert shown and all(u.endswith(".avif") for u in shown), shown[:4]
+    assert page.evaluate("""() => { const p = window.glintViewer, f = p.entry(0, 0, 0, 0);
+        p.avif = false; const u = [p.url(f, false), p.hi]; p.avif = true; return u; }""")[0].endswith(".jpg")
     o = no_overflow(page)
     assert o["sw"] <= o["w"], o                                       # portrait: nothing sticks out sideways
     bb = page.locator("#view").bounding_box()

@@ -5,28 +5,29 @@
 // The manifest format is documented in docs/guides/publishing.md. Standalone (no imports), so a
 // downloaded bundle's index.html runs it from any static host.
 
-const WEBP_PROBE = "data:image/webp;base64,UklGRiIAAABXRUJQVlA4IBYAAAAwAQCdASoBAAEADsD+JaQAA3AAAAAA";
+// a 1 × 1 AVIF (Pillow, speed 10): browsers that decode it get the AVIF sets, others the JPEG frames
+const AVIF_PROBE = "data:image/avif;base64,AAAAIGZ0eXBhdmlmAAAAAGF2aWZtaWYxbWlhZk1BMUIAAADrbWV0YQAAAAAAAAAhaGRscgAAAAAAAAAAcGljdAAAAAAAAAAAAAAAAAAAAAAOcGl0bQAAAAAAAQAAAB5pbG9jAAAAAEQAAAEAAQAAAAEAAAETAAAAIQAAAChpaW5mAAAAAAABAAAAGmluZmUCAAAAAAEAAGF2MDFDb2xvcgAAAABqaXBycAAAAEtpcGNvAAAAFGlzcGUAAAAAAAAAAQAAAAEAAAAQcGl4aQAAAAADCAgIAAAADGF2MUOBAAwAAAAAE2NvbHJuY2x4AAEADQAGgAAAABdpcG1hAAAAAAAAAAEAAQQBAoMEAAAAKW1kYXQSAAoIGAAGiAhoNCAyExlHh4Yhh5555oJAAJBAyRxhQr4=";
 const PARALLEL = 6;          // image loads at once (a browser's per-host limit)
 const MAX_ZOOM = 2.5;
 
-function webpSupported() {
+function avifSupported() {
   return new Promise((resolve) => {
     const im = new Image();
     im.onload = () => resolve(im.width === 1);
     im.onerror = () => resolve(false);
-    im.src = WEBP_PROBE;
+    im.src = AVIF_PROBE;
   });
 }
 
 export class BundlePlayer {
   /** canvas: the stage's canvas; manifest: the bundle manifest; files: the URL prefix of its
    *  files ("/v1/bundle-files/" on the service, "files/" in a downloaded bundle). */
-  constructor(canvas, manifest, files, { webp = true } = {}) {
+  constructor(canvas, manifest, files, { avif = true } = {}) {
     this.canvas = canvas;
     this.ctx = canvas.getContext("2d");
     this.m = manifest;
     this.files = files;
-    this.webp = webp;
+    this.avif = avif;
     this.v = 0; this.e = 0;
     this.el = manifest.start?.elevation ?? 0;
     this.az = manifest.start?.azimuth ?? 0;
@@ -49,12 +50,12 @@ export class BundlePlayer {
    *  pixels than the 1× frame by a quarter (a high-DPI screen, a large window). */
   get hi() {
     const px = (this.canvas.clientWidth || this.m.width) * (window.devicePixelRatio || 1);
-    return this.webp && (this.zoom > 1.01 || px > 1.25 * this.m.width);
+    return this.avif && (this.zoom > 1.01 || px > 1.25 * this.m.width);
   }
 
   entry(v, e, el, az) { return this.m.frames[v][e][el][((az % this.A) + this.A) % this.A]; }
 
-  url(f, two) { return this.files + (two ? f.webp2 : (this.webp ? f.webp1 : f.jpeg1)); }
+  url(f, two) { return this.files + (two ? f.avif2 : (this.avif ? f.avif1 : f.jpeg1)); }
 
   /** The files to have, most wanted first: the frame on screen, its ring by azimuth distance,
    *  then the other elevations' rings; with the 2× set after its 1× frame when needed. */
@@ -96,7 +97,7 @@ export class BundlePlayer {
       for (const s of d ? [d, -d] : [0]) {
         const f = this.entry(this.v, this.e, this.el, this.az + s);
         for (const two of want2 ? [true, false] : [false, true]) {
-          if (two && !this.webp) continue;
+          if (two && !this.avif) continue;
           const u = this.url(f, two), r = this.images.get(u);
           if (r && r.ok) return { u, img: r.img, two, exact: s === 0 };
         }
@@ -168,7 +169,7 @@ export class BundlePlayer {
    *  part), as a Blob. */
   async screenshot() {
     const f = this.entry(this.v, this.e, this.el, this.az);
-    const u = this.url(f, this.webp);
+    const u = this.url(f, this.avif);
     const img = await new Promise((resolve, reject) => {
       const r = this.images.get(u);
       if (r && r.ok) return resolve(r.img);
@@ -303,9 +304,9 @@ export function uiElements(doc = document) {
 
 /** Play a manifest in the page's viewer markup; returns the player. */
 export async function play(manifest, files, ui = uiElements()) {
-  const webp = await webpSupported();
+  const avif = await avifSupported();
   ui.stage.style.aspectRatio = `${manifest.width} / ${manifest.height}`;
-  const player = new BundlePlayer(ui.canvas, manifest, files, { webp });
+  const player = new BundlePlayer(ui.canvas, manifest, files, { avif });
   player.onfirst = () => { ui.status.textContent = ""; ui.status.classList.add("hidden"); };
   attachControls(player, ui.stage);
   buildUi(player, ui, manifest.name);

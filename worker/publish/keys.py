@@ -14,9 +14,9 @@ from __future__ import annotations
 import hashlib
 import json
 
-FRAME_FORMAT = 2          # 2: the 1× frame tone-mapped in the same pass as the 2× (glk_tonemap_pair)
+FRAME_FORMAT = 3          # 2: the 1× frame tone-mapped in the same pass as the 2× (glk_tonemap_pair); 3: AVIF
 # the encoded files of one frame: its name in the manifest -> (PartStore key suffix, extension)
-FILES = {"webp1": ".webp", "jpeg1": ".jpg", "webp2": ".webp"}
+FILES = {"avif1": ".avif", "jpeg1": ".jpg", "avif2": ".avif"}
 
 
 def _digest(obj) -> str:

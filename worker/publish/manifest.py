@@ -10,7 +10,7 @@ The manifest is the one file a viewer reads first (docs/guides/publishing.md doc
      "start": {"elevation": index, "azimuth": index},
      "variants": [{"label": str, "swatch": "#rrggbb"}], "environments": [{"label": str}],
      "ground_shadow": bool, "live": bool,
-     "frames": [[[[{"webp1": file, "jpeg1": file, "webp2": file} × A] × E] × environments] × variants],
+     "frames": [[[[{"avif1": file, "jpeg1": file, "avif2": file} × A] × E] × environments] × variants],
      "model": {"glb": file, "bytes": n, "summary": str} or None,   # every variant in one glTF binary
      "files": count, "bytes": total}
 
