@@ -396,6 +396,7 @@ COMMAND_MODULES: list[str] = [
     "worker.capture.cli",
     "worker.renderers.cuts.fields_cli",      # glint field trace | bench (cut fields of movable objects)
     "worker.export.cli",                     # glint export (glTF, MaterialX, Mitsuba 3)
+    "worker.mesh_repair",                    # glint mesh check (what loading repairs)
 ]
 
 

@@ -67,7 +67,8 @@ def inspect_upload(path: str | Path, kind: str, limits: dict) -> dict:
             if len(m.faces) > limits.get("max_mesh_faces", 8_000_000):
                 raise GlintError(f"{len(m.faces)} triangles is more than the limit of {limits['max_mesh_faces']}", 413)
             lo, hi = m.vertices.min(0), m.vertices.max(0)
-            return {"vertices": int(len(m.vertices)), "faces": int(len(m.faces)), "bounds": [lo.tolist(), hi.tolist()]}
+            return {"vertices": int(len(m.vertices)), "faces": int(len(m.faces)), "bounds": [lo.tolist(), hi.tolist()],
+                    "repair": m.repair}
         w, h = image_size(path)
         if kind == "envmap":
             from .envmap import load_envmap

@@ -263,6 +263,7 @@ class Mesh:
         self.vertices = np.ascontiguousarray(vertices, dtype=np.float32)
         self.faces = np.ascontiguousarray(faces, dtype=np.int32)
         self.normals = np.ascontiguousarray(normals, dtype=np.float32)
+        self.repair: dict = {}      # what load_mesh repaired (worker.mesh_repair.repair's report)
 
 
 def area_weighted_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -325,7 +326,8 @@ def load_mesh(path: str | Path, transform: Transform | None = None) -> Mesh:
 
     Vertex normals come from the file when present (OBJ `vn`, PLY nx/ny/nz, glTF NORMAL),
     otherwise they are area-weighted face normals (docs/design/conventions.md). A glTF scene's node
-    transforms apply to positions and (inverse-transposed) to its normals.
+    transforms apply to positions and (inverse-transposed) to its normals. The mesh is repaired
+    (worker.mesh_repair.repair; its report is ``Mesh.repair``); SceneError when nothing survives.
     """
     import trimesh
 
@@ -359,13 +361,19 @@ def load_mesh(path: str | Path, transform: Transform | None = None) -> Mesh:
             n = _unit_or(n @ np.linalg.inv(T[:3, :3]), area_weighted_normals(v, f))
         verts.append(v); faces.append(f + base); normals.append(n); base += len(v)
     v = np.concatenate(verts); f = np.concatenate(faces); n = np.concatenate(normals)
-    if not np.isfinite(v).all():
-        raise SceneError(f"{path}: vertex coordinates contain NaN or infinity")
+    from .mesh_repair import MeshRejected, repair
+
+    try:
+        v, f, n, report = repair(v, f, n)
+    except MeshRejected as e:
+        raise SceneError(f"{path}: {e}") from None
     if transform is not None:
         m = transform.matrix()
         v = v @ m[:3, :3].T + m[:3, 3]
         n = _unit_or(n @ np.linalg.inv(m[:3, :3]), area_weighted_normals(v, f))  # inverse transpose
-    return Mesh(v, f, n)
+    mesh = Mesh(v, f, n)
+    mesh.repair = report
+    return mesh
 
 
 class LoadedScene:

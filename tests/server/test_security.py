@@ -203,7 +203,9 @@ def test_uploads_are_read_in_a_child(client):
     done.set()
     t.join()
     assert r.status_code == 201, r.text
-    assert r.json()["meta"]["faces"] == 100_000, r.json()["meta"]
+    meta = r.json()["meta"]
+    rep = meta["repair"]                           # random indices repeat: those faces are dropped
+    assert rep["faces_in"] == 100_000 and meta["faces"] == rep["faces_out"] > 99_000, meta
     # the read took `took` seconds; a health check that waited for it would take as long
     assert len(lat) >= 3 and max(lat) < 0.5 * took, \
         f"{len(lat)} health checks during a {took:.2f} s upload, the slowest {max(lat or [0]):.3f} s"

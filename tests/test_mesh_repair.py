@@ -1,0 +1,155 @@
+"""Mesh repair on load (worker.mesh_repair), on real meshes with defects built from them."""
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import trimesh
+
+from worker.inspect import inspect_upload
+from worker.mesh_repair import MeshRejected, changed, repair
+from worker.scene import SceneError, load_mesh
+
+
+@pytest.fixture(scope="module")
+def bunny(shared_assets):
+    m = trimesh.load(str(shared_assets / "meshes" / "bunny.ply"), process=False)
+    return np.asarray(m.vertices, np.float64), np.asarray(m.faces, np.int64)
+
+
+def _obj(path, v, f, vn=None):
+    lines = [f"v {a:.9g} {b:.9g} {c:.9g}" for a, b, c in v]
+    if vn is not None:
+        lines += [f"vn {a:.9g} {b:.9g} {c:.9g}" for a, b, c in vn]
+        lines += [f"f {a}//{a} {b}//{b} {c}//{c}" for a, b, c in f + 1]
+    else:
+        lines += [f"f {a} {b} {c}" for a, b, c in f + 1]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_a_clean_real_mesh_is_left_alone(bunny):
+    v, f = bunny
+    v2, f2, _, rep = repair(v, f)
+    assert not changed(rep), rep
+    assert np.array_equal(f2, f) and np.array_equal(v2, v)
+
+
+def test_duplicated_faces_are_dropped_in_any_order(bunny):
+    v, f = bunny
+    dup = np.concatenate([f, f[:40], f[40:80, [1, 2, 0]], f[80:100, ::-1]])
+    _, f2, _, rep = repair(v, dup)
+    assert rep["duplicate_faces"] == 100 and len(f2) == len(f), rep
+    assert np.array_equal(f2, f)                     # the first occurrence is kept, in order
+
+
+def test_duplicated_vertices_still_find_duplicate_faces(bunny):
+    """A copy of the first 50 faces on copies of their vertices: same positions, new indices."""
+    v, f = bunny
+    extra = f[:50] + len(v)
+    v2, f2, _, rep = repair(np.concatenate([v, v]), np.concatenate([f, extra]))
+    assert rep["duplicate_vertices"] == len(v) and rep["duplicate_faces"] == 50, rep
+    assert rep["unreferenced_vertices"] == len(v) and len(v2) == len(v) and len(f2) == len(f), rep
+
+
+def test_degenerate_triangles_are_dropped(bunny):
+    v, f = bunny
+    repeated = f[:30].copy(); repeated[:, 2] = repeated[:, 0]
+    mid = len(v)
+    v2 = np.concatenate([v, 0.5 * (v[f[:20, 0]] + v[f[:20, 1]])])  # collinear third vertex
+    collinear = np.stack([f[:20, 0], f[:20, 1], mid + np.arange(20)], 1)
+    out_v, out_f, _, rep = repair(v2, np.concatenate([f, repeated, collinear]))
+    assert rep["degenerate_faces"] == 50 and len(out_f) == len(f), rep
+    assert rep["unreferenced_vertices"] == 20 and len(out_v) == len(v), rep
+
+
+def test_a_nan_vertex_drops_its_faces_not_the_mesh(bunny):
+    v, f = bunny
+    v = v.copy(); v[7] = np.nan
+    users = int((f == 7).any(axis=1).sum())
+    v2, f2, _, rep = repair(v, f)
+    assert rep["nonfinite_vertices"] == 1 and rep["faces_on_nonfinite"] == users > 0, rep
+    assert np.isfinite(v2).all() and len(f2) == len(f) - users and len(v2) == len(v) - 1
+
+
+def test_infinite_vertices_with_normals_keep_normals_aligned(bunny):
+    v, f = bunny
+    n = trimesh.Trimesh(v, f, process=False).vertex_normals.copy()
+    v = v.copy(); v[[3, 900]] = np.inf
+    v2, _, n2, rep = repair(v, f, n)
+    keep = np.ones(len(v), bool); keep[[3, 900]] = False
+    assert rep["unreferenced_vertices"] == 2 and np.array_equal(n2, n[keep]), rep
+
+
+def test_a_mesh_of_only_degenerate_faces_is_refused(bunny):
+    v, f = bunny
+    f = f[:10].copy(); f[:, 1] = f[:, 0]
+    with pytest.raises(MeshRejected, match="no usable triangle: 10 faces read, 10 degenerate") as e:
+        repair(v, f)
+    assert e.value.status == 422
+
+
+def test_the_loader_refuses_an_all_nan_mesh_with_a_reason(tmp_path, bunny):
+    v, f = bunny
+    p = _obj(tmp_path / "nan.obj", np.full((3, 3), np.nan), np.array([[0, 1, 2]]))
+    with pytest.raises(SceneError, match=r"nan\.obj: no usable triangle.*1 on NaN/infinite"):
+        load_mesh(p)
+
+
+def test_the_loader_reports_what_it_repaired(tmp_path, bunny):
+    v, f = bunny
+    p = _obj(tmp_path / "bad.obj", v, np.concatenate([f, f[:5]]))
+    m = load_mesh(p)
+    assert m.repair["duplicate_faces"] == 5 and len(m.faces) == len(f), m.repair
+    assert changed(m.repair)
+
+
+def test_a_mesh_with_normals_keeps_them_through_repair(tmp_path, bunny):
+    """The file's normals (here deliberately all +z, unlike any computed normal) survive the
+    removal of a NaN vertex, on the right vertices."""
+    v, f = bunny
+    v = v.copy(); v[0] = np.nan
+    vn = np.tile([0.0, 0.0, 1.0], (len(v), 1)); vn[5] = [1.0, 0.0, 0.0]
+    m = load_mesh(_obj(tmp_path / "n.obj", v, f, vn))
+    assert m.repair["unreferenced_vertices"] >= 1 and np.isfinite(m.vertices).all(), m.repair
+    i5 = int(np.argmin(np.linalg.norm(m.vertices - v[5], axis=1)))
+    assert np.allclose(m.normals[i5], [1, 0, 0]), m.normals[i5]
+    others = np.delete(m.normals, i5, axis=0)
+    assert np.allclose(others, [0, 0, 1]), others[:3]
+
+
+def test_upload_meta_carries_the_repair_report(tmp_path, bunny):
+    v, f = bunny
+    p = _obj(tmp_path / "up.obj", v, np.concatenate([f, f[:3, ::-1]]))
+    meta = inspect_upload(p, "mesh", {})
+    assert meta["repair"]["duplicate_faces"] == 3 and meta["faces"] == len(f), meta
+
+
+def test_the_upload_refusal_names_the_upload_not_the_path(tmp_path):
+    p = _obj(tmp_path / "flat.obj", np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0]], float), np.array([[0, 1, 2]]))
+    with pytest.raises(Exception, match="the upload: no usable triangle") as e:
+        inspect_upload(p, "mesh", {})
+    assert getattr(e.value, "status", None) == 422 and str(tmp_path) not in str(e.value)
+
+
+def test_the_real_ford_focus_loses_its_degenerate_and_duplicate_faces(shared_assets):
+    """The car as downloaded: degenerate and duplicate faces in the file itself."""
+    p = shared_assets / "meshes" / "fordFocus" / "fordFocus.obj"
+    if not p.is_file():
+        pytest.skip("fordFocus not fetched")
+    m = load_mesh(p)
+    r = m.repair
+    assert r["degenerate_faces"] > 0 and r["duplicate_faces"] > 0, r
+    a = np.linalg.norm(np.cross(*(m.vertices[m.faces[:, k]] - m.vertices[m.faces[:, 0]] for k in (1, 2))), axis=1)
+    assert (a > 0).all() and len(np.unique(np.sort(m.faces, 1), axis=0)) == len(m.faces)
+
+
+def test_glint_mesh_check_prints_the_report(tmp_path, bunny):
+    v, f = bunny
+    p = _obj(tmp_path / "c.obj", v, np.concatenate([f, f[:2]]))
+    out = subprocess.run([sys.executable, "-m", "glint", "mesh", "check", str(p)], capture_output=True,
+                         text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    rep = json.loads(out.stdout)
+    assert rep["changed"] and rep["repair"]["duplicate_faces"] == 2, rep
