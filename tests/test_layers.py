@@ -10,7 +10,7 @@ IMPORT = r"^\s*(?:from|import)\s+({})\b"
 
 # every command `glint --help` listed before the command line was split into layers
 COMMANDS = {"precompute", "render", "fit", "bench", "serve", "token", "openapi", "schema", "db", "assets", "demo",
-            "gi", "paint", "capture", "capture-synth", "field", "bench-ray", "export", "nginx-conf"}
+            "gi", "paint", "capture", "capture-synth", "field", "bench-ray", "export", "nginx-conf", "mesh"}
 BENCHMARKS = {"render", "fit", "stream", "load", "move", "recovery", "strokes", "export-recovery", "accuracy", "publish",
               "viewer"}
 
