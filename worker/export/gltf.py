@@ -150,7 +150,7 @@ def write_glb(path: Path, meshes: list[ObjectMesh], default: list[BRDFModel], va
             at = gl.Attributes(POSITION=a_pos, NORMAL=a_nrm)
             for name, acc in attrs.items():
                 if name.startswith("_"):
-                    setattr(at, name, acc)      # application-specific semantics (glTF 2.0 §3.7.2.1)
+                    setattr(at, name, acc)      # glTF 2.0: application-specific attribute semantics start with "_"
             prim = gl.Primitive(attributes=at, indices=a_idx, material=material_of(which[0]), mode=gl.TRIANGLES)
             if variants:
                 mappings = {}
