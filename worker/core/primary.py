@@ -18,18 +18,14 @@ from __future__ import annotations
 import numpy as np
 
 from ..native.kernels import kernels as _kernels
-from .render import sample_offsets
+from .render import camera_axes, sample_offsets
 
 
 def camera_params(eye, target, up, fov_y_deg: float, width: int, height: int) -> np.ndarray:
     """(14,) float64: eye, right, up, forward (unit world axes, the camera model of
     core.render.camera_rays) and the pixel scales W/(2·tan(fov/2)·aspect), H/(2·tan(fov/2))."""
     eye = np.asarray(eye, np.float64)
-    fwd = np.asarray(target, np.float64) - eye
-    fwd /= np.linalg.norm(fwd)
-    right = np.cross(fwd, np.asarray(up, np.float64))
-    right /= np.linalg.norm(right)
-    true_up = np.cross(right, fwd)
+    right, true_up, fwd = camera_axes(eye, target, up)
     t = np.tan(np.radians(float(fov_y_deg)) / 2.0)
     w, h = float(width), float(height)
     return np.concatenate([eye, right, true_up, fwd, [w / (2.0 * t * (w / h)), h / (2.0 * t)]])

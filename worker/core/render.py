@@ -44,15 +44,20 @@ def camera_rays(eye, target, up, fov_y_deg: float, width: int, height: int, samp
     return np.broadcast_to(np.asarray(eye, np.float32), d.shape).copy(), d
 
 
-def camera_dirs(eye, target, up, fov_y_deg: float, width: int, height: int, samples: int = 1, kernels=None):
-    """The (H*W*S, 3) float32 unit directions of ``camera_rays`` alone (every ray starts at the
-    eye: a renderer that traces some of them makes their origins itself)."""
+def camera_axes(eye, target, up) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(right, up, forward): the camera's unit axes in world space, each (3,) float64."""
     eye = np.asarray(eye, np.float64)
     fwd = np.asarray(target, np.float64) - eye
     fwd /= np.linalg.norm(fwd)
     right = np.cross(fwd, np.asarray(up, np.float64))
     right /= np.linalg.norm(right)
-    true_up = np.cross(right, fwd)
+    return right, np.cross(right, fwd), fwd
+
+
+def camera_dirs(eye, target, up, fov_y_deg: float, width: int, height: int, samples: int = 1, kernels=None):
+    """The (H*W*S, 3) float32 unit directions of ``camera_rays`` alone (every ray starts at the
+    eye: a renderer that traces some of them makes their origins itself)."""
+    right, true_up, fwd = camera_axes(eye, target, up)
     basis = np.stack([right, true_up, fwd]).astype(np.float32)       # rows: camera axes in world
     return (kernels or _kernels()).rotate_dirs(_camera_space_dirs(float(fov_y_deg), int(width), int(height),
                                                                    int(samples)), basis)
