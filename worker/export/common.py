@@ -116,15 +116,20 @@ def layer_materials(m: BRDFModel) -> list[BRDFModel]:
     return [m]
 
 
+def check_regions(m: BRDFModel, om: ObjectMesh) -> None:
+    """ExportError when ``m`` has regions painted on a mesh of another size than ``om``'s object."""
+    if has_regions(m) and m.vertex_count != om.n_vertices:
+        raise ExportError(f"object {om.name!r}: its material's regions were painted on a mesh of "
+                          f"{m.vertex_count} vertices, but the object has {om.n_vertices}")
+
+
 def region_weights(m: BRDFModel, om: ObjectMesh) -> np.ndarray:
     """A regions material's raw weights on the exported vertices of ``om``: w (K, V) float32, one
     row per region (bottom first), the w_k of L_k = (1 − w_k) L_{k−1} + w_k L_region_k; (0, V) for a
     plain material. ExportError when the regions were painted on a mesh of another size."""
     if not has_regions(m):
         return np.zeros((0, len(om.vertices)), np.float32)
-    if m.vertex_count != om.n_vertices:
-        raise ExportError(f"object {om.name!r}: its material's regions were painted on a mesh of "
-                          f"{m.vertex_count} vertices, but the object has {om.n_vertices}")
+    check_regions(m, om)
     return np.stack([r.dense(om.n_vertices)[om.vertex_ids] for r in m.regions]).astype(np.float32)
 
 
@@ -140,7 +145,7 @@ def effective_weights(m: BRDFModel, om: ObjectMesh) -> np.ndarray:
     (Regions.layers: Σ_l a_l = 1; one row of ones for a plain material)."""
     if not has_regions(m):
         return np.ones((1, len(om.vertices)), np.float32)
-    region_weights(m, om)           # the size check
+    check_regions(m, om)
     return m.layers()[1][:, om.vertex_ids]
 
 

@@ -14,6 +14,7 @@ from .common import (
     ExportError,
     Variant,
     check_format,
+    check_regions,
     distinct_materials,
     layer_materials,
     material_key,
@@ -114,11 +115,11 @@ def export(scene: LoadedScene, fmt: str, out: Path, variants: list[Variant] | No
     labels = labels_of(scene, variants)
     default = [o.material for o in scene.spec.objects]
     for om, m in zip(meshes, default):       # regions painted on another mesh: refused before any fit
-        region_weights(m, om)
+        check_regions(m, om)
     for v in variants:
         for om in meshes:
             if om.name in v.materials:
-                region_weights(v.materials[om.name], om)
+                check_regions(v.materials[om.name], om)
     report = {"format": fmt, "objects": len(meshes), "faces": int(sum(len(m.faces) for m in meshes)),
               "variants": [v.label for v in variants], "materials": []}
     if fmt == "mitsuba":
@@ -137,8 +138,8 @@ def export(scene: LoadedScene, fmt: str, out: Path, variants: list[Variant] | No
         from .mitsuba import write_folder
 
         layers = [[fits[material_key(x)].material for x in layer_materials(o.material)] for o in scene.spec.objects]
-        regions = [([region_attribute(o.material, k) for k in range(len(getattr(o.material, "regions", [])))],
-                    region_weights(o.material, om)) for o, om in zip(scene.spec.objects, meshes)]
+        weights = [region_weights(m, om) for m, om in zip(default, meshes)]
+        regions = [([region_attribute(m, k) for k in range(len(w))], w) for m, w in zip(default, weights)]
         report["bytes"] = write_folder(out, scene, meshes, layers, regions, spp=mitsuba_spp)
     else:
         approx = {}

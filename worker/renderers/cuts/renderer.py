@@ -294,7 +294,7 @@ class CutRenderer(Renderer):
         ray is traced; the hits are the tracer's but on shared edges and silhouettes within
         rounding); ``"embree"`` traces the rays of the mesh's screen box."""
         if self.primary == "project":
-            tri, uv, _ = primary_hits(self.scene.mesh.vertices, self._faces32, camera, samples, d, self.k)
+            tri, uv, _ = primary_hits(self.scene.mesh.vertices, self.scene.mesh.faces, camera, samples, d, self.k)
             return tri, uv, 0
         rows = self._box_rows(camera, samples)
         eye = np.asarray(camera.eye, np.float32)
@@ -307,14 +307,6 @@ class CutRenderer(Renderer):
         if len(rows):
             tri[rows], uv[rows] = self._first_hit(np.broadcast_to(eye, (len(rows), 3)).copy(), d[rows])
         return tri, uv, len(rows)
-
-    @property
-    def _faces32(self) -> np.ndarray:
-        """(F, 3) int32 C-contiguous faces of the mesh, converted once (the scene's static mesh)."""
-        f = self.__dict__.get("_f32")
-        if f is None:
-            f = self.__dict__["_f32"] = np.ascontiguousarray(self.scene.mesh.faces, np.int32)
-        return f
 
     def _screen_box(self, camera) -> tuple[int, int, int, int] | None:
         """(row0, row1, col0, col1): the pixels (rows row0 ≤ y < row1, columns col0 ≤ x < col1)
