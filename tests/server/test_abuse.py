@@ -75,8 +75,11 @@ def test_a_large_scene_does_not_stall_health_checks_or_streams(server, client, b
     assert len(created.json()["spec"]["objects"]) == N_OBJECTS
     assert len(health) >= 5, health
     worst = max(health)
-    assert worst < 0.1, (f"/healthz took up to {1000 * worst:.0f} ms (median {1000 * sorted(health)[len(health) // 2]:.0f} ms) "
-                         f"while a {N_OBJECTS}-object scene ({len(body)} bytes) was created in {post_s:.2f} s")
+    # a stalled event loop holds /healthz for the whole parse (~post_s); a loaded 2-core machine
+    # alone can delay one answer by a quarter second (254 ms measured once, median 7 ms)
+    bound = max(0.1, 0.5 * post_s)
+    assert worst < bound, (f"/healthz took up to {1000 * worst:.0f} ms (median {1000 * sorted(health)[len(health) // 2]:.0f} ms) "
+                         f"while a {N_OBJECTS}-object scene ({len(body)} bytes) was created in {post_s:.2f} s; bound {1000 * bound:.0f} ms")
     during = [t for t in frames if window[0] <= t <= window[1]]
     gaps = [b - a for a, b in zip([window[0]] + during, during + [window[1]])]
     assert max(gaps) < 1.0, f"frames stopped for {max(gaps):.2f} s during the {post_s:.2f} s POST ({len(during)} frames)"
