@@ -152,6 +152,8 @@ class SessionStore:
         # the streams this process serves, by session (attach/detach run on the event loop's
         # thread; the thumbnail's read of last_frame, on a worker thread, takes a reference)
         self._streams: dict[str, SessionStreams] = {}
+        # sid -> an asyncio.Event set when the session's last stream here has ended it (routes)
+        self.ending: dict[str, object] = {}
         # sessions shared across processes (module docstring): this process's name in
         # session_servers and session_log, and its sessions there
         self.origin = new_id()

@@ -307,10 +307,24 @@ async def stream(ws: WebSocket, sid: str, token: str | None = Query(None)):
     try:
         if await _join(st, sid, conn, streams, first):
             await _serve(st, sid, conn)
+    except WebSocketDisconnect:
+        pass
+    except Exception as e:
+        # a client told why, not a dropped connection (uvicorn closes the socket without a close
+        # frame when a handler raises); the traceback goes to the log
+        log.exception("session %s: the stream failed", sid)
+        await conn.fail(1011, f"the server failed on this stream ({type(e).__name__}); reconnect", 500)
     finally:
         await conn.close()
         if st.sessions.detach(sid, conn):
-            await _session_ended(st, sid, streams)
+            # a stream that opens the session again meanwhile (a reload) waits for this (_join)
+            ended = st.sessions.ending[sid] = asyncio.Event()
+            try:
+                await _session_ended(st, sid, streams)
+            finally:
+                ended.set()
+                if st.sessions.ending.get(sid) is ended:
+                    del st.sessions.ending[sid]
 
 
 async def _join(st, sid: str, conn: _Conn, streams, first: bool) -> bool:
@@ -322,6 +336,15 @@ async def _join(st, sid: str, conn: _Conn, streams, first: bool) -> bool:
     if first:
         streams.ready = asyncio.Event()
         streams.order = asyncio.Lock()
+        prev = st.sessions.ending.get(sid)
+        if prev is not None:
+            # the session's last stream here is still ending it (a reload, a reconnect): its
+            # write-back of the cached state and its end of the worker session must not land on
+            # the ones this stream starts from
+            try:
+                await asyncio.wait_for(prev.wait(), SAVE_WAIT_S + 30.0)
+            except asyncio.TimeoutError:
+                log.warning("session %s: the previous stream's end took over %.0f s", sid, SAVE_WAIT_S + 30.0)
     try:
         if first and not conn.readonly:
             # other processes serving it too log what they store from now on (shared sessions)
