@@ -21,6 +21,9 @@ build: install
 # The service on its embedded defaults: SQLite and blobs in $$GLINT_DATA_DIR (~/.cache/glint),
 # one worker per core, the demo scene fetched and precomputed on first start.
 serve: install
+	@# the demo scene's assets before the service starts (a no-op once they are there; offline the
+	@# service falls back to its procedural scene), so the studio's first look waits for no download
+	-$(VENV)/bin/glint assets fetch --set demo
 	$(VENV)/bin/glint serve $(SERVE_ARGS)
 
 # Debian's chromium for the browser tests (installed when missing, as on a fresh machine)

@@ -200,8 +200,16 @@ def cmd_bench_viewer(a) -> int:
     return 0
 
 
+def cmd_bench_first_start(a) -> int:
+    from .first_start import bench_first_start
+
+    res = bench_first_start(data_dir=a.data_dir, timeout=a.timeout, quiet=a.json)
+    print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items()))
+    return 0
+
+
 def add_bench_commands(bsub) -> None:
-    """``glint bench render | fit | stream | load | publish | viewer`` into the subparsers of
+    """``glint bench render | fit | stream | load | publish | viewer | first-start`` into the subparsers of
     ``glint bench``."""
     from worker.cli import fit_options
     from worker.core.cuts import DEFAULT_TAU
@@ -265,6 +273,11 @@ def add_bench_commands(bsub) -> None:
     bv.add_argument("--client-nice", type=int, default=5, help="with --static: the load generator's nice level")
     bv.add_argument("--json", action="store_true")
     bv.set_defaults(fn=cmd_bench_viewer)
+    bfs = bsub.add_parser("first-start", help="a fresh `glint serve` and the studio in Chromium: seconds to the "
+                                               "first look, the first frame and the settled one")
+    bfs.add_argument("--data-dir", help="the server's data folder (default: a new empty one, removed after)")
+    bfs.add_argument("--timeout", type=float, default=900.0); bfs.add_argument("--json", action="store_true")
+    bfs.set_defaults(fn=cmd_bench_first_start)
 
 
 def add_commands(sub) -> None:

@@ -25,6 +25,9 @@ class Settings(BaseModel):
     kernels: str | None = Field(None, description="native, numpy, or unset (native when built)")
     worker_nice: int = Field(5, ge=0, le=19, description="scheduling niceness added to worker processes: under "
                              "load the server's message handling and frame sending go before rendering")
+    preview_min_vertices: int = Field(8000, ge=0, description="a precomputation of a scene with at least this many "
+                                      "vertices first draws a quick preview (worker/renderers/cuts/preview.py); smaller "
+                                      "ones are done in seconds without it")
     allow_anonymous_loopback: bool = True
     # DNS rebinding: requests must name one of these hosts (any port); the bind host is added
     allowed_hosts: list[str] = Field(default_factory=lambda: ["127.0.0.1", "localhost", "::1"])
@@ -105,7 +108,8 @@ class Settings(BaseModel):
         from worker.jobs.runner import WorkerSettings
 
         return WorkerSettings(blob_root=str(self.data_dir / "blobs"), tmp_dir=str(self.data_dir / "tmp" / f"worker-{slot}"),
-                              threads=self.threads_per_worker(), kernels=self.kernels, nice=self.worker_nice)
+                              threads=self.threads_per_worker(), kernels=self.kernels, nice=self.worker_nice,
+                              preview_min_vertices=self.preview_min_vertices)
 
     @classmethod
     def from_env(cls, **overrides) -> "Settings":

@@ -74,8 +74,10 @@ async def ensure_demo(st) -> None:
             log.info("precomputing the demo scene %s (first start only; progress follows)", sid)
             st.demo.update(state="precomputing", message="precomputing the demo scene's visibility (first start only)")
 
-            def progress(f, msg):
-                st.demo.update(progress=float(f), message=f"precomputing the demo scene: {msg} vertices")
+            def progress(f, msg, extra=None):
+                st.demo.update(progress=float(f), message=f"precomputing the demo scene: {msg}")
+                if extra and "preview" in extra:
+                    st.demo.update(preview=f"/v1/precomputations/{pid}/preview")
             if not await run_precompute(st, pid, on_progress=progress):
                 raise RuntimeError("its precomputation failed (see the log)")
         st.demo.update(state="ready", progress=1.0, message="ready")

@@ -300,7 +300,7 @@ def create_app(settings: Settings | None = None, pool=None) -> FastAPI:
     async def status(request: Request):
         """What the studio shows before a scene is ready: the demo scene's preparation
         ({"state": "off" | "fetching" | "precomputing" | "ready" | "failed", "scene_id",
-        "progress", "message"})."""
+        "progress", "message", and "preview": the URL of its first look once drawn)."""
         st = request.app.state.glint
         return {"version": VERSION, "demo": st.demo}
 

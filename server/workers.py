@@ -34,7 +34,7 @@ class JobFailed(RuntimeError):
 class WorkerPool:
     """Interface (see module docstring)."""
 
-    async def run_job(self, job: dict, on_progress: Callable[[float, str], None] | None = None) -> dict:
+    async def run_job(self, job: dict, on_progress: Callable[..., None] | None = None) -> dict:
         raise NotImplementedError
 
     def open_session(self, sid: str, payload: dict) -> asyncio.Queue:
@@ -280,7 +280,11 @@ class LocalWorkerPool(WorkerPool):
                 return
             if kind == "progress":
                 if on_progress:
-                    on_progress(p["progress"], p["message"])
+                    extra = {k: v for k, v in p.items() if k not in ("progress", "message")}
+                    if extra:       # what the job shows before it ends (a precomputation's preview)
+                        on_progress(p["progress"], p["message"], extra)
+                    else:
+                        on_progress(p["progress"], p["message"])
             elif kind == "result":
                 fut.set_result(p)
             else:

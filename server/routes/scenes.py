@@ -118,3 +118,20 @@ async def start_precompute(scene_id: str, st: State, _: Client):
 def get_precompute(pre_id: str, db: DB, _: Client):
     with http_errors():
         return pre_out(scenes.get_precomputation(db, pre_id))
+
+
+@router.get("/v1/precomputations/{pre_id}/preview", response_class=Response,
+            responses={200: {"content": {"image/jpeg": {}}, "description": "the first look (JPEG)"},
+                       404: {"description": "no such precomputation, or no preview (yet)"}})
+def get_precompute_preview(pre_id: str, st: State, db: DB, _: Client):
+    """The scene's first look, drawn at the start of its precomputation (``stats.preview``:
+    its size and the seconds it took) from cuts over 256 directions per vertex instead of
+    32 768: the object, its material and its self-shadowing, blurrier than the final frames."""
+    with http_errors():
+        p = scenes.get_precomputation(db, pre_id)
+    sha = ((p.stats or {}).get("preview") or {}).get("sha256")
+    data = st.blobs.get(sha) if sha and st.blobs.has(sha) else None
+    if data is None:
+        raise HTTPException(404, f"precomputation {pre_id!r} has no preview "
+                                 f"({'not drawn yet' if p.status in ('queued', 'running') else 'none was drawn'})")
+    return Response(data, media_type="image/jpeg", headers={"Cache-Control": "private, max-age=3600"})

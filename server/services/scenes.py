@@ -101,9 +101,15 @@ async def run_precompute(st, pre_id: str, on_progress=None) -> bool:
 
     last = [0.0, 0.0, ""]
 
-    def progress(f, msg):
+    def progress(f, msg, extra=None):
+        if extra and "preview" in extra:
+            # the job's first look (worker/renderers/cuts/preview.py): shown while it runs
+            update(stats={"preview": extra["preview"]})
         if on_progress is not None:
-            on_progress(f, msg)
+            if extra:
+                on_progress(f, msg, extra)
+            else:
+                on_progress(f, msg)
         # a new stage ("assembling and storing …") is written at once, whatever the fraction
         stage = msg.rsplit(": ", 1)[0] if ": " in msg else ""
         if f - last[0] >= 0.02 or f >= 1.0 or stage != last[2]:

@@ -40,6 +40,7 @@ export class FrameView {
       this.canvas.dataset.quick = String(!!f.header.quick);
       this.canvas.dataset.frame = String(f.header.frame);
       this.canvas.dataset.ack = String(f.header.ack);
+      delete this.canvas.dataset.preview;
     }
     if (this.readout) {
       const lat = this.stream && this.stream.latency != null ? `${this.stream.latency.toFixed(0)} ms` : "–";
@@ -48,6 +49,16 @@ export class FrameView {
         (h ? ` · render ${h.ms_render} ms${h.lod ? " (preview)" : ""}` : "");
     }
     requestAnimationFrame(() => this.tick());
+  }
+
+  // a precomputation's first look (an image Blob), drawn until the session's first frame comes
+  async showPreview(blob) {
+    const bitmap = await createImageBitmap(blob);
+    if (this.drawn) { bitmap.close(); return; }      // a frame came meanwhile: it is better
+    this.ctx.imageSmoothingEnabled = true;
+    this.ctx.drawImage(bitmap, 0, 0, this.canvas.width, this.canvas.height);
+    bitmap.close();
+    this.canvas.dataset.preview = "1";
   }
 
   // canvas CSS pixel -> frame pixel (the session's full resolution)

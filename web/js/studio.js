@@ -43,6 +43,14 @@ async function listScenes(select) {
   return { scenes, ready };
 }
 
+// a precomputation's first look (GET …/preview), drawn once while it runs
+let previewShown = null;
+async function showPreview(url) {
+  if (!url || previewShown === url) return;
+  previewShown = url;
+  try { await view.showPreview(await api(url)); } catch (err) { console.warn("no preview:", err.message); }
+}
+
 async function waitPrecompute(sceneId) {
   const bar = $("progress");
   bar.classList.remove("hidden");
@@ -51,7 +59,9 @@ async function waitPrecompute(sceneId) {
     const p = s.precomputation;
     if (p) {
       bar.value = p.progress;
-      status(`precomputing ${s.name || s.id}: ${Math.round(100 * p.progress)}% ${p.message}`);
+      if (p.stats?.preview) await showPreview(`/v1/precomputations/${p.id}/preview`);
+      status(`precomputing ${s.name || s.id}: ${Math.round(100 * p.progress)}% ${p.message}` +
+             (p.stats?.preview ? " (a first look is shown; the final image follows)" : ""));
       if (p.status === "done") break;
       if (p.status === "failed") throw new Error(`precomputation failed: ${p.message}`);
     }
@@ -502,7 +512,9 @@ async function waitDemo() {
     if (!["fetching", "precomputing"].includes(demo.state)) { bar.classList.add("hidden"); return demo; }
     bar.classList.remove("hidden");
     bar.value = demo.progress || 0;
-    status(`${demo.message} (${Math.round(100 * (demo.progress || 0))}%) — the demo opens by itself when it is ready`);
+    if (demo.preview) await showPreview(demo.preview);
+    status(`${demo.message} (${Math.round(100 * (demo.progress || 0))}%) — ` +
+           (demo.preview ? "a first look is shown; the demo opens by itself when it is ready" : "the demo opens by itself when it is ready"));
     await new Promise((r) => setTimeout(r, 700));
   }
 }

@@ -1,13 +1,17 @@
 """The worker's job handlers (precompute, render, fit, capture, export, bundle_frames), in one registry: ``JOBS``,
 job type -> handler(cache, payload, progress) -> result dict. progress : (fraction 0..1,
-message) -> None; a handler raises JobError (or GlintError, ValueError) for bad input."""
+message[, extra dict sent along: a precomputation's preview]) -> None; a handler raises JobError
+(or GlintError, ValueError) for bad input."""
 from __future__ import annotations
 
+import logging
 import os
 from pathlib import Path
 
 from .data_cache import DataCache
 from .ipc import JobError
+
+log = logging.getLogger("glint.worker")
 
 
 def _render(cache: DataCache, p: dict) -> dict:
@@ -121,6 +125,14 @@ def _precompute(cache: DataCache, p: dict, progress) -> dict:
 
     from worker.renderers import ensure
 
+    preview = {}
+    if len(sc.mesh.vertices) >= cache.settings.preview_min_vertices and any(
+           cache.parts.sha(part.key) is None for pre in pres
+           for part in pre.parts(sc, options if pre.kind == kind else {})):
+        say("a first look at the scene")
+        preview = _first_look(cache, sc)
+        if preview:
+            progress(0.0, "a first look at the scene: ready", {"preview": preview})
     manifest, flat, seconds, computed = {}, {}, 0.0, 0
     for pre in pres:
         stats = ensure(pre, sc, cache.parts, options if pre.kind == kind else {}, tick,
@@ -132,7 +144,22 @@ def _precompute(cache: DataCache, p: dict, progress) -> dict:
         seconds += stats["seconds"]
         computed += stats["computed"]
     return {"kind": kind, "parts": manifest, "stats": {**flat, "seconds": seconds, "computed": computed,
-                                                       "renderers": kinds}}
+                                                       "renderers": kinds, **({"preview": preview} if preview else {})}}
+
+
+def _first_look(cache: DataCache, sc) -> dict:
+    """The preview frame of a scene whose precomputation is about to run (renderers/cuts/
+    preview.py), stored as a blob: {"sha256", "seconds", "rays", "width", "height", "exposure"};
+    {} when it cannot be drawn (a material the cut renderer does not shade): the precomputation
+    goes on without it."""
+    from worker.renderers.cuts.preview import preview_jpeg
+
+    try:
+        jpeg, stats = preview_jpeg(sc, threads=cache.settings.threads or os.cpu_count() or 2)
+    except Exception:   # noqa: BLE001 -- a first look is optional; the precomputation is not
+        log.exception("no preview of the scene")
+        return {}
+    return {"sha256": cache.blobs.put(jpeg), **stats}
 
 
 def _capture(cache: DataCache, p: dict, progress) -> dict:

@@ -71,8 +71,9 @@ def worker_main(wid: int, requests, replies, settings: WorkerSettings, urgent=No
                 return
             jid, p = item
             try:
-                res = run_job(cache, p, lambda f, msg, jid=jid: outq.put(
-                    Reply("progress", jid, {"progress": f, "message": msg})))
+                # extra: what the job has to show before it ends (a precomputation's preview)
+                res = run_job(cache, p, lambda f, msg, extra=None, jid=jid: outq.put(
+                    Reply("progress", jid, {"progress": f, "message": msg, **(extra or {})})))
                 outq.put(Reply("result", jid, res))
             except JobError as e:
                 outq.put(Reply("error", jid, {"message": str(e), "status": e.status}))
