@@ -12,7 +12,7 @@ IMPORT = r"^\s*(?:from|import)\s+({})\b"
 COMMANDS = {"precompute", "render", "fit", "bench", "serve", "token", "openapi", "schema", "db", "assets", "demo",
             "gi", "paint", "capture", "capture-synth", "field", "bench-ray", "export", "nginx-conf", "mesh"}
 BENCHMARKS = {"render", "fit", "stream", "load", "move", "recovery", "strokes", "export-recovery", "accuracy", "publish",
-              "viewer"}
+              "viewer", "first-start"}
 
 
 def _importers(package: str, names: list[str]) -> list[str]:
