@@ -32,7 +32,9 @@ def cluster():
 
 @pytest.fixture(scope="module")
 def ray_server(cluster, tmp_path_factory, shared_assets):
-    srv = GlintServer(tmp_path_factory.mktemp("ray-data"), workers=2, env=cluster.driver_env())
+    # every precomputation draws its first look (the bunny is below the default's 8000 vertices)
+    srv = GlintServer(tmp_path_factory.mktemp("ray-data"), workers=2,
+                      env={**cluster.driver_env(), "GLINT_PREVIEW_MIN_VERTICES": "0"})
     c = httpx.Client(base_url=srv.base, timeout=120)
     mesh = c.post("/v1/assets/meshes", params={"filename": "bunny.ply"},
                   content=(shared_assets / "meshes" / "bunny.ply").read_bytes()).json()
@@ -91,6 +93,10 @@ def test_precomputation_split_across_both_nodes_is_byte_identical(ray_server, ra
     assert st["ray_nodes"] == 2 and st["ray_chunks"] >= 2 and st["backend"] == "ray", st
     assert st["vertices"] == 2826
     assert any(0 < x < 1 for x in seen), f"no progress reported between 0 and 1: {sorted(set(seen))}"
+    # the first look, drawn on the host while the cluster traced
+    assert 0 < st["preview"]["rays"] <= 256 * st["vertices"], st.get("preview")
+    look = c.get(f"/v1/precomputations/{p['id']}/preview")
+    assert look.status_code == 200 and look.content[:2] == b"\xff\xd8", look.text[:300]
     # the local reference: the same scene's part, computed in one process (tests/.cache)
     _, pre_local = get("cuts")
     (part,) = pre_local.parts(bunny_renderer.scene, {})

@@ -1,6 +1,6 @@
 """A precomputation's first look (worker/renderers/cuts/preview.py) is drawn only for scenes
 from ``preview_min_vertices``: smaller ones precompute in seconds. The first look itself, in the
-studio and through the API: tests/web/test_first_look.py."""
+studio and through the API: tests/web/test_browser.py::test_studio_follows_the_demo_precomputation."""
 
 
 def test_small_scenes_need_no_first_look(client, bunny_scene):

@@ -115,13 +115,26 @@ def test_editing_sessions_return_their_memory(server, client, bunny_scene):
             t.join()
 
     import time
+
+    def ended():
+        # every worker session of the rounds closed (a loaded machine ends them later than the
+        # clients leave), then a moment for their threads to end and release
+        for _ in range(300):
+            h = client.get("/healthz").json()
+            if h["sessions"] == 0 and h["streams"] == 0:
+                break
+            time.sleep(0.1)
+        else:
+            raise AssertionError(f"sessions still open 30 s after their clients left: {h}")
+        time.sleep(1.5)
+
     for _ in range(2):                       # warm: the scene's data and the fit's caches fill
         round_()
-    time.sleep(1.5)                          # the sessions' threads end and release
+    ended()
     first = _rss_mib(workers)
     for _ in range(3):
         round_()
-    time.sleep(1.5)
+    ended()
     second = _rss_mib(workers)
     print(f"worker RSS after two rounds of editing sessions {first:.0f} MiB, after three more {second:.0f} MiB")
     assert second - first < 0.05 * first, \

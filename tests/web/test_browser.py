@@ -328,12 +328,18 @@ def test_viewer_plays_the_bundle_on_phones(server, bunny_scene, client, browser,
 
 def test_studio_follows_the_demo_precomputation(browser, tmp_path, artifacts):
     """Someone who opens the studio while the demo scene still precomputes sees its
-    progress, and the demo opens by itself when it is ready (no reload). The demo here is the
-    bunny (GLINT_DEMO_SCENE), precomputed by a fresh server."""
+    progress and its first look (worker/renderers/cuts/preview.py), and the demo opens by
+    itself when it is ready (no reload). The demo here is the bunny (GLINT_DEMO_SCENE),
+    precomputed by a fresh server that draws a first look for any scene
+    (``preview_min_vertices`` 0; the default draws none below 8000 vertices, and the bunny has
+    2826). The first look is close to the final frame."""
+    import httpx
+    from PIL import Image
+
     from helpers import GlintServer, scene_file
 
     srv = GlintServer(tmp_path / "data", workers=1, demo=True,
-                      env={"GLINT_DEMO_SCENE": str(scene_file("bunny.json"))})
+                      env={"GLINT_DEMO_SCENE": str(scene_file("bunny.json")), "GLINT_PREVIEW_MIN_VERTICES": "0"})
     try:
         page = browser.new_page(viewport={"width": 1280, "height": 860})
         errors = []
@@ -345,15 +351,48 @@ def test_studio_follows_the_demo_precomputation(browser, tmp_path, artifacts):
         seen = page.locator("#status").inner_text()
         page.screenshot(path=str(artifacts / "web-0-demo-progress.png"))
         assert "demo" in seen and "opens by itself" in seen, seen
-        # then the scene opens without a reload and frames arrive
+        # the first look comes while the precomputation runs, before any frame of a session
+        page.wait_for_function("() => document.getElementById('view').dataset.preview === '1'", timeout=60_000)
+        assert page.evaluate("() => document.getElementById('view').dataset.frame") is None
+        assert "first look" in page.locator("#status").inner_text()
+        page.screenshot(path=str(artifacts / "web-0-demo-first-look.png"))
+        assert canvas_grid(page).std() > 5, "the first look on the canvas is blank"
+        # then the scene opens without a reload and its frames replace the first look
         wait_new_frame(page, 0, timeout=240_000)
         settle(page)
         assert canvas_grid(page).std() > 5, "the demo frame is blank"
+        assert page.evaluate("() => document.getElementById('view').dataset.preview") is None
         assert page.locator("#progress").evaluate("e => e.classList.contains('hidden')")
         assert not errors, errors
         page.close()
+        with httpx.Client(base_url=srv.base, timeout=120) as c:
+            sid = c.get("/v1/status").json()["demo"]["scene_id"]
+            sc = c.get(f"/v1/scenes/{sid}").json()
+            p, cam = sc["precomputation"], sc["spec"]["camera"]
+            info = p["stats"]["preview"]
+            # the coarse tree: at most 256 rays per vertex (the full precomputation traces up to 32 768)
+            assert 0 < info["rays"] <= 256 * p["stats"]["vertices"], info
+            assert (info["width"], info["height"]) == (cam["width"], cam["height"]), info
+            r = c.get(f"/v1/precomputations/{p['id']}/preview")
+            assert r.status_code == 200 and r.headers["content-type"] == "image/jpeg", r.text
+            first = np.asarray(Image.open(io.BytesIO(r.content)).convert("RGB"), np.float64) / 255
+
+            def png(body):
+                r = c.post("/v1/renders", json=body)
+                assert r.status_code == 200, r.text
+                return np.asarray(Image.open(io.BytesIO(r.content)).convert("RGB"), np.float64) / 255
+            final = png({"scene_id": sid})
+            black = png({"scene_id": sid, "materials": {"bunny": {"model": "lambert", "albedo": [0, 0, 0]}}})
     finally:
         srv.stop()
+    # against the final frame, on the object's pixels (where a black bunny differs from it)
+    obj = np.abs(final - black).max(axis=2) > 0.05
+    assert obj.mean() > 0.05, f"the bunny covers {obj.mean():.1%} of the frame"
+    mean_err = abs(first[obj].mean() - final[obj].mean()) / final[obj].mean()
+    pix_err = np.abs(first[obj] - final[obj]).mean() / final[obj].mean()
+    print(f"first look: {info}; against the final frame mean {mean_err:.2%}, per pixel {pix_err:.2%}")
+    assert mean_err < 0.03 and pix_err < 0.06, (f"first look vs final frame over {obj.sum()} object pixels: "
+                                               f"mean {mean_err:.1%} (bound 3%), per pixel {pix_err:.1%} (bound 6%)")
 
 
 def test_studio_paint_designer_and_lighting_capture(server, bunny_scene, browser, artifacts, tmp_path, shared_assets):

@@ -130,7 +130,7 @@ def _precompute(cache: DataCache, p: dict, progress) -> dict:
            cache.parts.sha(part.key) is None for pre in pres
            for part in pre.parts(sc, options if pre.kind == kind else {})):
         say("a first look at the scene")
-        preview = _first_look(cache, sc)
+        preview = first_look(cache, sc)
         if preview:
             progress(0.0, "a first look at the scene: ready", {"preview": preview})
     manifest, flat, seconds, computed = {}, {}, 0.0, 0
@@ -147,7 +147,7 @@ def _precompute(cache: DataCache, p: dict, progress) -> dict:
                                                        "renderers": kinds, **({"preview": preview} if preview else {})}}
 
 
-def _first_look(cache: DataCache, sc) -> dict:
+def first_look(cache: DataCache, sc) -> dict:
     """The preview frame of a scene whose precomputation is about to run (renderers/cuts/
     preview.py), stored as a blob: {"sha256", "seconds", "rays", "width", "height", "exposure"};
     {} when it cannot be drawn (a material the cut renderer does not shade): the precomputation

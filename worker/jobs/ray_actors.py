@@ -220,7 +220,7 @@ class SessionHost:
         me = ray.get_runtime_context().current_actor
         t0 = time.perf_counter()
         tl: dict = {"prepare": time.time() - w_job}
-        info, computed, ray_stats, todo, jobs = {}, 0, {}, [], []
+        info, computed, ray_stats, todo, jobs, preview = {}, 0, {}, [], [], {}
         for part in parts:
             blob = cache.parts.get(part.key)
             if blob is not None:
@@ -236,6 +236,17 @@ class SessionHost:
                 jobs.append((part, chunks, [compute_chunk.options(scheduling_strategy="SPREAD").remote(
                     shipped, kind, part, options, ch, me, jid) for ch in chunks]))
             tl["submit"] = time.time() - w_sub
+            if len(sc.mesh.vertices) >= self.settings.preview_min_vertices:
+                # the first look (renderers/cuts/preview.py), drawn here while the cluster traces
+                from .handlers import first_look
+
+                preview = first_look(cache, sc)
+                if preview:
+                    with self._jobs_lock:
+                        st = self._jobs.get(jid) or [0, 1, 0.0]
+                    self.replies.send(("progress", jid, {"progress": min(1.0, st[0] / st[1]),
+                                                         "message": "a first look at the scene: ready",
+                                                         "preview": preview}))
         for part, chunks, refs in jobs:
             results = ray.get(refs)                 # in chunk order, whatever order they finished in
             w_res = time.time()
@@ -266,7 +277,7 @@ class SessionHost:
         tl["job"] = time.time() - w_job
         return {"kind": kind, "parts": manifest,
                 "stats": {**flat, "seconds": time.perf_counter() - t0, "computed": computed, "backend": "ray",
-                          "timeline": tl}}
+                          "timeline": tl, **({"preview": preview} if preview else {})}}
 
 
 def guided(pieces: list, cpus: int) -> list:
