@@ -332,7 +332,7 @@ def bench_viewer_static(publication: str, data_dir: str, clients: int = 1000, ra
         frames = sum(1 for u in shop["urls"] if u.startswith("/v1/bundle-files/"))
         out = {"publication": publication, "clients": clients, "shopper": {
             "requests": len(shop["urls"]), "frame_requests": frames, "on_open": shop["on_open"],
-            "first_image_ms": shop["first_image_ms"],
+            "first_image_ms": shop["first_image_ms"], "turn": shop["turn"],
             "viewport": shop["viewport"], "dpr": shop["dpr"], "first": shop["urls"][:6]}, "runs": []}
         mem0, cpu0 = srv.memory(), srv.cpu_seconds()
         for rate in rates:

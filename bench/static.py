@@ -130,12 +130,64 @@ PRELOADED = ("() => { const p = window.glintViewer; if (!p || p.loading) return 
              " for (const u of p.wanted()) if (!p.images.has(u)) return false; return true; }")
 
 
+# A shopper's fastest turn, driven by real pointer events on the stage inside the page (Playwright's
+# mouse moves arrive at the Python client's pace, not the display's): one pointermove per
+# animation frame, each far enough for one azimuth step, for two full turns. Per tick: the rAF
+# interval, the time the handler takes (hit test, pick, drawImage) and whether the frame drawn
+# is the requested azimuth (not a neighbour's stand-in).
+TURN = """async () => {
+  const p = window.glintViewer, stage = document.getElementById('stage');
+  const r = stage.getBoundingClientRect(), step = (1.5 * r.width) / p.A + 0.01;
+  const ev = (type, x) => new PointerEvent(type, {pointerId: 7, clientX: x, clientY: r.top + r.height / 2,
+                                                  bubbles: true, isPrimary: true, pointerType: 'mouse'});
+  const capture = stage.setPointerCapture;
+  stage.setPointerCapture = () => {};             // synthetic pointers have no capture to take
+  let x = r.left + r.width / 2;
+  stage.dispatchEvent(ev('pointerdown', x));
+  const ticks = [], handler = [], exact = [], drawn0 = p.drawn, n = 2 * p.A;
+  await new Promise((resolve) => {
+    const tick = (t) => {
+      ticks.push(t);
+      if (ticks.length > n) return resolve();
+      const want = p.az, t0 = performance.now();
+      x -= step;
+      stage.dispatchEvent(ev('pointermove', x));
+      handler.push(performance.now() - t0);
+      exact.push(p.az !== want && p.shown === p.url(p.entry(p.v, p.e, p.el, p.az), p.hi) ? 1 : 0);
+      requestAnimationFrame(tick);
+    };
+    requestAnimationFrame(tick);
+  });
+  stage.dispatchEvent(ev('pointerup', x));
+  stage.setPointerCapture = capture;
+  const iv = ticks.slice(1).map((t, i) => t - ticks[i]);
+  return {ticks: n, drawn: p.drawn - drawn0, seconds: (ticks[n] - ticks[0]) / 1000,
+          intervals_ms: iv, handler_ms: handler, exact: exact.reduce((a, b) => a + b, 0)};
+}"""
+
+
+def turn_rate(page) -> dict:
+    """The viewer turning as fast as its bundle allows (``TURN``: one azimuth step per animation
+    frame, two full turns, after the preload). Returns {"fps": frames drawn per second of the
+    turn, "display_fps": the page's animation-frame rate meanwhile (the screen's rate in a
+    browser that is keeping up), "handler_p50_ms" / "handler_p95_ms": pointer handler plus draw,
+    "exact_fraction": ticks that showed the requested azimuth, "ticks", "drawn": frames drawn}."""
+    r = page.evaluate(TURN)
+    iv, h = sorted(r["intervals_ms"]), sorted(r["handler_ms"])
+    q = lambda xs, f: round(xs[min(len(xs) - 1, int(f * len(xs)))], 2)  # noqa: E731
+    return {"ticks": r["ticks"], "drawn": r["drawn"], "fps": round(r["drawn"] / r["seconds"], 1),
+            "display_fps": round(r["ticks"] / r["seconds"], 1), "interval_p95_ms": q(iv, 0.95),
+            "handler_p50_ms": q(h, 0.5), "handler_p95_ms": q(h, 0.95),
+            "exact_fraction": round(r["exact"] / r["ticks"], 3)}
+
+
 def shopper_requests(base: str, pid: str, viewport=(1280, 860), dpr: float = 1.0, settle_s: float = 60.0) -> dict:
     """The requests a real shopper's browser makes: Chromium opens ``/view/<pid>`` on ``base``
     (a cold cache), its player preloads the bundle, then the shopper picks the second variant
     and the player preloads that; recorded until the player has nothing left to load (turning
-    afterwards requests nothing). Returns {"urls": [path?query in request order],
-    "on_open": requests before the variant switch, "first_image_ms", "viewport", "dpr"}."""
+    afterwards requests nothing: ``turn_rate`` turns it between the two and counts its requests).
+    Returns {"urls": [path?query in request order], "on_open": requests before the variant
+    switch, "first_image_ms", "viewport", "dpr", "turn": turn_rate's figures and "requests"}."""
     from urllib.parse import urlsplit
 
     from playwright.sync_api import sync_playwright
@@ -157,6 +209,8 @@ def shopper_requests(base: str, pid: str, viewport=(1280, 860), dpr: float = 1.0
             page.wait_for_function(PRELOADED, timeout=int(settle_s * 1000))
             time.sleep(0.5)
             on_open = len(urls)
+            turn = turn_rate(page)          # after the preload: turning requests nothing
+            turned = len(urls) - on_open
             if page.locator(".swatch").count() > 1:
                 page.locator(".swatch").nth(1).click()
                 page.wait_for_function(PRELOADED, timeout=int(settle_s * 1000))
@@ -169,7 +223,7 @@ def shopper_requests(base: str, pid: str, viewport=(1280, 860), dpr: float = 1.0
         s = urlsplit(u)
         paths.append(s.path + (f"?{s.query}" if s.query else ""))
     return {"urls": paths, "on_open": on_open, "first_image_ms": round(first, 1), "viewport": list(viewport),
-            "dpr": dpr}
+            "dpr": dpr, "turn": dict(turn, requests=turned)}
 
 
 def h2load(base: str, paths: list[str], clients: int, rate: int, streams: int = 6, threads: int = 1,

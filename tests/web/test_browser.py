@@ -223,6 +223,16 @@ def test_viewer_plays_the_bundle_on_phones(server, bunny_scene, client, browser,
     assert not [u for u in during if "/sessions" in u or "/v1/renders" in u or "/stream" in u], during
     assert all("/v1/bundle-files/" in u for u in during), during       # at most the frames not yet preloaded
 
+    # turning as fast as the bundle allows (one azimuth per animation frame, real pointer events in
+    # the page, bench/static.py): every tick draws the requested frame, and nothing is requested
+    from bench.static import PRELOADED, turn_rate
+
+    page.wait_for_function(PRELOADED, timeout=30_000)
+    before = len(requests)
+    t = turn_rate(page)
+    assert t["ticks"] == 24 and t["drawn"] == 24 and t["exact_fraction"] == 1.0, t
+    assert requests[before:] == [], requests[before:]
+
     # another variant and another lighting preset
     page.locator(".swatch").nth(1).click()
     page.wait_for_timeout(800)
