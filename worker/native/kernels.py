@@ -151,13 +151,13 @@ class NativeKernels(_Families):
             raise RuntimeError("the C kernels are not built (make build)")
         self._shade = bind(
             "glk_shade_points", None, P=i64, normals=f32p, wo_dirs=f32p, cut_of=i32p, mat_of=i32p,
-            cut_off=i64p, cut_h=u8p, cut_q=u8p, node8=f32p, node_dir=f32p, node_radius=f32p,
+            cut_off=i64p, cut_h=u8p, cut_q=u8p, node8=f32p, node_dir=f32p, node_radius=f32p, node_cs=f32p,
             level_off=i64p, H=i32, mat_kind=i32p, mat_params=f32p, mat_refine=f32p, mat_extent=f32p,
             tables=f32p, table_off=i64p, out=f32p)
         self._blend = bind(
             "glk_shade_blend", None, P=i64, normals=f32p, wo_dirs=f32p, verts=i32p, bary=f32p, mat_of=i32p,
             G=i64, group=i64p, cut_off=i64p, cut_h=u8p, cut_q=u8p, node8=f32p, node_dir=f32p, node_radius=f32p,
-            level_off=i64p, H=i32, mat_kind=i32p, mat_params=f32p, mat_refine=f32p, mat_extent=f32p,
+            node_cs=f32p, level_off=i64p, H=i32, mat_kind=i32p, mat_params=f32p, mat_refine=f32p, mat_extent=f32p,
             tables=f32p, table_off=i64p, out=f32p)
         self._simd = bind("glk_shade_simd", i32, want=i32)
         self._light = bind(
@@ -231,7 +231,7 @@ class NativeKernels(_Families):
             cut_c[no_kernel] = -1                                      # the kernel writes zeros there
         self._shade(p, c(normals, np.float32), c(wo, np.float32), cut_c, mat_of, c(cuts.offsets, np.int64),
                     c(cuts.heights, np.uint8), c(cuts.quant, np.uint8), c(node8, np.float32),
-                    tree.node_dir, tree.node_radius, c(tree.level_offset, np.int64),
+                    tree.node_dir, tree.node_radius, _node_cs(tree), c(tree.level_offset, np.int64),
                     tree.height, kind, mats.params, mats.refine, mats.extent, mats.tables, mats.table_off, out)
         if no_kernel.any():
             from ..core.render import shade_points_numpy
@@ -270,8 +270,8 @@ class NativeKernels(_Families):
         self._blend(p, c(np.asarray(normals)[order], np.float32), c(np.asarray(wo)[order], np.float32), c(vs, np.int32),
                     c(np.asarray(bary, np.float32).reshape(-1, 3)[order], np.float32), c(ms, np.int32),
                     len(group) - 1, group, c(cuts.offsets, np.int64), c(cuts.heights, np.uint8), c(cuts.quant, np.uint8),
-                    c(node8, np.float32), tree.node_dir, tree.node_radius, c(tree.level_offset, np.int64),
-                    tree.height, kind, mats.params, mats.refine, mats.extent, mats.tables, mats.table_off, res)
+                    c(node8, np.float32), tree.node_dir, tree.node_radius, _node_cs(tree),
+                    c(tree.level_offset, np.int64), tree.height, kind, mats.params, mats.refine, mats.extent, mats.tables, mats.table_off, res)
         out[order] = res
         if no_kernel.any():
             from ..core.render import shade_blend_numpy
@@ -444,8 +444,8 @@ _CS: dict = {}
 
 
 def _node_cs(tree) -> np.ndarray:
-    """(2N−1, 2) float32 (cos R, sin R) of every tree node's radius (glk_fit_transfer's walk
-    compares cosines instead of taking an acos per node); kept per tree."""
+    """(2N−1, 2) float32 (cos R, sin R) of every tree node's radius (the shading and transfer
+    kernels' cluster walks compare cosines instead of taking a cos or acos per node); kept per tree."""
     if id(tree) not in _CS:
         r = tree.node_radius.astype(np.float64)
         _CS[id(tree)] = (tree, np.ascontiguousarray(np.stack([np.cos(r), np.sin(r)], 1), np.float32))

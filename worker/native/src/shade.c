@@ -125,10 +125,36 @@ static inline void brdf_eval(int kind, const float *p, const float *tab, v3 wi, 
  * children inherit the parent's visibility. Writes node indices and quantised visibilities
  * (v = q/255); returns their number (at most 2^H: the clusters partition the leaves).
  */
+/* What a point's cluster walk needs to split nodes about its mirror direction r: the tree's
+ * level offsets, node directions, radii R and (cos R, sin R), the material's refine radius and
+ * extent e with (cos e, sin e). The cone test angle < R + e is r·dir > cos R cos e − sin R sin e
+ * for R + e < π (always true beyond): no acos or cos per node. A per-node libm cos() here cost
+ * more than the shading itself for a fitted srbf (refine radius ~0.03 rad: every cut entry is
+ * tested), 80 of 122 CPU ms on the demo chair. */
+typedef struct {
+    const int64_t *lev;
+    const float *node_dir, *node_radius, *node_cs;
+    v3 r;
+    double refine_r, extent, ce, se;
+} refine_ctx;
+
+static inline refine_ctx make_ctx(const int64_t *lev, const float *node_dir, const float *node_radius,
+                                  const float *node_cs, v3 r, double refine_r, double extent) {
+    refine_ctx c = {lev, node_dir, node_radius, node_cs, r, refine_r, extent, cos(extent), sin(extent)};
+    return c;
+}
+
+/* whether node id (radius R > refine_r) is split: its cone reaches within the extent of r */
+static inline int cone_reaches(const refine_ctx *c, int64_t id) {
+    double R = c->node_radius[id];
+    if (R + c->extent >= PI) return 1;
+    double d = c->node_dir[3 * id] * c->r.x + c->node_dir[3 * id + 1] * c->r.y + c->node_dir[3 * id + 2] * c->r.z;
+    return d > c->node_cs[2 * id] * c->ce - c->node_cs[2 * id + 1] * c->se;
+}
+
 /* refine_node with the children's visibility written as q8 to qv, or (qv NULL) as the float qf to
  * qfo: a blended cut's visibilities are not multiples of 1/255 (glk_shade_blend) */
-static int64_t refine_node_q(int h0, int64_t s0, unsigned q8, float qf, const int64_t *lev, const float *node_dir,
-                             const float *node_radius, v3 r, double refine_r, double extent,
+static int64_t refine_node_q(int h0, int64_t s0, unsigned q8, float qf, const refine_ctx *c,
                              int32_t *idx, uint8_t *qv, float *qfo, int64_t n) {
     int64_t st[2 * 64];
     int sp = 0;
@@ -136,16 +162,12 @@ static int64_t refine_node_q(int h0, int64_t s0, unsigned q8, float qf, const in
     while (sp) {
         int64_t s = st[--sp];
         int h = (int)st[--sp];
-        int64_t id = lev[h] + (s >> h);
-        if (h > 0 && node_radius[id] > refine_r) {
-            double R = node_radius[id];
-            v3 nd = mk(node_dir[3 * id], node_dir[3 * id + 1], node_dir[3 * id + 2]);
-            if (R + extent >= PI || dot(nd, r) > cos(R + extent)) {
-                int64_t half = (int64_t)1 << (h - 1);   /* right child first: the left pops first */
-                st[sp++] = h - 1; st[sp++] = s + half;
-                st[sp++] = h - 1; st[sp++] = s;
-                continue;
-            }
+        int64_t id = c->lev[h] + (s >> h);
+        if (h > 0 && c->node_radius[id] > c->refine_r && cone_reaches(c, id)) {
+            int64_t half = (int64_t)1 << (h - 1);   /* right child first: the left pops first */
+            st[sp++] = h - 1; st[sp++] = s + half;
+            st[sp++] = h - 1; st[sp++] = s;
+            continue;
         }
         idx[n] = (int32_t)id;
         if (qv) qv[n] = (uint8_t)q8; else qfo[n] = qf;
@@ -154,23 +176,21 @@ static int64_t refine_node_q(int h0, int64_t s0, unsigned q8, float qf, const in
     return n;
 }
 
-static int64_t refine_node(int h0, int64_t s0, unsigned q8, const int64_t *lev, const float *node_dir,
-                           const float *node_radius, v3 r, double refine_r, double extent,
-                           int32_t *idx, uint8_t *qv, int64_t n) {
-    return refine_node_q(h0, s0, q8, 0.0f, lev, node_dir, node_radius, r, refine_r, extent, idx, qv, NULL, n);
+static int64_t refine_node(int h0, int64_t s0, unsigned q8, const refine_ctx *c, int32_t *idx, uint8_t *qv,
+                           int64_t n) {
+    return refine_node_q(h0, s0, q8, 0.0f, c, idx, qv, NULL, n);
 }
 
 /* hr: the lowest level with a node wider than refine_r (no node below it is ever split) */
-static int64_t collect(int64_t c0, int64_t c1, const uint8_t *cut_h, const uint8_t *cut_q, const int64_t *lev,
-                       const float *node_dir, const float *node_radius, v3 r, double refine_r, double extent,
+static int64_t collect(int64_t c0, int64_t c1, const uint8_t *cut_h, const uint8_t *cut_q, const refine_ctx *c,
                        int hr, int32_t *idx, uint8_t *qv) {
     int64_t n = 0, start = 0;
     for (int64_t m = c0; m < c1; m++) {
         int h = cut_h[m];
         unsigned q8 = cut_q[m];
-        int64_t id = lev[h] + (start >> h);
-        if (__builtin_expect(h >= hr, 0) && q8 && node_radius[id] > refine_r) {
-            n = refine_node(h, start, q8, lev, node_dir, node_radius, r, refine_r, extent, idx, qv, n);
+        int64_t id = c->lev[h] + (start >> h);
+        if (__builtin_expect(h >= hr, 0) && q8 && c->node_radius[id] > c->refine_r) {
+            n = refine_node(h, start, q8, c, idx, qv, n);
         } else {
             /* branch-free: written always, kept when visible (occluded nodes are common and random) */
             idx[n] = (int32_t)id; qv[n] = (uint8_t)q8;
@@ -242,14 +262,12 @@ static int64_t merge_cuts(const int64_t c[3], const uint8_t *cut_h, const uint8_
 
 /* node u of merged cuts for one pixel of weights w: appended when its visibility is positive,
  * split about the mirror direction r when its material may split it */
-static inline int64_t blend_one(const merged_cuts *mc, int64_t u, float w0, float w1, float w2, const int64_t *lev,
-                                const float *node_dir, const float *node_radius, v3 r, double refine_r,
-                                double extent, int32_t *idx, float *qf, int64_t n) {
+static inline int64_t blend_one(const merged_cuts *mc, int64_t u, float w0, float w1, float w2, const refine_ctx *c,
+                                int32_t *idx, float *qf, int64_t n) {
     float q = w0 * mc->q0[u] + w1 * mc->q1[u] + w2 * mc->q2[u];
     if (!(q > 0.0f)) return n;
     if (mc->uf[u])
-        return refine_node_q(mc->uh[u], mc->us[u], 0, q, lev, node_dir, node_radius, r, refine_r, extent, idx, NULL,
-                             qf, n);
+        return refine_node_q(mc->uh[u], mc->us[u], 0, q, c, idx, NULL, qf, n);
     idx[n] = mc->uid[u]; qf[n] = q;
     return n + 1;
 }
@@ -260,13 +278,11 @@ static inline int64_t blend_one(const merged_cuts *mc, int64_t u, float w0, floa
  * finer cut's light centroids, closer to the integral and exact for the diffuse part), nodes
  * with v > 0 kept and split about the mirror direction r as ``collect`` does. Writes node
  * indices and float visibilities; returns their number (≤ 2^H). */
-static int64_t blend_list(int64_t U, const merged_cuts *mc, const double w[3], const int64_t *lev,
-                          const float *node_dir, const float *node_radius, v3 r, double refine_r, double extent,
-                          int32_t *idx, float *qf) {
+static int64_t blend_list(int64_t U, const merged_cuts *mc, const double w[3], const refine_ctx *c, int32_t *idx,
+                          float *qf) {
     int64_t n = 0;
     for (int64_t u = 0; u < U; u++)
-        n = blend_one(mc, u, (float)w[0], (float)w[1], (float)w[2], lev, node_dir, node_radius, r, refine_r, extent,
-                      idx, qf, n);
+        n = blend_one(mc, u, (float)w[0], (float)w[1], (float)w[2], c, idx, qf, n);
     return n;
 }
 
@@ -364,13 +380,38 @@ static void init_pack_perm(void) {
     }
 }
 
+/* The lanes of eight nodes (ids) that may be split about c->r (radius > refine radius, cone
+ * within reach of the extent), among the candidate lanes cand (a movemask of 8 bits). Single
+ * precision with a margin: it never misses a node the scalar walk would split (the group then
+ * goes through the scalar walk, which decides exactly); it only lets groups of nodes far from
+ * the mirror direction, most of them for a sharp lobe, take the vector path. */
+T_AVX2 static inline int cone_mask8(const refine_ctx *c, __m256i id, int cand) {
+    if (!cand) return 0;
+    __m256 R = _mm256_i32gather_ps(c->node_radius, id, 4);
+    __m256i i2 = _mm256_add_epi32(id, id), i3 = _mm256_add_epi32(i2, id);
+    __m256 dx = _mm256_i32gather_ps(c->node_dir, i3, 4);
+    __m256 dy = _mm256_i32gather_ps(c->node_dir + 1, i3, 4);
+    __m256 dz = _mm256_i32gather_ps(c->node_dir + 2, i3, 4);
+    __m256 cr = _mm256_i32gather_ps(c->node_cs, i2, 4);
+    __m256 sr = _mm256_i32gather_ps(c->node_cs + 1, i2, 4);
+    __m256 d = _mm256_fmadd_ps(dx, _mm256_set1_ps((float)c->r.x),
+                               _mm256_fmadd_ps(dy, _mm256_set1_ps((float)c->r.y),
+                                               _mm256_mul_ps(dz, _mm256_set1_ps((float)c->r.z))));
+    __m256 lim = _mm256_fmsub_ps(cr, _mm256_set1_ps((float)c->ce), _mm256_mul_ps(sr, _mm256_set1_ps((float)c->se)));
+    __m256 reach = _mm256_or_ps(_mm256_cmp_ps(d, _mm256_sub_ps(lim, _mm256_set1_ps(1e-4f)), _CMP_GT_OQ),
+                                _mm256_cmp_ps(_mm256_add_ps(R, _mm256_set1_ps((float)c->extent)),
+                                              _mm256_set1_ps((float)PI - 1e-4f), _CMP_GE_OQ));
+    __m256 wide = _mm256_cmp_ps(R, _mm256_set1_ps((float)c->refine_r * (1.0f - 1e-6f)), _CMP_GT_OQ);
+    return _mm256_movemask_ps(_mm256_and_ps(reach, wide)) & cand;
+}
+
 /* collect() eight cut entries at a time: node index = level offset + (start >> h) with the
  * starts from a prefix sum of 2^h, visible entries left-packed by a permutation; a group
- * holding a node that may be refined goes through the scalar path. Needs H ≤ 15 (level
- * offsets in two registers, starts in 32 bits). */
-T_AVX2 static int64_t collect_avx2(int64_t c0, int64_t c1, const uint8_t *cut_h, const uint8_t *cut_q,
-                                   const int64_t *lev, int H, const float *node_dir, const float *node_radius, v3 r,
-                                   double refine_r, double extent, int hr, int32_t *idx, uint8_t *qv) {
+ * holding a node that may be refined (cone_mask8) goes through the scalar path. Needs H ≤ 15
+ * (level offsets in two registers, starts in 32 bits). */
+T_AVX2 static int64_t collect_avx2(int64_t c0, int64_t c1, const uint8_t *cut_h, const uint8_t *cut_q, int H,
+                                   const refine_ctx *c, int hr, int32_t *idx, uint8_t *qv) {
+    const int64_t *lev = c->lev;
     int32_t l32[16];
     for (int i = 0; i < 16; i++) l32[i] = i <= H + 1 ? (int32_t)lev[i] : 0;
     const __m256i levlo = _mm256_loadu_si256((const __m256i *)l32), levhi = _mm256_loadu_si256((const __m256i *)(l32 + 8));
@@ -389,28 +430,28 @@ T_AVX2 static int64_t collect_avx2(int64_t c0, int64_t c1, const uint8_t *cut_h,
         __m256i x = _mm256_add_epi32(w, _mm256_slli_si256(w, 4));
         x = _mm256_add_epi32(x, _mm256_slli_si256(x, 8));
         x = _mm256_add_epi32(x, _mm256_blend_epi32(zero, _mm256_permutevar8x32_epi32(x, bcast3), 0xF0));
+        __m256i s = _mm256_add_epi32(_mm256_set1_epi32(start), _mm256_sub_epi32(x, w));
+        __m256i lv = _mm256_blendv_epi8(_mm256_permutevar8x32_epi32(levlo, h),
+                                        _mm256_permutevar8x32_epi32(levhi, _mm256_sub_epi32(h, eight)),
+                                        _mm256_cmpgt_epi32(h, seven));
+        __m256i id = _mm256_add_epi32(lv, _mm256_srlv_epi32(s, h));
         __m256i need = _mm256_and_si256(_mm256_cmpgt_epi32(h, hrm1), _mm256_cmpgt_epi32(q, zero));
-        if (__builtin_expect(_mm256_movemask_epi8(need) != 0, 0)) {
+        if (__builtin_expect(cone_mask8(c, id, _mm256_movemask_ps(_mm256_castsi256_ps(need))) != 0, 0)) {
             for (int64_t k = m; k < m + 8; k++) {     /* the scalar path for this group */
                 int hh = cut_h[k];
                 unsigned q8 = cut_q[k];
-                int64_t id = lev[hh] + (start >> hh);
-                if (hh >= hr && q8 && node_radius[id] > refine_r) {
-                    n = refine_node(hh, start, q8, lev, node_dir, node_radius, r, refine_r, extent, idx, qv, n);
+                int64_t nid = lev[hh] + (start >> hh);
+                if (hh >= hr && q8 && c->node_radius[nid] > c->refine_r) {
+                    n = refine_node(hh, start, q8, c, idx, qv, n);
                 } else {
-                    idx[n] = (int32_t)id; qv[n] = (uint8_t)q8;
+                    idx[n] = (int32_t)nid; qv[n] = (uint8_t)q8;
                     n += q8 != 0;
                 }
                 start += (int32_t)1 << hh;
             }
             continue;
         }
-        __m256i s = _mm256_add_epi32(_mm256_set1_epi32(start), _mm256_sub_epi32(x, w));
         start += _mm256_extract_epi32(x, 7);
-        __m256i lv = _mm256_blendv_epi8(_mm256_permutevar8x32_epi32(levlo, h),
-                                        _mm256_permutevar8x32_epi32(levhi, _mm256_sub_epi32(h, eight)),
-                                        _mm256_cmpgt_epi32(h, seven));
-        __m256i id = _mm256_add_epi32(lv, _mm256_srlv_epi32(s, h));
         int mask = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpgt_epi32(q, zero)));
         __m256i perm = _mm256_loadu_si256((const __m256i *)pack_perm[mask]);
         _mm256_storeu_si256((__m256i *)(idx + n), _mm256_permutevar8x32_epi32(id, perm));
@@ -422,8 +463,8 @@ T_AVX2 static int64_t collect_avx2(int64_t c0, int64_t c1, const uint8_t *cut_h,
         int hh = cut_h[m];
         unsigned q8 = cut_q[m];
         int64_t id = lev[hh] + (start >> hh);
-        if (hh >= hr && q8 && node_radius[id] > refine_r) {
-            n = refine_node(hh, start, q8, lev, node_dir, node_radius, r, refine_r, extent, idx, qv, n);
+        if (hh >= hr && q8 && c->node_radius[id] > c->refine_r) {
+            n = refine_node(hh, start, q8, c, idx, qv, n);
         } else {
             idx[n] = (int32_t)id; qv[n] = (uint8_t)q8;
             n += q8 != 0;
@@ -434,10 +475,9 @@ T_AVX2 static int64_t collect_avx2(int64_t c0, int64_t c1, const uint8_t *cut_h,
 }
 
 /* blend_list eight merged nodes at a time: v = w·q in one FMA chain, positive ones left-packed
- * (pack_perm); a group of eight holding a node to split goes through blend_one. */
-T_AVX2 static int64_t blend_list_avx2(int64_t U, const merged_cuts *mc, const double w[3], const int64_t *lev,
-                                      const float *node_dir, const float *node_radius, v3 r, double refine_r,
-                                      double extent, int32_t *idx, float *qf) {
+ * (pack_perm); a group of eight holding a node to split (cone_mask8) goes through blend_one. */
+T_AVX2 static int64_t blend_list_avx2(int64_t U, const merged_cuts *mc, const double w[3], const refine_ctx *c,
+                                      int32_t *idx, float *qf) {
     const float f0 = (float)w[0], f1 = (float)w[1], f2 = (float)w[2];
     const __m256 w0 = _mm256_set1_ps(f0), w1 = _mm256_set1_ps(f1), w2 = _mm256_set1_ps(f2);
     const __m256 zero = _mm256_setzero_ps();
@@ -447,21 +487,25 @@ T_AVX2 static int64_t blend_list_avx2(int64_t U, const merged_cuts *mc, const do
                                    _mm256_fmadd_ps(w1, _mm256_loadu_ps(mc->q1 + u),
                                                    _mm256_mul_ps(w0, _mm256_loadu_ps(mc->q0 + u))));
         int pos = _mm256_movemask_ps(_mm256_cmp_ps(q, zero, _CMP_GT_OQ));
+        __m256i uid = _mm256_loadu_si256((const __m256i *)(mc->uid + u));
         uint64_t fl;
         memcpy(&fl, mc->uf + u, 8);
         if (__builtin_expect(fl != 0, 0)) {
-            for (int64_t k = u; k < u + 8; k++)
-                n = blend_one(mc, k, f0, f1, f2, lev, node_dir, node_radius, r, refine_r, extent, idx, qf, n);
-            continue;
+            int flagged = 0;
+            for (int k = 0; k < 8; k++) flagged |= (mc->uf[u + k] != 0) << k;
+            if (cone_mask8(c, uid, flagged & pos)) {
+                for (int64_t k = u; k < u + 8; k++)
+                    n = blend_one(mc, k, f0, f1, f2, c, idx, qf, n);
+                continue;
+            }
         }
         __m256i perm = _mm256_loadu_si256((const __m256i *)pack_perm[pos]);
-        _mm256_storeu_si256((__m256i *)(idx + n),
-                            _mm256_permutevar8x32_epi32(_mm256_loadu_si256((const __m256i *)(mc->uid + u)), perm));
+        _mm256_storeu_si256((__m256i *)(idx + n), _mm256_permutevar8x32_epi32(uid, perm));
         _mm256_storeu_ps(qf + n, _mm256_permutevar8x32_ps(q, perm));
         n += __builtin_popcount(pos);
     }
     for (; u < U; u++)
-        n = blend_one(mc, u, f0, f1, f2, lev, node_dir, node_radius, r, refine_r, extent, idx, qf, n);
+        n = blend_one(mc, u, f0, f1, f2, c, idx, qf, n);
     return n;
 }
 
@@ -655,7 +699,7 @@ static void sum_point(int simd, int kind, const float *prm, const float *tab, v3
 void glk_shade_points(
     int64_t P, const float *normals, const float *wo_dirs, const int32_t *cut_of,
     const int32_t *mat_of, const int64_t *cut_off, const uint8_t *cut_h, const uint8_t *cut_q,
-    const float *node8, const float *node_dir, const float *node_radius,
+    const float *node8, const float *node_dir, const float *node_radius, const float *node_cs,
     const int64_t *level_off, int H, const int32_t *mat_kind, const float *mat_params,
     const float *mat_refine, const float *mat_extent, const float *tables, const int64_t *table_off,
     float *out) {
@@ -687,13 +731,13 @@ void glk_shade_points(
                 double gpo = kind == K_GGX ? ggx_G1(co, 1.0, prm[6]) / (4.0 * co) : 0.0;
                 int64_t c0 = cut_off[cut_of[p]], c1 = cut_off[cut_of[p] + 1], cnt;
 #ifdef GLK_X86
+                const refine_ctx rc = make_ctx(level_off, node_dir, node_radius, node_cs, r, mat_refine[mi],
+                                               mat_extent[mi]);
                 if (simd && H <= 15)
-                    cnt = collect_avx2(c0, c1, cut_h, cut_q, level_off, H, node_dir, node_radius, r, mat_refine[mi],
-                                       mat_extent[mi], hr[mi], idx, qv);
+                    cnt = collect_avx2(c0, c1, cut_h, cut_q, H, &rc, hr[mi], idx, qv);
                 else
 #endif
-                    cnt = collect(c0, c1, cut_h, cut_q, level_off, node_dir, node_radius, r, mat_refine[mi],
-                                  mat_extent[mi], hr[mi], idx, qv);
+                    cnt = collect(c0, c1, cut_h, cut_q, &rc, hr[mi], idx, qv);
                 sum_point(simd, kind, prm, tab, n, wo, t, bt, co, gpo, cnt, idx, qv, NULL, node8, acc);
             }
             out[3 * p] = (float)acc[0]; out[3 * p + 1] = (float)acc[1]; out[3 * p + 2] = (float)acc[2];
@@ -714,7 +758,7 @@ void glk_shade_blend(
     int64_t P, const float *normals, const float *wo_dirs, const int32_t *verts, const float *bary,
     const int32_t *mat_of, int64_t G, const int64_t *group, const int64_t *cut_off, const uint8_t *cut_h,
     const uint8_t *cut_q, const float *node8, const float *node_dir, const float *node_radius,
-    const int64_t *level_off, int H, const int32_t *mat_kind, const float *mat_params,
+    const float *node_cs, const int64_t *level_off, int H, const int32_t *mat_kind, const float *mat_params,
     const float *mat_refine, const float *mat_extent, const float *tables, const int64_t *table_off,
     float *out) {
     const int simd = glk_shade_simd(-1);
@@ -754,14 +798,14 @@ void glk_shade_blend(
                     double gpo = kind == K_GGX ? ggx_G1(co, 1.0, prm[6]) / (4.0 * co) : 0.0;
                     const double w3[3] = {bary[3 * p], bary[3 * p + 1], bary[3 * p + 2]};
                     int64_t cnt;
+                    const refine_ctx rc = make_ctx(level_off, node_dir, node_radius, node_cs, r, mat_refine[mi],
+                                                   mat_extent[mi]);
 #ifdef GLK_X86
                     if (simd)
-                        cnt = blend_list_avx2(U, &mc, w3, level_off, node_dir, node_radius, r, mat_refine[mi],
-                                              mat_extent[mi], idx, qf);
+                        cnt = blend_list_avx2(U, &mc, w3, &rc, idx, qf);
                     else
 #endif
-                        cnt = blend_list(U, &mc, w3, level_off, node_dir, node_radius, r, mat_refine[mi],
-                                         mat_extent[mi], idx, qf);
+                        cnt = blend_list(U, &mc, w3, &rc, idx, qf);
                     sum_point(simd, kind, prm, tab, n, wo, t, bt, co, gpo, cnt, idx, NULL, qf, node8, acc);
                 }
                 out[3 * p] = (float)acc[0]; out[3 * p + 1] = (float)acc[1]; out[3 * p + 2] = (float)acc[2];
