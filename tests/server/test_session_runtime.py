@@ -67,6 +67,22 @@ def test_stroke_frames_use_the_vertex_transfer_once_built(bunny_renderer):
     assert rt._override() is None
 
 
+def test_a_fits_curve_follows_its_frame(bunny_renderer):
+    """The studio's curve of a fitted material (its p(h) and lobe evaluated over the plots'
+    directions, about as costly as the fit) is sent after the stroke's frame, not before it:
+    the fit event carries the material and figures, the curve event follows once."""
+    rt = _runtime(bunny_renderer)
+    rt.handle({"seq": 1, "type": "stroke", "stroke": STROKE})
+    ev = rt.fit_if_needed()
+    assert ev[0]["type"] == "fit" and "curve" not in ev[0]
+    rt.frame(1)
+    after = rt.after_frame()
+    m = rt.state.material_of(rt.state.object)
+    assert [e["type"] for e in after] == ["curve"] and after[0]["object"] == rt.state.object
+    assert after[0]["curve"] == brdf_curve(m)
+    assert rt.after_frame() == []
+
+
 def test_a_stroke_mid_drag_gets_a_quick_view_completed_after(bunny_renderer):
     """Under load, and for the first stroke after an orbit: a stroke painted in a view not
     built yet is fitted on a quick view (its pixels and a sparse grid, on the drag level's
@@ -403,3 +419,16 @@ def test_a_view_that_keeps_changing_builds_nothing_for_strokes(bunny_renderer):
     assert rt.prefetch() == 0.0
     assert len(view_builds()) == 1 and view_builds()[0][3][0] == rt.state.camera.model_dump_json()
     rt._pending[view_builds()[0]].result(timeout=120)
+
+
+def test_the_background_builder_runs_below_the_sessions():
+    """What the builder prepares (fit views, the per-vertex transfer) gives way to strokes and
+    frames: its thread runs BUILDER_NICE levels below the process (Linux thread niceness)."""
+    import os
+    import threading
+
+    from worker.jobs import fit_driver
+
+    here = os.getpriority(os.PRIO_PROCESS, 0)
+    there = fit_driver._builder.submit(lambda: os.getpriority(os.PRIO_PROCESS, threading.get_native_id())).result()
+    assert there == min(19, here + fit_driver.BUILDER_NICE), (here, there)

@@ -34,8 +34,11 @@ def eval_packed(b: PackedBRDF, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
 
 
 def evaluate(material, wi, wo) -> np.ndarray:
-    """Evaluate a scene material (scene.Lambert, GGX, …) at local directions (…, 3)."""
-    return material.pack().eval(wi, wo)
+    """Evaluate a scene material (scene.Lambert, GGX, …) at local directions (…, 3) (its pack
+    shared with the renderer's, models.base.packed)."""
+    from ..models.base import packed
+
+    return packed(material).eval(wi, wo)
 
 
 def srbf_exact(m, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:

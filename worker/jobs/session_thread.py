@@ -113,6 +113,7 @@ class SessionThread(threading.Thread):
             for e in rt.take_events():
                 self._event(e)
             self.outq.put(Reply("frame", self.sid, rt.frame(ack)))
+            self._after_frame(rt)
             # the first frame is a quick one (one sample) when the view's anti-aliased primary
             # hits are not traced yet: its settled frame follows without waiting for input
             self._settle(rt, ack)
@@ -231,4 +232,15 @@ class SessionThread(threading.Thread):
             self.dropped += len(msgs)       # counted as skipped by the next frame
         except Exception as ex:
             self._event(error_event(ex, ack) | {"message": f"render failed: {error_event(ex)['message']}"})
+        self._after_frame(rt)
         return ack
+
+    def _after_frame(self, rt) -> None:
+        """Events that follow the frame (a fit's curve: off the path from stroke to frame)."""
+        from worker.jobs.reporting import error_event
+
+        try:
+            for e in rt.after_frame():
+                self._event(e)
+        except Exception as ex:
+            self._event(error_event(ex) | {"message": f"curve failed: {error_event(ex)['message']}"})

@@ -16,6 +16,8 @@ h and ωi·h. Below either horizon f = 0.
 """
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Annotated, Any, Callable, ClassVar, Union
 
@@ -144,7 +146,31 @@ class BRDFModel(BaseModel):
     def evaluate(self, wi, wo) -> np.ndarray:
         """f(ωi, ωo) (…, 3) float64 1/sr, local-frame unit directions (…, 3), as the kernel
         sees it (through pack)."""
-        return self.pack().eval(wi, wo)
+        return packed(self).eval(wi, wo)
+
+
+_PACKS: "OrderedDict[str, PackedBRDF]" = OrderedDict()
+_PACKS_LOCK = threading.Lock()
+PACKS_KEPT = 16
+
+
+def packed(m: "BRDFModel") -> PackedBRDF:
+    """m.pack(), remembered by content for the process (the last PACKS_KEPT): a session's state
+    is copied by every message, so one material arrives as new objects, and packing a fitted
+    srbf (its p(h) table over every centre) costs ~20-50 ms; the renderer and the studio's curve
+    of the same fit share one pack. Thread-safe (session threads and the background builder)."""
+    key = f"{type(m).__name__}:{m.model_dump_json()}"
+    with _PACKS_LOCK:
+        p = _PACKS.get(key)
+        if p is not None:
+            _PACKS.move_to_end(key)
+            return p
+    p = m.pack()
+    with _PACKS_LOCK:
+        _PACKS[key] = p
+        while len(_PACKS) > PACKS_KEPT:
+            _PACKS.popitem(last=False)
+    return p
 
 
 _MODELS: dict[str, type[BRDFModel]] = {}

@@ -93,7 +93,9 @@ class FitEvent(_WorkerEvent):
     type: Literal["fit"] = "fit"
     object: str
     material: dict
-    curve: dict
+    # the material's curve comes as a curve event after the frame (the studio keeps its last one
+    # until then); given here only where it costs nothing on the way to the frame
+    curve: dict | None = None
     stats: FitStats
     notes: list[str] = Field(default_factory=list)
 

@@ -68,6 +68,7 @@ from ...core.render import (
     shade_blend,
     shade_points,
 )
+from ...models.base import packed
 from ...models.regions import has_regions
 from ...native.kernels import kernels as _kernels
 from ..base import FrameCancelled, FrameRequest, Lighting, Rendered, Renderer, Unsupported
@@ -191,7 +192,6 @@ class CutRenderer(Renderer):
         self._mats_key = None
         self._mats: MaterialTable | None = None
         self._layers_key = self._layers = self._layers_refs = None
-        self._packs: OrderedDict[str, object] = OrderedDict()   # content → PackedBRDF, most recent last
         self._drag_mats = self._drag_mats_of = None             # drag-level table, and the table it came from
         self._lock = threading.RLock()      # the session thread and its background builder
         self._moving = None                 # frames of a scene with movable objects (moving.py)
@@ -456,18 +456,10 @@ class CutRenderer(Renderer):
         return self._drag_mats
 
     def _pack(self, m):
-        """m.pack(), remembered by content: a session's state is copied by every message, so the
-        same material arrives as a new object each frame, and packing an srbf (its p(h) table over
-        every centre) costs ~50 ms, more than the frame."""
-        ck = f"{type(m).__name__}:{m.model_dump_json()}"
-        p = self._packs.get(ck)
-        if p is None:
-            p = self._packs[ck] = m.pack()
-            while len(self._packs) > 16:
-                self._packs.popitem(last=False)
-        else:
-            self._packs.move_to_end(ck)
-        return p
+        """m.pack(), remembered by content (models.base.packed): a session's state is copied by
+        every message, so the same material arrives as a new object each frame, and packing an
+        srbf (its p(h) table over every centre) costs ~50 ms, more than the frame."""
+        return packed(m)
 
     def coarse_cuts(self) -> cutmod.CutSet:
         """The drag-time cut set (cuts coarsened to DRAG_TAU), built once per scene (≈0.1 s
@@ -761,7 +753,7 @@ class CutRenderer(Renderer):
             node8 = self._node8 if self._node_light is not None and node_l is self._node_light[0] else None
         s = Samples(samples.pix, samples.positions, nrm, wo, samples.verts, samples.bary, samples.face)
         if not has_regions(material):
-            mats = MaterialTable([material.pack()])
+            mats = MaterialTable([packed(material)])
             return self._shade(s, self._fit_cuts(coarse), node_l, node_w, mats, None, node8).astype(np.float64)
         # a material with regions: its layers in the object's slot (the others are never shaded)
         mlist = [_placeholder_model()] * len(self.scene.spec.objects)
