@@ -325,7 +325,8 @@ def load_mesh(path: str | Path, transform: Transform | None = None) -> Mesh:
     """Load OBJ (all groups), PLY, GLB/GLTF or STL through trimesh, apply the transform.
 
     Vertex normals come from the file when present (OBJ `vn`, PLY nx/ny/nz, glTF NORMAL),
-    otherwise they are area-weighted face normals (docs/design/conventions.md). A glTF scene's node
+    otherwise they are area-weighted face normals of each vertex's smooth wedge, the vertex split
+    along sharp edges (worker/creases.py; docs/design/conventions.md). A glTF scene's node
     transforms apply to positions and (inverse-transposed) to its normals. The mesh is repaired
     (worker.mesh_repair.repair; its report is ``Mesh.repair``); SceneError when nothing survives.
     """
@@ -367,6 +368,13 @@ def load_mesh(path: str | Path, transform: Transform | None = None) -> Mesh:
         v, f, n, report = repair(v, f, n)
     except MeshRejected as e:
         raise SceneError(f"{path}: {e}") from None
+    if not has_n:
+        # no normals in the file: one per smooth wedge around each vertex, not one averaged
+        # across a sharp edge (worker/creases.py)
+        from .creases import split_creases
+
+        v, f, n, crease = split_creases(v, f)
+        report = {**report, "creases": crease, "vertices_out": int(len(v))}
     if transform is not None:
         m = transform.matrix()
         v = v @ m[:3, :3].T + m[:3, 3]
