@@ -34,7 +34,9 @@ def split_creases(vertices: np.ndarray, faces: np.ndarray, angle_deg: float | No
 
     vertices (V, 3) float, faces (F, 3) int (in range, no degenerate faces: after
     mesh_repair.repair). Returns (vertices (V', 3) float64, faces (F, 3) int64, normals (V', 3)
-    float64 unit, report {"crease_deg", "sharp_edges", "vertices_split"}) with V' ≥ V;
+    float64 unit, report {"crease_deg", "sharp_edges" (two faces sharper than the angle),
+    "open_edges" (boundary or non-manifold edges: their faces never share a normal there),
+    "vertices_split"}) with V' ≥ V;
     angle_deg : default CREASE_DEG (180 keeps one normal per vertex, the plain average): vertex
     copies keep their position; faces keep their order and winding. O(F log F) (one sort of the
     edges, one connected-components pass over the 3F face corners)."""
@@ -66,7 +68,8 @@ def split_creases(vertices: np.ndarray, faces: np.ndarray, angle_deg: float | No
     a, b = order[two], order[two + 1]
     fa, fb = hf[a], hf[b]
     smooth = (fu[fa] * fu[fb]).sum(1) >= np.cos(np.radians(angle_deg))
-    sharp = int(len(a) - smooth.sum()) + int((counts != 2).sum())
+    sharp = int(len(a) - smooth.sum())
+    open_edges = int((counts != 2).sum())
     a, b, fa, fb = a[smooth], b[smooth], fa[smooth], fb[smooth]
     # join, at both ends of each smooth edge, the two faces' corners of the same vertex
     rows, cols = [], []
@@ -96,6 +99,6 @@ def split_creases(vertices: np.ndarray, faces: np.ndarray, angle_deg: float | No
         np.add.at(nrm, new_faces[:, k], fn)
     nl = np.linalg.norm(nrm, axis=1, keepdims=True)
     nrm = np.where(nl > 0, nrm / np.maximum(nl, 1e-300), [0.0, 1.0, 0.0])
-    report = {"crease_deg": float(angle_deg), "sharp_edges": sharp,
+    report = {"crease_deg": float(angle_deg), "sharp_edges": sharp, "open_edges": open_edges,
               "vertices_split": int(n_wedges - len(np.unique(corner_vertex)))}
     return new_v, new_faces, nrm, report

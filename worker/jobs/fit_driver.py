@@ -36,6 +36,8 @@ QUICK_ROWS_MIN = 100        # a quick view's unpainted rows under load (QUICK_RO
 # while the next message made it useless; below the still frame's wait (session_thread
 # STILL_DELAY_S), so the build starts with the settled frame
 VIEW_SETTLE_S = 0.1
+# the per-vertex transfer of a view is built once this many active strokes were painted in it
+VT_AFTER_STROKES = 2
 # how much lower the background builder's threads run than the session threads (nice levels)
 BUILDER_NICE = 10
 
@@ -296,13 +298,14 @@ class FitDriver:
 
     def _vt_wanted(self) -> bool:
         """Whether the per-vertex transfer of this view is worth its cost (about a second of
-        one core, ~50 ms saved per stroke frame): once two active strokes were painted in it."""
+        one core, ~50 ms saved per stroke frame): once VT_AFTER_STROKES active strokes were
+        painted in it."""
         st, fx = self.state, self.fitter
         n = 0
         for s in fx.history.strokes:
             v = fx.views[s.view]
             n += v.camera == st.camera and v.rotation_deg == st.rotation_deg and v.intensity == st.intensity
-        return n >= 2
+        return n >= VT_AFTER_STROKES
 
     @staticmethod
     def _build_view(fx: Fitter, cam, rot, inten):
