@@ -119,11 +119,7 @@ static inline void brdf_eval(int kind, const float *p, const float *tab, v3 wi, 
 }
 
 /* ---------------------------------------------------------------------------------------
- * The clusters a point shades: its cut's nodes with non-zero visibility, in order, where a
- * node wider than refine_r is split while its angle to the mirror direction r is below its
- * radius plus the extent (angle < R + e  ⇔  r·dir > cos(R + e) for R + e < π, so no acos);
- * children inherit the parent's visibility. Writes node indices and quantised visibilities
- * (v = q/255); returns their number (at most 2^H: the clusters partition the leaves).
+ * The cluster walk.
  */
 /* What a point's cluster walk needs to split nodes about its mirror direction r: the tree's
  * level offsets, node directions, radii R and (cos R, sin R), the material's refine radius and
@@ -181,7 +177,12 @@ static int64_t refine_node(int h0, int64_t s0, unsigned q8, const refine_ctx *c,
     return refine_node_q(h0, s0, q8, 0.0f, c, idx, qv, NULL, n);
 }
 
-/* hr: the lowest level with a node wider than refine_r (no node below it is ever split) */
+/* The clusters a point shades: its cut's nodes with non-zero visibility, in order, where a
+ * node wider than refine_r is split while its angle to the mirror direction r is below its
+ * radius plus the extent (angle < R + e  ⇔  r·dir > cos(R + e) for R + e < π, so no acos);
+ * children inherit the parent's visibility. Writes node indices and quantised visibilities
+ * (v = q/255); returns their number (at most 2^H: the clusters partition the leaves).
+ * hr: the lowest level with a node wider than refine_r (no node below it is ever split). */
 static int64_t collect(int64_t c0, int64_t c1, const uint8_t *cut_h, const uint8_t *cut_q, const refine_ctx *c,
                        int hr, int32_t *idx, uint8_t *qv) {
     int64_t n = 0, start = 0;
