@@ -137,5 +137,5 @@ def bunny_scene(client, shared_assets):
             break
         time.sleep(0.5)
     assert p["status"] == "done", p
-    assert p["stats"]["vertices"] == 2826
+    assert p["stats"]["vertices"] == 2882
     return sid

@@ -75,7 +75,7 @@ def test_a_scene_file_loads_with_no_shared_folder(from_registry, tmp_path):
     # the registry's files as the mirror: this test checks the paths, the one above the download
     ensure_scene(scenes / "bunny.json", cache, good, log=lambda m: None)
     sc = load_scene(scenes / "bunny.json")
-    assert len(sc.mesh.vertices) == 2826 and sc.envmap.shape[1] == 512
+    assert len(sc.mesh.vertices) == 2882 and sc.envmap.shape[1] == 512
     assert not (tmp_path / "shared").exists()
 
 

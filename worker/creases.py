@@ -29,12 +29,12 @@ CREASE_DEG = 45.0
 
 
 def split_creases(vertices: np.ndarray, faces: np.ndarray, angle_deg: float | None = None
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
     """Split vertices along sharp edges.
 
     vertices (V, 3) float, faces (F, 3) int (in range, no degenerate faces: after
     mesh_repair.repair). Returns (vertices (V', 3) float64, faces (F, 3) int64, normals (V', 3)
-    float64 unit, report {"crease_deg", "sharp_edges" (two faces sharper than the angle),
+    float64 unit, source (V',) int64 the input vertex each output vertex copies, report {"crease_deg", "sharp_edges" (two faces sharper than the angle),
     "open_edges" (boundary or non-manifold edges: their faces never share a normal there),
     "vertices_split"}) with V' ≥ V;
     angle_deg : default CREASE_DEG (180 keeps one normal per vertex, the plain average): vertex
@@ -101,4 +101,6 @@ def split_creases(vertices: np.ndarray, faces: np.ndarray, angle_deg: float | No
     nrm = np.where(nl > 0, nrm / np.maximum(nl, 1e-300), [0.0, 1.0, 0.0])
     report = {"crease_deg": float(angle_deg), "sharp_edges": sharp, "open_edges": open_edges,
               "vertices_split": int(n_wedges - len(np.unique(corner_vertex)))}
-    return new_v, new_faces, nrm, report
+    source = np.zeros(n_wedges, np.int64)
+    source[wedge] = corner_vertex
+    return new_v, new_faces, nrm, source, report

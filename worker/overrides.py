@@ -55,7 +55,7 @@ def apply_material_overrides(scene, overrides: Iterable[tuple[str, Any | Callabl
             # region weights index the object's own vertices: a material painted on another mesh
             # is refused here, before a renderer would blend the wrong vertices
             try:
-                layer_weights(data, object_vertex_count(scene, o))
+                layer_weights(data, object_vertex_count(scene, o), scene.vertex_source(o))
             except RegionsError as e:
                 raise InvalidMaterial(name, str(e)) from e
         mats[o] = data

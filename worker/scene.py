@@ -264,6 +264,9 @@ class Mesh:
         self.faces = np.ascontiguousarray(faces, dtype=np.int32)
         self.normals = np.ascontiguousarray(normals, dtype=np.float32)
         self.repair: dict = {}      # what load_mesh repaired (worker.mesh_repair.repair's report)
+        # (V,) int64: the vertex of the repaired file's mesh each vertex copies, when load_mesh
+        # split vertices at creases (worker/creases.py), else None
+        self.source: np.ndarray | None = None
 
 
 def area_weighted_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -373,14 +376,18 @@ def load_mesh(path: str | Path, transform: Transform | None = None) -> Mesh:
         # across a sharp edge (worker/creases.py)
         from .creases import split_creases
 
-        v, f, n, crease = split_creases(v, f)
+        v, f, n, source, crease = split_creases(v, f)
         report = {**report, "creases": crease, "vertices_out": int(len(v))}
+    else:
+        source = None
     if transform is not None:
         m = transform.matrix()
         v = v @ m[:3, :3].T + m[:3, 3]
         n = _unit_or(n @ np.linalg.inv(m[:3, :3]), area_weighted_normals(v, f))  # inverse transpose
     mesh = Mesh(v, f, n)
     mesh.repair = report
+    if source is not None and crease["vertices_split"]:
+        mesh.source = source
     return mesh
 
 
@@ -409,6 +416,7 @@ class LoadedScene:
         self.mesh = Mesh(np.concatenate(vs), np.concatenate(fs), np.concatenate(ns))
         self.object_of_vertex = np.concatenate(ov)
         self.object_of_face = np.concatenate(of)
+        self._sources = [m.source for m in meshes]
         if envmap is None:
             try:
                 envmap = load_envmap(self.resolve(spec.environment.map))
@@ -425,6 +433,13 @@ class LoadedScene:
     @property
     def materials(self):
         return [o.material for o in self.spec.objects]
+
+    def vertex_source(self, index: int) -> np.ndarray | None:
+        """(n_o,) int64: for each vertex of object ``index``, the object-local vertex of its mesh
+        file it copies when loading split vertices at creases (a regions material painted on the
+        mesh as loaded before that is remapped through it, models.regions.fit_mesh), else None."""
+        src = getattr(self, "_sources", None)
+        return None if src is None else src[index]
 
 
 def load_scene(path: str | Path) -> LoadedScene:

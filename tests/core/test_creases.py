@@ -36,7 +36,7 @@ def test_a_smooth_mesh_keeps_its_vertices_and_normals():
     """No edge of a fine sphere is a crease: vertices, faces and the area-weighted normals are
     exactly those of the plain average (the split is a no-op, in the same order)."""
     s = trimesh.creation.icosphere(subdivisions=3)
-    v, f, n, rep = split_creases(s.vertices, s.faces)
+    v, f, n, _, rep = split_creases(s.vertices, s.faces)
     assert rep["vertices_split"] == 0 and rep["sharp_edges"] == 0
     np.testing.assert_array_equal(f, s.faces)
     np.testing.assert_array_equal(v, s.vertices)
@@ -58,7 +58,7 @@ def test_a_sharp_edge_in_a_smooth_fan_splits_only_there():
         for j in range(len(zs) - 1):
             f.append((idx[a[j]], idx[a[j + 1]], idx[b[j]]))
             f.append((idx[a[j + 1]], idx[b[j + 1]], idx[b[j]]))
-    v2, f2, n2, rep = split_creases(v, np.array(f))
+    v2, f2, n2, _, rep = split_creases(v, np.array(f))
     assert rep["vertices_split"] == len(zs)          # the ridge's three vertices, one copy each
     assert rep["sharp_edges"] == len(zs) - 1                             # the ridge
     assert rep["open_edges"] == 2 * (len(cols) - 1) + 2 * (len(zs) - 1)   # the sheet's boundary
@@ -66,3 +66,30 @@ def test_a_sharp_edge_in_a_smooth_fan_splits_only_there():
     side = np.abs(n2 @ np.array([1.0, 0.0, 0.0]))
     # every vertex normal is the floor's or the wall's, none in between
     assert np.all((up > 1 - 1e-9) | (side > 1 - 1e-9))
+
+
+def test_regions_painted_before_the_split_follow_the_copies(tmp_path):
+    """A regions material painted on an object as it loaded before crease splitting (its
+    vertex_count is the file's) keeps working: every copy of a vertex takes that vertex's
+    weight, in the renderer's layers, in exports and in a new region's fit; a material painted
+    on a mesh of any other size is still refused."""
+    import pytest
+
+    from worker.models import GGX, Lambert
+    from worker.models.regions import Region, Regions, RegionsError, fit_mesh, layer_weights
+
+    box = trimesh.creation.box()
+    v, f, n, source, rep = split_creases(box.vertices, box.faces)
+    assert len(v) == 24 and sorted(np.bincount(source)) == [3] * 8
+    old = Regions(base=Lambert(albedo=(0.5, 0.5, 0.5)), vertex_count=8,
+                  regions=[Region(name="corner", material=GGX(alpha=0.2), vertices=[0, 5], weights=[1.0, 0.25])])
+    new = fit_mesh(old, 24, source)
+    assert new.vertex_count == 24 and fit_mesh(old, 24, source) is new          # kept on the material
+    w = new.regions[0].dense(24)
+    np.testing.assert_allclose(w, np.where(source == 0, 1.0, np.where(source == 5, 0.25, 0.0)))
+    _, a = layer_weights(old, 24, source)
+    np.testing.assert_allclose(a[1], w)
+    with pytest.raises(RegionsError, match="painted on a mesh of 8 vertices, but the object has 24"):
+        layer_weights(old, 24)                       # no source: another mesh
+    with pytest.raises(RegionsError):
+        fit_mesh(old.model_copy(update={"vertex_count": 9}), 24, source)

@@ -59,7 +59,7 @@ def test_generated_client_drives_the_automation_flow(server, glint_client, share
                        body=File(payload=io.BytesIO((shared_assets / "meshes" / "bunny.ply").read_bytes())))
     env = upload.sync(client=c, kind=UploadV1AssetsKindPostKind.ENVMAPS, filename="sunset.exr",
                       body=File(payload=io.BytesIO((shared_assets / "env" / "sunset.exr").read_bytes())))
-    assert mesh.meta.to_dict()["vertices"] == 2826 and env.meta.to_dict()["width"] == 512
+    assert mesh.meta.to_dict()["vertices"] == 2882 and env.meta.to_dict()["width"] == 512
     spec = json.loads((ROOT / "tests" / "scenes" / "bunny.json").read_text())
     spec["environment"]["map"], spec["objects"][0]["mesh"] = env.id, mesh.id
     scene = create_scene.sync(client=c, body=SceneFile.from_dict(spec), name="generated")

@@ -342,7 +342,7 @@ def test_studio_follows_the_demo_precomputation(browser, tmp_path, artifacts):
     itself when it is ready (no reload). The demo here is the bunny (GLINT_DEMO_SCENE),
     precomputed by a fresh server that draws a first look for any scene
     (``preview_min_vertices`` 0; the default draws none below 8000 vertices, and the bunny has
-    2826). The first look is close to the final frame."""
+    2882). The first look is close to the final frame."""
     import httpx
     from PIL import Image
 

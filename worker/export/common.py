@@ -43,6 +43,7 @@ class ObjectMesh:
     normals: np.ndarray
     vertex_ids: np.ndarray | None = None
     n_vertices: int = 0
+    source: np.ndarray | None = None        # scene.LoadedScene.vertex_source of the object
 
 
 def check_format(fmt: str) -> str:
@@ -71,7 +72,7 @@ def object_meshes(scene: LoadedScene) -> list[ObjectMesh]:
         # (an object's vertices are contiguous in the scene's mesh, scene.LoadedScene)
         out.append(ObjectMesh(o.name, mesh.vertices[used], remap[faces].astype(np.uint32), n.astype(np.float32),
                               vertex_ids=used.astype(np.int64) - int(first[i]),
-                              n_vertices=int(first[i + 1] - first[i])))
+                              n_vertices=int(first[i + 1] - first[i]), source=scene.vertex_source(i)))
     return out
 
 
@@ -116,11 +117,17 @@ def layer_materials(m: BRDFModel) -> list[BRDFModel]:
     return [m]
 
 
-def check_regions(m: BRDFModel, om: ObjectMesh) -> None:
-    """ExportError when ``m`` has regions painted on a mesh of another size than ``om``'s object."""
-    if has_regions(m) and m.vertex_count != om.n_vertices:
+def check_regions(m: BRDFModel, om: ObjectMesh) -> BRDFModel:
+    """``m`` with its regions over ``om``'s object's vertices (models.regions.fit_mesh: remapped
+    when painted before the object's vertices were split at creases); ExportError when ``m`` has
+    regions painted on a mesh of another size."""
+    from ..models.regions import RegionsError, fit_mesh
+
+    try:
+        return fit_mesh(m, om.n_vertices, om.source)
+    except RegionsError:
         raise ExportError(f"object {om.name!r}: its material's regions were painted on a mesh of "
-                          f"{m.vertex_count} vertices, but the object has {om.n_vertices}")
+                          f"{m.vertex_count} vertices, but the object has {om.n_vertices}") from None
 
 
 def region_weights(m: BRDFModel, om: ObjectMesh) -> np.ndarray:
@@ -129,7 +136,7 @@ def region_weights(m: BRDFModel, om: ObjectMesh) -> np.ndarray:
     plain material. ExportError when the regions were painted on a mesh of another size."""
     if not has_regions(m):
         return np.zeros((0, len(om.vertices)), np.float32)
-    check_regions(m, om)
+    m = check_regions(m, om)
     return np.stack([r.dense(om.n_vertices)[om.vertex_ids] for r in m.regions]).astype(np.float32)
 
 
@@ -145,8 +152,7 @@ def effective_weights(m: BRDFModel, om: ObjectMesh) -> np.ndarray:
     (Regions.layers: Σ_l a_l = 1; one row of ones for a plain material)."""
     if not has_regions(m):
         return np.ones((1, len(om.vertices)), np.float32)
-    check_regions(m, om)
-    return m.layers()[1][:, om.vertex_ids]
+    return check_regions(m, om).layers()[1][:, om.vertex_ids]
 
 
 def distinct_materials(scene: LoadedScene, variants: list[Variant]) -> dict[str, BRDFModel]:

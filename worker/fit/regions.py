@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from ..models.regions import Region, Regions, has_regions, in_group, without_region
+from ..models.regions import Region, Regions, fit_mesh, has_regions, in_group, without_region
 from ..scene import SRBF
 from .basis import DEFAULT_NL
 from .brush import DEFAULT_UNPAINTED_WEIGHT, Stroke, apply_stroke, polyline_distance, stroke_effect, stroke_weights
@@ -194,7 +194,8 @@ def fit_region(fx: Fitter, name: str = "region 1", unpainted_weight: float = DEF
         raise FitError(f"parts must be 1 to 16 or 'auto', got {parts!r}")
     r = fx.renderer
     off, n_o = object_range(r, fx.obj)
-    cur = fx.base_material
+    # regions painted before the object's vertices were split at creases: over today's vertices
+    cur = fit_mesh(fx.base_material, n_o, r.scene.vertex_source(fx.obj))
     olds = [g for g in cur.regions if in_group(g.name, name)] if has_regions(cur) else []
     w = footprint_weights(fx, strokes)
     for g in olds:                                # extending: the old footprint stays painted

@@ -126,6 +126,7 @@ class Regions(BRDFModel):
     vertex_count: int = Field(ge=1, le=MAX_VERTEX_COUNT, description="vertices of the object the weights index")
     regions: list[Region] = Field(min_length=1, max_length=MAX_REGIONS)
     _dense: _Cache = PrivateAttr(default_factory=_Cache)
+    _resplit: _Cache = PrivateAttr(default_factory=_Cache)     # fit_mesh's remapped copy
 
     @model_validator(mode="before")
     @classmethod
@@ -199,16 +200,39 @@ class Regions(BRDFModel):
                                     vertices=[1, 2], weights=[1.0, 0.5])])]
 
 
-def layer_weights(material, n_vertices: int) -> tuple[list[BRDFModel], np.ndarray]:
+def fit_mesh(material, n_vertices: int, source: np.ndarray | None = None):
+    """``material`` with region weights over an object of ``n_vertices`` vertices: itself, or,
+    for a regions material painted on the object's mesh before loading split its vertices at
+    creases (source (n_vertices,) int64: the vertex each one copies, scene.LoadedScene.
+    vertex_source), the same regions with every copy taking its vertex's weight. Remapped copies
+    are kept on the material (the state hands the same object to every frame). RegionsError when
+    the regions were painted on a mesh of another size."""
+    if not isinstance(material, Regions) or material.vertex_count == n_vertices:
+        return material
+    if source is not None and len(source) == n_vertices and len(source) \
+            and material.vertex_count == int(source.max()) + 1:
+        c = material._resplit
+        if c.key is None or c.key[0] is not source or c.key[1] is not material.regions:
+            regions = []
+            for r in material.regions:
+                w = r.dense(material.vertex_count)[source]
+                ids = np.nonzero(w > 0)[0]
+                regions.append(Region(name=r.name, material=r.material, vertices=ids.tolist(),
+                                      weights=w[ids].astype(np.float64).tolist()))
+            c.key, c.value = (source, material.regions), Regions(base=material.base, vertex_count=n_vertices,
+                                                                  regions=regions)
+        return c.value
+    raise RegionsError(f"the material's regions were painted on a mesh of {material.vertex_count} "
+                       f"vertices, but the object has {n_vertices}")
+
+
+def layer_weights(material, n_vertices: int, source: np.ndarray | None = None) -> tuple[list[BRDFModel], np.ndarray]:
     """The layers of any material over an object of ``n_vertices`` vertices: (materials (L,),
     effective weights (L, n_vertices) float32 summing to 1 per vertex). A material without
-    regions is one layer of weight 1. RegionsError when a regions material was painted on a
-    mesh of another size."""
+    regions is one layer of weight 1. source : the object's vertex_source (``fit_mesh``).
+    RegionsError when a regions material was painted on a mesh of another size."""
     if isinstance(material, Regions):
-        if material.vertex_count != n_vertices:
-            raise RegionsError(f"the material's regions were painted on a mesh of {material.vertex_count} "
-                               f"vertices, but the object has {n_vertices}")
-        return material.layers()
+        return fit_mesh(material, n_vertices, source).layers()
     return [material], np.ones((1, n_vertices), np.float32)
 
 

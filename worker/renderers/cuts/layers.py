@@ -27,7 +27,7 @@ class Layers:
         weights over the object's vertices, first global vertex id of the object).
     """
 
-    def __init__(self, materials, object_of_vertex: np.ndarray):
+    def __init__(self, materials, object_of_vertex: np.ndarray, sources=None):
         self._memo = None           # (vids, expansion, blend matrix) of the last frame's points
         self.gathered = None        # the renderer's gathered inputs of those points (renderer.py)
         self.flat = []
@@ -40,7 +40,8 @@ class Layers:
             if offsets is None:
                 offsets = np.searchsorted(object_of_vertex, np.arange(len(materials) + 1))
             n_o = int(offsets[o + 1] - offsets[o])
-            mats, a = layer_weights(m, n_o)          # RegionsError: painted on another mesh
+            # RegionsError: painted on another mesh (sources: scene.LoadedScene.vertex_source)
+            mats, a = layer_weights(m, n_o, None if sources is None else sources(o))
             self.flat.append(mats[0])
             self.objects[o] = (np.zeros(len(mats), np.int32), a, int(offsets[o]))
         for o, (slots, a, off) in self.objects.items():
@@ -106,9 +107,9 @@ class Layers:
         return out
 
 
-def frame_layers(materials, object_of_vertex) -> Layers | None:
+def frame_layers(materials, object_of_vertex, sources=None) -> Layers | None:
     """Layers of a frame's materials, or None when no object has regions (the common case costs
-    one type check per object)."""
+    one type check per object). sources : object index -> its vertex_source or None."""
     if not any(has_regions(m) for m in materials):
         return None
-    return Layers(materials, object_of_vertex)
+    return Layers(materials, object_of_vertex, sources)

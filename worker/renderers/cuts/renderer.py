@@ -758,7 +758,7 @@ class CutRenderer(Renderer):
         # a material with regions: its layers in the object's slot (the others are never shaded)
         mlist = [_placeholder_model()] * len(self.scene.spec.objects)
         mlist[object_index] = material
-        layers = Layers(mlist, self.scene.object_of_vertex)
+        layers = Layers(mlist, self.scene.object_of_vertex, self.scene.vertex_source)
         mats = MaterialTable([self._pack(m) if i in layers.needed([object_index]) else _placeholder()
                               for i, m in enumerate(layers.flat)])
         return self._shade(s, self._fit_cuts(coarse), node_l, node_w, mats, self.scene.object_of_vertex, node8,
@@ -769,7 +769,7 @@ class CutRenderer(Renderer):
         by the identity of the list's items, as the material table is."""
         key = tuple(id(m) for m in materials)
         if key != self._layers_key:
-            self._layers = frame_layers(materials, self.scene.object_of_vertex)
+            self._layers = frame_layers(materials, self.scene.object_of_vertex, self.scene.vertex_source)
             self._layers_key, self._layers_refs = key, list(materials)
         return self._layers
 
