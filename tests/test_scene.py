@@ -115,9 +115,10 @@ def _gltf(path, normals: bool, rotate_y_deg: float = 0.0):
 @pytest.mark.parametrize("with_normals", [True, False])
 def test_every_mesh_format_with_and_without_normals(tmp_path, kind, with_normals):
     """File normals are used (normalised, copied: trimesh's arrays are read-only) when the file
-    has them; otherwise area-weighted face normals (docs/design/conventions.md). A glTF node rotation applies
-    to positions and normals alike."""
-    from worker.scene import area_weighted_normals
+    has them; otherwise area-weighted face normals of each vertex's smooth wedge, the vertex split
+    at creases (worker/creases.py, docs/design/conventions.md). A glTF node rotation applies to
+    positions and normals alike."""
+    from worker.creases import split_creases
 
     if kind == "stl" and with_normals:
         pytest.skip("STL stores face normals only")
@@ -138,11 +139,13 @@ def test_every_mesh_format_with_and_without_normals(tmp_path, kind, with_normals
     if kind == "stl":       # STL repeats vertices per face: compare per position
         assert len(m.faces) == len(_TF)
         return
-    assert np.allclose(m.vertices, _TV @ R.T, atol=1e-5), f"{kind}: positions"
     if with_normals:
+        assert np.allclose(m.vertices, _TV @ R.T, atol=1e-5), f"{kind}: positions"
         want = (_TN / np.linalg.norm(_TN, axis=1, keepdims=True)) @ R.T
-    else:
-        want = area_weighted_normals(_TV, _TF) @ R.T
+    else:       # no normals in the file: split at creases, each copy with its wedge's normal
+        v, _, n, _, _ = split_creases(_TV, _TF)
+        assert np.allclose(m.vertices, v @ R.T, atol=1e-5), f"{kind}: positions"
+        want = n @ R.T
     assert np.allclose(m.normals, want, atol=1e-4), f"{kind}: normals\n{m.normals}\nwant\n{want}"
 
 
