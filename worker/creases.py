@@ -1,23 +1,24 @@
 """Crease-aware vertex normals for meshes whose file stores none.
 
-A vertex shared by faces meeting at a sharp edge (a chair's leg, a sofa's armrest) has no one
+A vertex shared by faces meeting at a sharp edge (a chair's leg, a couch's seat) has no one
 normal: the area-weighted average points between the faces, so its hemisphere dips below both
 of them. Glint traces a vertex's visibility over that hemisphere (its cut) and interpolates
-shading across the faces, so the edge drew dark (the adjacent face counted as an occluder) and
-every face along it was shaded with a normal it does not have: 9% relative RMSE on the oak chair
-and 11-17% on a sofa against Mitsuba, which shades points inside the faces.
+shading across the faces, so each face along the edge was shaded with a normal it does not have
+and the edge drew dark (the adjacent face counted as an occluder).
 
 ``split_creases`` gives each vertex one copy per *wedge*: the faces around it joined through
 edges whose dihedral angle (between the two face normals) is at most ``CREASE_DEG``. Each copy
 has the area-weighted normal of its wedge. A smooth surface (every edge below the angle) keeps
-its vertices; a box gets flat faces. This is the auto-smooth of modelling tools, applied only
-where the file gives no normals (docs/design/conventions.md, vertex normals); a file's own
-normals, and its own splits (a crease or a UV seam stored as separate vertices), are kept.
+its vertices, in order; a box gets flat faces. This is the auto-smooth of modelling tools,
+applied only where the file gives no normals (docs/design/conventions.md, vertex normals); a
+file's own normals, and its own splits (a crease or a UV seam stored as separate vertices), are
+kept. On the held-out couch it removed 25-44% of the vertex mode's error against Mitsuba
+(docs/benchmarks/history/2026-12-06-creases.md).
 
-Written here rather than taken from trimesh: ``trimesh.graph.smoothed`` splits a mesh into
-disconnected pieces per smooth region, which also separates faces that meet at a sharp edge of
-an otherwise smooth fan (it needs networkx too); here each vertex is split within its own fan,
-which keeps the surface connected wherever it is smooth.
+Written here rather than taken from trimesh: ``trimesh.graph.smooth_shade`` cuts the mesh into
+disconnected patches of faces (and merges large coplanar facets by an area rule), which also
+separates faces that meet at a crease elsewhere in an otherwise smooth fan; here each vertex is
+split within its own fan, so the surface stays connected wherever it is smooth.
 """
 from __future__ import annotations
 
