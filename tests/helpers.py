@@ -173,13 +173,16 @@ def wait_new_frame(page, after, timeout=60_000):
 
 
 def settle(page, quiet_ms=1200, timeout=60_000):
-    """Wait until no new frame has arrived for quiet_ms (the last message's frame is in)."""
+    """Wait until no new frame has arrived for quiet_ms and the last one is not a quick frame
+    (a quick frame, one sample after a new fit or view, is always followed by its anti-aliased
+    still, which a loaded machine may take longer than quiet_ms to draw): the last message's
+    settled frame is in."""
     waited, last = 0, frame_no(page)
     while waited < timeout:
         page.wait_for_timeout(quiet_ms)
         waited += quiet_ms
         now = frame_no(page)
-        if now == last:
+        if now == last and page.evaluate("() => document.getElementById('view').dataset.quick") != "true":
             return
         last = now
     raise TimeoutError("frames kept coming")
