@@ -183,15 +183,22 @@ def test_an_inside_out_mesh_is_turned_outward(bunny):
 
 
 def test_a_thin_open_sheet_gets_a_back(bunny):
-    """A patch of the bunny's back alone is a sheet seen from both sides: a copy wound the other
-    way is added just behind it, with normals of its own pointing the other way."""
+    """A patch of the bunny's back, beside a whole bunny far away in the same mesh, is a sheet
+    seen from both sides within an object: a copy wound the other way is added just behind it,
+    with normals of its own pointing the other way. The patch alone (a mesh that is one sheet:
+    a floor, a wall) keeps one side."""
     v, f = bunny
     cen = v[f].mean(1)
     patch = f[np.linalg.norm(cen - cen[np.argmax(cen[:, 2])], axis=1) < 0.3]
-    n_in = trimesh.Trimesh(v, patch, process=False).vertex_normals
-    v2, f2, n2, rep = repair(v, patch, np.asarray(n_in), normals_from_faces=True)
+    _, alone, _, rep = repair(v, patch)
+    assert rep["two_sided_faces"] == 0 and len(alone) == len(patch), rep
     k = len(patch)
-    assert rep["two_sided_faces"] == k and rep["two_sided_faces_added"] == k and len(f2) == 2 * k, rep
+    vv = np.concatenate([v, v + [20.0, 0.0, 0.0]])
+    ff = np.concatenate([patch, f + len(v)])
+    n_in = trimesh.Trimesh(vv, ff, process=False).vertex_normals
+    v2, f2, n2, rep = repair(vv, ff, np.asarray(n_in), normals_from_faces=True)
+    assert rep["two_sided_faces"] == k and rep["two_sided_faces_added"] == k and len(f2) == 2 * k + len(f), rep
+    f2 = np.concatenate([f2[:k], f2[k + len(f):]])         # the patch, then its back
     front, back = _facing(v2, f2[:k]), _facing(v2, f2[k:])
     assert ((front * back).sum(1) < 0).all()                # the back faces the other way
     gap = np.abs(((v2[f2[k:]].mean(1) - v2[f2[:k]].mean(1)) * front / np.linalg.norm(front, axis=1,

@@ -13,9 +13,9 @@ Fixes, in order (each counted in the report):
   file's winding of most of its area); ``outward_flipped_faces``, faces of pieces turned whole
   because their back sees more of the surroundings than their front (an inward-facing piece);
   ``components``, ``non_orientable_faces`` (faces of pieces no winding makes coherent, left as
-  they are) and ``two_sided_components`` / ``two_sided_faces``: open pieces whose two sides both
-  see the surroundings (a thin sheet: glass, a panel), counted for the renderers that shade one
-  side (module ``orient``). The vertex normals are then recomputed from the repaired faces.
+  they are) and ``two_sided_components`` / ``two_sided_faces``: open pieces of a mesh of several
+  pieces whose two sides both see the surroundings (a thin sheet: glass, a panel), which get a
+  back (``two_sided_faces_added``, ``back_sheets``) for the renderers that shade one side. The vertex normals are then recomputed from the repaired faces.
 
 ``duplicate_vertices`` counts vertices that share a position with an earlier one. They are merged
 only to find duplicate faces and the faces sharing an edge; the output keeps them split, because
@@ -173,7 +173,10 @@ def orient(v: np.ndarray, f: np.ndarray, fm: np.ndarray) -> tuple[np.ndarray, di
     out[turned] = out[turned][:, [0, 2, 1]]
     lo, hi = np.minimum(front, back), np.maximum(front, back)
     open_piece = np.bincount(comp, weights=boundary, minlength=n_comp) > 0
-    two_sided = open_piece & (hi > 0) & (2 * lo >= hi)   # both sides see the surroundings alike
+    # both sides see the surroundings alike: a sheet within an object (glass, a panel) is seen
+    # from both. A mesh that is one open sheet and nothing else (a floor, a wall, a backdrop: a
+    # scene's surfaces) is seen from its front, and a back would only double its vertices
+    two_sided = open_piece & (hi > 0) & (2 * lo >= hi) & (n_comp > 1)
     rep = {"components": int(n_comp), "non_orientable_faces": int(non_orientable.sum()),
            "winding_flipped_faces": int(flip.sum()), "outward_flipped_faces": int(turned.sum()),
            "outward_flipped_components": int(turn.sum()),
