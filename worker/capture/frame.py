@@ -45,15 +45,16 @@ lens, whatever the scene, and together they separate it from the scene:
 Detection runs at about 512 px across the circle. Rim-attached components of the candidates
 are seeds; they grow (hysteresis, at most ``GROW_PX`` working pixels) through pixels that are
 dark in every shot or occluding, texture or not and not seen alike by another shot, which
-recovers the frame's thin parts and edges. The mask then grows by two working pixels (the
-anti-aliased edge), by the largest alignment shift (aligned brackets see the frame displaced
+recovers the frame's thin parts and edges. The mask then grows by ``EDGE_PX`` working pixels
+(the anti-aliased or soft edge), by the largest alignment shift (aligned brackets see the frame displaced
 by it) and by one photo pixel.
 
 Where another shot sees the same directions, stitching fills the frame from it (the frame's
 pixels get zero weight and a feathered edge); what no shot sees is inpainted (stitch.py).
 How the constants were chosen and what they achieve: bench/frame_detector.py chooses them on
 its TUNING HDRIs only and reports on its HELD_OUT HDRIs, which no choice saw (the figures:
-docs/benchmarks/history/2026-12-01-frame-detector.md and 2026-12-02-frame-detector-rims.md).
+docs/benchmarks/history/2026-12-01-frame-detector.md, 2026-12-02-frame-detector-rims.md and
+2026-12-06-frame-detector-sweep.md, which chose DARK_STOPS, OCCLUDED_STOPS and GROW_PX again).
 """
 from __future__ import annotations
 
@@ -63,9 +64,9 @@ import numpy as np
 
 from .fisheye import Lens
 
-DARK_STOPS = 1.5       # below the shot's median log₂ luminance
+DARK_STOPS = 1.25      # below the shot's median log₂ luminance
 DARK_ALBEDO = 0.25     # × E/π facing forward: black housings reflect < 10%; margin for clipped lights
-OCCLUDED_STOPS = 2.0   # darker than another shot's view of the same direction
+OCCLUDED_STOPS = 1.25  # darker than another shot's view of the same direction
 FLAT_STOPS_PER_PX = 0.1   # 5×5 median of |∇ log₂ luminance| at the working resolution
 AGREE_STOPS = 0.75     # a region's pixel agrees with another shot's view of its direction
 SEEN_FRACTION = 0.8    # a region whose overlap pixels agree this often is scene, seen by both shots
@@ -74,7 +75,8 @@ ENCIRCLE = 0.9         # ... unless it runs along this fraction of the rim (a ce
 GLINT_STOPS = 1.0      # a polished rim reads this much brighter than another shot's view of its direction
 RIM_BAND = 0.05        # ... within this fraction of the radius from the rim (a barrel edge is thin)
 DIMMED_STOPS = 1.0     # hysteresis: a housing's soft edge reads this much darker than another shot's view
-GROW_PX = 32           # hysteresis: how far (working pixels) a region grows from its seeds
+GROW_PX = 16           # hysteresis: how far (working pixels) a region grows from its seeds
+EDGE_PX = 2            # the found regions grow by this many working pixels (the housing's soft edge)
 WORK_DIAMETER = 512    # working resolution across the image circle
 LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
 
@@ -271,7 +273,7 @@ def detect_frame(radiance: list[np.ndarray], lens: Lens, max_shift: int = 0,
                                    small, min_area)
     keep_regions = int(grown.sum())
     m = grown[lab2].astype(np.uint8)
-    grow = 2 + int(np.ceil(max_shift * scale))
+    grow = EDGE_PX + int(np.ceil(max_shift * scale))
     m = cv2.dilate(m, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1)))
     full = cv2.resize(m * 255, (w, h), interpolation=cv2.INTER_LINEAR) > 0
     # one more full-resolution pixel for the upsampling's edge
