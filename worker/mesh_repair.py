@@ -10,12 +10,17 @@ Fixes, in order (each counted in the report):
 - winding and orientation (``orient``), for meshes whose normals come from their faces (a file
   without normals): ``winding_flipped_faces``, faces turned so that every edge shared by two
   faces is walked in opposite directions by them (each surface piece coherent, keeping the
-  file's winding of most of its area); ``outward_flipped_faces``, faces of pieces turned whole
-  because their back sees more of the surroundings than their front (an inward-facing piece);
-  ``components``, ``non_orientable_faces`` (faces of pieces no winding makes coherent, left as
-  they are) and ``two_sided_components`` / ``two_sided_faces``: open pieces of a mesh of several
-  pieces whose two sides both see the surroundings (a thin sheet: glass, a panel), which get a
-  back (``two_sided_faces_added``, ``back_sheets``) for the renderers that shade one side. The vertex normals are then recomputed from the repaired faces.
+  file's winding of most of its area); ``outward_flipped_faces`` (``outward_flipped_components``),
+  faces of pieces turned whole because their front sees nothing of the surroundings and their
+  back does (an inward-facing piece); ``components`` and ``non_orientable_faces`` (faces of
+  pieces no winding makes coherent, left as they are);
+- thin surfaces: ``two_sided_components`` / ``two_sided_faces``, open pieces of a mesh of
+  several pieces whose two sides both see the surroundings (glass, a panel), which get a back
+  (``two_sided_faces_added``, ``back_sheets``), also in a mesh with its own normals;
+  ``fold_vertices_split``, vertices whose faces fold back on themselves, split into one per side
+  (``split_folds``); ``layer_vertices_moved``, vertices of two layers on the same positions
+  facing apart, parted (``separate_layers``); these two for meshes without normals, whose
+  vertex normals are then recomputed from the repaired faces.
 
 ``duplicate_vertices`` counts vertices that share a position with an earlier one. They are merged
 only to find duplicate faces and the faces sharing an edge; the output keeps them split, because
@@ -31,8 +36,8 @@ import numpy as np
 
 from .errors import GlintError
 
-# Orientation by exposure (``orient``). Not tuned on any mesh: the rays decide by a significance
-# test, and these only set how many rays are spent.
+# Orientation by exposure (``orient``): the rays decide by a significance test; the first two
+# only set how many rays are spent.
 EXPOSURE_FACES = 64     # faces sampled per surface piece (area-weighted, fixed seed)
 EXPOSURE_RAYS = 16      # cosine-distributed rays per side of each sampled face
 SIGMAS = 3.0            # a piece is turned when its back's escapes exceed its front's by 3 σ …
