@@ -57,6 +57,8 @@ SEARCH_WIDE = {
     "FLAT_STOPS_PER_PX": [0.1, 0.15, 0.2],
     "OCCLUDED_STOPS": [1.0, 1.25, 1.5, 2.0],
     "EDGE_PX": [2, 3, 4],
+    # the fixed-ratio regions (0: off), chosen after the two sweeps above, the rest held
+    "RATIO_SPREAD": [0.0, 0.05, 0.075, 0.1, 0.125, 0.15, 0.2, 0.3],
 }
 
 
