@@ -8,6 +8,9 @@ vertex normals so both renderers shade the same surface. Materials: ``lambert`` 
 diffuse part added through ``blendbsdf`` ((1 − w)·diffuse(a/(1 − w)) + w·conductor(s/w) = a + s,
 with w = max s / (max s + max a) so both scaled reflectances stay within Mitsuba's [0, 1]).
 ``two_sided`` wraps every BSDF in ``twosided`` (the GI renderer shades both sides of a surface).
+``face_normals`` shades with the triangles' own normals instead of the vertex normals: with
+``two_sided`` the image then does not depend on the mesh's winding or normals at all, which makes
+it the reference for what a mesh's repair of winding and normals must produce.
 Requires the optional dependency ``mitsuba`` (``pip install glint-studio[mitsuba]``).
 """
 from __future__ import annotations
@@ -40,7 +43,8 @@ def bsdf_dict(m) -> dict:
 
 
 def render_mitsuba(scene: LoadedScene, spp: int = 256, seed: int = 0, rotation_deg: float | None = None,
-                   integrator: str = "direct", max_depth: int | None = None, two_sided: bool = False) -> np.ndarray:
+                   integrator: str = "direct", max_depth: int | None = None, two_sided: bool = False,
+                   face_normals: bool = False) -> np.ndarray:
     """(H, W, 3) float32 linear radiance rendered by Mitsuba 3 for the loaded scene.
 
     integrator "path" with max_depth = bounces + 1 renders up to that many bounces."""
@@ -75,7 +79,7 @@ def render_mitsuba(scene: LoadedScene, spp: int = 256, seed: int = 0, rotation_d
             bsdf = bsdf_dict(o.material)
             if two_sided:
                 bsdf = {"type": "twosided", "bsdf": bsdf}
-            d[f"obj{i}"] = {"type": "ply", "filename": str(path), "face_normals": False, "bsdf": bsdf}
+            d[f"obj{i}"] = {"type": "ply", "filename": str(path), "face_normals": bool(face_normals), "bsdf": bsdf}
         sc = mi.load_dict(d)
         img = mi.render(sc)
     return np.asarray(img, dtype=np.float32)[..., :3]

@@ -331,7 +331,9 @@ def load_mesh(path: str | Path, transform: Transform | None = None) -> Mesh:
     otherwise they are area-weighted face normals of each vertex's smooth wedge, the vertex split
     along sharp edges (worker/creases.py; docs/design/conventions.md). A glTF scene's node
     transforms apply to positions and (inverse-transposed) to its normals. The mesh is repaired
-    (worker.mesh_repair.repair; its report is ``Mesh.repair``); SceneError when nothing survives.
+    (worker.mesh_repair.repair; its report is ``Mesh.repair``): a mesh without normals in the file
+    also has its winding made coherent and its pieces turned outward before its vertices are
+    split at creases; SceneError when nothing survives.
     """
     import trimesh
 
@@ -353,13 +355,16 @@ def load_mesh(path: str | Path, transform: Transform | None = None) -> Mesh:
     if not placed:
         raise SceneError(f"{path}: contains no triangles")
     verts, faces, normals, base = [], [], [], 0
+    from_faces = True                      # every normal computed here, none read from the file
     for g, T in placed:
         v = np.asarray(g.vertices, dtype=np.float64)
         f = np.asarray(g.faces, dtype=np.int64)
         if len(f) and (f.min() < 0 or f.max() >= len(v)):
             raise SceneError(f"{path}: face indices out of range")
         aw = area_weighted_normals(v, f)
-        n = _unit_or(g.vertex_normals, aw) if has_n and len(g.vertex_normals) == len(v) else aw
+        own = has_n and len(g.vertex_normals) == len(v)
+        from_faces &= not own
+        n = _unit_or(g.vertex_normals, aw) if own else aw
         if not np.allclose(T, np.eye(4)):
             v = v @ T[:3, :3].T + T[:3, 3]
             n = _unit_or(n @ np.linalg.inv(T[:3, :3]), area_weighted_normals(v, f))
@@ -368,12 +373,12 @@ def load_mesh(path: str | Path, transform: Transform | None = None) -> Mesh:
     from .mesh_repair import MeshRejected, repair
 
     try:
-        v, f, n, report = repair(v, f, n)
+        v, f, n, report = repair(v, f, n, normals_from_faces=from_faces)
     except MeshRejected as e:
         raise SceneError(f"{path}: {e}") from None
-    if not has_n:
+    if from_faces:
         # no normals in the file: one per smooth wedge around each vertex, not one averaged
-        # across a sharp edge (worker/creases.py)
+        # across a sharp edge (worker/creases.py), on the repaired (coherently wound) faces
         from .creases import split_creases
 
         v, f, n, source, crease = split_creases(v, f)

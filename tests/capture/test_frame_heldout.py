@@ -4,8 +4,8 @@ Every held-out case: clean captures at three yaw pairs per HDRI, and one capture
 housing kind (a band with a clip arm, clip arms, a vignetting crescent, a bright polished rim),
 480×320, two shots × 5 brackets, synthesised and merged once (cached, content-keyed, in
 tests/.cache/frame-bench, shared with the benchmark). Clean captures must keep their circle
-(the target, met); the housings' recall is reported by the benchmark (below the 95% target:
-BENCHMARKS.md), and here only the bright polished rims' is asserted, which the rim pass exists
+(the target, met); the housings' mean recall is held at what the constants reach (below the 95%
+target: BENCHMARKS.md), and the bright polished rims' on their own, which the rim pass exists
 for (before it, 0.00-0.24 of a rim was found); the tuning-set tests (test_frame.py) keep the
 bands and clips found. Then the case the first detector failed
 on, a clean 768 px capture of the hall, through the whole pipeline: it keeps its circle and
@@ -21,7 +21,8 @@ from bench.frame_detector import HELD_OUT, TUNING, cases, merged, score
 SIZE = (480, 320)
 CASES = cases(HELD_OUT)
 CLEAN_LOST = 0.03      # at most this share of the image circle flagged in a clean capture
-RIM_RECALL = 0.65      # mean share of a held-out polished rim's pixels found (measured 0.77)
+RIM_RECALL = 0.65      # mean share of a held-out polished rim's pixels found (measured 0.79)
+HOUSING_RECALL = 0.87  # mean share of every held-out housing's pixels found (measured 0.887; target 0.95)
 
 
 @pytest.fixture(scope="module")
@@ -37,14 +38,31 @@ def scored(cache_dir):
 
 
 @pytest.fixture(scope="module")
-def scored_rims(cache_dir):
-    """The held-out captures with a bright polished rim, synthesised (cached) and scored."""
+def scored_housings(cache_dir):
+    """Every held-out capture with a housing, synthesised (cached) and scored."""
     out = []
-    for case in (c for c in CASES if c["frame"] == "rim"):
+    for case in (c for c in CASES if c["frame"]):
         with cache_lock(str(cache_dir / "frame-bench" / case["hdri"])):
             m = merged(case, SIZE, cache_dir / "frame-bench")
         out.append(score(case, m))
     return out
+
+
+@pytest.fixture(scope="module")
+def scored_rims(scored_housings):
+    """The held-out captures with a bright polished rim."""
+    return [r for r in scored_housings if r["housing"] == "rim"]
+
+
+def test_held_out_housings_are_found(scored_housings):
+    """All 28 held-out housings (bands, clips, vignettes, rims): the mean share of their pixels
+    found. The target is 95%, not met (BENCHMARKS.md); this keeps what the constants chosen on
+    the tuning HDRIs reach on HDRIs none of them saw."""
+    assert len(scored_housings) >= 28, len(scored_housings)
+    msg = "; ".join(_line(r) for r in scored_housings)
+    mean = float(np.mean([r["recall"] for r in scored_housings]))
+    print(f"mean recall {mean:.3f}: {msg}")
+    assert mean >= HOUSING_RECALL, f"held-out housings: mean recall {mean:.3f}: " + msg
 
 
 def test_the_split_is_disjoint_and_large_enough():

@@ -13,9 +13,10 @@ from worker.paint.geometry import aspecular_directions
 # a prefix of the held-out set basis.json reports on (the two families come from separate
 # streams, so these are its first paints): small enough for the suite, never seen by the choice
 N_LOBES, N_MICROFACET = 40, 8
-# what the held-out set gives the stored basis (data/basis.json), with the margin of a 48-case sample
+# what the held-out set gives the stored basis (data/basis.json: 0.6% worst), with the margin of
+# a 48-case sample; and the target itself: every held-out paint within TOLERANCE in every reading
 WORST_BOUND = B.stored()["held_out"]["max"] * 1.05 + 1e-3
-WITHIN_BOUND = 0.85
+WITHIN_BOUND = 1.0
 
 
 @pytest.fixture(scope="module")

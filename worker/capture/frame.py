@@ -42,18 +42,29 @@ lens, whatever the scene, and together they separate it from the scene:
    several stops over a few pixels) is not flat; the hysteresis also grows through pixels
    ``DIMMED_STOPS`` darker than the other view in every shot (the ramp's lighter part).
 
+9. **One factor between the shots** (a third pass). Fixed to the sensor and lit differently in
+   each shot, a housing reads the same in every shot up to one factor: over a rim-attached region
+   flat in every shot, the difference of two shots' log₂ luminance at the same pixels is itself
+   flat and spreads at most ``RATIO_SPREAD`` stops (10th-90th percentile), whatever the
+   housing's brightness against the scene (a dim studio's black clip arms read brighter than its
+   median and hide no lamp). The scene behind the rim differs from shot to shot; where it does
+   not (the same directions at the rim's top and bottom in both shots), the overlap test vetoes
+   the region as seen alike.
+
 Detection runs at about 512 px across the circle. Rim-attached components of the candidates
 are seeds; they grow (hysteresis, at most ``GROW_PX`` working pixels) through pixels that are
 dark in every shot or occluding, texture or not and not seen alike by another shot, which
-recovers the frame's thin parts and edges. The mask then grows by two working pixels (the
-anti-aliased edge), by the largest alignment shift (aligned brackets see the frame displaced
+recovers the frame's thin parts and edges. The mask then grows by ``EDGE_PX`` working pixels
+(the anti-aliased or soft edge), by the largest alignment shift (aligned brackets see the frame displaced
 by it) and by one photo pixel.
 
 Where another shot sees the same directions, stitching fills the frame from it (the frame's
 pixels get zero weight and a feathered edge); what no shot sees is inpainted (stitch.py).
 How the constants were chosen and what they achieve: bench/frame_detector.py chooses them on
 its TUNING HDRIs only and reports on its HELD_OUT HDRIs, which no choice saw (the figures:
-docs/benchmarks/history/2026-12-01-frame-detector.md and 2026-12-02-frame-detector-rims.md).
+docs/benchmarks/history/2026-12-01-frame-detector.md, 2026-12-02-frame-detector-rims.md and
+2026-12-06-frame-detector-sweep.md, which chose DARK_STOPS, OCCLUDED_STOPS and GROW_PX again
+and RATIO_SPREAD).
 """
 from __future__ import annotations
 
@@ -63,9 +74,9 @@ import numpy as np
 
 from .fisheye import Lens
 
-DARK_STOPS = 1.5       # below the shot's median log₂ luminance
+DARK_STOPS = 1.25      # below the shot's median log₂ luminance
 DARK_ALBEDO = 0.25     # × E/π facing forward: black housings reflect < 10%; margin for clipped lights
-OCCLUDED_STOPS = 2.0   # darker than another shot's view of the same direction
+OCCLUDED_STOPS = 1.25  # darker than another shot's view of the same direction
 FLAT_STOPS_PER_PX = 0.1   # 5×5 median of |∇ log₂ luminance| at the working resolution
 AGREE_STOPS = 0.75     # a region's pixel agrees with another shot's view of its direction
 SEEN_FRACTION = 0.8    # a region whose overlap pixels agree this often is scene, seen by both shots
@@ -74,7 +85,9 @@ ENCIRCLE = 0.9         # ... unless it runs along this fraction of the rim (a ce
 GLINT_STOPS = 1.0      # a polished rim reads this much brighter than another shot's view of its direction
 RIM_BAND = 0.05        # ... within this fraction of the radius from the rim (a barrel edge is thin)
 DIMMED_STOPS = 1.0     # hysteresis: a housing's soft edge reads this much darker than another shot's view
-GROW_PX = 32           # hysteresis: how far (working pixels) a region grows from its seeds
+GROW_PX = 8            # hysteresis: how far (working pixels) a region grows from its seeds
+RATIO_SPREAD = 0.1     # a fixed-ratio region's shots differ by one factor within this many stops (0: off)
+EDGE_PX = 2            # the found regions grow by this many working pixels (the housing's soft edge)
 WORK_DIAMETER = 512    # working resolution across the image circle
 LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
 
@@ -189,6 +202,36 @@ def _regions(cand, allowed, seen, agree, rim, small: Lens, min_area: int):
     return grown, lab2
 
 
+def _fixed_ratio(ells, oks, flats, where, rim, min_area: int) -> np.ndarray:
+    """(h, w) bool: rim-attached regions, flat in every shot, where every two shots differ at the
+    same sensor pixels by one factor (the spread of the difference of their log₂ luminance over
+    the region within RATIO_SPREAD stops): a housing fixed to the sensor, lit differently in
+    each shot, whatever its brightness against the scene."""
+    import cv2
+
+    m = where.copy()
+    for f, ok in zip(flats, oks):
+        m &= f & ok
+    diffs = []
+    for a in range(len(ells)):
+        for b in range(a + 1, len(ells)):
+            d = ells[a] - ells[b]
+            m &= flatness(d.astype(np.float32), oks[a] & oks[b]) < FLAT_STOPS_PER_PX
+            diffs.append(d)
+    m = cv2.morphologyEx(m.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
+    out = np.zeros(m.shape, bool)
+    touch = np.zeros(n, bool)
+    touch[np.unique(lab[rim & (lab > 0)])] = True
+    for k in np.nonzero(touch & (stats[:, cv2.CC_STAT_AREA] >= min_area))[0]:
+        if k == 0:
+            continue
+        sel = lab == k
+        if all(np.percentile(d[sel], 90) - np.percentile(d[sel], 10) <= RATIO_SPREAD for d in diffs):
+            out |= sel
+    return out
+
+
 def detect_frame(radiance: list[np.ndarray], lens: Lens, max_shift: int = 0,
                  yaws: list[float] | None = None) -> FrameMask:
     """Find the lens frame in a capture's merged shots.
@@ -269,9 +312,16 @@ def detect_frame(radiance: list[np.ndarray], lens: Lens, max_shift: int = 0,
         if glint.any():
             grown, lab2 = _regions(cand | occl | glint, ((dark_all | occl | dimmed | glint) & ~agree), seen, agree, rim,
                                    small, min_area)
+        if RATIO_SPREAD > 0:
+            fixed = _fixed_ratio(ells, oks, flats, circle & (r >= 0.5) & ~grown[lab2], rim, min_area)
+            if fixed.any():
+                glint_part = glint if glint.any() else np.zeros_like(cand)
+                grown, lab2 = _regions(cand | occl | glint_part | fixed,
+                                       ((dark_all | occl | dimmed | glint_part | fixed) & ~agree), seen, agree, rim,
+                                       small, min_area)
     keep_regions = int(grown.sum())
     m = grown[lab2].astype(np.uint8)
-    grow = 2 + int(np.ceil(max_shift * scale))
+    grow = EDGE_PX + int(np.ceil(max_shift * scale))
     m = cv2.dilate(m, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1)))
     full = cv2.resize(m * 255, (w, h), interpolation=cv2.INTER_LINEAR) > 0
     # one more full-resolution pixel for the upsampling's edge

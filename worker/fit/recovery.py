@@ -83,29 +83,32 @@ def _render(renderer, materials, shading: str) -> np.ndarray:
 TARGET_VERSION = 2      # of the cached targets' key (worker/keys.py)
 
 
-def _target_key(scene: LoadedScene, spp: int, seeds, mitsuba_version: str) -> str:
+def _target_key(scene: LoadedScene, spp: int, seeds, mitsuba_version: str, **options) -> str:
     """Content key of a Mitsuba target: geometry, normals, objects, map, camera, lighting,
-    materials, samples, seeds and Mitsuba's version."""
+    materials, samples, seeds, Mitsuba's version and the render options set (render_mitsuba's
+    ``two_sided``, ``face_normals``; left out when unset, so older targets keep their keys)."""
     m = scene.mesh
+    extra = {k: bool(v) for k, v in options.items() if v}
     return content_key("mitsuba-target", TARGET_VERSION, vertices=m.vertices, faces=m.faces, normals=m.normals,
                        object_of_face=scene.object_of_face, envmap=scene.envmap,
                        camera=scene.spec.camera.model_dump(mode="json"),
                        environment=scene.spec.environment.model_copy(update={"map": ""}).model_dump(mode="json"),
                        materials=[o.material.model_dump(mode="json") for o in scene.spec.objects],
-                       spp=int(spp), seeds=[int(s) for s in seeds], mitsuba=mitsuba_version)
+                       spp=int(spp), seeds=[int(s) for s in seeds], mitsuba=mitsuba_version, **extra)
 
 
-def mitsuba_target(scene: LoadedScene, spp: int, seeds=(1, 2), cache_dir: Path | None = None):
+def mitsuba_target(scene: LoadedScene, spp: int, seeds=(1, 2), cache_dir: Path | None = None,
+                   two_sided: bool = False, face_normals: bool = False):
     """Mitsuba's render of the scene: (mean (H, W, 3) float32 of the seeds' renders, their stack
     (S, H, W, 3)). Cached as .npy under a content key of the geometry, normals, map, camera,
-    lighting, materials, spp, seeds and Mitsuba's version."""
+    lighting, materials, spp, seeds, Mitsuba's version and the options (render_mitsuba's)."""
     try:
         import mitsuba
     except ImportError as e:
         raise RecoveryError("the recovery benchmark needs Mitsuba 3 (pip install mitsuba)") from e
     from ..mitsuba_ref import render_mitsuba
 
-    key = _target_key(scene, spp, seeds, mitsuba.__version__)
+    key = _target_key(scene, spp, seeds, mitsuba.__version__, two_sided=two_sided, face_normals=face_normals)
     path = Path(cache_dir) / f"{key}.npy" if cache_dir else None
     if path is not None and path.is_file():
         try:
@@ -113,7 +116,8 @@ def mitsuba_target(scene: LoadedScene, spp: int, seeds=(1, 2), cache_dir: Path |
             return imgs.mean(0), imgs
         except (OSError, ValueError):
             path.unlink(missing_ok=True)       # a damaged cache entry is rebuilt, not trusted
-    imgs = np.stack([render_mitsuba(scene, spp=spp, seed=s) for s in seeds]).astype(np.float32)
+    imgs = np.stack([render_mitsuba(scene, spp=spp, seed=s, two_sided=two_sided, face_normals=face_normals)
+                     for s in seeds]).astype(np.float32)
     if path is not None:
         import io
 
