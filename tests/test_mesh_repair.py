@@ -233,11 +233,15 @@ def test_the_real_ford_focus_is_oriented_and_its_flat_layers_parted(shared_asset
     ext = float(np.ptp(m.vertices, axis=0).max())
     cos = np.cos(np.radians(FOLD_DEG))
 
-    def apart(v, n):
+    def apart(v, n, creases=False):
         pairs = cKDTree(v).query_pairs(0.5 * SHEET_GAP * ext, output_type="ndarray")
+        if creases:     # vertices on one position are one surface's crease (worker/creases.py), not layers
+            pairs = pairs[np.linalg.norm(v[pairs[:, 0]] - v[pairs[:, 1]], axis=1) > 1e-9 * ext]
         return int(((n[pairs[:, 0]] * n[pairs[:, 1]]).sum(1) < cos).sum())
 
     before = apart(np.asarray(raw.vertices, np.float64), np.asarray(raw.vertex_normals, np.float64))
-    after = apart(m.vertices.astype(np.float64), m.normals.astype(np.float64))
-    # measured 2026-12-06: 1,121 such pairs before, 7 after (vertices between two layers)
-    assert before > 100 and after <= 10, (before, after)
+    after = apart(m.vertices.astype(np.float64), m.normals.astype(np.float64), creases=True)
+    # measured 2026-12-06: 1,121 such pairs before, 7 after (vertices between two layers); 15
+    # once vertices are split at creases (pairs 0.2 mm apart on the two sides of thin folds, which
+    # then carry their own faces' normals instead of an average)
+    assert before > 100 and after <= 20, (before, after)
