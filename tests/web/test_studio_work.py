@@ -123,7 +123,8 @@ def test_reload_and_a_second_tab_reopen_the_session(server, bunny_scene, browser
 def test_designs_save_as_versions_and_publish_after_a_reload(server, bunny_scene, browser, artifacts):
     base = server["base"]
     errors = []
-    ctx = browser.new_context(viewport={"width": 1280, "height": 800})
+    # a designer west of UTC: the version list's dates are in their time zone
+    ctx = browser.new_context(viewport={"width": 1280, "height": 800}, timezone_id="America/New_York")
     page = _open(ctx, base + "/?session=none", errors, scene=bunny_scene)          # an unknown session: a new one is opened
     page.click("#new-design")
     page.fill("#design-name", "oak")
@@ -152,6 +153,12 @@ def test_designs_save_as_versions_and_publish_after_a_reload(server, bunny_scene
     items = page.locator("#versions li")
     assert "v2 · brighter" in items.nth(0).inner_text() and "v1 · oak" in items.nth(1).inner_text()
     assert all(any(ch.isdigit() for ch in items.nth(k).locator("small").inner_text()) for k in range(2))
+    # the saves were made in the last minutes: their dates read as the page's clock did then, in
+    # New York (the server's UTC time read as local time would be 5 hours ahead)
+    shown = items.nth(1).locator("small").inner_text().split(" · ")[0]
+    recent = page.evaluate("() => [...Array(6).keys()].map((m) => new Date(Date.now() - 60000 * m)"
+                           ".toLocaleString([], { dateStyle: 'short', timeStyle: 'short' }))")
+    assert shown in recent, (shown, recent)
     sizes = page.evaluate("() => [...document.querySelectorAll('#versions img')].map((i) => [i.naturalWidth, i.naturalHeight])")
     assert all(0 < w <= 192 and 0 < h <= 144 for w, h in sizes), sizes
     vs = httpx.get(f"{base}/v1/materials/{designs['oak']['id']}/versions").json()
