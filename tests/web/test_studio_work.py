@@ -191,6 +191,56 @@ def test_designs_save_as_versions_and_publish_after_a_reload(server, bunny_scene
     ctx.close()
 
 
+def test_a_session_url_in_another_browser_opens_its_scene(server, bunny_scene, browser, artifacts):
+    """A studio URL opened in a browser that does not hold its session's key (a colleague's, a
+    private window) opens a new session of the same scene, not the default one; and there,
+    Publish with nothing edited yet shows the designs to tick."""
+    base = server["base"]
+    errors = []
+    # a newer scene (the bunny's spec again: its precomputation is reused), which the studio
+    # opens by default
+    spec = httpx.get(f"{base}/v1/scenes/{bunny_scene}").json()["spec"]
+    newer = httpx.post(f"{base}/v1/scenes", json=spec, params={"name": "bunny again"}).json()["id"]
+    pre = httpx.post(f"{base}/v1/scenes/{newer}/precompute").json()
+    for _ in range(600):
+        if httpx.get(f"{base}/v1/precomputations/{pre['id']}").json()["status"] in ("done", "failed"):
+            break
+        time.sleep(0.2)
+    first = browser.new_context(viewport={"width": 1280, "height": 720})
+    page = _open(first, base + "/", errors, scene=bunny_scene)
+    assert f"scene={bunny_scene}" in page.url, page.url
+    other = browser.new_context(viewport={"width": 1280, "height": 720})
+    there = _open(other, page.url, errors)
+    assert _sid(there) != _sid(page)                      # its own session: it holds no key for the first
+    assert there.locator("#scene-select").input_value() == bunny_scene
+    assert f"scene={bunny_scene}" in there.url
+    there.click("#status")                                 # the recent messages say why
+    assert "opening a new session of the same scene" in there.locator("#status-panel").inner_text()
+    there.keyboard.press("Escape")
+
+    # a design saved in the first browser; the second, reloaded, lists it and asks to tick it
+    page.fill("#design-name", "shared look")
+    page.click("#save")
+    page.wait_for_function("() => document.getElementById('status').textContent.includes('saved “shared look”')",
+                           timeout=60_000)
+    there.reload()
+    wait_new_frame(there, 0)
+    there.wait_for_function("() => [...document.querySelectorAll('#publish-pick label')]"
+                            ".some((l) => l.textContent.includes('shared look'))", timeout=30_000)
+    assert not there.locator("#publish-details").evaluate("d => d.open")
+    there.click("#publish")
+    assert there.locator("#publish-details").evaluate("d => d.open")
+    assert "tick the designs" in there.locator("#status").inner_text()
+    box = there.locator("#publish-pick label", has_text="shared look")
+    box.locator("input").check()
+    there.click("#publish")
+    there.locator("#publish-link").wait_for(state="visible", timeout=30_000)
+    there.screenshot(path=str(artifacts / "web-work-7-other-browser-publish.png"))
+    assert not errors, errors
+    first.close()
+    other.close()
+
+
 def _inside(box, w, h):
     return box["x"] >= 0 and box["y"] >= 0 and box["x"] + box["width"] <= w + 0.5 and box["y"] + box["height"] <= h + 0.5
 

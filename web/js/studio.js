@@ -76,7 +76,7 @@ async function openScene(id, design = null, version = null) {
   status("opening a session…");
   const s = await api("/v1/sessions", { method: "POST", body: { scene_id: id } });
   remember(s);
-  setUrl({ session: s.id, design: null, version: null });
+  setUrl({ session: s.id, scene: id, design: null, version: null });
   await startSession(s);
   await designs.start(design, version, true);
 }
@@ -527,23 +527,33 @@ async function resume() {
   if (want?.session) {
     const { session: s, why } = await reopen(want.session);
     if (s) {
-      setUrl({ session: s.id, design: want.design, version: want.version });
+      setUrl({ session: s.id, scene: s.scene_id, design: want.design, version: want.version });
       await listScenes(s.scene_id);
       await startSession(s);
       await designs.start(want.design, want.version, false);
       return true;
     }
-    if (url.session) status(`${why}; opening a new session`);
+    if (url.session) status(`${why}; opening a new session` + (url.scene && !url.design ? " of the same scene" : ""));
     setUrl({ session: null });
   }
   if (url.design) {
     try {
       const d = await api(`/v1/materials/${url.design}`);
-      const { ready } = await listScenes(d.scene_id);
-      if (ready && ready.id === d.scene_id) { await openScene(d.scene_id, d.id, url.version); return true; }
+      if (await openIfReady(d.scene_id, d.id, url.version)) return true;
     } catch (err) { status(`design ${url.design}: ${err.message}`); }
   }
+  // a session this browser cannot reopen: a new one of the scene it was on, not whichever
+  // scene is the default
+  if (url.scene && await openIfReady(url.scene)) return true;
   return false;
+}
+
+// a new session of scene ``id`` if it is precomputed (with a design on it); false if not
+async function openIfReady(id, design = null, version = null) {
+  const { ready } = await listScenes(id);
+  if (ready?.id !== id || ready.precomputation?.status !== "done") return false;
+  await openScene(id, design, version);
+  return true;
 }
 
 (async () => {
