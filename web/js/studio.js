@@ -88,6 +88,7 @@ async function startSession(s) {
   state = session.state;
   const id = session.scene_id;
   const scene = await api(`/v1/scenes/${id}`);
+  sceneSpec = scene.spec;
   const objIdx = Math.max(0, scene.spec.objects.findIndex((o) => o.name === state.object));
   setMaterial(state.materials[objIdx], true, null);         // its curve comes from the worker
   objects.show(state.objects, state.object);
@@ -96,7 +97,7 @@ async function startSession(s) {
   showMoveTool(state.movable || []);
   stream = new SessionStream(session, {
     onFrame: (f) => {
-      $("shadow").disabled = f.header.shadow == null;
+      showShadowToggle(f.header.shadow != null);
       // a full frame sets the canvases' pixels and the camera's size the strokes are drawn in
       if (fitCanvases(f.header, $("view"), $("overlay")) && controls.has("camera")) {
         state.camera = { ...state.camera, width: f.header.width, height: f.header.height };
@@ -129,6 +130,17 @@ export function fitSummary(s) {
       `${e.toFixed(2)}≤${s.energy_bound_per_channel[c].toFixed(2)}`).join(" "));
   }
   return parts.join(", ");
+}
+
+// the ground shadow toggle: off, with the reason, when the frame has no ground shadow to show
+let sceneSpec = null;
+const SHADOW_TITLE = $("shadow").closest("label").title;
+function showShadowToggle(on) {
+  $("shadow").disabled = !on;
+  const why = rendererKind !== "cuts" ? `${RENDERER_NAMES[rendererKind] || rendererKind} draws none`
+    : !sceneSpec?.ground ? "this scene has no ground (a \"ground\" in its scene file)"
+    : movableNames.length ? "scenes with movable objects have none yet (it would change as they move)" : "none was precomputed";
+  $("shadow").closest("label").title = on ? SHADOW_TITLE : `no ground shadow: ${why}`;
 }
 
 // -- renderers: what this session's renderer lets the designer change -------------------------------
