@@ -191,14 +191,11 @@ def test_designs_save_as_versions_and_publish_after_a_reload(server, bunny_scene
     ctx.close()
 
 
-def test_a_session_url_in_another_browser_opens_its_scene(server, bunny_scene, browser, artifacts):
-    """A studio URL opened in a browser that does not hold its session's key (a colleague's, a
-    private window) opens a new session of the same scene, not the default one; and there,
-    Publish with nothing edited yet shows the designs to tick."""
+@pytest.fixture(scope="module")
+def bunny_again(server, bunny_scene):
+    """A second, newer scene (the bunny's spec again: its precomputation is reused), which the
+    studio opens by default."""
     base = server["base"]
-    errors = []
-    # a newer scene (the bunny's spec again: its precomputation is reused), which the studio
-    # opens by default
     spec = httpx.get(f"{base}/v1/scenes/{bunny_scene}").json()["spec"]
     newer = httpx.post(f"{base}/v1/scenes", json=spec, params={"name": "bunny again"}).json()["id"]
     pre = httpx.post(f"{base}/v1/scenes/{newer}/precompute").json()
@@ -206,6 +203,59 @@ def test_a_session_url_in_another_browser_opens_its_scene(server, bunny_scene, b
         if httpx.get(f"{base}/v1/precomputations/{pre['id']}").json()["status"] in ("done", "failed"):
             break
         time.sleep(0.2)
+    return newer
+
+
+def _switch(page, scene):
+    """Open ``scene`` from the Scene panel; returns once its session draws."""
+    old = _sid(page)
+    page.select_option("#scene-select", scene)
+    page.click("#open-scene")
+    page.wait_for_function(f"() => new URLSearchParams(location.search).get('session') !== {json.dumps(old)}",
+                           timeout=60_000)
+    page.wait_for_function(f"() => document.getElementById('view').dataset.frame !== undefined && "
+                           f"new URLSearchParams(location.search).get('scene') === {json.dumps(scene)}", timeout=60_000)
+    settle(page)
+
+
+def test_a_look_at_another_scene_loses_nothing(server, bunny_scene, bunny_again, browser, artifacts):
+    """A designer paints, opens another scene, and opens the first one again: it comes back as
+    they left it (the same session, its stroke and undo history), not as a new empty session;
+    and while it reopens, the canvas shows nothing of the other scene."""
+    errors = []
+    ctx = browser.new_context(viewport={"width": 1280, "height": 720})
+    page = _open(ctx, server["base"] + "/", errors, scene=bunny_scene)
+    sid = _sid(page)
+    g0 = canvas_grid(page)
+    _stroke(page)
+    g1 = canvas_grid(page)
+    _switch(page, bunny_again)
+    assert _sid(page) != sid
+    _switch(page, bunny_scene)
+    page.screenshot(path=str(artifacts / "web-work-8-back-to-the-scene.png"))
+    page.click("#status")                                # the recent messages
+    recent = page.locator("#status-panel").inner_text()
+    assert "bunny: 1 stroke(s) restored" in recent
+    assert "disconnected" not in recent, recent          # the page closed those streams itself
+    page.keyboard.press("Escape")
+    assert _sid(page) == sid
+    g2 = canvas_grid(page)
+    assert np.abs(g2 - g1).mean() < 1.5 and (g2 - g0)[ROWS, COLS].mean() > 4, "the stroke was lost"
+    n = frame_no(page)
+    page.click("#undo")                                  # its undo history came back too
+    wait_new_frame(page, n)
+    settle(page)
+    assert np.abs(canvas_grid(page) - g0).mean() < 1.5
+    assert not errors, errors
+    ctx.close()
+
+
+def test_a_session_url_in_another_browser_opens_its_scene(server, bunny_scene, bunny_again, browser, artifacts):
+    """A studio URL opened in a browser that does not hold its session's key (a colleague's, a
+    private window) opens a new session of the same scene, not the default one; and there,
+    Publish with nothing edited yet shows the designs to tick."""
+    base = server["base"]
+    errors = []
     first = browser.new_context(viewport={"width": 1280, "height": 720})
     page = _open(first, base + "/", errors, scene=bunny_scene)
     assert f"scene={bunny_scene}" in page.url, page.url

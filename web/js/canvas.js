@@ -51,6 +51,17 @@ export class FrameView {
     requestAnimationFrame(() => this.tick());
   }
 
+  // another session starts: nothing of the last one stays on the canvas (another scene's image
+  // under "strokes restored" while the reopened session replays its strokes read as lost work)
+  reset() {
+    if (this.pending) { this.pending.bitmap.close(); this.pending = null; }
+    this.ctx.clearRect(0, 0, this.canvas.width, this.canvas.height);
+    this.header = null;
+    this.drawn = 0;
+    this.times = [];
+    for (const k of ["samples", "quick", "frame", "ack", "preview"]) delete this.canvas.dataset[k];
+  }
+
   // a precomputation's first look (an image Blob), drawn until the session's first frame comes
   async showPreview(blob) {
     const bitmap = await createImageBitmap(blob);

@@ -59,6 +59,22 @@ export function lastSession() {
   return rec ? { session: sid, design: rec.design || null, version: rec.version ?? null } : null;
 }
 
+// the session this browser last edited on scene ``sceneId`` (its id), or null: opening that scene
+// again reopens it, so a look at another scene loses nothing
+export function sessionOf(sceneId) {
+  let best = null;
+  for (let i = 0; i < localStorage.length; i++) {
+    const key = localStorage.key(i);
+    if (!key?.startsWith("glint.session.")) continue;
+    const rec = read(key);
+    if (rec?.token && rec.scene_id === sceneId && (!best || (rec.at || 0) > best.at)) {
+      best = { session: key.slice("glint.session.".length), at: rec.at || 0, design: rec.design || null,
+               version: rec.version ?? null };
+    }
+  }
+  return best;
+}
+
 // the stored session, ready for a SessionStream ({id, token, stream, state, strokes, scene_id}),
 // or null with the reason: this browser has no token for it, or the server closed it
 export async function reopen(sid) {
@@ -68,6 +84,7 @@ export async function reopen(sid) {
     const s = await api(`/v1/sessions/${sid}`, { headers: { "X-Session-Token": rec.token } });
     if (s.closed) { forget(sid); return { session: null, why: "that session was closed (unused for too long)" }; }
     localStorage.setItem(LAST, sid);
+    localStorage.setItem(KEY(sid), JSON.stringify({ ...rec, at: Date.now() }));     // the one sessionOf finds
     return { session: { ...s, token: rec.token }, why: "" };
   } catch (err) {
     forget(sid);

@@ -7,7 +7,7 @@ import { orbit } from "./orbit.js";
 import { createLobeVisualiser, createPaintPanel, createSwatchPalette, downloadMeasurements } from "./paint.js";
 import { mountCapturePanel } from "./capture.js";
 import { MoveDrag, fullTransform } from "./move.js";
-import { applyPeer, forget, lastSession, remember, reopen, setUrl, urlState } from "./persist.js";
+import { applyPeer, forget, lastSession, remember, reopen, sessionOf, setUrl, urlState } from "./persist.js";
 import { mountDesigns } from "./designs.js";
 import { createStatus, packPanels } from "./layout.js";
 import { imageFraction, isClick, mountObjects } from "./objects.js";
@@ -84,6 +84,7 @@ async function openScene(id, design = null, version = null) {
 // stream session ``s`` (new, or reopened with what the server stored)
 async function startSession(s) {
   if (stream) stream.close();
+  view.reset();
   session = s;
   state = session.state;
   const id = session.scene_id;
@@ -213,7 +214,9 @@ function onEvent(ev) {
     if (state.exposure != null) $("exposure").value = state.exposure;
     if (state.tone) $("tone").value = state.tone;
     if (ev.strokes || ev.streams > 1) {
-      status(`${state.object}: ${ev.strokes} stroke(s) restored` + (ev.streams > 1 ? `; ${ev.streams} tabs share this session` : ""));
+      // the worker replays the strokes (their fit views) before the session's first frame
+      status(`${state.object}: ${ev.strokes} stroke(s) restored` + (ev.streams > 1 ? `; ${ev.streams} tabs share this session` : "")
+             + (view.drawn ? "" : " (its first frame follows)"));
     }
     showRenderer(ev.renderer || "cuts", ev.controls || [], ev.renderers, ev.off || {});
     objects.show(state.objects, state.object);     // the menu names the object the session edits
@@ -510,7 +513,24 @@ const designs = mountDesigns({ status, send: (type, f) => stream?.send(type, f),
   applyMaterial: (m) => { setMaterial(m); stream?.send("material", { material: m }); } });
 mountExportPanel($("export-panel"), () => ({ sceneId: session?.scene_id, object: state?.object, designs: designs.chosen() }), status);
 
-$("open-scene").onclick = () => $("scene-select").value && openScene($("scene-select").value);
+// Open: the session this browser last edited on that scene, with its strokes, undo history and
+// design (a designer who looks at another scene and comes back finds their work); else a new one
+$("open-scene").onclick = async () => {
+  const id = $("scene-select").value;
+  if (!id) return;
+  const prev = sessionOf(id);
+  if (prev && prev.session !== session?.id) {
+    if (stream) { stream.close(); stream = null; }
+    const { session: s } = await reopen(prev.session);
+    if (s) {
+      setUrl({ session: s.id, scene: id, design: prev.design, version: prev.version });
+      await startSession(s);
+      await designs.start(prev.design, prev.version, false);
+      return;
+    }
+  }
+  await openScene(id);
+};
 mountSceneCreate($("scene-panel"), { api, status, waitPrecompute,
   onCreated: async (id) => { await listScenes(id); await openScene(id); } });
 
