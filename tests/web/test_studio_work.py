@@ -323,6 +323,15 @@ def test_canvas_stays_in_view_and_uses_the_width(server, bunny_scene, browser, a
     warning = page.locator("#paint-panel .paint-status").inner_text()
     assert "-15:" in warning or " 15:" in warning, warning
     assert page.locator("#paint-panel .paint-unmet").count() >= 1
+    # the scene dialog's menus (long renderer names) stay inside their panel
+    page.locator("#scene-create summary").click()
+    for kind in ("cuts", "gi", "paint"):
+        page.select_option("#scene-renderer", kind)
+        past = page.evaluate("() => [...document.querySelectorAll('aside select')].filter((s) => s.offsetParent)"
+                             ".map((s) => [s.id, s.getBoundingClientRect().right - s.closest('section').getBoundingClientRect().right])"
+                             ".filter(([, d]) => d > 0.5)")
+        assert not past, (kind, past)
+    page.locator("#scene-create summary").click()
     page.locator("#capture-details summary").click()
     page.locator("#capture-panel").scroll_into_view_if_needed()
     page.screenshot(path=str(artifacts / "web-work-4-1280x720.png"))
