@@ -2,17 +2,27 @@
 from __future__ import annotations
 
 import datetime as dt
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
 from worker.fit.brush import Stroke
 from worker.fit.files import ViewSpec
 from worker.scene import Camera, Color, Material, SceneFile, Transform
 
-
 MAX_FIT_POINTS = 200_000          # stroke points of one POST /v1/fits, in all
 MAX_OBJECTS = 20_000              # per-object maps of a request: Settings.max_scene_objects' default
+
+
+def as_utc(t: dt.datetime) -> dt.datetime:
+    """A stored time as an aware UTC datetime. The database keeps UTC, but SQLite hands it back
+    without its offset, and a browser reads an ISO time without one as its own local time: a
+    version saved at 10:35 UTC showed as 10:35 in New York too."""
+    return t.replace(tzinfo=dt.timezone.utc) if t.tzinfo is None else t.astimezone(dt.timezone.utc)
+
+
+# a time in a response: always with its offset (+00:00)
+UtcDateTime = Annotated[dt.datetime, AfterValidator(as_utc)]
 
 
 class Strict(BaseModel):
@@ -26,7 +36,7 @@ class AssetOut(BaseModel):
     sha256: str
     size: int
     meta: dict
-    created: dt.datetime
+    created: UtcDateTime
 
 
 class PrecomputationOut(BaseModel):
@@ -37,15 +47,15 @@ class PrecomputationOut(BaseModel):
     progress: float
     message: str
     stats: dict
-    created: dt.datetime
-    updated: dt.datetime
+    created: UtcDateTime
+    updated: UtcDateTime
 
 
 class SceneOut(BaseModel):
     id: str
     name: str
     spec: SceneFile
-    created: dt.datetime
+    created: UtcDateTime
     precomputation: PrecomputationOut | None = None
 
 
@@ -117,7 +127,7 @@ class MaterialOut(BaseModel):
     scene_id: str | None
     object: str | None
     archived: bool
-    created: dt.datetime
+    created: UtcDateTime
     version_name: str = Field("", description="the latest version's name")
     thumbnail: str | None = Field(None, description="URL of the latest version's thumbnail JPEG, if it has one")
 
@@ -126,7 +136,7 @@ class VersionOut(BaseModel):
     version: int
     material: dict
     note: str
-    created: dt.datetime
+    created: UtcDateTime
     name: str = Field("", description="the designer's label for this version")
     thumbnail: str | None = Field(None, description="URL of a small JPEG of the frame this version was saved "
                                                     "from (none for versions saved over REST)")

@@ -10,7 +10,6 @@ A session lights its scene with the result by ``{"type": "environment", "asset_i
 from __future__ import annotations
 
 import asyncio
-import datetime as dt
 
 from fastapi import APIRouter, HTTPException, Request, Response
 from fastapi.concurrency import run_in_threadpool
@@ -18,6 +17,7 @@ from pydantic import BaseModel
 
 from ..db import Capture
 from ..deps import DB, Client, State
+from ..schemas import UtcDateTime
 from ..services import captures
 from .assets import receive_upload
 from .errors import http_errors
@@ -40,8 +40,8 @@ class CaptureOut(BaseModel):
     asset_id: str | None = None
     stats: dict
     preview: str | None = None
-    created: dt.datetime
-    updated: dt.datetime
+    created: UtcDateTime
+    updated: UtcDateTime
 
 
 def _out(c: Capture) -> CaptureOut:

@@ -14,7 +14,7 @@ from .. import jsonchunks
 from ..bodies import capped_chunks
 from ..db import Precomputation, Scene
 from ..deps import DB, Client, State
-from ..schemas import PrecomputationOut, SceneOut
+from ..schemas import PrecomputationOut, SceneOut, as_utc
 from ..services import scenes
 from ..services.scenes import run_precompute  # noqa: F401 -- server/demo.py precomputes the demo scene with it
 from .errors import http_errors
@@ -33,7 +33,7 @@ def scene_dict(st, s, sc: Scene) -> dict:
     """SceneOut's JSON form, built from the stored spec as it is (validated when it was created):
     re-validating a 20 000-object spec through pydantic for every read took seconds."""
     pre = pre_out(st.latest_precomputation(s, sc.id))
-    return {"id": sc.id, "name": sc.name, "spec": sc.spec, "created": sc.created.isoformat(),
+    return {"id": sc.id, "name": sc.name, "spec": sc.spec, "created": as_utc(sc.created).isoformat(),
             "precomputation": pre.model_dump(mode="json") if pre is not None else None}
 
 

@@ -62,6 +62,10 @@ def test_move_tool_slides_and_turns_the_object(server, crate, crate_scene, artif
             settle(page)
             page.check("#tool-move")
             assert page.locator("#move-object").input_value() == "box"
+            # the crate has no ground: its shadow toggle is off and says why
+            assert page.locator("#shadow").is_disabled()
+            why = page.locator("label", has=page.locator("#shadow")).get_attribute("title")
+            assert why.startswith("no ground shadow:") and "no ground" in why, why
             page.screenshot(path=str(artifacts / "web-move-1-opened.png"))
             c = page.locator("#view").bounding_box()
             sx, sy = c["width"] / cam["width"], c["height"] / cam["height"]

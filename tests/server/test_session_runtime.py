@@ -259,6 +259,13 @@ def test_frame_encoding_and_curves():
     c = brdf_curve(GGX(alpha=0.2, specular=(0.5, 0.5, 0.5)))
     v = np.asarray(c["values"])
     assert len(c["theta_deg"]) == len(v) and v[0, 0] > v[30, 0] > 0     # falls off from the peak
+    # the studio's default grey plastic: no spike where ωi reaches the horizon (θh = 45°), and
+    # nothing past it; the plot's largest value is its peak at normal incidence
+    for m in (GGX(), GGX(alpha=0.3, specular=(0.04, 0.04, 0.04), albedo=(0.55, 0.38, 0.22))):
+        c = brdf_curve(m)
+        th, v, s = np.asarray(c["theta_deg"]), np.asarray(c["values"]), np.asarray(c["specular"])
+        assert np.isfinite(v).all() and v.max() <= v[0].max() * (1 + 1e-9), (m, v.max(), th[v.max(axis=1).argmax()])
+        assert (v[th >= 45] == 0).all() and (s[th >= 45] == 0).all() and (s[th < 45] > 0).all()
 
 
 def test_stream_schema_is_current():

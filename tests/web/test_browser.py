@@ -5,6 +5,7 @@ import io
 import json
 import time
 import urllib.parse
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -408,14 +409,18 @@ def test_studio_follows_the_demo_precomputation(browser, tmp_path, artifacts):
 def test_studio_paint_designer_and_lighting_capture(server, bunny_scene, browser, artifacts, tmp_path, shared_assets):
     """The paint panel fits lobes on every slider change and the frame follows; a capture chosen
     as photos is uploaded, stitched by the service and applied to the scene."""
+    import httpx
+
     from worker.capture.synth import synthesize
+    from worker.core.tonemap import auto_exposure
     from worker.envmap import load_envmap
 
     synthesize(load_envmap(shared_assets / "env" / "apartment.exr"), tmp_path / "cap", width=360, height=240,
                brackets=3, seed=2)
     page = browser.new_page(viewport={"width": 1280, "height": 1400})
-    errors = []
+    errors, sent = [], []
     page.on("pageerror", lambda e: errors.append(str(e)))
+    page.on("websocket", lambda ws: ws.on("framesent", lambda m: sent.append(m)))
     page.goto(server["base"] + "/")
     wait_new_frame(page, 0)
     settle(page)
@@ -465,5 +470,17 @@ def test_studio_paint_designer_and_lighting_capture(server, bunny_scene, browser
     g2 = canvas_grid(page)
     page.screenshot(path=str(artifacts / "web-10-captured-lighting.png"))
     assert np.abs(g2 - g1).mean() > 1, "the captured lighting did not change the frame"
+    # applied in the units of its preview (the map's median luminance as middle grey, the
+    # exposure the preview was made with), and the status line confirms it
+    (env,) = [json.loads(m) for m in sent if isinstance(m, str) and '"environment"' in m]
+    asset = httpx.get(f"{server['base']}/v1/assets/{env['asset_id']}").json()
+    sha = asset["sha256"]
+    stitched = tmp_path / ("stitched" + Path(asset["filename"]).suffix)
+    stitched.write_bytes((Path(server["data"]) / "blobs" / sha[:2] / sha).read_bytes())
+    want = auto_exposure(load_envmap(stitched))
+    page.wait_for_function("() => /lighting applied/.test(document.getElementById('status').textContent)", timeout=30_000)
+    line = page.locator("#status").inner_text()
+    assert f"{want:+.2f} EV as in its preview" in line, (line, want)
+    assert abs(float(page.locator("#exposure").input_value()) - want) <= 0.05, (page.locator("#exposure").input_value(), want)
     assert not errors, errors
     page.close()

@@ -123,7 +123,8 @@ def test_reload_and_a_second_tab_reopen_the_session(server, bunny_scene, browser
 def test_designs_save_as_versions_and_publish_after_a_reload(server, bunny_scene, browser, artifacts):
     base = server["base"]
     errors = []
-    ctx = browser.new_context(viewport={"width": 1280, "height": 800})
+    # a designer west of UTC: the version list's dates are in their time zone
+    ctx = browser.new_context(viewport={"width": 1280, "height": 800}, timezone_id="America/New_York")
     page = _open(ctx, base + "/?session=none", errors, scene=bunny_scene)          # an unknown session: a new one is opened
     page.click("#new-design")
     page.fill("#design-name", "oak")
@@ -152,6 +153,12 @@ def test_designs_save_as_versions_and_publish_after_a_reload(server, bunny_scene
     items = page.locator("#versions li")
     assert "v2 · brighter" in items.nth(0).inner_text() and "v1 · oak" in items.nth(1).inner_text()
     assert all(any(ch.isdigit() for ch in items.nth(k).locator("small").inner_text()) for k in range(2))
+    # the saves were made in the last minutes: their dates read as the page's clock did then, in
+    # New York (the server's UTC time read as local time would be 5 hours ahead)
+    shown = items.nth(1).locator("small").inner_text().split(" · ")[0]
+    recent = page.evaluate("() => [...Array(6).keys()].map((m) => new Date(Date.now() - 60000 * m)"
+                           ".toLocaleString([], { dateStyle: 'short', timeStyle: 'short' }))")
+    assert shown in recent, (shown, recent)
     sizes = page.evaluate("() => [...document.querySelectorAll('#versions img')].map((i) => [i.naturalWidth, i.naturalHeight])")
     assert all(0 < w <= 192 and 0 < h <= 144 for w, h in sizes), sizes
     vs = httpx.get(f"{base}/v1/materials/{designs['oak']['id']}/versions").json()
@@ -182,6 +189,106 @@ def test_designs_save_as_versions_and_publish_after_a_reload(server, bunny_scene
     assert vs[2]["material"] != vs[1]["material"]          # the stroke's look, not the saved one
     assert not errors, errors
     ctx.close()
+
+
+@pytest.fixture(scope="module")
+def bunny_again(server, bunny_scene):
+    """A second, newer scene (the bunny's spec again: its precomputation is reused), which the
+    studio opens by default."""
+    base = server["base"]
+    spec = httpx.get(f"{base}/v1/scenes/{bunny_scene}").json()["spec"]
+    newer = httpx.post(f"{base}/v1/scenes", json=spec, params={"name": "bunny again"}).json()["id"]
+    pre = httpx.post(f"{base}/v1/scenes/{newer}/precompute").json()
+    for _ in range(600):
+        if httpx.get(f"{base}/v1/precomputations/{pre['id']}").json()["status"] in ("done", "failed"):
+            break
+        time.sleep(0.2)
+    return newer
+
+
+def _switch(page, scene):
+    """Open ``scene`` from the Scene panel; returns once its session draws."""
+    old = _sid(page)
+    page.select_option("#scene-select", scene)
+    page.click("#open-scene")
+    page.wait_for_function(f"() => new URLSearchParams(location.search).get('session') !== {json.dumps(old)}",
+                           timeout=60_000)
+    page.wait_for_function(f"() => document.getElementById('view').dataset.frame !== undefined && "
+                           f"new URLSearchParams(location.search).get('scene') === {json.dumps(scene)}", timeout=60_000)
+    settle(page)
+
+
+def test_a_look_at_another_scene_loses_nothing(server, bunny_scene, bunny_again, browser, artifacts):
+    """A designer paints, opens another scene, and opens the first one again: it comes back as
+    they left it (the same session, its stroke and undo history), not as a new empty session;
+    and while it reopens, the canvas shows nothing of the other scene."""
+    errors = []
+    ctx = browser.new_context(viewport={"width": 1280, "height": 720})
+    page = _open(ctx, server["base"] + "/", errors, scene=bunny_scene)
+    sid = _sid(page)
+    g0 = canvas_grid(page)
+    _stroke(page)
+    g1 = canvas_grid(page)
+    _switch(page, bunny_again)
+    assert _sid(page) != sid
+    _switch(page, bunny_scene)
+    page.screenshot(path=str(artifacts / "web-work-8-back-to-the-scene.png"))
+    page.click("#status")                                # the recent messages
+    recent = page.locator("#status-panel").inner_text()
+    assert "bunny: 1 stroke(s) restored" in recent
+    assert "disconnected" not in recent, recent          # the page closed those streams itself
+    page.keyboard.press("Escape")
+    assert _sid(page) == sid
+    g2 = canvas_grid(page)
+    assert np.abs(g2 - g1).mean() < 1.5 and (g2 - g0)[ROWS, COLS].mean() > 4, "the stroke was lost"
+    n = frame_no(page)
+    page.click("#undo")                                  # its undo history came back too
+    wait_new_frame(page, n)
+    settle(page)
+    assert np.abs(canvas_grid(page) - g0).mean() < 1.5
+    assert not errors, errors
+    ctx.close()
+
+
+def test_a_session_url_in_another_browser_opens_its_scene(server, bunny_scene, bunny_again, browser, artifacts):
+    """A studio URL opened in a browser that does not hold its session's key (a colleague's, a
+    private window) opens a new session of the same scene, not the default one; and there,
+    Publish with nothing edited yet shows the designs to tick."""
+    base = server["base"]
+    errors = []
+    first = browser.new_context(viewport={"width": 1280, "height": 720})
+    page = _open(first, base + "/", errors, scene=bunny_scene)
+    assert f"scene={bunny_scene}" in page.url, page.url
+    other = browser.new_context(viewport={"width": 1280, "height": 720})
+    there = _open(other, page.url, errors)
+    assert _sid(there) != _sid(page)                      # its own session: it holds no key for the first
+    assert there.locator("#scene-select").input_value() == bunny_scene
+    assert f"scene={bunny_scene}" in there.url
+    there.click("#status")                                 # the recent messages say why
+    assert "opening a new session of the same scene" in there.locator("#status-panel").inner_text()
+    there.keyboard.press("Escape")
+
+    # a design saved in the first browser; the second, reloaded, lists it and asks to tick it
+    page.fill("#design-name", "shared look")
+    page.click("#save")
+    page.wait_for_function("() => document.getElementById('status').textContent.includes('saved “shared look”')",
+                           timeout=60_000)
+    there.reload()
+    wait_new_frame(there, 0)
+    there.wait_for_function("() => [...document.querySelectorAll('#publish-pick label')]"
+                            ".some((l) => l.textContent.includes('shared look'))", timeout=30_000)
+    assert not there.locator("#publish-details").evaluate("d => d.open")
+    there.click("#publish")
+    assert there.locator("#publish-details").evaluate("d => d.open")
+    assert "tick the designs" in there.locator("#status").inner_text()
+    box = there.locator("#publish-pick label", has_text="shared look")
+    box.locator("input").check()
+    there.click("#publish")
+    there.locator("#publish-link").wait_for(state="visible", timeout=30_000)
+    there.screenshot(path=str(artifacts / "web-work-7-other-browser-publish.png"))
+    assert not errors, errors
+    first.close()
+    other.close()
 
 
 def _inside(box, w, h):
@@ -216,6 +323,15 @@ def test_canvas_stays_in_view_and_uses_the_width(server, bunny_scene, browser, a
     warning = page.locator("#paint-panel .paint-status").inner_text()
     assert "-15:" in warning or " 15:" in warning, warning
     assert page.locator("#paint-panel .paint-unmet").count() >= 1
+    # the scene dialog's menus (long renderer names) stay inside their panel
+    page.locator("#scene-create summary").click()
+    for kind in ("cuts", "gi", "paint"):
+        page.select_option("#scene-renderer", kind)
+        past = page.evaluate("() => [...document.querySelectorAll('aside select')].filter((s) => s.offsetParent)"
+                             ".map((s) => [s.id, s.getBoundingClientRect().right - s.closest('section').getBoundingClientRect().right])"
+                             ".filter(([, d]) => d > 0.5)")
+        assert not past, (kind, past)
+    page.locator("#scene-create summary").click()
     page.locator("#capture-details summary").click()
     page.locator("#capture-panel").scroll_into_view_if_needed()
     page.screenshot(path=str(artifacts / "web-work-4-1280x720.png"))

@@ -51,6 +51,20 @@ export class FrameView {
     requestAnimationFrame(() => this.tick());
   }
 
+  // another session starts: nothing of the last one stays on the canvas (another scene's image
+  // under "strokes restored" while the reopened session replays its strokes read as lost work)
+  // (a first look drawn before any session stays until the first frame replaces it)
+  reset() {
+    if (this.pending) { this.pending.bitmap.close(); this.pending = null; }
+    if (this.drawn) {
+      this.ctx.clearRect(0, 0, this.canvas.width, this.canvas.height);
+      for (const k of ["samples", "quick", "frame", "ack"]) delete this.canvas.dataset[k];
+    }
+    this.header = null;
+    this.drawn = 0;
+    this.times = [];
+  }
+
   // a precomputation's first look (an image Blob), drawn until the session's first frame comes
   async showPreview(blob) {
     const bitmap = await createImageBitmap(blob);

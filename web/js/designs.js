@@ -174,7 +174,11 @@ export function mountDesigns({ status, send, session, state, applyMaterial }) {
     const s = session(), st = state();
     if (!s) return status("open a scene first");
     const ids = chosen();
-    if (!ids.length) return status(designs.length ? "tick the designs to publish" : "save a design first");
+    if (!ids.length) {
+      // nothing edited here yet (another browser, a new session): the ticks are where to choose
+      if (designs.length) $("publish-details").open = true;
+      return status(designs.length ? "tick the designs to publish under “Designs in the publication”" : "save a design first");
+    }
     try {
       const name = designs.find((d) => d.id === (designId || ids[0]))?.name || "designs";
       const p = await api("/v1/publications", { method: "POST", body: { name, scene_id: s.scene_id, object: st.object,

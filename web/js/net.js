@@ -51,11 +51,13 @@ export class SessionStream {
       this.onState("connected");
     };
     this.ws.onclose = (e) => {
+      if (this.closed) return;              // the page closed it (another session): nothing to report
       this.onState(e.code >= 4400 ? `closed: ${e.code}` : "disconnected");
       // reconnect after a network drop; the server restores the session from what it stored
       if (!this.closed && e.code < 4400) setTimeout(() => this.connect(), 1000);
     };
     this.ws.onmessage = async (e) => {
+      if (this.closed) return;              // closed for another session: nothing of it is shown
       if (typeof e.data === "string") {
         const ev = JSON.parse(e.data);
         // the server refuses a seq not above the session's last one: a reopened page (or a
@@ -71,6 +73,7 @@ export class SessionStream {
         for (const k of [...this.sent.keys()]) if (k <= header.ack) this.sent.delete(k);
       }
       const bitmap = await createImageBitmap(image);
+      if (this.closed) { bitmap.close(); return; }
       this.onFrame({ header, bitmap });
     };
   }

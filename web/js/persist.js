@@ -1,5 +1,5 @@
-// Sessions that survive a reload. The URL names the session being edited and the design (and
-// version) it edits: /?session=…&design=…&v=…. The session's secret token stays in this browser
+// Sessions that survive a reload. The URL names the session being edited, its scene, and the
+// design (and version) it edits: /?session=…&scene=…&design=…&v=…. The session's secret token stays in this browser
 // (localStorage, never in the URL, which ends up in logs, history and shared links), so a reload,
 // a second tab or the same URL opened later reopens the same session from what the server stored:
 // its strokes and undo history, camera, lighting and materials. The server keeps a session without
@@ -15,17 +15,19 @@ function read(key) {
   try { return JSON.parse(localStorage.getItem(key) || "null"); } catch { return null; }
 }
 
-// what the URL names: { session, design, version } (null where it names none)
+// what the URL names: { session, scene, design, version } (null where it names none). The scene is
+// what a browser without the session's key (another designer's, a private window) opens instead
 export function urlState() {
   const q = new URLSearchParams(location.search);
   const v = q.get("v");
-  return { session: q.get("session"), design: q.get("design"), version: v && /^\d+$/.test(v) ? +v : null };
+  return { session: q.get("session"), scene: q.get("scene"), design: q.get("design"),
+           version: v && /^\d+$/.test(v) ? +v : null };
 }
 
 // change what the URL names (undefined: keep; null: drop) without a reload or a history entry
 export function setUrl(parts) {
   const q = new URLSearchParams(location.search);
-  for (const [k, name] of [["session", "session"], ["design", "design"], ["version", "v"]]) {
+  for (const [k, name] of [["session", "session"], ["scene", "scene"], ["design", "design"], ["version", "v"]]) {
     if (parts[k] === undefined) continue;
     if (parts[k] === null) q.delete(name); else q.set(name, String(parts[k]));
   }
@@ -57,6 +59,22 @@ export function lastSession() {
   return rec ? { session: sid, design: rec.design || null, version: rec.version ?? null } : null;
 }
 
+// the session this browser last edited on scene ``sceneId`` (its id), or null: opening that scene
+// again reopens it, so a look at another scene loses nothing
+export function sessionOf(sceneId) {
+  let best = null;
+  for (let i = 0; i < localStorage.length; i++) {
+    const key = localStorage.key(i);
+    if (!key?.startsWith("glint.session.")) continue;
+    const rec = read(key);
+    if (rec?.token && rec.scene_id === sceneId && (!best || (rec.at || 0) > best.at)) {
+      best = { session: key.slice("glint.session.".length), at: rec.at || 0, design: rec.design || null,
+               version: rec.version ?? null };
+    }
+  }
+  return best;
+}
+
 // the stored session, ready for a SessionStream ({id, token, stream, state, strokes, scene_id}),
 // or null with the reason: this browser has no token for it, or the server closed it
 export async function reopen(sid) {
@@ -66,6 +84,7 @@ export async function reopen(sid) {
     const s = await api(`/v1/sessions/${sid}`, { headers: { "X-Session-Token": rec.token } });
     if (s.closed) { forget(sid); return { session: null, why: "that session was closed (unused for too long)" }; }
     localStorage.setItem(LAST, sid);
+    localStorage.setItem(KEY(sid), JSON.stringify({ ...rec, at: Date.now() }));     // the one sessionOf finds
     return { session: { ...s, token: rec.token }, why: "" };
   } catch (err) {
     forget(sid);

@@ -7,7 +7,7 @@ import { orbit } from "./orbit.js";
 import { createLobeVisualiser, createPaintPanel, createSwatchPalette, downloadMeasurements } from "./paint.js";
 import { mountCapturePanel } from "./capture.js";
 import { MoveDrag, fullTransform } from "./move.js";
-import { applyPeer, forget, lastSession, remember, reopen, setUrl, urlState } from "./persist.js";
+import { applyPeer, forget, lastSession, remember, reopen, sessionOf, setUrl, urlState } from "./persist.js";
 import { mountDesigns } from "./designs.js";
 import { createStatus, packPanels } from "./layout.js";
 import { imageFraction, isClick, mountObjects } from "./objects.js";
@@ -76,7 +76,7 @@ async function openScene(id, design = null, version = null) {
   status("opening a session…");
   const s = await api("/v1/sessions", { method: "POST", body: { scene_id: id } });
   remember(s);
-  setUrl({ session: s.id, design: null, version: null });
+  setUrl({ session: s.id, scene: id, design: null, version: null });
   await startSession(s);
   await designs.start(design, version, true);
 }
@@ -84,10 +84,12 @@ async function openScene(id, design = null, version = null) {
 // stream session ``s`` (new, or reopened with what the server stored)
 async function startSession(s) {
   if (stream) stream.close();
+  view.reset();
   session = s;
   state = session.state;
   const id = session.scene_id;
   const scene = await api(`/v1/scenes/${id}`);
+  sceneSpec = scene.spec;
   const objIdx = Math.max(0, scene.spec.objects.findIndex((o) => o.name === state.object));
   setMaterial(state.materials[objIdx], true, null);         // its curve comes from the worker
   objects.show(state.objects, state.object);
@@ -96,7 +98,7 @@ async function startSession(s) {
   showMoveTool(state.movable || []);
   stream = new SessionStream(session, {
     onFrame: (f) => {
-      $("shadow").disabled = f.header.shadow == null;
+      showShadowToggle(f.header.shadow != null);
       // a full frame sets the canvases' pixels and the camera's size the strokes are drawn in
       if (fitCanvases(f.header, $("view"), $("overlay")) && controls.has("camera")) {
         state.camera = { ...state.camera, width: f.header.width, height: f.header.height };
@@ -129,6 +131,17 @@ export function fitSummary(s) {
       `${e.toFixed(2)}≤${s.energy_bound_per_channel[c].toFixed(2)}`).join(" "));
   }
   return parts.join(", ");
+}
+
+// the ground shadow toggle: off, with the reason, when the frame has no ground shadow to show
+let sceneSpec = null;
+const SHADOW_TITLE = $("shadow").closest("label").title;
+function showShadowToggle(on) {
+  $("shadow").disabled = !on;
+  const why = rendererKind !== "cuts" ? `${RENDERER_NAMES[rendererKind] || rendererKind} draws none`
+    : !sceneSpec?.ground ? "this scene has no ground (a \"ground\" in its scene file)"
+    : movableNames.length ? "scenes with movable objects have none yet (it would change as they move)" : "none was precomputed";
+  $("shadow").closest("label").title = on ? SHADOW_TITLE : `no ground shadow: ${why}`;
 }
 
 // -- renderers: what this session's renderer lets the designer change -------------------------------
@@ -201,7 +214,9 @@ function onEvent(ev) {
     if (state.exposure != null) $("exposure").value = state.exposure;
     if (state.tone) $("tone").value = state.tone;
     if (ev.strokes || ev.streams > 1) {
-      status(`${state.object}: ${ev.strokes} stroke(s) restored` + (ev.streams > 1 ? `; ${ev.streams} tabs share this session` : ""));
+      // the worker replays the strokes (their fit views) before the session's first frame
+      status(`${state.object}: ${ev.strokes} stroke(s) restored` + (ev.streams > 1 ? `; ${ev.streams} tabs share this session` : "")
+             + (view.drawn ? "" : " (its first frame follows)"));
     }
     showRenderer(ev.renderer || "cuts", ev.controls || [], ev.renderers, ev.off || {});
     objects.show(state.objects, state.object);     // the menu names the object the session edits
@@ -498,7 +513,24 @@ const designs = mountDesigns({ status, send: (type, f) => stream?.send(type, f),
   applyMaterial: (m) => { setMaterial(m); stream?.send("material", { material: m }); } });
 mountExportPanel($("export-panel"), () => ({ sceneId: session?.scene_id, object: state?.object, designs: designs.chosen() }), status);
 
-$("open-scene").onclick = () => $("scene-select").value && openScene($("scene-select").value);
+// Open: the session this browser last edited on that scene, with its strokes, undo history and
+// design (a designer who looks at another scene and comes back finds their work); else a new one
+$("open-scene").onclick = async () => {
+  const id = $("scene-select").value;
+  if (!id) return;
+  const prev = sessionOf(id);
+  if (prev && prev.session !== session?.id) {
+    if (stream) { stream.close(); stream = null; }
+    const { session: s } = await reopen(prev.session);
+    if (s) {
+      setUrl({ session: s.id, scene: id, design: prev.design, version: prev.version });
+      await startSession(s);
+      await designs.start(prev.design, prev.version, false);
+      return;
+    }
+  }
+  await openScene(id);
+};
 mountSceneCreate($("scene-panel"), { api, status, waitPrecompute,
   onCreated: async (id) => { await listScenes(id); await openScene(id); } });
 
@@ -527,23 +559,33 @@ async function resume() {
   if (want?.session) {
     const { session: s, why } = await reopen(want.session);
     if (s) {
-      setUrl({ session: s.id, design: want.design, version: want.version });
+      setUrl({ session: s.id, scene: s.scene_id, design: want.design, version: want.version });
       await listScenes(s.scene_id);
       await startSession(s);
       await designs.start(want.design, want.version, false);
       return true;
     }
-    if (url.session) status(`${why}; opening a new session`);
+    if (url.session) status(`${why}; opening a new session` + (url.scene && !url.design ? " of the same scene" : ""));
     setUrl({ session: null });
   }
   if (url.design) {
     try {
       const d = await api(`/v1/materials/${url.design}`);
-      const { ready } = await listScenes(d.scene_id);
-      if (ready && ready.id === d.scene_id) { await openScene(d.scene_id, d.id, url.version); return true; }
+      if (await openIfReady(d.scene_id, d.id, url.version)) return true;
     } catch (err) { status(`design ${url.design}: ${err.message}`); }
   }
+  // a session this browser cannot reopen: a new one of the scene it was on, not whichever
+  // scene is the default
+  if (url.scene && await openIfReady(url.scene)) return true;
   return false;
+}
+
+// a new session of scene ``id`` if it is precomputed (with a design on it); false if not
+async function openIfReady(id, design = null, version = null) {
+  const { ready } = await listScenes(id);
+  if (ready?.id !== id || ready.precomputation?.status !== "done") return false;
+  await openScene(id, design, version);
+  return true;
 }
 
 (async () => {

@@ -36,6 +36,10 @@ def brdf_curve(material, n: int = CURVE_SAMPLES) -> dict:
         wo = np.broadcast_to([0.0, 0.0, 1.0], (n, 3))
         wi = np.stack([np.sin(2 * t), np.zeros(n), np.cos(2 * t)], -1)
         vals = evaluate(material, wi, wo)       # zero past θh = 45°, where ωi is below the horizon
+        # and zero at θh = 45° itself: ωi on the horizon (cos θi ~ 1e-17), where f's
+        # 1/(4 cos θi cos θo) made GGX's sample 10⁴, a spike that dwarfed the plot although the
+        # light arriving there (f·cos θi) is nothing
+        vals = np.where((th < 45.0)[:, None], vals, 0.0)
         q = "f(ωi, ωo = n), θh = θi / 2"
     vals = np.asarray(vals, np.float64)
     diffuse = np.asarray(material.albedo, np.float64) / np.pi
