@@ -126,6 +126,28 @@ def _complete_views(rt):
     assert not any(v.provisional for v in rt.fitter.views)
 
 
+def test_a_reopened_session_draws_before_it_replays_its_strokes(bunny_renderer):
+    """A reload's first frame shows the stored material (the strokes' fit) without waiting for
+    the replay of the strokes, which builds each view's fit rows (seconds at a studio canvas's
+    size); the first message replays them before it applies, so an undo undoes the stroke."""
+    rt = _runtime(bunny_renderer)
+    rt.handle({"seq": 1, "type": "stroke", "stroke": STROKE})
+    rt.fit_if_needed()
+    fitted = rt.materials[0]
+    cam = rt.state.camera.model_dump()
+    rec = [{"seq": 1, "stroke": STROKE, "camera": cam, "rotation_deg": 0.0, "intensity": 1.0, "undone": False}]
+    stored = rt.state.model_dump(mode="json")
+    again = SessionRuntime(rt.scene, CutRenderer(rt.scene, rt.renderer.data), {"state": stored, "strokes": rec})
+    assert again.fitter is None                  # nothing replayed yet
+    assert again.materials[0] == fitted
+    hdr, jpeg = again.frame(1)
+    assert hdr["ack"] == 1 and again.fitter is None
+    again.handle({"seq": 2, "type": "undo"})
+    assert again.fitter is not None and len(again.fitter.history) == 0 and again.fitter.history.can_redo
+    ev = again.fit_if_needed()
+    assert ev[0]["stats"]["strokes"] == 0        # back to the base material
+
+
 def test_replay_rebuilds_the_same_design(bunny_renderer):
     rt = _runtime(bunny_renderer)
     rt.handle({"seq": 1, "type": "stroke", "stroke": STROKE})
@@ -163,9 +185,9 @@ def test_a_stroke_that_cannot_apply_is_rejected_and_the_session_reopens(bunny_re
     away = rt.state.camera.model_dump()
     recs = [{"seq": 2, "stroke": STROKE, "camera": away, "rotation_deg": 0.0, "intensity": 1.0, "undone": False}]
     again = _runtime(bunny_renderer, recs, last_seq=2)
-    evs = again.take_events()
-    assert any(e["type"] == "stroke" and e["rejected"] and e["seq"] == 2 for e in evs), evs
     assert again.frame(2)[0]["ack"] == 2
+    evs = again.fit_if_needed() + again.take_events()      # the replay (before the first fit)
+    assert any(e["type"] == "stroke" and e["rejected"] and e["seq"] == 2 for e in evs), evs
 
 
 def test_a_stored_material_over_todays_limits_does_not_block_restores(bunny_renderer):
@@ -189,6 +211,7 @@ def test_messages_already_in_the_restored_state_are_skipped(bunny_renderer):
     r = bunny_renderer
     rec["camera"] = r.scene.spec.camera.model_dump()
     rt = _runtime(r, [rec], last_seq=7)
+    rt.replay_stored()                 # (the first message or fit would)
     assert len(rt.fitter.history) == 1
     assert rt.handle({"seq": 7, "type": "stroke", "stroke": STROKE}) == []
     assert len(rt.fitter.history) == 1

@@ -183,6 +183,7 @@ class FitDriver:
             return StrokeEvent(seq=seq, strokes=n, rejected=True, notes=[f"stroke rejected: {_msg(e)}"])
 
     def fit_if_needed(self) -> list[dict]:
+        self.replay_stored()
         if not self._needs_fit:
             return []
         self._needs_fit = False
@@ -260,6 +261,8 @@ class FitDriver:
         builder. Only for sessions that paint (a fitter exists in this epoch); the current view's
         builds only once it has stayed VIEW_SETTLE_S. Returns the seconds until it will have
         (0.0: nothing put off), after which the session calls this again if still idle."""
+        if not self._drag and not self.state.readonly:
+            self.replay_stored()          # an idle session's stored strokes, if no message came
         if self.fitter is None or self._drag or self.state.readonly:
             return 0.0
         cam, rot, inten = self.state.camera, self.state.rotation_deg, self.state.intensity

@@ -91,7 +91,11 @@ class SessionRuntime(FitDriver):
         if not self.state.readonly:
             self._make_live()
         self._last_ids = None            # the last frame's object ids (H, W) int32 (picking)
-        self._replay(stored.get("strokes") or [])
+        # the stored strokes are replayed (each view's fit rows built: seconds at a studio
+        # canvas's size) when the session first needs its fitter, not before its first frame:
+        # the stored material already is their fit, so a reopened session shows it at once
+        # (a reload waited 3-12 s on a blank canvas for one stroke)
+        self._unreplayed: list[dict] | None = list(stored.get("strokes") or [])
         if self.state.auto_exposure and not self.state.readonly:
             self.events += self._auto_expose()
         # the curve of the edited object's material: the studio draws this, never its own BRDF
@@ -100,6 +104,13 @@ class SessionRuntime(FitDriver):
             self.events.append(CurveEvent(object=self.state.object, curve=brdf_curve(m)).model_dump())
         # saves the server has not stored yet (the worker died before they were): run again
         self._resave = list(self.state.pending_saves)
+
+    def replay_stored(self) -> None:
+        """Replay the stored strokes if they are not yet (__init__): before the first message,
+        fit or background build, so every edit applies on top of them."""
+        if self._unreplayed is not None:
+            strokes, self._unreplayed = self._unreplayed, None
+            self._replay(strokes)
 
     def _replay(self, strokes: list[dict]) -> None:
         """Replay stored stroke records of the edited object's epoch (undone ones form the redo
@@ -190,6 +201,10 @@ class SessionRuntime(FitDriver):
             return []                      # already in the restored state
         before = (self.state.camera, self.state.rotation_deg, self.state.intensity)
         self.state, eff = apply(self.state, msg)
+        if isinstance(eff, SelectObject):
+            self._unreplayed = None        # the object left: its strokes come back when it is picked again
+        else:
+            self.replay_stored()           # before the effect: an undo undoes a stored stroke
         if (self.state.camera, self.state.rotation_deg, self.state.intensity) != before:
             self._view_changed_at = time.monotonic()
         if msg.drags:
