@@ -70,9 +70,29 @@ async def ensure_demo(st) -> None:
                 s.flush()
                 return p.id
         pid = await run_in_threadpool(pending)
+        why = "first start only"
+        if pid is None:
+            # done before: by this version of Glint? (a change in how meshes load or a part's
+            # recipe leaves the stored parts under other keys: the demo would not open)
+            def payload_of():
+                with st.db() as s:
+                    return st.scene_payload(s, sid, need_parts=False)
+            payload = await run_in_threadpool(payload_of)
+            missing = (await st.pool.run_job({"type": "missing_parts", "scene": payload}))["missing"]
+            if missing:
+                log.info("the demo scene's precomputed data lacks %s (made by an earlier version): "
+                         "precomputing it again", ", ".join(missing))
+
+                def again():
+                    from .services.scenes import queue_precomputation
+
+                    with st.db() as s, s.begin():
+                        return queue_precomputation(s, sid, st.precompute_tasks, stale=True)[0].id
+                pid = await run_in_threadpool(again)
+                why = "once more: this version of Glint computes it differently"
         if pid is not None:
-            log.info("precomputing the demo scene %s (first start only; progress follows)", sid)
-            st.demo.update(state="precomputing", message="precomputing the demo scene's visibility (first start only)")
+            log.info("precomputing the demo scene %s (%s; progress follows)", sid, why)
+            st.demo.update(state="precomputing", message=f"precomputing the demo scene's visibility ({why})")
 
             def progress(f, msg, extra=None):
                 st.demo.update(progress=float(f), message=f"precomputing the demo scene: {msg}")

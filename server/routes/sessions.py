@@ -36,6 +36,7 @@ from worker.protocol import (BadMessage as BadFrame, ErrorEvent, HelloEvent, Pee
 from ..db import Scene, Session, SessionLogRow, SessionSave, SessionServer, StrokeRow, new_secret, now, token_hash
 from ..deps import DB, Client, State, check_host, check_origin, client_key
 from ..schemas import SessionCreate, SessionOut
+from ..services.scenes import precompute_again
 from ..sessions_store import FLUSH_S, POLL_S, StreamRefused
 from ..state import Conflict, NotFound
 
@@ -408,9 +409,27 @@ async def _pump(st, sid: str, q, streams) -> None:
             log.exception("session %s: storing a %s event failed", sid, p.get("type"))
             ev = ErrorEvent(seq=p.get("seq"), message=f"the server could not store the {p.get('type')} "
                                                       f"({type(e).__name__}); try again").model_dump()
+        if ev is not None and ev.get("type") == "error" and ev.get("fatal") and ev.get("code") == 409:
+            # the scene's precomputed data lacks parts (made by an earlier version): precompute it
+            # again, and say so rather than leave the designer with a scene that never opens
+            try:
+                scene_id = await run_in_threadpool(_scene_of, st, sid)
+                pid = await precompute_again(st, scene_id, ev.get("message", ""))
+                ev = {**ev, "message": f"{ev['message']}. This scene's precomputed data comes from an earlier "
+                                       f"version of Glint: it is being precomputed again (precomputation {pid}, "
+                                       "its progress in the Scene panel); open the scene again when it is done"}
+            except Exception:
+                log.exception("session %s: could not start precomputing its scene again", sid)
         if ev is not None:
             for c in list(streams.conns):
                 c.event(ev)
+
+
+def _scene_of(st, sid: str) -> str:
+    row = _get(st, sid)
+    if row is None:
+        raise KeyError(sid)
+    return row.scene_id
 
 
 async def _serve(st, sid: str, conn: _Conn) -> None:

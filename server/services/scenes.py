@@ -68,14 +68,16 @@ def get(s, scene_id: str) -> Scene:
     return sc
 
 
-def queue_precomputation(s, scene_id: str, running) -> tuple[Precomputation, bool]:
+def queue_precomputation(s, scene_id: str, running, stale: bool = False) -> tuple[Precomputation, bool]:
     """(precomputation, whether it is new) for the scene's renderer: the one done or under way
-    (its id in ``running``, the tasks of this process) if there is one, else a new queued one."""
+    (its id in ``running``, the tasks of this process) if there is one, else a new queued one.
+    stale : the one done lacks parts this version of Glint needs (``precompute_again``): only one
+    under way is reused."""
     sc = get(s, scene_id)
     kind = sc.spec.get("renderer", "cuts")
     cur = AppState.latest_precomputation(s, scene_id, kind=kind)
     if cur is not None and cur.status in ("queued", "running", "done") and \
-            (cur.status == "done" or cur.id in running):
+            ((cur.status == "done" and not stale) or cur.id in running):
         return cur, False
     p = Precomputation(scene_id=scene_id, status="queued", kind=kind)
     s.add(p)
@@ -138,3 +140,24 @@ async def run_precompute(st, pre_id: str, on_progress=None) -> bool:
         return False
     finally:
         st.precompute_tasks.pop(pre_id, None)
+
+
+async def precompute_again(st, scene_id: str, missing: str = "") -> str:
+    """Start precomputing a scene whose finished precomputation lacks parts this version of Glint
+    needs (a session could not open: worker NotPrecomputed; or the demo's check at start): parts
+    already stored are reused, the others computed, with progress like any precomputation.
+    Returns its id (a run already under way is reused)."""
+    import asyncio
+
+    from fastapi.concurrency import run_in_threadpool
+
+    def queue():
+        with st.db() as s, s.begin():
+            p, new = queue_precomputation(s, scene_id, st.precompute_tasks, stale=True)
+            return p.id, new
+    pid, new = await run_in_threadpool(queue)
+    if new:
+        log.info("scene %s: its precomputed data lacks %s (made by an earlier version?): precomputing it again "
+                 "as precomputation %s", scene_id, missing or "parts", pid)
+        st.precompute_tasks[pid] = asyncio.get_running_loop().create_task(run_precompute(st, pid))
+    return pid

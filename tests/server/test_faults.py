@@ -187,3 +187,41 @@ def test_a_damaged_blob_is_reported_not_used(faulty, shared_assets):
                content=(shared_assets / "meshes" / "bunny.ply").read_bytes())
     assert r.status_code == 201 and r.json()["sha256"] == sha
     assert _wait_pre(c, c.post(f"/v1/scenes/{scene}/precompute").json()["id"])["status"] == "done"
+
+
+def test_a_scene_whose_parts_are_gone_is_precomputed_again(faulty):
+    """A scene whose precomputation says done but whose parts the store lacks (what an update
+    that changes how meshes load, or a part's recipe, leaves: the parts are then under other
+    keys): a session cannot open, and instead of a scene that never opens, the service says why,
+    precomputes it again (the parts still there reused), and the next session opens."""
+    f, c = faulty, faulty["c"]
+    _ready(c)
+    scene = _scene(c, f["assets"], 1.04)
+    keys = f["srv"].data / "blobs" / "keys"
+    before = set(os.listdir(keys))
+    first = _wait_pre(c, c.post(f"/v1/scenes/{scene}/precompute").json()["id"])
+    assert first["status"] == "done"
+    made = set(os.listdir(keys)) - before
+    assert made
+    for key in made:
+        (keys / key).unlink()                  # the parts under this version's keys are gone
+    ses = c.post("/v1/sessions", json={"scene_id": scene}).json()
+
+    async def opening():
+        async with connect(f["srv"].as_dict(), ses["stream"], ses["token"]) as ws:
+            while True:
+                x = await asyncio.wait_for(ws.recv(), 120)
+                if isinstance(x, str) and json.loads(x).get("fatal"):
+                    return json.loads(x)
+    ev = asyncio.run(opening())
+    assert ev["code"] == 409 and "not precomputed yet" in ev["message"] and "precomputed again" in ev["message"], ev
+    again = c.get(f"/v1/scenes/{scene}").json()["precomputation"]
+    assert again["id"] != first["id"], again
+    assert _wait_pre(c, again["id"])["status"] == "done"
+    ses = c.post("/v1/sessions", json={"scene_id": scene}).json()
+
+    async def frame():
+        async with connect(f["srv"].as_dict(), ses["stream"], ses["token"]) as ws:
+            return await next_frame(ws, timeout=120)
+    hdr, _ = asyncio.run(frame())
+    assert hdr["width"] > 0

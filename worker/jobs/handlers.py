@@ -1,4 +1,4 @@
-"""The worker's job handlers (precompute, render, fit, capture, export, bundle_frames), in one registry: ``JOBS``,
+"""The worker's job handlers (precompute, missing_parts, render, fit, capture, export, bundle_frames), in one registry: ``JOBS``,
 job type -> handler(cache, payload, progress) -> result dict. progress : (fraction 0..1,
 message[, extra dict sent along: a precomputation's preview]) -> None; a handler raises JobError
 (or GlintError, ValueError) for bad input."""
@@ -147,6 +147,21 @@ def _precompute(cache: DataCache, p: dict, progress) -> dict:
                                                        "renderers": kinds, **({"preview": preview} if preview else {})}}
 
 
+def _missing_parts(cache: DataCache, p: dict, progress) -> dict:
+    """The parts a precompute job of this scene would have to compute (their labels): none when
+    its stored precomputation is current. Loads the scene and computes the parts' content keys,
+    nothing more."""
+    from worker.renderers import get
+
+    kind = p["scene"].get("renderer") or "cuts"
+    sc = cache.scene(p["scene"])
+    options = p["scene"].get("options") or {}
+    kinds = [kind] + (["cuts"] if kind != "cuts" else [])
+    missing = [part.label for k in kinds
+               for part in get(k)[1].parts(sc, options if k == kind else {}) if cache.parts.sha(part.key) is None]
+    return {"missing": missing}
+
+
 def first_look(cache: DataCache, sc) -> dict:
     """The preview frame of a scene whose precomputation is about to run (renderers/cuts/
     preview.py), stored as a blob: {"sha256", "seconds", "rays", "width", "height", "exposure"};
@@ -225,7 +240,8 @@ def _bundle_frames(cache: DataCache, p: dict, progress) -> dict:
 
 JOBS = {"render": lambda cache, p, progress: _render(cache, p),
         "fit": lambda cache, p, progress: _fit(cache, p),
-        "precompute": _precompute, "capture": _capture, "export": _export, "bundle_frames": _bundle_frames}
+        "precompute": _precompute, "missing_parts": _missing_parts, "capture": _capture, "export": _export,
+        "bundle_frames": _bundle_frames}
 
 
 def run_job(cache: DataCache, p: dict, progress) -> dict:

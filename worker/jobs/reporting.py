@@ -18,5 +18,9 @@ def error_event(e: Exception, seq=None) -> dict:
     """An error event for an exception while handling a message: user errors say what was
     wrong; anything else is a bug, reported as such without a trace."""
     if isinstance(e, (GlintError, StateError, ValueError)):
-        return ErrorEvent(seq=seq, message=_msg(e)).model_dump()
+        from ..renderers.base import NotPrecomputed
+
+        # a status the server acts on travels with it: 409, the scene lacks precomputed parts (it
+        # precomputes the scene again)
+        return ErrorEvent(seq=seq, message=_msg(e), code=409 if isinstance(e, NotPrecomputed) else None).model_dump()
     return ErrorEvent(seq=seq, message=f"internal error ({type(e).__name__}): {e}").model_dump()

@@ -373,5 +373,21 @@ def load(pre: Precomputation, scene, store: ArtifactStore, options: Mapping[str,
         else:
             blobs[p.key] = b
     if missing:
-        raise GlintError(f"not precomputed yet: {', '.join(missing)}", status=409)
+        raise NotPrecomputed(missing)
     return pre.load(scene, blobs, options)
+
+
+def missing_parts(pre: Precomputation, scene, store: ArtifactStore, options: Mapping[str, Any] | None = None) -> list[str]:
+    """The labels of the precomputation's parts for this scene that the store lacks: a scene
+    precomputed by an earlier version whose parts' recipe or input changed (e.g. how meshes are
+    loaded) has some, though its precomputation row says done."""
+    return [p.label for p in pre.parts(scene, dict(options or {})) if store.get(p.key) is None]
+
+
+class NotPrecomputed(GlintError):
+    """The scene lacks precomputed parts (409); ``missing`` their labels. The service answers it
+    by precomputing the scene again (server/services/scenes.py)."""
+
+    def __init__(self, missing: list[str]):
+        super().__init__(f"not precomputed yet: {', '.join(missing)}", status=409)
+        self.missing = list(missing)
