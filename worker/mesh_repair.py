@@ -43,6 +43,14 @@ def repair(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None =
     report maps each fix named in the module docstring to a count, plus ``faces_in`` /
     ``faces_out`` / ``vertices_in`` / ``vertices_out``. Raises MeshRejected when no face survives.
     """
+    v, f, carried, rep = repair_carrying(vertices, faces, normals=normals)
+    return v, f, carried["normals"], rep
+
+
+def repair_carrying(vertices: np.ndarray, faces: np.ndarray, **per_vertex: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, dict, dict]:
+    """``repair`` carrying any per-vertex arrays (each (V, …) or None: normals, texture
+    coordinates) through the vertex removal: (vertices, faces, {name: (V', …) array or None},
+    report)."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     rep = {"vertices_in": int(len(v)), "faces_in": int(len(f))}
@@ -94,11 +102,10 @@ def repair(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None =
         remap = np.cumsum(used) - 1
         f = remap[f]
         v = v[used]
-        if normals is not None:
-            normals = np.asarray(normals)[used]
+        per_vertex = {k: (None if a is None else np.asarray(a)[used]) for k, a in per_vertex.items()}
     rep["vertices_out"] = int(len(v))
     rep["faces_out"] = int(len(f))
-    return v, f, normals, rep
+    return v, f, per_vertex, rep
 
 
 def changed(report: dict) -> bool:
