@@ -321,7 +321,7 @@ def _file_names(man: dict) -> list[str]:
     return list(out)
 
 
-MODEL_FORMAT = 1     # part of the model's content key: bump when the glTF export changes its output
+MODEL_FORMAT = 2     # part of the model's content key: bump when the glTF export changes its output
 
 
 async def _model(st, pl: dict, info: dict) -> dict | None:
