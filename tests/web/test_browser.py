@@ -108,9 +108,18 @@ def test_studio_and_viewer(server, client, bunny_scene, browser, artifacts):
 
     viewer = ctx.new_page()
     viewer.on("pageerror", lambda e: errors.append(str(e)))
+    # every text the status line shows, from the page's first parse
+    viewer.add_init_script("""document.addEventListener('DOMContentLoaded', () => {
+      const s = document.getElementById('status'); window.statuses = [s.textContent];
+      new MutationObserver(() => window.statuses.push(s.textContent))
+        .observe(s, {childList: true, characterData: true, subtree: true}); });""")
     viewer.goto(base + href)
     # the publication's bundle is built as a job: the viewer waits for it, then plays it
     wait_drawn(viewer, 0, timeout=240_000)
+    # meanwhile it said so in a shopper's words: how far, not the service's message
+    said = viewer.evaluate("() => window.statuses")
+    waiting = [t for t in said if t.startswith("Preparing this product's images")]
+    assert waiting and not [t for t in said if "publication" in t or href.rsplit("/", 1)[1] in t], said
     gv = canvas_grid(viewer)
     viewer.screenshot(path=str(artifacts / "web-6-viewer.png"))
     assert gv.std() > 5
