@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 MAX_OVERLAP = 0.01       # covered texels that two faces claim, above which a bake is refused
-CHUNK = 2_000_000        # texel candidates rasterised at once (memory: ~100 MB of temporaries)
+CHUNK = 500_000          # texel candidates rasterised at once (~150 bytes of temporaries each)
 
 
 @dataclass
