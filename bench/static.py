@@ -237,7 +237,10 @@ def h2load(base: str, paths: list[str], clients: int, rate: int, streams: int = 
     page and the preload) go at once, the rest (the variant switch) ``visit_s`` seconds later,
     on the same open connection (an h2load timing script). Without it a shopper's requests run
     back to back and its visit lasts a fraction of a second, so the shoppers connected at once
-    are about ``rate`` × that fraction, not ``clients``; with it, min(clients, rate × visit_s)."""
+    are about ``rate`` × that fraction, not ``clients``; with it, min(clients, rate × visit_s).
+    Caveat: h2load sends a timing script's requests at their time without holding to
+    ``streams`` in flight, so a shopper's opening requests go at once and their latencies include
+    waiting behind each other (the player keeps 6 in flight): an upper bound of the player's."""
     exe = need("h2load")
     with tempfile.TemporaryDirectory(prefix="glint-h2load-") as d:
         lst, log = Path(d) / "uris.txt", Path(d) / "requests.tsv"
