@@ -189,7 +189,8 @@ def cmd_bench_viewer(a) -> int:
         if not (a.publication and a.data_dir):
             raise SystemExit("--static needs --publication and --data-dir (a bundle built by glint bench publish --data-dir D, which prints its publication)")
         res = bench_viewer_static(a.publication, a.data_dir, clients=a.clients,
-                                  rates=[int(x) for x in a.rates.split(",")], nice=a.client_nice, quiet=a.json)
+                                  rates=[int(x) for x in a.rates.split(",")], nice=a.client_nice, quiet=a.json,
+                                  visit_s=a.visit)
         print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items() if k != "runs"))
         return 0
 
@@ -271,6 +272,9 @@ def add_bench_commands(bsub) -> None:
                          "replayed by h2load (bench/static.py)")
     bv.add_argument("--rates", default="25,50,100,200", help="with --static: shoppers arriving per second, one run each")
     bv.add_argument("--client-nice", type=int, default=5, help="with --static: the load generator's nice level")
+    bv.add_argument("--visit", type=float, default=0.0,
+                    help="with --static: seconds each shopper stays on the page (connected; the variant switch at the "
+                         "end), so rate × visit shoppers are connected at once; 0: back to back")
     bv.add_argument("--json", action="store_true")
     bv.set_defaults(fn=cmd_bench_viewer)
     bfs = bsub.add_parser("first-start", help="a fresh `glint serve` and the studio in Chromium: seconds to the "

@@ -314,10 +314,12 @@ def frame_cost(scene: str | None = None, cameras: int = 4, width: int = 640, hei
 
 
 def bench_viewer_static(publication: str, data_dir: str, clients: int = 1000, rates=(25, 50, 100, 200), nice: int = 5,
-                        port: int | None = None, quiet: bool = False) -> dict:
+                        port: int | None = None, quiet: bool = False, visit_s: float = 0.0) -> dict:
     """``clients`` shoppers of a published object through nginx in front of the service
     (bench/static.py): the requests a real Chromium viewer makes (recorded once), replayed by
-    h2load at each arrival rate (shoppers a second) of ``rates``, the client at ``nice``.
+    h2load at each arrival rate (shoppers a second) of ``rates``, the client at ``nice``;
+    with ``visit_s`` each shopper stays connected that long and switches variant at its end
+    (bench.static.h2load), so that rate × visit_s shoppers are on the page at once.
     Reports per-request latency (client side, every request; nginx's own time per frame),
     offered and served rates, every process's CPU seconds, and the service's memory and
     workers' CPU (no frame rendered)."""
@@ -337,7 +339,8 @@ def bench_viewer_static(publication: str, data_dir: str, clients: int = 1000, ra
         mem0, cpu0 = srv.memory(), srv.cpu_seconds()
         for rate in rates:
             n0, s0 = ngx.cpu_seconds(), srv.cpu_seconds()
-            r = h2load(ngx.base_h2, shop["urls"], clients, int(rate), nice=nice)
+            r = h2load(ngx.base_h2, shop["urls"], clients, int(rate), nice=nice, visit_s=visit_s,
+                       on_open=shop["on_open"])
             n1, s1 = ngx.cpu_seconds(), srv.cpu_seconds()
             r["server"] = server_times(ngx.rotate_log())
             r["nginx_cpu_seconds"] = round(n1 - n0, 2)

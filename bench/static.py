@@ -227,18 +227,36 @@ def shopper_requests(base: str, pid: str, viewport=(1280, 860), dpr: float = 1.0
 
 
 def h2load(base: str, paths: list[str], clients: int, rate: int, streams: int = 6, threads: int = 1,
-           nice: int = 0) -> dict:
+           nice: int = 0, visit_s: float = 0.0, on_open: int | None = None) -> dict:
     """``clients`` shoppers replaying ``paths`` each, ``rate`` new ones a second, each on one
     HTTP/2 connection with ``streams`` requests in flight at most; the client runs at
     ``nice``. Returns latency percentiles (ms) over every request, the offered and served
-    rates and the client's CPU seconds."""
+    rates and the client's CPU seconds.
+
+    visit_s > 0: each shopper stays on the page that long: its first ``on_open`` requests (the
+    page and the preload) go at once, the rest (the variant switch) ``visit_s`` seconds later,
+    on the same open connection (an h2load timing script). Without it a shopper's requests run
+    back to back and its visit lasts a fraction of a second, so the shoppers connected at once
+    are about ``rate`` × that fraction, not ``clients``; with it, min(clients, rate × visit_s).
+    Caveat: h2load sends a timing script's requests at their time without holding to
+    ``streams`` in flight, so a shopper's opening requests go at once and their latencies include
+    waiting behind each other (the player keeps 6 in flight): an upper bound of the player's."""
     exe = need("h2load")
     with tempfile.TemporaryDirectory(prefix="glint-h2load-") as d:
         lst, log = Path(d) / "uris.txt", Path(d) / "requests.tsv"
-        lst.write_text("".join(f"{base}{p}\n" for p in paths))
-        cmd = ["nice", "-n", str(nice), exe, "-c", str(clients), "-n", str(clients * len(paths)),
+        if visit_s > 0:
+            k = len(paths) if on_open is None else on_open
+            lst.write_text("".join(f"{0.0 if i < k else 1e3 * visit_s:.3f}\t{base}{p}\n" for i, p in enumerate(paths)))
+            script = ["--timing-script-file", str(lst)]
+        else:
+            lst.write_text("".join(f"{base}{p}\n" for p in paths))
+            script = ["-i", str(lst)]
+        hold = int(visit_s) + 60
+        # -n: all requests, or with a timing script each client's
+        n = len(paths) if visit_s > 0 else clients * len(paths)
+        cmd = ["nice", "-n", str(nice), exe, "-c", str(clients), "-n", str(n),
                "-m", str(streams), "-t", str(threads), "-r", str(max(1, rate)), "--rate-period", "1s",
-               "-T", "30s", "-N", "60s", "-i", str(lst), "--log-file", str(log)]
+               "-T", f"{max(30, hold)}s", "-N", f"{max(60, hold)}s", *script, "--log-file", str(log)]
         out = Path(d) / "h2load.txt"
         t0 = time.perf_counter()
         with open(out, "wb") as fo:
@@ -265,7 +283,8 @@ def h2load(base: str, paths: list[str], clients: int, rate: int, streams: int = 
     n_total = clients * len(paths)
     arrive = clients / max(1, rate)
     return {"clients": clients, "requests_per_shopper": len(paths), "arrival_per_s": rate,
-            "arrival_seconds": round(arrive, 1), "requests": len(rows), "ok": ok, "failed": n_total - ok,
+            "arrival_seconds": round(arrive, 1), "visit_seconds": visit_s,
+            "shoppers_connected_at_once": int(min(clients, rate * visit_s)) if visit_s > 0 else None, "requests": len(rows), "ok": ok, "failed": n_total - ok,
             "seconds": round(span, 2), "wall_seconds": round(wall, 2),
             "offered_per_s": round(n_total / arrive, 1) if arrive else None,
             "served_per_s": round(len(rows) / span, 1) if span else None,

@@ -119,6 +119,24 @@ def test_a_mesh_with_normals_keeps_them_through_repair(tmp_path, bunny):
     assert np.allclose(others, [0, 0, 1]), others[:3]
 
 
+def test_texture_coordinates_stay_on_their_vertices_through_repair(tmp_path, bunny):
+    """The file's texture coordinates (here a function of each vertex's position, so any shift
+    shows) survive the removal of a NaN vertex and of duplicate faces, on the right vertices."""
+    v, f = bunny
+    v = v.copy(); v[0] = np.nan
+    uv = (v[:, :2] - np.nanmin(v[:, :2], 0)) / np.nanmax(np.ptp(np.nan_to_num(v[:, :2]), 0))
+    lines = [f"v {a:.9g} {b:.9g} {c:.9g}" for a, b, c in v] + [f"vt {a:.9g} {b:.9g}" for a, b in np.nan_to_num(uv)]
+    dup = f[(f != 0).all(1)][:4]
+    lines += [f"f {a}/{a} {b}/{b} {c}/{c}" for a, b, c in np.concatenate([f, dup]) + 1]
+    (tmp_path / "uv.obj").write_text("\n".join(lines) + "\n")
+    m = load_mesh(tmp_path / "uv.obj")
+    assert m.repair["unreferenced_vertices"] >= 1 and m.repair["duplicate_faces"] == 4, m.repair
+    assert m.uvs is not None and m.uvs.shape == (len(m.vertices), 2)
+    want = (m.vertices[:, :2] - np.nanmin(v[:, :2], 0)) / np.nanmax(np.ptp(np.nan_to_num(v[:, :2]), 0))
+    np.testing.assert_allclose(m.uvs, want, atol=1e-5)
+    assert load_mesh(_obj(tmp_path / "none.obj", v, f)).uvs is None        # a file without any
+
+
 def test_upload_meta_carries_the_repair_report(tmp_path, bunny):
     v, f = bunny
     p = _obj(tmp_path / "up.obj", v, np.concatenate([f, f[:3, ::-1]]))

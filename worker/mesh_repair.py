@@ -293,6 +293,23 @@ def repair(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None =
     report maps each fix named in the module docstring to a count, plus ``faces_in`` /
     ``faces_out`` / ``vertices_in`` / ``vertices_out``. Raises MeshRejected when no face survives.
     """
+    v, f, carried, rep = repair_carrying(vertices, faces, normals=normals, normals_from_faces=normals_from_faces)
+    return v, f, carried["normals"], rep
+
+
+def repair_carrying(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None = None,
+                    normals_from_faces: bool = False, **per_vertex: np.ndarray | None
+                    ) -> tuple[np.ndarray, np.ndarray, dict, dict]:
+    """``repair`` carrying any other per-vertex arrays (each (V, …) or None, e.g. texture
+    coordinates) through the vertex removal and the copies the repair makes (a sheet's back, a
+    fold's split vertex: a copy takes its vertex's row): (vertices, faces, {"normals": …, name:
+    (V', …) array or None}, report)."""
+    per_vertex = {k: (None if a is None else np.asarray(a)) for k, a in per_vertex.items()}
+
+    def copies(src):
+        for k, a in per_vertex.items():
+            if a is not None:
+                per_vertex[k] = np.concatenate([a, a[src]])
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     rep = {"vertices_in": int(len(v)), "faces_in": int(len(f))}
@@ -346,6 +363,7 @@ def repair(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None =
         v = v[used]
         if normals is not None:
             normals = np.asarray(normals)[used]
+        per_vertex = {k: (None if a is None else a[used]) for k, a in per_vertex.items()}
     own_normals = normals is not None and not normals_from_faces
     f_or, orep, sheet = orient(v, f, fm)
     if not own_normals:
@@ -356,6 +374,7 @@ def repair(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None =
     rep["two_sided_faces_added"] = int(sheet.sum())
     if sheet.any():
         v, f, src = back_sheets(v, f, sheet)
+        copies(src)
         if own_normals:
             normals = np.concatenate([np.asarray(normals), -np.asarray(normals)[src]])
     if not own_normals:
@@ -363,6 +382,7 @@ def repair(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None =
         from .scene import area_weighted_normals
 
         v, f, src = split_folds(v, f)
+        copies(src)
         rep["fold_vertices_split"] = int(len(src))
         nrm = area_weighted_normals(v, f)
         v, rep["layer_vertices_moved"] = separate_layers(v, nrm)
@@ -380,7 +400,7 @@ def repair(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None =
         rep["normals_against_faces"] = int(((acc * np.asarray(normals, np.float64)).sum(1) < 0).sum())
     rep["vertices_out"] = int(len(v))
     rep["faces_out"] = int(len(f))
-    return v, f, normals, rep
+    return v, f, {"normals": normals, **per_vertex}, rep
 
 
 def changed(report: dict) -> bool:

@@ -256,13 +256,18 @@ def _objects_adapter():
 class Mesh:
     """A triangle mesh in world space.
 
-    vertices : (V, 3) float32, faces : (F, 3) int32, normals : (V, 3) float32 unit vertex normals.
+    vertices : (V, 3) float32, faces : (F, 3) int32, normals : (V, 3) float32 unit vertex normals;
+    uvs : (V, 2) float32 texture coordinates from the file (origin at the image's bottom left, as
+    OBJ and trimesh have them), NaN rows for vertices of parts without any, or None when the file
+    has none. Rendering ignores them; the glTF export bakes painted region weights into textures
+    through them (worker/export/texture.py).
     """
 
-    def __init__(self, vertices, faces, normals):
+    def __init__(self, vertices, faces, normals, uvs=None):
         self.vertices = np.ascontiguousarray(vertices, dtype=np.float32)
         self.faces = np.ascontiguousarray(faces, dtype=np.int32)
         self.normals = np.ascontiguousarray(normals, dtype=np.float32)
+        self.uvs = None if uvs is None else np.ascontiguousarray(uvs, dtype=np.float32)
         self.repair: dict = {}      # what load_mesh repaired (worker.mesh_repair.repair's report)
         # (V,) int64: the vertex of the repaired file's mesh each vertex copies, when load_mesh
         # split vertices at creases (worker/creases.py), else None
@@ -354,11 +359,16 @@ def load_mesh(path: str | Path, transform: Transform | None = None) -> Mesh:
     placed = [(g, T) for g, T in placed if isinstance(g, trimesh.Trimesh) and len(g.faces)]
     if not placed:
         raise SceneError(f"{path}: contains no triangles")
-    verts, faces, normals, base = [], [], [], 0
+    verts, faces, normals, uvs, base = [], [], [], [], 0
     from_faces = True                      # every normal computed here, none read from the file
     for g, T in placed:
         v = np.asarray(g.vertices, dtype=np.float64)
         f = np.asarray(g.faces, dtype=np.int64)
+        # texture coordinates where the part has them (trimesh splits vertices at UV seams, so
+        # each vertex has one); NaN for a part without, so parts stay aligned
+        uv = getattr(g.visual, "uv", None)
+        uvs.append(np.asarray(uv, np.float64)[:, :2] if uv is not None and len(uv) == len(v)
+                   else np.full((len(v), 2), np.nan))
         if len(f) and (f.min() < 0 or f.max() >= len(v)):
             raise SceneError(f"{path}: face indices out of range")
         aw = area_weighted_normals(v, f)
@@ -370,18 +380,21 @@ def load_mesh(path: str | Path, transform: Transform | None = None) -> Mesh:
             n = _unit_or(n @ np.linalg.inv(T[:3, :3]), area_weighted_normals(v, f))
         verts.append(v); faces.append(f + base); normals.append(n); base += len(v)
     v = np.concatenate(verts); f = np.concatenate(faces); n = np.concatenate(normals)
-    from .mesh_repair import MeshRejected, repair
+    uv = np.concatenate(uvs)
+    from .mesh_repair import MeshRejected, repair_carrying
 
     try:
-        v, f, n, report = repair(v, f, n, normals_from_faces=from_faces)
+        v, f, carried, report = repair_carrying(v, f, normals=n, normals_from_faces=from_faces, uvs=uv)
     except MeshRejected as e:
         raise SceneError(f"{path}: {e}") from None
+    n, uv = carried["normals"], carried["uvs"]
     if from_faces:
         # no normals in the file: one per smooth wedge around each vertex, not one averaged
         # across a sharp edge (worker/creases.py), on the repaired (coherently wound) faces
         from .creases import split_creases
 
         v, f, n, source, crease = split_creases(v, f)
+        uv = uv[source]                     # a copy keeps its vertex's texture coordinates
         report = {**report, "creases": crease, "vertices_out": int(len(v))}
     else:
         source = None
@@ -389,7 +402,7 @@ def load_mesh(path: str | Path, transform: Transform | None = None) -> Mesh:
         m = transform.matrix()
         v = v @ m[:3, :3].T + m[:3, 3]
         n = _unit_or(n @ np.linalg.inv(m[:3, :3]), area_weighted_normals(v, f))  # inverse transpose
-    mesh = Mesh(v, f, n)
+    mesh = Mesh(v, f, n, uvs=None if np.isnan(uv).all() else uv)
     mesh.repair = report
     if source is not None and crease["vertices_split"]:
         mesh.source = source
@@ -418,7 +431,11 @@ class LoadedScene:
             vs.append(m.vertices); fs.append(m.faces + base); ns.append(m.normals)
             ov.append(np.full(len(m.vertices), i, np.int32)); of.append(np.full(len(m.faces), i, np.int32))
             base += len(m.vertices)
-        self.mesh = Mesh(np.concatenate(vs), np.concatenate(fs), np.concatenate(ns))
+        uvs = None
+        if any(m.uvs is not None for m in meshes):
+            uvs = np.concatenate([m.uvs if m.uvs is not None else np.full((len(m.vertices), 2), np.nan, np.float32)
+                                  for m in meshes])
+        self.mesh = Mesh(np.concatenate(vs), np.concatenate(fs), np.concatenate(ns), uvs=uvs)
         self.object_of_vertex = np.concatenate(ov)
         self.object_of_face = np.concatenate(of)
         self._sources = [m.source for m in meshes]

@@ -38,7 +38,8 @@ class EnvironmentIn(BaseModel):
     model_config = ConfigDict(extra="forbid")
     asset_id: str | None = Field(None, description="an uploaded environment map; default: the scene's")
     label: str | None = Field(None, max_length=100, description="default: the map's name (its file name)")
-    rotation_deg: float = 0.0
+    rotation_deg: float | None = Field(None, description="degrees about +Y; default: the scene's own rotation for "
+                                       "the scene's map (as the studio shows it), 0 for another map")
 
 
 class EncodeIn(BaseModel):

@@ -76,13 +76,18 @@ def _resolve(s, scene_id: str, obj: str | None, variants: list[dict], environmen
         out_variants.append({"label": v.get("label") or d.name, "material_id": d.id, "version": ver.version,
                              "material": ver.body})
     envs = []
+    scene_env = sc.spec["environment"]
     for i, e in enumerate(environments or [{}]):
-        aid = e.get("asset_id") or sc.spec["environment"]["map"]
+        aid = e.get("asset_id") or scene_env["map"]
         a = s.get(Asset, aid)
         if a is None or a.kind != "envmap":
             raise Invalid(f"environments[{i}]: {aid!r} is not an uploaded environment map")
-        envs.append({"label": e.get("label") or env_label(a.filename), "asset_id": aid,
-                     "rotation_deg": float(e.get("rotation_deg") or 0.0)})
+        # no rotation named: the scene's own map turned as the scene turns it (what the designer
+        # saw in the studio); another map unturned
+        rot = e.get("rotation_deg")
+        if rot is None:
+            rot = scene_env.get("rotation_deg", 0.0) if aid == scene_env["map"] else 0.0
+        envs.append({"label": e.get("label") or env_label(a.filename), "asset_id": aid, "rotation_deg": float(rot)})
     return sc, obj, out_variants, envs
 
 
@@ -321,7 +326,7 @@ def _file_names(man: dict) -> list[str]:
     return list(out)
 
 
-MODEL_FORMAT = 1     # part of the model's content key: bump when the glTF export changes its output
+MODEL_FORMAT = 2     # part of the model's content key: bump when the glTF export changes its output
 
 
 async def _model(st, pl: dict, info: dict) -> dict | None:

@@ -84,3 +84,14 @@ def test_glints_ggx_is_close_and_lambert_exact_for_mitsuba():
     b = approximate_ggx(big, smp)
     assert not b.exact and max(b.material.specular) + max(b.material.albedo) <= 1.0 + 1e-9
     assert 0.0 < b.rel_rmse < 0.4, b
+
+
+def test_a_dark_glossy_dielectric_fits_as_one_not_as_a_metal():
+    """Black lacquer (a sharp 5% specular over a 2% diffuse) has an almost exact glTF form (a
+    dielectric, roughness √α, KHR_materials_specular), but the core fit alone ends as a metal,
+    from which the specular extension cannot move: the extension is tried from a dielectric too."""
+    lacquer = GGX(alpha=0.08, specular=(0.05, 0.05, 0.05), albedo=(0.02, 0.02, 0.02))
+    a = approximate(lacquer)
+    assert a.rel_rmse < 0.02, f"black lacquer fits at {a.rel_rmse:.1%} relative BRDF RMSE (bound 2%): {a.public()}"
+    assert a.material.metallic < 0.1 and abs(a.material.roughness - 0.08 ** 0.5) < 0.03, a.public()
+    assert "KHR_materials_specular" in a.material.extensions, a.public()

@@ -1,6 +1,8 @@
 """A material with painted regions leaves Glint in every format: the glTF splits the object into
 one primitive per dominant layer (each bound to its layer's fitted material, for the design and
-each variant) and carries the raw weight maps as vertex attributes; MaterialX mixes the layers'
+each variant) and carries the raw weight maps as textures through the mesh's texture coordinates
+where it has a layout of its own, else (no coordinates, or a repeating layout) as vertex
+attributes, saying why; MaterialX mixes the layers'
 OpenPBR shaders by ``geompropvalue`` nodes of the same names; Mitsuba nests ``blendbsdf``s
 weighted by the PLY's vertex attributes and renders like Glint's own pixel-mode frame.
 
@@ -85,16 +87,115 @@ def test_glb_splits_regions_into_primitives_and_keeps_the_weights(painted_scene,
             assert np.all(mean_x < med + 0.02), mean_x.max() - med
         (mapping,) = p["extensions"]["KHR_materials_variants"]["mappings"]
         assert mapping == {"material": plain, "variants": [0]}
-    # the raw weights, as written by the design
+    # the raw weights, as written by the design: the bunny has no texture coordinates, so they are
+    # vertex attributes, and the file and the report say why
     (reg,) = doc["meshes"][0]["extras"]["glint"]["regions"]
     attr = region_attribute(mat, 0)
     assert reg["regions"] == [{"region": "right", "attribute": attr, "material_key": reg["regions"][0]["material_key"]}]
+    assert reg["storage"] == "vertex attribute" and "no texture coordinates" in reg["why"], reg
+    assert rep["regions"] == [{"object": "bunny", "storage": "vertex attribute", "why": reg["why"]}], rep["regions"]
+    assert "TEXCOORD_0" not in prims[0]["attributes"] and not doc.get("textures")
     w = _accessor(doc, blob, prims[0]["attributes"][attr], np.float32)
     np.testing.assert_allclose(w, mat.regions[0].dense(len(x)), atol=0)
     # Glint's own render of the exported layers (blended per vertex) against the design
     render = {r["variant"]: r["rel_rmse"] for r in rep["render"]}
     assert render[None] < 0.08, render
     assert render["Plain"] < 0.005, render
+
+
+@pytest.fixture(scope="module")
+def atlas_scene(painted_scene, tmp_path_factory):
+    """The painted bunny with a UV atlas (xatlas, as a modeller's unwrap gives one: every face its
+    own texels), loaded from an OBJ with ``vt`` like any user's mesh; painted like _painted."""
+    xatlas = pytest.importorskip("xatlas")
+    from worker.scene import LoadedScene, load_mesh
+
+    src = painted_scene.spec.objects[0].mesh
+    m = load_mesh(painted_scene.resolve(src))
+    vmap, faces, uvs = xatlas.parametrize(m.vertices, m.faces)
+    path = tmp_path_factory.mktemp("atlas") / "bunny-atlas.obj"
+    xatlas.export(str(path), m.vertices[vmap], faces, uvs, m.normals[vmap])
+    spec = painted_scene.spec.model_copy(deep=True)
+    spec.objects[0].mesh = str(path)
+    spec.objects[0].material = BASE
+    sc = LoadedScene(spec, painted_scene.root, envmap=painted_scene.envmap)
+    sc.spec.objects[0].material = _painted(sc)
+    return sc
+
+
+def _bilinear(img, uv):
+    """img (S, S) sampled at glTF texture coordinates uv (N, 2) as a GPU does (texel centres at
+    half-integers, REPEAT)."""
+    s = img.shape[0]
+    p = uv * s - 0.5
+    x0, y0 = np.floor(p[:, 0]).astype(int), np.floor(p[:, 1]).astype(int)
+    fx, fy = p[:, 0] - x0, p[:, 1] - y0
+    out = 0.0
+    for dy, wy in ((0, 1 - fy), (1, fy)):
+        for dx, wx in ((0, 1 - fx), (1, fx)):
+            out = out + img[(y0 + dy) % s, (x0 + dx) % s] * wy * wx
+    return out
+
+
+def test_glb_carries_the_weights_as_textures_through_the_meshs_own_uvs(atlas_scene, tmp_path):
+    import io
+
+    from PIL import Image
+
+    from helpers import validate_gltf
+
+    mat = atlas_scene.spec.objects[0].material
+    out = tmp_path / "atlas.glb"
+    rep = export(atlas_scene, "gltf", out)
+    v = validate_gltf(out)
+    assert v["issues"]["numErrors"] == 0 and v["issues"]["numWarnings"] == 0, v["issues"]["messages"]
+    doc, blob = _glb_json_and_bin(out)
+    (reg,) = doc["meshes"][0]["extras"]["glint"]["regions"]
+    assert reg["storage"] == "texture", reg
+    (r0,) = reg["regions"]
+    assert r0["region"] == "right" and r0["texCoord"] == 0, r0
+    (info,) = rep["regions"]
+    assert info["storage"] == "texture" and info["texture_size"] == 1024, info
+    prims = doc["meshes"][0]["primitives"]
+    assert len(prims) == 2
+    for p in prims:      # no per-vertex copy of the weights: the texture is where they are
+        assert "TEXCOORD_0" in p["attributes"] and not [a for a in p["attributes"] if a.startswith("_")], p["attributes"]
+    # the texture, decoded from the file, read back where the faces are, against the design's weights
+    img = doc["images"][doc["textures"][r0["texture"]]["source"]]
+    view = doc["bufferViews"][img["bufferView"]]
+    png = blob[view.get("byteOffset", 0):view.get("byteOffset", 0) + view["byteLength"]]
+    tex = np.asarray(Image.open(io.BytesIO(png)).convert("L"), np.float64) / 255
+    uv = _accessor(doc, blob, prims[0]["attributes"]["TEXCOORD_0"], np.float32, 2).astype(np.float64)
+    faces = np.concatenate([_accessor(doc, blob, p["indices"], np.uint16, 1).reshape(-1, 3) for p in prims])
+    w = mat.regions[0].dense(mat.vertex_count)
+    got = _bilinear(tex, uv[faces].mean(1))
+    want = w[faces].mean(1)
+    err = np.abs(got - want)
+    print(f"weight texture against the design's weights at {len(faces)} face centroids: max {err.max():.4f}, "
+          f"mean {err.mean():.5f}; painted faces {(want > 0.5).mean():.1%}")
+    assert 0.2 < (want > 0.5).mean() < 0.8                 # both sides of the paint are there
+    assert err.max() < 0.02, f"weight texture off by {err.max():.4f} (bound 0.02) at a face centroid"
+
+
+def test_glb_falls_back_to_vertex_attributes_on_a_repeating_uv_layout(tmp_path):
+    """The test table's wood grain repeats (texture coordinates beyond 0…1 on some faces): a
+    texture cannot hold a weight per face, so the weights are vertex attributes, and the report
+    says why."""
+    from helpers import asset_file
+    from worker.scene import LoadedScene, parse_scene
+
+    spec = parse_scene({"version": 1, "environment": {"map": str(asset_file("env/sunset.exr"))},
+                        "camera": {"eye": [0, 60, 200], "target": [0, 40, 0], "width": 160, "height": 120},
+                        "objects": [{"name": "table", "mesh": str(asset_file("meshes/table/table.obj")),
+                                     "material": BASE.model_dump(mode="json")}]})
+    sc = LoadedScene(spec, tmp_path)
+    assert sc.mesh.uvs is not None and not np.isnan(sc.mesh.uvs).any()       # it has coordinates
+    sc.spec.objects[0].material = _painted(sc)
+    rep = export(sc, "gltf", tmp_path / "table.glb")
+    (info,) = rep["regions"]
+    assert info["storage"] == "vertex attribute" and "same texels" in info["why"], info
+    doc, _ = _glb_json_and_bin(tmp_path / "table.glb")
+    assert region_attribute(sc.spec.objects[0].material, 0) in doc["meshes"][0]["primitives"][0]["attributes"]
 
 
 def test_materialx_mixes_the_layers_by_the_same_weight_maps(painted_scene, tmp_path):

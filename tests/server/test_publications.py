@@ -175,6 +175,25 @@ def test_bundle_manifest_immutable_files_zip_and_incremental_rebuild(server, cli
     assert b3["stats"]["model"] == b2["stats"]["model"]
 
 
+def test_the_scenes_map_is_published_turned_as_the_scene_turns_it(client, ground_scene):
+    """The scene turns its map by 90° (what the designer sees in the studio); an environment preset
+    that names no rotation shows it the same way, so its frames are those of an explicit 90°
+    (the same content keys), not of 0°."""
+    sid, _ = ground_scene
+    grey = client.post("/v1/materials", json={"name": "Grey", "material": {"model": "lambert",
+                                                                          "albedo": [0.5, 0.5, 0.5]}}).json()
+    r = client.post("/v1/publications", json={
+        "name": "turned", "scene_id": sid, "variants": [{"material_id": grey["id"]}],
+        "bundle": {"azimuths": 2, "elevations_deg": [30.0], "width": 32, "height": 24},
+        "environments": [{}, {"rotation_deg": 90}, {"rotation_deg": 0}]})
+    assert r.status_code == 201, r.text
+    assert [e["rotation_deg"] for e in r.json()["environments"]] == [90.0, 90.0, 0.0], r.json()["environments"]
+    wait_built(client, r.json()["id"])
+    (per_env,) = client.get(f"/v1/publications/{r.json()['id']}/manifest").json()["frames"]
+    names = [[f["avif1"] for f in ring] for e in per_env for ring in e]
+    assert names[0] == names[1] and names[0] != names[2], names
+
+
 def test_nginx_in_front_serves_published_files_as_the_service_does(server, client, ground_scene, tmp_path):
     """The static front (server/static_site.py, docker/nginx.conf) serves a bundle's files from
     the published folder with the service's own headers and answers, and passes the viewer page,

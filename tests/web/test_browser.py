@@ -20,7 +20,7 @@ pw = pytest.importorskip("playwright.sync_api")
 ANDROID_UA = ("Mozilla/5.0 (Linux; Android 14; Pixel 8) AppleWebKit/537.36 (KHTML, like Gecko) Chrome/131.0.0.0 "
               "Mobile Safari/537.36")
 
-def test_studio_and_viewer(server, bunny_scene, browser, artifacts):
+def test_studio_and_viewer(server, client, bunny_scene, browser, artifacts):
     base = server["base"]
     ctx = browser.new_context(viewport={"width": 1280, "height": 860}, accept_downloads=True)
     page = ctx.new_page()
@@ -85,7 +85,15 @@ def test_studio_and_viewer(server, bunny_scene, browser, artifacts):
     assert page.locator("#model").input_value() == "curve"
     assert np.abs(g3 - g2).mean() > 1, "editing the curve did not change the frame"
 
-    # 5. save the design, publish it, open the viewer
+    # 5. the Light tool turns the environment (half a degree a pixel): the publication shows it as
+    # turned as the designer left it
+    page.check("#tool-light")
+    n = frame_no(page)
+    drag(page, cx + 0.2 * w, cy + 0.2 * h, 60, 0, steps=6)
+    wait_new_frame(page, n)
+    page.check("#tool-orbit")
+
+    # 6. save the design, publish it, open the viewer
     page.fill("#design-name", "curved bunny")
     page.click("#save")
     page.wait_for_function("() => document.getElementById('status').textContent.includes('saved')", timeout=60_000)
@@ -96,12 +104,23 @@ def test_studio_and_viewer(server, bunny_scene, browser, artifacts):
     href = link.get_attribute("href")
     assert href.startswith("/view/")
     page.screenshot(path=str(artifacts / "web-5-published.png"))
+    (env,) = client.get(f"/v1/publications/{href.rsplit('/', 1)[1]}").json()["environments"]
+    assert abs(env["rotation_deg"] - 30.0) < 1.0, env          # the scene's 0° turned by 60 px
 
     viewer = ctx.new_page()
     viewer.on("pageerror", lambda e: errors.append(str(e)))
+    # every text the status line shows, from the page's first parse
+    viewer.add_init_script("""document.addEventListener('DOMContentLoaded', () => {
+      const s = document.getElementById('status'); window.statuses = [s.textContent];
+      new MutationObserver(() => window.statuses.push(s.textContent))
+        .observe(s, {childList: true, characterData: true, subtree: true}); });""")
     viewer.goto(base + href)
     # the publication's bundle is built as a job: the viewer waits for it, then plays it
     wait_drawn(viewer, 0, timeout=240_000)
+    # meanwhile it said so in a shopper's words: how far, not the service's message
+    said = viewer.evaluate("() => window.statuses")
+    waiting = [t for t in said if t.startswith("Preparing this product's images")]
+    assert waiting and not [t for t in said if "publication" in t or href.rsplit("/", 1)[1] in t], said
     gv = canvas_grid(viewer)
     viewer.screenshot(path=str(artifacts / "web-6-viewer.png"))
     assert gv.std() > 5

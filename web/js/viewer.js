@@ -14,8 +14,10 @@ async function manifest() {
     if (r.ok) return r.json();
     const body = await r.json().catch(() => ({}));
     if (r.status !== 409) throw new Error(body.detail || r.statusText);
-    ui.status.textContent = `Preparing this product's images… (${body.detail || ""})`;
     if (/failed/.test(body.detail || "")) throw new Error(body.detail);
+    // shoppers see how far it is, not the service's message (ids, states)
+    const pct = /\((\d+)%\)/.exec(body.detail || "");
+    ui.status.textContent = `Preparing this product's images…${pct ? ` ${pct[1]}%` : ""}`;
     await new Promise((res) => setTimeout(res, 2000));
   }
 }
@@ -33,4 +35,9 @@ async function start() {
   }
 }
 
-start().catch((err) => { ui.status.classList.remove("hidden"); ui.status.textContent = `Cannot open the viewer: ${err.message}`; });
+start().catch((err) => {
+  // the cause is for the page's developers (the console); shoppers get a sentence
+  console.error("Glint viewer:", err);
+  ui.status.classList.remove("hidden");
+  ui.status.textContent = "This product's images cannot be shown right now.";
+});

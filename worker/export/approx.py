@@ -36,7 +36,7 @@ kept: a reader without an extension then loses little.
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from functools import lru_cache
 from typing import ClassVar, Literal
 
@@ -371,9 +371,14 @@ def approximate(material: BRDFModel, smp: Samples | None = None) -> Approximatio
     cands = {"base": err[0]}
     for e in ("specular", "clearcoat", "sheen"):
         trial = exts + [e]
-        m, e_err = fit(trial, [chosen] + ([GltfMaterial(chosen.base_color, chosen.metallic, chosen.roughness,
-                                                        clearcoat=0.5, clearcoat_roughness=0.2)]
-                                          if e == "clearcoat" else []))
+        # from the fit so far, and from a dielectric of its roughness: an extension can lower
+        # the error only from where it acts (KHR_materials_specular does nothing to a metal, so
+        # a dark glossy dielectric whose core fit ended as a metal would never leave it)
+        seeds = [chosen] + ([replace(chosen, base_color=tuple(alb), metallic=0.0)] if chosen.metallic > 0.5 else [])
+        if e == "clearcoat":
+            seeds.append(GltfMaterial(chosen.base_color, chosen.metallic, chosen.roughness,
+                                      clearcoat=0.5, clearcoat_roughness=0.2))
+        m, e_err = fit(trial, seeds)
         cands["+".join(["base", *trial])] = e_err[0]
         if e_err[0] <= err[0] * (1 - EXT_MARGIN) and err[0] - e_err[0] >= EXT_MIN_GAIN:
             chosen, err, exts = m, e_err, trial

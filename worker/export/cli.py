@@ -77,5 +77,9 @@ def cmd_export(a) -> int:
         for r in rep.get("render", []):
             print(f"render {r['variant'] or 'as designed'}: relative RMSE {100 * r['rel_rmse']:.1f}% "
                   f"({r['width']}×{r['height']})", file=sys.stderr)
+        for r in rep.get("regions", []):
+            how = (f"textures ({r['texture_size']}² through its texture coordinates)" if r["storage"] == "texture"
+                   else f"vertex attributes: {r['why']}")
+            print(f"{r['object']}: region weights as {how}", file=sys.stderr)
         print(f"wrote {rep['path']} ({rep['bytes']} bytes, {rep['seconds']:.1f} s)", file=sys.stderr)
     return 0

@@ -36,13 +36,16 @@ class Variant:
 class ObjectMesh:
     """One object's triangles in world space: vertices (V, 3) float32, faces (F, 3) uint32,
     normals (V, 3) float32 unit vectors; vertex_ids (V,) int64, each exported vertex's id in the
-    object's own mesh (what a regions material's weights index), of n_vertices in all."""
+    object's own mesh (what a regions material's weights index), of n_vertices in all; uvs (V, 2)
+    float32 the file's texture coordinates (scene.Mesh: bottom-left origin, NaN where a part has
+    none) or None without any."""
     name: str
     vertices: np.ndarray
     faces: np.ndarray
     normals: np.ndarray
     vertex_ids: np.ndarray | None = None
     n_vertices: int = 0
+    uvs: np.ndarray | None = None
     source: np.ndarray | None = None        # scene.LoadedScene.vertex_source of the object
 
 
@@ -70,9 +73,10 @@ def object_meshes(scene: LoadedScene) -> list[ObjectMesh]:
         n = mesh.normals[used].astype(np.float64)
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
         # (an object's vertices are contiguous in the scene's mesh, scene.LoadedScene)
+        uvs = None if mesh.uvs is None or np.isnan(mesh.uvs[used]).all() else mesh.uvs[used]
         out.append(ObjectMesh(o.name, mesh.vertices[used], remap[faces].astype(np.uint32), n.astype(np.float32),
                               vertex_ids=used.astype(np.int64) - int(first[i]),
-                              n_vertices=int(first[i + 1] - first[i]), source=scene.vertex_source(i)))
+                              n_vertices=int(first[i + 1] - first[i]), uvs=uvs, source=scene.vertex_source(i)))
     return out
 
 

@@ -7,9 +7,15 @@ cannot: an object whose material (or a variant's) has regions is split into prim
 face's dominant layer (the layer of the largest mean effective weight over its corners, under
 every material the object takes, so one split serves all variants), each primitive bound to its
 layer's fitted material; the primitives share the object's vertices. The raw weights travel
-with the mesh as application-specific vertex attributes (float, one per region,
-common.region_attribute, listed in the mesh's ``extras.glint.regions``), so a tool that can blend
-(or the MaterialX export's ``geompropvalue`` nodes, which read the same names) has them exactly.
+with the mesh for tools that can blend, listed in the mesh's ``extras.glint.regions``:
+
+- as **textures** (8-bit greyscale PNG, one per region, texture.py) read through the mesh's own
+  texture coordinates (``TEXCOORD_0``), where the mesh has coordinates that give every face texels
+  of its own;
+- else as application-specific **vertex attributes** (float, one per region,
+  common.region_attribute; the names the MaterialX export's ``geompropvalue`` nodes read), and the
+  mesh's extras and the report say why (no texture coordinates, or a layout that repeats or
+  shares texels, as a tiling wood grain does).
 
 Written with pygltflib (the document model and the GLB container); the buffer layout (one
 buffer, a view per accessor, 4-byte aligned) is the plain one the spec describes.
@@ -24,6 +30,7 @@ import pygltflib as gl
 from ..atomic import atomic_write
 from ..models import BRDFModel, has_regions
 from .approx import Approximation, GltfMaterial
+from . import texture
 from .common import (
     ObjectMesh,
     Variant,
@@ -35,6 +42,10 @@ from .common import (
 )
 
 GENERATOR = "Glint (worker/export/gltf.py)"
+WEIGHT_TEXTURE = 1024          # the side of a region weight texture, in texels
+# largest difference between a weight texture (as sampled at the faces' centroids) and the weights
+# it holds before the vertex attributes are written instead (8-bit quantisation alone is 0.002)
+MAX_TEXTURE_ERROR = 0.02
 
 
 def material_json(name: str, m: GltfMaterial, extras: dict) -> gl.Material:
@@ -60,8 +71,8 @@ class _Blob:
         self.parts: list[bytes] = []
         self.size = 0
 
-    def add(self, a: np.ndarray, target: int) -> int:
-        data = a.tobytes()
+    def add(self, a: np.ndarray | bytes, target: int | None) -> int:
+        data = a if isinstance(a, bytes) else a.tobytes()
         self.doc.bufferViews.append(gl.BufferView(buffer=0, byteOffset=self.size, byteLength=len(data), target=target))
         pad = (-len(data)) % 4
         self.parts.append(data + b"\0" * pad)
@@ -98,6 +109,30 @@ def face_groups(om: ObjectMesh, materials: list[BRDFModel]) -> tuple[np.ndarray,
     return groups, group.reshape(-1)
 
 
+def region_storage(om: ObjectMesh, materials: list[BRDFModel]) -> dict:
+    """How the region weights of ``materials`` (the object's regions materials) travel in the
+    glTF: {"storage": "texture", "bake": texture.Bake of every region's weights (rows in the
+    order of the materials and their regions), "texture_size", "texture_error"} where the
+    object's texture coordinates allow it, else {"storage": "vertex attribute", "why": str}."""
+    if om.uvs is None:
+        return {"storage": "vertex attribute", "why": "the mesh has no texture coordinates"}
+    if np.isnan(om.uvs).any():
+        return {"storage": "vertex attribute",
+                "why": f"{int(np.isnan(om.uvs).any(1).sum())} of its {len(om.uvs)} vertices have no texture coordinates"}
+    w = np.concatenate([region_weights(m, om) for m in materials])
+    b = texture.bake(texture.gltf_uv(om.uvs), om.faces, w, WEIGHT_TEXTURE)
+    if b.overlap > texture.MAX_OVERLAP:
+        return {"storage": "vertex attribute",
+                "why": "its texture coordinates put several faces on the same texels (a repeating or shared "
+                       f"layout{'' if b.overlap >= 1 else f': {100 * b.overlap:.0f}% of the covered texels'}), "
+                       "so a texture cannot hold a weight per face"}
+    if b.error > MAX_TEXTURE_ERROR:
+        return {"storage": "vertex attribute",
+                "why": f"a {WEIGHT_TEXTURE}² texture differs from the weights by up to {b.error:.3f} at the faces' "
+                       "centroids (faces smaller than a texel)"}
+    return {"storage": "texture", "bake": b, "texture_size": WEIGHT_TEXTURE, "texture_error": round(b.error, 4)}
+
+
 def write_glb(path: Path, meshes: list[ObjectMesh], default: list[BRDFModel], variants: list[Variant],
               approx: dict[str, Approximation], labels: dict[str, str], report: dict) -> int:
     """Write the .glb atomically; returns its size in bytes.
@@ -105,7 +140,8 @@ def write_glb(path: Path, meshes: list[ObjectMesh], default: list[BRDFModel], va
     meshes : the objects' meshes; default : each object's own material; variants : the design
     variants; approx : material_key of every plain material (common.layer_materials) -> its fitted
     glTF material; labels : material_key -> a human name; report : the export's figures (asset
-    extras)."""
+    extras; where an object has regions, ``report["regions"]`` gets how their weights were
+    written, region_storage without the bake)."""
     doc = gl.GLTF2(asset=gl.Asset(version="2.0", generator=GENERATOR, extras={"glint": report}))
     every = default + [m for v in variants for m in v.materials.values()]
     keys = list(dict.fromkeys(material_key(x) for m in every for x in layer_materials(m)))
@@ -127,15 +163,36 @@ def write_glb(path: Path, meshes: list[ObjectMesh], default: list[BRDFModel], va
         a_nrm = blob.accessor(om.normals.astype(np.float32), gl.FLOAT, gl.VEC3, gl.ARRAY_BUFFER)
         attrs = {"POSITION": a_pos, "NORMAL": a_nrm}
         extras = []
-        for m in (m for m in mats if has_regions(m)):
-            w = region_weights(m, om)
+        painted = [m for m in mats if has_regions(m)]
+        store = region_storage(om, painted) if painted else None
+        if store is not None:
+            report.setdefault("regions", []).append(
+                {"object": om.name, **{k: v for k, v in store.items() if k != "bake"}})
+        row = 0
+        for m in painted:
             names = []
-            for k, r in enumerate(m.regions):
-                attrs[region_attribute(m, k)] = blob.accessor(np.ascontiguousarray(w[k]), gl.FLOAT, gl.SCALAR,
-                                                              gl.ARRAY_BUFFER, bounds=True)
-                names.append({"region": r.name, "attribute": region_attribute(m, k),
-                              "material_key": material_key(r.material)})
+            if store["storage"] == "texture":
+                if "TEXCOORD_0" not in attrs:
+                    attrs["TEXCOORD_0"] = blob.accessor(texture.gltf_uv(om.uvs), gl.FLOAT, gl.VEC2, gl.ARRAY_BUFFER)
+                    if not doc.samplers:      # linear, mipmapped, repeating (the bake wraps too)
+                        doc.samplers.append(gl.Sampler(magFilter=gl.LINEAR, minFilter=gl.LINEAR_MIPMAP_LINEAR,
+                                                       wrapS=gl.REPEAT, wrapT=gl.REPEAT))
+                for k, r in enumerate(m.regions):
+                    view = blob.add(texture.png(store["bake"].values[row]), None)
+                    row += 1
+                    doc.images.append(gl.Image(bufferView=view, mimeType="image/png", name=region_attribute(m, k)))
+                    doc.textures.append(gl.Texture(sampler=0, source=len(doc.images) - 1, name=region_attribute(m, k)))
+                    names.append({"region": r.name, "texture": len(doc.textures) - 1, "texCoord": 0,
+                                  "material_key": material_key(r.material)})
+            else:
+                w = region_weights(m, om)
+                for k, r in enumerate(m.regions):
+                    attrs[region_attribute(m, k)] = blob.accessor(np.ascontiguousarray(w[k]), gl.FLOAT, gl.SCALAR,
+                                                                  gl.ARRAY_BUFFER, bounds=True)
+                    names.append({"region": r.name, "attribute": region_attribute(m, k),
+                                  "material_key": material_key(r.material)})
             extras.append({"material_key": material_key(m), "base_material_key": material_key(m.base),
+                           "storage": store["storage"], **({"why": store["why"]} if "why" in store else {}),
                            "regions": names})
         prims = []
         for g, layers in enumerate(groups):
@@ -147,7 +204,7 @@ def write_glb(path: Path, meshes: list[ObjectMesh], default: list[BRDFModel], va
             def material_of(j: int) -> int:
                 return index[material_key(layer_materials(mats[j])[layers[j]])]
 
-            at = gl.Attributes(POSITION=a_pos, NORMAL=a_nrm)
+            at = gl.Attributes(POSITION=a_pos, NORMAL=a_nrm, TEXCOORD_0=attrs.get("TEXCOORD_0"))
             for name, acc in attrs.items():
                 if name.startswith("_"):
                     setattr(at, name, acc)      # glTF 2.0: application-specific attribute semantics start with "_"

@@ -104,7 +104,9 @@ def export(scene: LoadedScene, fmt: str, out: Path, variants: list[Variant] | No
            mitsuba_spp: int = 256, progress: Callable[[float, str], None] | None = None) -> dict:
     """Write ``scene`` (with ``variants``) as ``fmt`` to ``out`` and return the report:
     {"format", "path", "bytes", "objects", "faces", "variants", "materials": [{key, label, model,
-    rel_rmse, albedo_rel_rmse, …}], "render": [{variant, rel_rmse, …}] (with a renderer), "seconds"}.
+    rel_rmse, albedo_rel_rmse, …}], "render": [{variant, rel_rmse, …}] (with a renderer), "seconds",
+    and for a glb with painted regions "regions": [{object, storage: "texture" | "vertex attribute",
+    why (for vertex attributes), texture_size, texture_error}]}.
     ExportError for bad input or sizes."""
     check_format(fmt)
     variants = variants or []
@@ -155,7 +157,10 @@ def export(scene: LoadedScene, fmt: str, out: Path, variants: list[Variant] | No
         if fmt == "gltf":
             from .gltf import write_glb
 
-            report["bytes"] = write_glb(out, meshes, default, variants, approx, labels, _small(report))
+            small = _small(report)
+            report["bytes"] = write_glb(out, meshes, default, variants, approx, labels, small)
+            if "regions" in small:            # how each painted object's weights were written
+                report["regions"] = small["regions"]
         else:
             from .mtlx import document, validate, write_mtlx
 
