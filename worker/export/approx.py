@@ -53,6 +53,7 @@ N_LOBE = 48
 LOBE_ALPHAS = (0.02, 0.08, 0.3)   # half-vector importance samples: sharp, glossy and broad lobes
 EXT_MARGIN = 0.05
 EXT_MIN_GAIN = 0.002
+START_MARGIN = 0.02      # relative cost by which a later start of a fit must beat an earlier one
 ALPHA_MIN = 1e-3                   # roughness 0 is a delta no sample set can see
 SHEEN_ALPHA_MIN = 0.07 ** 2        # sheen roughness below 0.07 makes sin^(1/α) underflow
 MAX_NFEV = 30        # function evaluations per start: a design fits in seconds on a shared core
@@ -314,7 +315,10 @@ def _lsq(evalf, f, smp: Samples, starts, lo, hi):
     for x0 in starts:
         x0 = np.clip(np.asarray(x0, np.float64), lo, hi)
         r = least_squares(res, x0, bounds=(lo, hi), max_nfev=MAX_NFEV, diff_step=1e-4, tr_solver="lsmr")
-        if best is None or r.cost < best.cost:
+        # a later start wins only by a margin: two starts that end in near-equal minima (a gold
+        # as a metal, or as a dielectric with a tinted specular layer) must not swap with the
+        # rounding of the BLAS's thread count
+        if best is None or r.cost < best.cost * (1.0 - START_MARGIN):
             best = r
     return best.x
 
