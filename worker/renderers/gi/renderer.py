@@ -190,9 +190,13 @@ class GIRenderer(Renderer):
     kind = KIND
     controls = DECLARATION.controls
     capabilities = frozenset({"stroke_fit", "polynomial_transfer", "live_object"})
-    # every precomputed pixel of the object is a fit row (a row costs a lookup into the frozen
-    # tensors, not a transfer; the fitter's row bound keeps the solve small)
+    # fit rows: every precomputed pixel of the object up to a grid of FIT_PIXELS, then every
+    # other (or third…) one: a row costs a lookup into the frozen tensors, not a transfer, but
+    # the painted rows are not bounded by the fitter (its bound is on the unpainted ones), and a
+    # stroke at 640×480 paints 4× the pixels of the same stroke at 320×240 for the same
+    # information; the instance sets it from the view's size
     stroke_fit_scale = 1.0
+    FIT_PIXELS = 320 * 240
 
     def __init__(self, scene, data: GIData, kernels=None, max_bounces: int | None = None):
         super().__init__(scene, data, kernels)
@@ -217,6 +221,8 @@ class GIRenderer(Renderer):
         self.N = m["bounces"]
         self.K2 = 1 if self.J2 <= 1 else 1 + second_codes(self.J2)
         self.max_bounces = self.N if max_bounces is None else int(max_bounces)
+        cam = scene.spec.camera
+        self.stroke_fit_scale = min(1.0, float(np.sqrt(self.FIT_PIXELS / (cam.width * cam.height))))
         geo = Geometry(scene)
         self.prim: Primary = primary_hits(geo, scene, self.k)
         if len(self.prim.pixel) != len(data.pixel) or not np.array_equal(self.prim.pixel, data.pixel):
