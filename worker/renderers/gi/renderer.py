@@ -121,23 +121,27 @@ class GIPrecomputation(Precomputation):
         return GIData(meta, arrays["pixel"], arrays["obj"], tensors.bounces_from(arrays, meta["bounces"]), opts)
 
 
-def denoise_tensors(scene, S, bounces, denoiser=None):
+def denoise_tensors(scene, S, bounces, denoiser=None, quality: str | None = None, together: bool = True):
     """Every basis image of the tensors denoised (denoise.py): direct light per slot, further
-    bounces per hat component; returns (bounces, meta["denoise"]). ``denoiser(img, albedo,
-    normal)`` replaces OIDN (tests)."""
+    bounces per hat component, their tails together (``together``, else one image per tail);
+    returns (bounces, meta["denoise"]). ``denoiser(img, albedo, normal)`` replaces OIDN
+    (tests); ``quality`` OIDN's (default denoise.QUALITY)."""
     cam = scene.spec.camera
     shape = (cam.height, cam.width)
     alb, nrm = dn.guides(S.prim, S.fixed, [getattr(m, "albedo", (1.0, 1.0, 1.0)) for m in S.fixed_materials], shape)
     out, images = [], 0
     phis = dn.component_sets(S.J, S.layers, S.N)
     offs = dn.component_offsets(S.K1, phis)
+    quality = quality or dn.QUALITY
+    c0 = time.process_time()
     for k, b in enumerate(bounces, start=1):
         c = min(k - 2, len(phis) - 1)
         nb, n = dn.denoise_bounce(b, S.prim.pixel, shape, alb, nrm, None if k == 1 else phis[c], 0 if k == 1 else offs[c],
-                                    denoiser=denoiser)
+                                    quality=quality, denoiser=denoiser, obj=S.prim.obj if together else None)
         out.append(nb)
         images += n
-    return out, {"hats": list(dn.HATS[:len(phis)]), "components": [int(p.shape[1]) for p in phis], "images": images}
+    return out, {"hats": list(dn.HATS[:len(phis)]), "components": [int(p.shape[1]) for p in phis], "images": images,
+                 "quality": quality, "tails_together": bool(together), "cpu_seconds": time.process_time() - c0}
 
 
 @dataclass
