@@ -12,7 +12,7 @@ from worker.renderers.gi import GIData, GIRenderer
 from worker.renderers.gi.options import parse_options, unit_layout
 from worker.renderers.gi.renderer import denoise_tensors, region_images
 from worker.renderers.gi.trace import make_setup
-from worker.scene import GGX, Lambert
+from worker.scene import GGX, BlinnPhong, Lambert
 
 OPTS = {"spp": 16, "series": [64, 1, 1, 1]}
 
@@ -111,6 +111,28 @@ def test_tails_denoised_together_are_as_close_to_a_converged_render(small):
            for k, x in (("separate", a), ("together", b), ("raw", c))}
     assert err["together"] <= 1.1 * err["separate"], err
     assert err["together"] <= 0.5 * err["raw"], err
+
+
+def test_what_is_left_raw_is_small_under_any_material(small):
+    """The ENERGY_SHARE rule leaves an image raw only if it holds little light under every probe
+    material: with a denoiser that returns zeros, what a frame still shows is the raw images
+    alone, and under GGX materials from near-mirror to rough (α 0.02-1; 0.05 and 0.3 are not
+    probes) and a Blinn-Phong lobe it is at most 1 % of each bounce of the same tensors
+    denoised by the identity (measured ≤ 0.31 %). Ranked by magnitude alone, the near-mirror
+    hats were left raw: 66 % of bounce 2 under α 0.02, 11 % under α 0.1."""
+    sc, raw = small
+    zero, meta = _denoised(raw, sc, OPTS, lambda img, a, n: np.zeros_like(img))
+    ident, _ = _denoised(raw, sc, OPTS, lambda img, a, n: img)
+    assert meta["images"] <= 65 + 13 + 7 + 7, meta
+    for m in [GGX(alpha=a, specular=(0.8, 0.8, 0.8), albedo=(0.1, 0.1, 0.1)) for a in (0.02, 0.05, 0.1, 0.3, 1.0)] + \
+             [BlinnPhong(exponent=300, specular=(0.8, 0.8, 0.8), albedo=(0.1, 0.1, 0.1))]:
+        for r in (zero, ident):
+            for u in range(r.U):
+                r.set_unit_material(u, m)
+        left, full = _per_bounce(zero), _per_bounce(ident)
+        for k, (x, y) in enumerate(zip(left, full), start=1):
+            share = float(np.abs(x).sum() / np.abs(y).sum())
+            assert share <= 0.01, (m, k, share)
 
 
 def test_identity_filter_keeps_the_image_up_to_the_hat_projection(small):

@@ -20,8 +20,9 @@ measure (``projectors``, which keeps the energy Σ μ_j c_j), exact for coeffici
 piecewise linear between the nodes; indirect light reflected
 by a lobe narrower than the node spacing (a few bands near θh = 0 are kept as nodes) is
 smoothed (bounce 2: 12 nodes per layer; bounces ≥ 3, a few percent of the image: 6). Per
-bounce, the basis images holding ENERGY_SHARE of its energy are denoised, the many tiny rest
-keep their noise. The hat components live in slots K1 … of the stored tensor, and the
+bounce, the basis images holding ENERGY_SHARE of its energy under every probe material (white
+GGX from α 0.02 to 1, and equal coefficients) are denoised, the many tiny rest keep their
+noise. The hat components live in slots K1 … of the stored tensor, and the
 renderer extends each unit's coefficient table with c̃ (``extend_coefficients``), so the
 freeze and frame kernels are unchanged.
 
@@ -53,8 +54,13 @@ SCALE_MAX = 16384.0
 # made bounce 3 of a glossy floor 35 % wrong per pixel in tests/gi/test_gi_denoise.py)
 HATS = (12, 6)
 # per bounce, basis images are denoised in decreasing order of energy until this share of the
-# bounce's energy is covered; the rest (many tiny tail images) keep their noise
+# bounce's energy is covered; the rest (many tiny tail images) keep their noise. The share is
+# kept for every probe material (``slot_weights``: an image's energy is its magnitude times its
+# slot's coefficient under the probe) as well as for equal coefficients: the near-mirror bands
+# and hats hold little light but a glossy material multiplies them by hundreds (ranked by
+# magnitude alone and left raw, they made a GGX α 0.1 floor sparkle at 640×480)
 ENERGY_SHARE = 0.995
+PROBE_ALPHAS = (0.02, 0.05, 0.1, 0.2, 0.4, 1.0)
 # OIDN's quality: "fast" halves the CPU time of "balanced" but left 0.05 points more error
 # against Mitsuba on the sofa (2.02 against 1.97 %, docs/benchmarks/history/
 # 2026-12-06-gi-denoise-speed.md); with the tails denoised together the images are few enough
@@ -152,6 +158,30 @@ def basis_weights(J: int, layers: int, qkind: int) -> np.ndarray:
     return np.maximum(w, 1e-9 * w.max())
 
 
+def slot_weights(J: int, layers: int, qkinds, phis: list[np.ndarray]) -> list[np.ndarray]:
+    """What an entry of each slot weighs in a frame under each probe material: equal
+    coefficients, then white GGX probes (PROBE_ALPHAS, albedo 1) projected with each quotient
+    in ``qkinds``, their |coefficient| maximised over view-angle nodes and channels. Returns
+    [(M, K1) for the first-vertex slots, then (M, R) per hat set of ``phis``] float64, M
+    probes (the first all ones)."""
+    from ...scene import GGX
+    from .basis import project
+    K1 = 1 + J * layers
+    w1 = [np.ones(K1)]
+    wh = [[np.ones(p.shape[1])] for p in phis]
+    for q in sorted(set(int(x) for x in qkinds)) or [0]:
+        maps = [projectors(p, basis_weights(J, layers, q)) for p in phis]
+        for a in PROBE_ALPHAS:
+            first = project(GGX(alpha=a, specular=(1.0, 1.0, 1.0), albedo=(1.0, 1.0, 1.0)), J, layers, 1, None, q).first
+            ext = np.abs(extend_coefficients(first.astype(np.float64), maps)).max(axis=(0, 2))
+            w1.append(ext[:K1])
+            off = K1
+            for i, p in enumerate(phis):
+                wh[i].append(ext[off:off + p.shape[1]])
+                off += p.shape[1]
+    return [np.stack(w1)] + [np.stack(w) for w in wh]
+
+
 def guides(prim, fixed: np.ndarray, fixed_albedo: list, shape: tuple[int, int]):
     """(albedo, normal) (H, W, 3) float32 guide images (module docstring)."""
     H, W = shape
@@ -207,7 +237,8 @@ def share_width(W: int) -> int:
 
 def denoise_bounce(b: Bounce, pixel: np.ndarray, shape: tuple[int, int], albedo: np.ndarray,
                    normal: np.ndarray, mix: np.ndarray | None, slot0: int, quality: str = QUALITY,
-                   denoiser=None, obj: np.ndarray | None = None) -> tuple[Bounce, int]:
+                   denoiser=None, obj: np.ndarray | None = None,
+                   weights: np.ndarray | None = None) -> tuple[Bounce, int]:
     """One bounce's tensor with every basis image denoised: (new Bounce, images denoised).
 
     mix None: the slots themselves (entries keep their slots), one image each. mix (K1, R):
@@ -217,6 +248,9 @@ def denoise_bounce(b: Bounce, pixel: np.ndarray, shape: tuple[int, int], albedo:
     (``share_filter``), so the tails sum to the denoised sum exactly and a frame at any
     diffuse equivalents weighs smooth images (module docstring); without ``obj``, one image
     per (component, tail). pixel (P,) flat hit-pixel indices of the (H, W) = shape image.
+    weights (M, slots or components) per probe material the coefficient of each
+    (``slot_weights``): an image is left raw only if, under every probe, the images left raw
+    hold less than 1 − ENERGY_SHARE of the bounce's energy (None: magnitude alone).
     ``denoiser(img, albedo, normal) -> img`` replaces OIDN (tests)."""
     H, W = shape
     P = len(b.offsets) - 1
@@ -243,10 +277,13 @@ def denoise_bounce(b: Bounce, pixel: np.ndarray, shape: tuple[int, int], albedo:
     groups = np.flatnonzero(np.r_[True, key_s[1:] != key_s[:-1]]) if len(key_s) else np.zeros(0, np.int64)
     bounds = np.r_[groups, len(key_s)]
     energy = np.add.reduceat(np.abs(val[order]).sum(1), groups) if len(groups) else np.zeros(0)
-    rank = np.argsort(-energy, kind="stable")
-    cum = np.cumsum(energy[rank]) / max(float(energy.sum()), 1e-300)
     todo = np.zeros(len(groups), bool)
-    todo[rank[:int(np.searchsorted(cum, ENERGY_SHARE)) + 1]] = True
+    probes = np.ones((1, 1)) if weights is None else np.asarray(weights, np.float64)
+    for w in probes:
+        e = energy * (w[key_s[groups] // T] if weights is not None and len(groups) else 1.0)
+        rank = np.argsort(-e, kind="stable")
+        cum = np.cumsum(e[rank]) / max(float(e.sum()), 1e-300)
+        todo[rank[:int(np.searchsorted(cum, ENERGY_SHARE)) + 1]] = True
     img = np.zeros((H * W, 3), np.float32)
     images = 0
 

@@ -134,10 +134,14 @@ def denoise_tensors(scene, S, bounces, denoiser=None, quality: str | None = None
     offs = dn.component_offsets(S.K1, phis)
     quality = quality or dn.QUALITY
     c0 = time.process_time()
+    editable = ~np.asarray(S.fixed, bool)
+    qk = np.asarray(S.qkind)[editable] if editable.any() else [0]
+    w = dn.slot_weights(S.J, S.layers, qk, phis)
     for k, b in enumerate(bounces, start=1):
         c = min(k - 2, len(phis) - 1)
         nb, n = dn.denoise_bounce(b, S.prim.pixel, shape, alb, nrm, None if k == 1 else phis[c], 0 if k == 1 else offs[c],
-                                    quality=quality, denoiser=denoiser, obj=S.prim.obj if together else None)
+                                    quality=quality, denoiser=denoiser, obj=S.prim.obj if together else None,
+                                    weights=w[0] if k == 1 else w[1 + c])
         out.append(nb)
         images += n
     return out, {"hats": list(dn.HATS[:len(phis)]), "components": [int(p.shape[1]) for p in phis], "images": images,
