@@ -457,7 +457,7 @@ void gi_freeze(int64_t P, int nb, const uint64_t *a_off, const uint64_t *a_slot,
         uint8_t *seen = (uint8_t *)calloc((size_t)ncell, 1);
         int32_t *touched = (int32_t *)malloc(sizeof(int32_t) * (size_t)ncell);
         double *Vl = (double *)malloc(sizeof(double) * K2 * NP * 3);
-        double *Vb = (double *)malloc(sizeof(double) * NP * 3);
+        double *Vb = (double *)malloc(sizeof(double) * 2 * NP * 3);
         float *fbuf = (float *)malloc(sizeof(float) * (Wd > 0 ? Wd : 1));
 #pragma omp for schedule(dynamic, 64)
         for (int64_t p = 0; p < P; p++) {
@@ -487,19 +487,35 @@ void gi_freeze(int64_t P, int nb, const uint64_t *a_off, const uint64_t *a_slot,
                 double s0 = scale[p];
                 if (!live && K2 == 1) {
                     /* most pixels are not live and (J, 1, …) series have one second-vertex
-                     * factor: V alone, the pixel's scale applied once per bounce */
-                    for (int x = 0; x < NP * 3; x++) Vb[x] = 0.0;
+                     * factor: V alone, the pixel's scale applied once per bounce. Consecutive
+                     * entries mostly add to the same power: two accumulators (even and odd
+                     * entries) halve the chain of dependent additions through memory */
+                    for (int x = 0; x < 2 * NP * 3; x++) Vb[x] = 0.0;
                     for (int64_t e = off[p]; e < off[p + 1]; e++) {
                         uint32_t t = tail[e];
                         const double *cs = cf + 3 * slot[e];
                         const float *At = A + 3 * t;
                         const uint16_t *h = val + 3 * e;
-                        double *vv = Vb + pw[t] * 3;
+                        double *vv = Vb + ((e & 1) * NP + pw[t]) * 3;
                         vv[0] += cs[0] * ((double)H2F[h[0]] * (double)At[0]);
                         vv[1] += cs[1] * ((double)H2F[h[1]] * (double)At[1]);
                         vv[2] += cs[2] * ((double)H2F[h[2]] * (double)At[2]);
                     }
-                    for (int x = 0; x < NP * 3; x++) Vl[x] += s0 * Vb[x];
+                    for (int x = 0; x < NP * 3; x++) Vl[x] += s0 * (Vb[x] + Vb[NP * 3 + x]);
+                    continue;
+                }
+                if (dense) {
+                    /* a live pixel of the dense layout: only the cells; V is taken from them
+                     * while the blocks are written (every live entry's cell is in a block) */
+                    for (int64_t e = off[p]; e < off[p + 1]; e++) {
+                        uint32_t t = tail[e];
+                        const float *At = A + 3 * t;
+                        const uint16_t *h = val + 3 * e;
+                        double *x = sc + ((int64_t)slot[e] * NP + pw[t]) * 3;
+                        x[0] += (double)H2F[h[0]] * s0 * (double)At[0];
+                        x[1] += (double)H2F[h[1]] * s0 * (double)At[1];
+                        x[2] += (double)H2F[h[2]] * s0 * (double)At[2];
+                    }
                     continue;
                 }
                 for (int64_t e = off[p]; e < off[p + 1]; e++) {
@@ -534,14 +550,18 @@ void gi_freeze(int64_t P, int nb, const uint64_t *a_off, const uint64_t *a_slot,
                 double inv = 1.0 / (double)fs;
                 int x = 0;
                 for (int n = 0; n < NB; n++)
-                    for (int c = 0; c < 3; c++)
+                    for (int c = 0; c < 3; c++) {
+                        double vsum = 0.0;
                         for (int j = 0; j < bw[n]; j++, x++) {
                             int s = blo[n] + j;
                             if (s >= K1) { fbuf[x] = 0.0f; continue; }   /* padding */
                             double *y = sc + ((int64_t)s * NP + n) * 3 + c;
+                            vsum += cf[s * 3 + c] * *y;
                             fbuf[x] = (float)(*y * inv);
                             *y = 0.0;
                         }
+                        V[(p * NP + n) * 3 + c] = (float)vsum;     /* K2 = 1; Vl is 0 here */
+                    }
                 to_half(fbuf, Fd + q * (int64_t)Wd, Wd);
                 continue;
             }
