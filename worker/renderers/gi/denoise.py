@@ -27,8 +27,8 @@ renderer extends each unit's coefficient table with c̃ (``extend_coefficients``
 freeze and frame kernels are unchanged.
 
 The tails of one hat component are denoised together: OIDN runs once on their sum
-S_r = Σ_t Y_{r,t} (one image per component instead of one per component and tail: 79 OIDN
-images instead of 208 on the sofa, 2.2× less CPU), and each tail takes the share of D(S_r)
+S_r = Σ_t Y_{r,t} (one image per component instead of one per component and tail: 82 OIDN
+images instead of 208 on the sofa, half the CPU), and each tail takes the share of D(S_r)
 that it has of the sum under a box filter B within objects,
 Ỹ_{r,t} = D(S_r) · B(Y_{r,t}) / B(S_r) (``share_filter``, SHARE_WIDTH). The tails still sum to
 the denoised sum exactly, so a frame whose tails weigh alike (every d̄_t equal) is exactly the
