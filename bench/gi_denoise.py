@@ -52,6 +52,9 @@ def main(argv=None) -> int:
     ap.add_argument("--spp", type=int, default=64)
     ap.add_argument("--mitsuba-spp", type=int, default=512)
     ap.add_argument("--out", default=str(ROOT / "test-artifacts"))
+    ap.add_argument("--quality", choices=["fast", "balanced", "high"], help="OIDN quality (default denoise.QUALITY)")
+    ap.add_argument("--separate-tails", action="store_true",
+                    help="one OIDN image per (hat component, tail) of the indirect bounces, as before 2026-12-06")
     a = ap.parse_args(argv)
     from PIL import Image
 
@@ -78,12 +81,13 @@ def main(argv=None) -> int:
         o = parse_options(sc, opts)
         S = make_setup(sc, o, unit_layout(sc, o), region_images(sc, o))
         t0, c1 = time.perf_counter(), time.process_time()
-        bounces, dmeta = denoise_tensors(sc, S, data.bounces)
+        bounces, dmeta = denoise_tensors(sc, S, data.bounces, quality=a.quality, together=not a.separate_tails)
         dt, dc = time.perf_counter() - t0, time.process_time() - c1
         meta = {**data.meta, "denoise": dmeta}
         den.append(GIRenderer(sc, GIData(meta, data.pixel, data.obj, bounces, data.opts)))
         info.append({"trace_seconds": part.get("seconds"), "trace_cached": part.get("cached"),
                      "denoise_seconds": dt, "denoise_cpu_seconds": dc, "images": dmeta["images"],
+                     "quality": dmeta["quality"], "tails_together": dmeta["tails_together"],
                      "raw_bytes": data.nbytes, "denoised_bytes": int(sum(b.nbytes for b in bounces)),
                      "raw_entries": [b.entries for b in data.bounces], "denoised_entries": [b.entries for b in bounces]})
         print(json.dumps({"seed": seed, **info[-1]}), flush=True)
@@ -119,8 +123,9 @@ def main(argv=None) -> int:
     out = Path(a.out); out.mkdir(parents=True, exist_ok=True)
     mean = lambda x: 0.5 * (x[0] + x[1])
     tile = np.concatenate([tonemap(imgs[("raw", "gi")][0]), tonemap(imgs[("denoised", "gi")][0]), tonemap(mean(ref))], 1)
-    Image.fromarray(tile).save(out / f"gi-denoise-{a.case}-{a.width}.png")
-    (out / f"gi-denoise-{a.case}-{a.width}.json").write_text(json.dumps(res, indent=1))
+    tag = f"{a.case}-{a.width}-{dmeta['quality']}{'-separate' if a.separate_tails else ''}"
+    Image.fromarray(tile).save(out / f"gi-denoise-{tag}.png")
+    (out / f"gi-denoise-{tag}.json").write_text(json.dumps(res, indent=1))
     print(json.dumps(res))
     return 0
 

@@ -58,6 +58,25 @@ def test_projection_is_exact_for_uniform_light(m, qkind):
         assert np.all(np.abs(ours - ref) <= 4 * se + 0.015 * ref), (m.model, k, ours, ref, se)
 
 
+@pytest.mark.parametrize("qkind", [0, 1])
+def test_single_layer_projection_agrees_with_the_full_quadrature(qkind):
+    """``project`` for one layer and a (J, 1, …) series evaluates the BRDF only on the pairs of
+    non-zero weight (about half of them); ``project_measure`` over every pair is its reference.
+    The first-vertex table agrees to float32 rounding and d to 1e-7 (the reference subtracts a
+    float32 albedo/π from the packed BRDF, ~1e-8)."""
+    J = 64
+    g, wv, starts, has = basis._iso_valid(J, qkind)
+    assert 0.3 < len(wv) / (basis.THETA_NODES * 32 * J) < 0.9       # pairs really are skipped
+    for m in MODELS + [GGX(alpha=0.02, specular=(1, 1, 1))]:
+        p = basis.project(m, J, 1, 1, None, qkind)
+        wi1, wo1, w1, *_ = basis._iso_basis(J, qkind)
+        E = w1[..., None] * basis._spec_part(m, wi1, wo1)
+        first, d, _, _ = basis.project_measure(E, np.asarray(m.albedo, float), J, 1, 1, qkind)
+        err = np.abs(p.first - first).max() / np.abs(first).max()
+        assert err < 1e-6, (m.model, err)
+        assert np.abs(p.d - d).max() < 1e-7, (m.model, p.d, d)
+
+
 def test_lambert_uses_the_diffuse_slot_only():
     p = basis.project(Lambert(albedo=(0.6, 0.5, 0.4)), 64, 2, J2=16)
     np.testing.assert_allclose(p.first[:, 0], [[0.6, 0.5, 0.4]] * basis.THETA_NODES, rtol=1e-6)

@@ -12,15 +12,15 @@ from worker.renderers.gi import GIData, GIRenderer
 from worker.renderers.gi.options import parse_options, unit_layout
 from worker.renderers.gi.renderer import denoise_tensors, region_images
 from worker.renderers.gi.trace import make_setup
-from worker.scene import GGX, Lambert
+from worker.scene import GGX, BlinnPhong, Lambert
 
 OPTS = {"spp": 16, "series": [64, 1, 1, 1]}
 
 
-def _denoised(raw, sc, opts, denoiser=None):
+def _denoised(raw, sc, opts, denoiser=None, together=True):
     o = parse_options(sc, opts)
     S = make_setup(sc, o, unit_layout(sc, o), region_images(sc, o))
-    bounces, meta = denoise_tensors(sc, S, raw.data.bounces, denoiser=denoiser)
+    bounces, meta = denoise_tensors(sc, S, raw.data.bounces, denoiser=denoiser, together=together)
     d = raw.data
     return GIRenderer(sc, GIData({**d.meta, "denoise": meta}, d.pixel, d.obj, bounces, d.opts)), meta
 
@@ -42,28 +42,38 @@ def small(shared_assets):
     return sc, gi_renderer(sc, OPTS)
 
 
-def test_a_linear_object_filter_commutes_with_the_frame(small, monkeypatch):
-    """With a linear filter that does not mix objects (a 3×3 box within each object) in place of
-    OIDN, and every basis image filtered (ENERGY_SHARE 1), the denoised renderer draws exactly
-    the filtered raw image, bounce by bounce, for diffuse materials: per-slot and
-    per-hat-component denoising keep the frame's structure."""
-    from worker.renderers.gi import denoise
-    monkeypatch.setattr(denoise, "ENERGY_SHARE", 1.0)
-    sc, raw = small
-    oid = raw.prim.object_id
-
+def _box(oid, size=3):
     def box(img, albedo, normal):
         out = np.zeros_like(img)
         for o in np.unique(oid[oid >= 0]):
             m = (oid == o).astype(np.float32)
-            num = uniform_filter(img * m[..., None], size=(3, 3, 1), mode="constant")
-            den = uniform_filter(m, size=3, mode="constant")
+            num = uniform_filter(img * m[..., None], size=(size, size, 1), mode="constant")
+            den = uniform_filter(m, size=size, mode="constant")
             out += np.where((m > 0)[..., None], num / np.maximum(den, 1e-12)[..., None], 0.0)
         return out
+    return box
 
-    den, meta = _denoised(raw, sc, OPTS, box)
+
+@pytest.mark.parametrize("together", [False, True])
+def test_a_linear_object_filter_commutes_with_the_frame(small, monkeypatch, together):
+    """With a linear filter that does not mix objects (a 3×3 box within each object) in place of
+    OIDN, and every basis image filtered (ENERGY_SHARE 1), the denoised renderer draws exactly
+    the filtered raw image, bounce by bounce, for diffuse materials: per-slot and
+    per-hat-component denoising keep the frame's structure. With the tails of a component
+    denoised together and split by their shares, this holds where the tails weigh alike (every
+    diffuse equivalent 1, so d̄_t = 1 for every tail)."""
+    from worker.renderers.gi import denoise
+    monkeypatch.setattr(denoise, "ENERGY_SHARE", 1.0)
+    sc, raw = small
+    box = _box(raw.prim.object_id)
+    den, meta = _denoised(raw, sc, OPTS, box, together=together)
     assert meta["components"] == [13, 7] and den.K1 == raw.K1 + 20
-    mats = [Lambert(albedo=(0.6, 0.3, 0.2)), Lambert(albedo=(0.2, 0.5, 0.7)), Lambert(albedo=(0.5, 0.5, 0.5))]
+    if together:
+        assert meta["images"] <= 65 + 13 + 7 + 7, meta       # one image per component beyond bounce 1
+        mats = [Lambert(albedo=(1.0, 1.0, 1.0))] * 3
+    else:
+        assert meta["images"] > 65 + 13 + 7 + 7, meta
+        mats = [Lambert(albedo=(0.6, 0.3, 0.2)), Lambert(albedo=(0.2, 0.5, 0.7)), Lambert(albedo=(0.5, 0.5, 0.5))]
     for r in (raw, den):
         for u, m in enumerate(mats):
             r.set_unit_material(u, m)
@@ -73,6 +83,56 @@ def test_a_linear_object_filter_commutes_with_the_frame(small, monkeypatch):
         err = np.abs(y - ref).max() / np.abs(ref).max()
         assert err < 5e-3, f"bounce {k}: {err:.2e}"        # half floats of both tensors
         assert np.abs(ref - x).max() > 0.05 * np.abs(x).max(), k      # the filter did something
+
+
+def test_tails_denoised_together_are_as_close_to_a_converged_render(small):
+    """With distinct diffuse equivalents the tails of a component weigh differently, and the
+    split of their denoised sum by smoothed shares stands for denoising each. Against the
+    indirect light of 512 paths per pixel (its own noise ~10 % of it per pixel here), a 7×7 box
+    within objects in place of OIDN (the shares' box is 3 pixels at this size, so the two
+    differ): the tails together are within 10 % of the separate tails' error (measured 0.221
+    against 0.220; 0.190 against 0.178 at 64×48), both far below the raw tensors' (0.61), and
+    the direct light is the same."""
+    sc, raw = small
+    ref = gi_renderer(sc, {**OPTS, "spp": 512, "seed": 5})
+    box = _box(raw.prim.object_id, 7)
+    sep, ms = _denoised(raw, sc, OPTS, box, together=False)
+    tog, mt = _denoised(raw, sc, OPTS, box, together=True)
+    assert mt["images"] < ms["images"], (mt, ms)
+    mats = [Lambert(albedo=(0.6, 0.3, 0.2)), Lambert(albedo=(0.2, 0.5, 0.7)), Lambert(albedo=(0.5, 0.5, 0.5))]
+    for r in (sep, tog, raw, ref):
+        for u, m in enumerate(mats):
+            r.set_unit_material(u, m)
+    a, b, c, d = (_per_bounce(r) for r in (sep, tog, raw, ref))
+    assert np.abs(a[0] - b[0]).max() <= 1e-6 * np.abs(a[0]).max()
+    on = raw.prim.object_id >= 0
+    R = sum(d[1:])[on]
+    err = {k: float(np.sqrt(((sum(x[1:])[on] - R) ** 2).mean() / (R ** 2).mean()))
+           for k, x in (("separate", a), ("together", b), ("raw", c))}
+    assert err["together"] <= 1.1 * err["separate"], err
+    assert err["together"] <= 0.5 * err["raw"], err
+
+
+def test_what_is_left_raw_is_small_under_any_material(small):
+    """The ENERGY_SHARE rule leaves an image raw only if it holds little light under every probe
+    material: with a denoiser that returns zeros, what a frame still shows is the raw images
+    alone, and under GGX materials from near-mirror to rough (α 0.02-1; 0.05 and 0.3 are not
+    probes) and a Blinn-Phong lobe it is at most 1 % of each bounce of the same tensors
+    denoised by the identity (measured ≤ 0.31 %). Ranked by magnitude alone, the near-mirror
+    hats were left raw: 66 % of bounce 2 under α 0.02, 11 % under α 0.1."""
+    sc, raw = small
+    zero, meta = _denoised(raw, sc, OPTS, lambda img, a, n: np.zeros_like(img))
+    ident, _ = _denoised(raw, sc, OPTS, lambda img, a, n: img)
+    assert meta["images"] <= 65 + 13 + 7 + 7, meta
+    for m in [GGX(alpha=a, specular=(0.8, 0.8, 0.8), albedo=(0.1, 0.1, 0.1)) for a in (0.02, 0.05, 0.1, 0.3, 1.0)] + \
+             [BlinnPhong(exponent=300, specular=(0.8, 0.8, 0.8), albedo=(0.1, 0.1, 0.1))]:
+        for r in (zero, ident):
+            for u in range(r.U):
+                r.set_unit_material(u, m)
+        left, full = _per_bounce(zero), _per_bounce(ident)
+        for k, (x, y) in enumerate(zip(left, full), start=1):
+            share = float(np.abs(x).sum() / np.abs(y).sum())
+            assert share <= 0.01, (m, k, share)
 
 
 def test_identity_filter_keeps_the_image_up_to_the_hat_projection(small):

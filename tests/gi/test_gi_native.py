@@ -43,15 +43,34 @@ def test_path_tracer_kernels_agree(shared_assets, name, opts):
     _tiles_agree(a, b, 1e-6)
 
 
+def _box_denoised(r, sc, o):
+    """r's tensors denoised as denoise.py does, with a 3×3 box filter in place of OIDN (the
+    layout, hat components in slots K1…, is what matters here), on r's own backend."""
+    from scipy.ndimage import uniform_filter
+    from worker.renderers.gi import GIData, GIRenderer
+    from worker.renderers.gi.renderer import denoise_tensors
+    op = parse_options(sc, o)
+    S = make_setup(sc, op, unit_layout(sc, op), region_images(sc, op))
+    box = lambda img, a, n: uniform_filter(img, size=(3, 3, 1), mode="constant")
+    b, meta = denoise_tensors(sc, S, r.data.bounces, denoiser=box)
+    d = r.data
+    return GIRenderer(sc, GIData({**d.meta, "denoise": meta}, d.pixel, d.obj, b, d.opts), kernels=r.k)
+
+
 @pytest.mark.parametrize("opts", [{"series": [64, 1, 1, 1]}, {"series": [16, 4, 1, 1], "fresnel": True},
-                                  {"series": [64, 1, 1, 1], "spp": 1}])
+                                  {"series": [64, 1, 1, 1], "spp": 1}, {"series": [64, 1, 1, 1], "denoised": True}])
 def test_freeze_and_frame_kernels_agree(shared_assets, opts):
     """gi_freeze / gi_frame(_dense) against freeze_numpy / frame_numpy for every unit made live:
     the frozen sums within 1e-6, live half floats within one unit of the last place, frames
-    within 1e-4 relative (half-float rounding of F)."""
+    within 1e-4 relative (half-float rounding of F). Denoised tensors give the dense layout
+    blocks of different slot ranges per power (hat components only beyond power 0)."""
     sc = scene_with("cornell", 24, 24)
+    opts = dict(opts)
+    denoised = opts.pop("denoised", False)
     o = {"spp": 16, **opts}
     rn, rc = gi_renderer(sc, o, "numpy"), gi_renderer(sc, o, "native")
+    if denoised:
+        rn, rc = _box_denoised(rn, sc, o), _box_denoised(rc, sc, o)
     for r in (rn, rc):
         r.set_unit_material(0, GGX(alpha=0.1, specular=(0.5, 0.4, 0.3), albedo=(0.2, 0.3, 0.1)))
         r.set_unit_material(2, BlinnPhong(exponent=60, specular=(0.3, 0.3, 0.3), albedo=(0.5, 0.1, 0.1)))
@@ -63,8 +82,14 @@ def test_freeze_and_frame_kernels_agree(shared_assets, opts):
         np.testing.assert_array_equal(a.live, b.live)
         if a.dense is not None:
             assert b.dense is not None and a.dense.shape == b.dense.shape
+            np.testing.assert_array_equal(a.lo, b.lo)
+            np.testing.assert_array_equal(a.width, b.width)
             assert np.abs(a.dense.astype(np.int64) - b.dense.astype(np.int64)).max() <= 1
             layouts.add("dense")
+            if denoised:
+                # powers ≥ 1 reach only the hat components (slots ≥ K1 of the raw tensors)
+                assert a.NPe >= 2 and (a.lo[1:] >= rn.data.meta["K1"]).all(), (a.lo, a.width)
+                assert a.width[1:].sum() < a.width[0], a.width
         else:
             np.testing.assert_array_equal(a.offsets, b.offsets)
             np.testing.assert_array_equal(a.key, b.key)
@@ -72,7 +97,37 @@ def test_freeze_and_frame_kernels_agree(shared_assets, opts):
             layouts.add("sparse")
         ia, ib = rn.draw().copy(), rc.draw().copy()
         assert np.abs(ia - ib).max() <= 1e-4 * np.abs(ia).max(), i
-    assert layouts
+    assert layouts and (not denoised or "dense" in layouts), layouts
+
+
+def test_freeze_kernels_agree_where_units_share_pixels(shared_assets, tmp_path):
+    """A region (H(x)) shares the floor's pixels with it: a live pixel there also carries the
+    other unit's frozen coefficients, so gi_freeze's V of the dense layout (taken from the
+    live cells as the blocks are written) is not zero there. Against freeze_numpy: V within
+    1e-6 (measured 4e-7), frames within 1e-5 (measured 1.3e-6), dense layout for every unit."""
+    from PIL import Image
+
+    from worker.scene import LoadedScene
+    img = np.zeros((16, 16), np.uint8); img[:, 8:] = 255
+    Image.fromarray(img).save(tmp_path / "half.png")
+    sc = scene_with("sofa", 32, 24)
+    spec = sc.spec.model_copy(deep=True)
+    spec.gi = {"series": [64, 1, 1], "spp": 128, "regions": [{
+        "name": "rug", "object": "floor", "weights": str(tmp_path / "half.png"), "axis": "y",
+        "material": {"model": "lambert", "albedo": [0.1, 0.6, 0.1]}}]}
+    reg = LoadedScene(spec, sc.root, envmap=sc.envmap)
+    rn, rc = gi_renderer(reg, {}, "numpy"), gi_renderer(reg, {}, "native")
+    shared = (rn.pu.units >= 0).sum(1) > 1
+    assert shared.sum() > 20
+    for r in (rn, rc):
+        r.set_unit_material(1, GGX(alpha=0.1, specular=(0.5, 0.4, 0.3), albedo=(0.2, 0.3, 0.1)))
+    for i in range(rn.U):
+        rn.freeze(i); rc.freeze(i)
+        a, b = rn.frozen, rc.frozen
+        assert a.dense is not None and b.dense is not None, i
+        np.testing.assert_allclose(a.V, b.V, rtol=1e-6, atol=1e-6 * np.abs(a.V).max())
+        ia, ib = rn.draw().copy(), rc.draw().copy()
+        assert np.abs(ia - ib).max() <= 1e-5 * np.abs(ia).max(), i
 
 
 def test_independent_streams_agree_statistically(shared_assets):

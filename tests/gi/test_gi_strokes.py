@@ -127,6 +127,21 @@ def test_a_stroke_under_gi_changes_the_frame_where_it_is_painted(sofa):
     assert np.abs(after[floor] - before[floor]).max() > 1e-4
 
 
+def test_the_fit_grid_is_bounded_at_large_views(sofa, monkeypatch):
+    """A view larger than GIRenderer.FIT_PIXELS fits on every other (third…) pixel: a stroke
+    paints 4× the pixels at 640×480 as at 320×240, and the fitter bounds only the unpainted
+    rows. Here the bound is set to a quarter of the 48×36 view: the scale is 1/2 and the view
+    has a quarter of the object's rows; under the bound the scale stays 1."""
+    assert sofa.stroke_fit_scale == 1.0
+    monkeypatch.setattr(GIRenderer, "FIT_PIXELS", 24 * 18)
+    r = GIRenderer(sofa.scene, sofa.data)
+    assert r.stroke_fit_scale == pytest.approx(0.5)
+    small, full = Fitter(r, "sofa", fit_scale=r.stroke_fit_scale), Fitter(sofa, "sofa", fit_scale=sofa.stroke_fit_scale)
+    small.add_view(); full.add_view()
+    n, N = len(small.views[0].pix), len(full.views[0].pix)
+    assert 0.2 * N <= n <= 0.3 * N, (n, N)
+
+
 def test_strokes_on_a_fixed_object_are_refused(sofa):
     fx = Fitter(sofa, "side_wall", fit_scale=1.0)
     with pytest.raises(GlintError, match="fixed"):

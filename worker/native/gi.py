@@ -26,7 +26,7 @@ from . import (
     u64p,
 )
 from ..renderers.gi import zspace
-from ..renderers.gi.freeze import Frozen, PixelUnits, padded_slots, sparse_bound, use_dense
+from ..renderers.gi.freeze import Frozen, PixelUnits, dense_blocks, sparse_bound, use_dense
 
 if _lib is not None:
     # parameters named and ordered as the prototypes in gi.c
@@ -46,12 +46,13 @@ if _lib is not None:
     bind("gi_freeze", None, P=i64, nb=i32, a_off=u64p, a_slot=u64p, a_tail=u64p, a_val=u64p, a_scale=u64p,
          a_kk=u64p, a_pw=u64p, a_A=u64p, L=i32, units=i32p, weights=f32p, k0=i32p, tt=f32p, C1=f32p, KT=i32,
          K1=i32, K2=i32, NP=i32, iu=i32, qpos=i64p, ub=i64p, V=f32p, F=u16p, cnt=i32p, fscale=f32p, dense=i32,
-         NPe=i32, S=i32, Fd=u16p)
-    bind("gi_maxpow", i32, P=i64, nb=i32, a_off=u64p, a_tail=u64p, a_pw=u64p, qpos=i64p)
+         NB=i32, blo=i32p, bw=i32p, boff=i32p, Wd=i32, Fd=u16p)
+    bind("gi_powslots", i32, P=i64, nb=i32, a_off=u64p, a_slot=u64p, a_tail=u64p, a_pw=u64p, qpos=i64p, NP=i32,
+         K1=i32, lo=i32p, hi=i32p)
     bind("gi_frame", None, P=i64, K2NP=i32, V=f32p, ckn=f32p, qpos=i64p, offs=i64p, F=u16p, fscale=f32p,
          hq=f32p, k0=i32p, tt=f32p, Tab=f32p, nkeys=i64, pix=i64p, out=f32p)
-    bind("gi_frame_dense", None, P=i64, NP=i32, V=f32p, ckn=f32p, qpos=i64p, NPe=i32, S=i32, Fd=u16p,
-         fscale=f32p, hq=f32p, k0=i32p, tt=f32p, CT=f32p, dpow=f32p, pix=i64p, img=f32p)
+    bind("gi_frame_dense", None, P=i64, NP=i32, V=f32p, ckn=f32p, qpos=i64p, NB=i32, bw=i32p, boff=i32p, Wd=i32,
+         Fd=u16p, fscale=f32p, hq=f32p, k0=i32p, tt=f32p, CT=f32p, dpow=f32p, pix=i64p, img=f32p)
 
 
 def c(a, dt):
@@ -241,27 +242,35 @@ def freeze(bounces, tables, pu: PixelUnits, C1: np.ndarray, i: int, K1: int, K2:
     a_off = addr([b.offsets for b in bounces], np.int64)
     a_tail = addr([b.tail for b in bounces], np.uint32)
     a_pw = addr([t[1] for t in tables], np.int32)
-    NPe = (_lib.gi_maxpow(P, nb, a_off, a_tail, a_pw, qpos) + 1) if len(live) else 1
+    a_slot = addr([b.slot for b in bounces], np.uint16)
+    lo, hi = np.empty(NP, np.int32), np.empty(NP, np.int32)
+    NPe = (_lib.gi_powslots(P, nb, a_off, a_slot, a_tail, a_pw, qpos, NP, K1, lo, hi) + 1) if len(live) else 1
+    if not len(live):
+        hi[:] = -1
+    blo, width = dense_blocks(lo[:NPe], hi[:NPe])
     ub = sparse_bound(bounces, live, K1, K2, NP)
-    dense = use_dense(K1, K2, NP, NPe, len(live), int(ub[-1]))
+    dense = use_dense(K2, width, len(live), int(ub[-1]))
+    fz = Frozen(int(i), K2, NP, V, live, h[live], fscale, lo=blo, width=width)
+    boff = fz.block_offsets
+    Wd = int(3 * width.sum())
     if dense:
-        S = padded_slots(K1)
-        Fd = np.empty((len(live), NPe, 3, S), np.uint16)
+        Fd = np.empty((len(live), Wd), np.uint16)
         Fub = np.empty((0, 4), np.uint16)
     else:
-        S, Fd = 0, np.empty(0, np.uint16)
+        Fd = np.empty(0, np.uint16)
         Fub = np.empty((int(ub[-1]), 4), np.uint16)
     counts = np.zeros(len(live), np.int32)
     C1 = c(C1, np.float32)
-    _lib.gi_freeze(P, nb, a_off, addr([b.slot for b in bounces], np.uint16), a_tail,
+    _lib.gi_freeze(P, nb, a_off, a_slot, a_tail,
                    addr([b.val.view(np.uint16) for b in bounces], np.uint16),
                    addr([b.scale for b in bounces], np.float32), addr([t[0] for t in tables], np.int32), a_pw,
                    addr([t[2] for t in tables], np.float32),
                    pu.units.shape[1], c(pu.units, np.int32), c(pu.weights, np.float32), c(pu.k0, np.int32),
                    c(pu.t, np.float32), C1, C1.shape[1], K1, K2, NP, int(i), qpos, ub, V, Fub, counts, fscale,
-                   int(dense), NPe, S, Fd)
+                   int(dense), NPe, blo, width, boff, Wd, Fd)
     if dense:
-        return Frozen(int(i), K2, NP, V, live, h[live], fscale, dense=Fd)
+        fz.dense = Fd
+        return fz
     # squeeze the upper-bound layout
     offsets = np.concatenate([[0], np.cumsum(counts, dtype=np.int64)])
     sel = np.repeat(ub[:-1], counts) + (np.arange(offsets[-1]) - np.repeat(offsets[:-1], counts))
@@ -277,15 +286,17 @@ def frame(fz: Frozen, pu: PixelUnits, C1i: np.ndarray, ck: np.ndarray, d: np.nda
     assert img.dtype == np.float32 and img.flags.c_contiguous and img.shape[-1] == 3
     dp = np.stack([np.asarray(d, np.float64) ** n for n in range(NP)])
     ckn = (ck[:, None, :].astype(np.float64) * dp[None]).astype(np.float32)        # (K2, NP, 3)
-    qpos = np.full(P, -1, np.int64); qpos[fz.live] = np.arange(len(fz.live))
+    qpos = fz.qpos(P)
     pix = c(pix, np.int64)
     if fz.dense is not None:
-        S = fz.dense.shape[-1]
-        CT = np.zeros((C1i.shape[0], 3, S), np.float32)
-        CT[:, :, :K1] = np.transpose(C1i, (0, 2, 1))
-        _lib.gi_frame_dense(P, NP, c(fz.V, np.float32), c(ckn, np.float32), qpos, fz.NPe, S, fz.dense,
-                            c(fz.scale, np.float32), c(fz.h, np.float32), c(pu.k0, np.int32), c(pu.t, np.float32),
-                            CT, c(dp[:fz.NPe], np.float32), pix, img)
+        # the coefficients in the dense columns' layout (Frozen), zero on padding
+        slot, pw, ch = fz.dense_cells()
+        ok = (slot >= 0) & (slot < K1)
+        CT = np.zeros((C1i.shape[0], len(slot)), np.float32)
+        CT[:, ok] = C1i[:, slot[ok], ch[ok]]
+        _lib.gi_frame_dense(P, NP, c(fz.V, np.float32), c(ckn, np.float32), qpos, fz.NPe, fz.width,
+                            fz.block_offsets, len(slot), fz.dense, c(fz.scale, np.float32), c(fz.h, np.float32),
+                            c(pu.k0, np.int32), c(pu.t, np.float32), CT, c(dp[:fz.NPe], np.float32), pix, img)
         return img
     Tab = (C1i.astype(np.float32)[:, :, None, None, :] * ckn[None, None]).reshape(C1i.shape[0], -1, 3)
     _lib.gi_frame(P, K2 * NP, c(fz.V, np.float32), c(ckn, np.float32), qpos, c(fz.offsets, np.int64),

@@ -5,7 +5,7 @@
  *   gi_occupancy,
  *   gi_compact       <- trace.compact        (zeros dropped, half floats, sorted by key)
  *   gi_freeze,
- *   gi_maxpow        <- freeze.freeze_numpy  (object freezing, eq. 27)
+ *   gi_powslots      <- freeze.freeze_numpy  (object freezing, eq. 27)
  *   gi_frame,
  *   gi_frame_dense   <- freeze.frame_numpy   (the per-pixel dot product, eq. 28-29; AVX2/F16C
  *                                             when the CPU has them)
@@ -408,19 +408,47 @@ void gi_half(int64_t n, const float *in, uint16_t *out, int to_half, float *back
 
 /* --- freezing (eq. 27) ------------------------------------------------------------------------------ */
 
+/* half -> float by table: the freeze converts every stored value (tens of millions of entries at
+ * 640×480), where the branchy h2f above costs more than the rest of the entry's work */
+static float H2F[65536];
+__attribute__((constructor)) static void gi_h2f_table(void) {
+    for (uint32_t h = 0; h < 65536; h++) H2F[h] = h2f((uint16_t)h);
+}
+
+/* float -> half, n values: F16C eight at a time when the CPU has it (round to nearest even, as f2h) */
+#ifdef GI_X86
+__attribute__((target("f16c,avx"))) static void to_half_f16c(const float *in, uint16_t *out, int n) {
+    int i = 0;
+    for (; i + 8 <= n; i += 8)
+        _mm_storeu_si128((__m128i *)(out + i), _mm256_cvtps_ph(_mm256_loadu_ps(in + i), _MM_FROUND_TO_NEAREST_INT));
+    for (; i < n; i++) out[i] = f2h(in[i]);
+}
+#endif
+static void to_half(const float *in, uint16_t *out, int n) {
+#ifdef GI_X86
+    static int f16c = -1;
+    if (f16c < 0) f16c = __builtin_cpu_supports("f16c") && __builtin_cpu_supports("avx");
+    if (f16c) { to_half_f16c(in, out, n); return; }
+#endif
+    for (int i = 0; i < n; i++) out[i] = f2h(in[i]);
+}
+
 static int cmp_i32(const void *a, const void *b) { int32_t x = *(const int32_t *)a, y = *(const int32_t *)b; return (x > y) - (x < y); }
 
 /* bounce arrays come as tables of addresses (uint64) per bounce:
  * off[nb] -> int64 (P+1), slot -> uint16, tail -> uint32, val -> uint16 (n,3) half, scale -> float (P),
  * kk -> int32 (T), pw -> int32 (T), A -> float (T,3).
- * Live output uses upper-bound positions ub (Q+1) (caller: Σ entries of the pixel, capped at K1·K2·NP);
- * writes cnt (Q) entries (m,4) uint16 [key, r, g, b] and scale (Q). */
+ * Sparse live output (dense = 0) uses upper-bound positions ub (Q+1) (caller: Σ entries of the
+ * pixel, capped at K1·K2·NP); writes cnt (Q) entries (m,4) uint16 [key, r, g, b] and scale (Q).
+ * Dense live output (dense = 1, K2 = 1): Fd (Q, Wd) half floats, for each power n < NB a block of
+ * 3·bw[n] columns at boff[n], [channel][slot − blo[n]] (freeze.Frozen); every live entry of power n
+ * has its slot in [blo[n], blo[n] + bw[n]) (gi_powslots). */
 void gi_freeze(int64_t P, int nb, const uint64_t *a_off, const uint64_t *a_slot, const uint64_t *a_tail,
                const uint64_t *a_val, const uint64_t *a_scale, const uint64_t *a_kk, const uint64_t *a_pw,
                const uint64_t *a_A, int L, const int32_t *units, const float *weights, const int32_t *k0,
                const float *tt, const float *C1, int KT, int K1, int K2, int NP, int iu,
                const int64_t *qpos, const int64_t *ub, float *V, uint16_t *F, int32_t *cnt, float *fscale,
-               int dense, int NPe, int S, uint16_t *Fd) {
+               int dense, int NB, const int32_t *blo, const int32_t *bw, const int32_t *boff, int Wd, uint16_t *Fd) {
     const int64_t ncell = (int64_t)K1 * K2 * NP;
 #pragma omp parallel
     {
@@ -429,6 +457,8 @@ void gi_freeze(int64_t P, int nb, const uint64_t *a_off, const uint64_t *a_slot,
         uint8_t *seen = (uint8_t *)calloc((size_t)ncell, 1);
         int32_t *touched = (int32_t *)malloc(sizeof(int32_t) * (size_t)ncell);
         double *Vl = (double *)malloc(sizeof(double) * K2 * NP * 3);
+        double *Vb = (double *)malloc(sizeof(double) * 2 * NP * 3);
+        float *fbuf = (float *)malloc(sizeof(float) * (Wd > 0 ? Wd : 1));
 #pragma omp for schedule(dynamic, 64)
         for (int64_t p = 0; p < P; p++) {
             /* frozen first-vertex coefficients of the other units, and this unit's weight */
@@ -443,6 +473,8 @@ void gi_freeze(int64_t P, int nb, const uint64_t *a_off, const uint64_t *a_slot,
             }
             memset(Vl, 0, sizeof(double) * K2 * NP * 3);
             int nt = 0;
+            /* the dense layout needs no record of the cells touched: its blocks are scanned */
+            int track = live && !dense;
             for (int b = 0; b < nb; b++) {
                 const int64_t *off = (const int64_t *)(uintptr_t)a_off[b];
                 const uint16_t *slot = (const uint16_t *)(uintptr_t)a_slot[b];
@@ -453,78 +485,150 @@ void gi_freeze(int64_t P, int nb, const uint64_t *a_off, const uint64_t *a_slot,
                 const int32_t *pw = (const int32_t *)(uintptr_t)a_pw[b];
                 const float *A = (const float *)(uintptr_t)a_A[b];
                 double s0 = scale[p];
+                if (!live && K2 == 1) {
+                    /* most pixels are not live and (J, 1, …) series have one second-vertex
+                     * factor: V alone, the pixel's scale applied once per bounce. Consecutive
+                     * entries mostly add to the same power: two accumulators (even and odd
+                     * entries) halve the chain of dependent additions through memory */
+                    for (int x = 0; x < 2 * NP * 3; x++) Vb[x] = 0.0;
+                    for (int64_t e = off[p]; e < off[p + 1]; e++) {
+                        uint32_t t = tail[e];
+                        const double *cs = cf + 3 * slot[e];
+                        const float *At = A + 3 * t;
+                        const uint16_t *h = val + 3 * e;
+                        double *vv = Vb + ((e & 1) * NP + pw[t]) * 3;
+                        vv[0] += cs[0] * ((double)H2F[h[0]] * (double)At[0]);
+                        vv[1] += cs[1] * ((double)H2F[h[1]] * (double)At[1]);
+                        vv[2] += cs[2] * ((double)H2F[h[2]] * (double)At[2]);
+                    }
+                    for (int x = 0; x < NP * 3; x++) Vl[x] += s0 * (Vb[x] + Vb[NP * 3 + x]);
+                    continue;
+                }
+                if (dense) {
+                    /* a live pixel of the dense layout: only the cells; V is taken from them
+                     * while the blocks are written (every live entry's cell is in a block) */
+                    for (int64_t e = off[p]; e < off[p + 1]; e++) {
+                        uint32_t t = tail[e];
+                        const float *At = A + 3 * t;
+                        const uint16_t *h = val + 3 * e;
+                        double *x = sc + ((int64_t)slot[e] * NP + pw[t]) * 3;
+                        x[0] += (double)H2F[h[0]] * s0 * (double)At[0];
+                        x[1] += (double)H2F[h[1]] * s0 * (double)At[1];
+                        x[2] += (double)H2F[h[2]] * s0 * (double)At[2];
+                    }
+                    continue;
+                }
                 for (int64_t e = off[p]; e < off[p + 1]; e++) {
                     uint32_t t = tail[e];
                     int s = slot[e], kq = kk[t], n = pw[t];
                     double v[3];
-                    for (int c = 0; c < 3; c++) v[c] = (double)h2f(val[3 * e + c]) * s0 * (double)A[3 * t + c];
+                    for (int c = 0; c < 3; c++) v[c] = (double)H2F[val[3 * e + c]] * s0 * (double)A[3 * t + c];
                     double *vv = Vl + ((int64_t)kq * NP + n) * 3;
                     for (int c = 0; c < 3; c++) vv[c] += cf[s * 3 + c] * v[c];
                     if (live) {
                         int32_t cell = (int32_t)(((int64_t)s * K2 + kq) * NP + n);
-                        if (!seen[cell]) { seen[cell] = 1; touched[nt++] = cell; }
+                        if (track && !seen[cell]) { seen[cell] = 1; touched[nt++] = cell; }
                         for (int c = 0; c < 3; c++) sc[(int64_t)cell * 3 + c] += v[c];
                     }
                 }
             }
             for (int x = 0; x < K2 * NP * 3; x++) V[p * K2 * NP * 3 + x] = (float)Vl[x];
-            if (live) {
-                int64_t q = qpos[p];
-                qsort(touched, nt, sizeof(int32_t), cmp_i32);
+            if (!live) continue;
+            int64_t q = qpos[p];
+            if (dense) {   /* K2 = 1: cell = s·NP + n */
                 double amax = 0;
-                for (int j = 0; j < nt; j++)
-                    for (int c = 0; c < 3; c++) { double a = fabs(sc[(int64_t)touched[j] * 3 + c]); if (a > amax) amax = a; }
+                for (int n = 0; n < NB; n++)
+                    for (int j = 0; j < bw[n] && blo[n] + j < K1; j++)
+                        for (int c = 0; c < 3; c++) {
+                            double a = fabs(sc[((int64_t)(blo[n] + j) * NP + n) * 3 + c]);
+                            if (a > amax) amax = a;
+                        }
                 float fs = amax > 0 ? (float)(amax / 16384.0) : 1.0f;
                 fscale[q] = fs;
-                if (dense) {   /* K2 = 1: F[q][n][c][s], slots padded to S, powers < NPe */
-                    uint16_t *o = Fd + q * (int64_t)NPe * 3 * S;
-                    memset(o, 0, sizeof(uint16_t) * (size_t)NPe * 3 * S);
-                    for (int j = 0; j < nt; j++) {
-                        int32_t cell = touched[j];
-                        int s = cell / NP, n = cell % NP;
-                        for (int c = 0; c < 3; c++) {
-                            if (n < NPe) o[((int64_t)n * 3 + c) * S + s] = f2h((float)(sc[(int64_t)cell * 3 + c] / (double)fs));
-                            sc[(int64_t)cell * 3 + c] = 0.0;
+                /* gather the blocks' cells as floats, then convert them in one pass (F16C when
+                 * the CPU has it: the same round-to-nearest-even as f2h) */
+                double inv = 1.0 / (double)fs;
+                int x = 0;
+                for (int n = 0; n < NB; n++)
+                    for (int c = 0; c < 3; c++) {
+                        double vsum = 0.0;
+                        for (int j = 0; j < bw[n]; j++, x++) {
+                            int s = blo[n] + j;
+                            if (s >= K1) { fbuf[x] = 0.0f; continue; }   /* padding */
+                            double *y = sc + ((int64_t)s * NP + n) * 3 + c;
+                            vsum += cf[s * 3 + c] * *y;
+                            fbuf[x] = (float)(*y * inv);
+                            *y = 0.0;
                         }
-                        seen[cell] = 0;
+                        V[(p * NP + n) * 3 + c] = (float)vsum;     /* K2 = 1; Vl is 0 here */
                     }
-                    continue;
-                }
-                int64_t w = ub[q];
-                int m = 0;
-                for (int j = 0; j < nt; j++) {
-                    int32_t cell = touched[j];
-                    uint16_t h[3];
-                    for (int c = 0; c < 3; c++) h[c] = f2h((float)(sc[(int64_t)cell * 3 + c] / (double)fs));
-                    if ((h[0] & 0x7fff) | (h[1] & 0x7fff) | (h[2] & 0x7fff)) {   /* ±0 dropped, as NumPy's != 0 */
-                        uint16_t *o = F + (w + m) * 4;
-                        o[0] = (uint16_t)cell; o[1] = h[0]; o[2] = h[1]; o[3] = h[2];
-                        m++;
-                    }
-                    for (int c = 0; c < 3; c++) sc[(int64_t)cell * 3 + c] = 0.0;
-                    seen[cell] = 0;
-                }
-                cnt[q] = m;
+                to_half(fbuf, Fd + q * (int64_t)Wd, Wd);
+                continue;
             }
+            /* sorted cells: a scan of the seen flags when many are touched, else a sort */
+            if ((int64_t)nt * 16 > ncell) {
+                int m = 0;
+                for (int64_t x = 0; x < ncell; x++) if (seen[x]) touched[m++] = (int32_t)x;
+            } else {
+                qsort(touched, nt, sizeof(int32_t), cmp_i32);
+            }
+            double amax = 0;
+            for (int j = 0; j < nt; j++)
+                for (int c = 0; c < 3; c++) { double a = fabs(sc[(int64_t)touched[j] * 3 + c]); if (a > amax) amax = a; }
+            float fs = amax > 0 ? (float)(amax / 16384.0) : 1.0f;
+            fscale[q] = fs;
+            int64_t w = ub[q];
+            int m = 0;
+            for (int j = 0; j < nt; j++) {
+                int32_t cell = touched[j];
+                uint16_t h[3];
+                for (int c = 0; c < 3; c++) h[c] = f2h((float)(sc[(int64_t)cell * 3 + c] / (double)fs));
+                if ((h[0] & 0x7fff) | (h[1] & 0x7fff) | (h[2] & 0x7fff)) {   /* ±0 dropped, as NumPy's != 0 */
+                    uint16_t *o = F + (w + m) * 4;
+                    o[0] = (uint16_t)cell; o[1] = h[0]; o[2] = h[1]; o[3] = h[2];
+                    m++;
+                }
+                for (int c = 0; c < 3; c++) sc[(int64_t)cell * 3 + c] = 0.0;
+                seen[cell] = 0;
+            }
+            cnt[q] = m;
         }
-        free(cf); free(sc); free(seen); free(touched); free(Vl);
+        free(cf); free(sc); free(seen); free(touched); free(Vl); free(Vb); free(fbuf);
     }
 }
 
-/* the largest power n of the edited unit's d in the entries of the live pixels (qpos ≥ 0) */
-int gi_maxpow(int64_t P, int nb, const uint64_t *a_off, const uint64_t *a_tail, const uint64_t *a_pw,
-              const int64_t *qpos) {
-    int best = 0;
-#pragma omp parallel for schedule(dynamic, 256) reduction(max:best)
-    for (int64_t p = 0; p < P; p++) {
-        if (qpos[p] < 0) continue;
-        for (int b = 0; b < nb; b++) {
-            const int64_t *off = (const int64_t *)(uintptr_t)a_off[b];
-            const uint32_t *tail = (const uint32_t *)(uintptr_t)a_tail[b];
-            const int32_t *pw = (const int32_t *)(uintptr_t)a_pw[b];
-            for (int64_t e = off[p]; e < off[p + 1]; e++) if (pw[tail[e]] > best) best = pw[tail[e]];
+/* per power n < NP of the edited unit's d, the smallest and largest slot of the entries of the live
+ * pixels (qpos ≥ 0): lo[n], hi[n] (lo = K1, hi = −1 where no entry has that power); returns the
+ * largest power present (0 if none). The dense live layout keeps only these slot ranges: with
+ * denoised tensors the powers ≥ 1 reach only the indirect bounces' hat components. */
+int gi_powslots(int64_t P, int nb, const uint64_t *a_off, const uint64_t *a_slot, const uint64_t *a_tail,
+                const uint64_t *a_pw, const int64_t *qpos, int NP, int K1, int32_t *lo, int32_t *hi) {
+    for (int n = 0; n < NP; n++) { lo[n] = K1; hi[n] = -1; }
+#pragma omp parallel
+    {
+        int32_t *l = (int32_t *)malloc(sizeof(int32_t) * NP), *h = (int32_t *)malloc(sizeof(int32_t) * NP);
+        for (int n = 0; n < NP; n++) { l[n] = K1; h[n] = -1; }
+#pragma omp for schedule(dynamic, 256)
+        for (int64_t p = 0; p < P; p++) {
+            if (qpos[p] < 0) continue;
+            for (int b = 0; b < nb; b++) {
+                const int64_t *off = (const int64_t *)(uintptr_t)a_off[b];
+                const uint16_t *slot = (const uint16_t *)(uintptr_t)a_slot[b];
+                const uint32_t *tail = (const uint32_t *)(uintptr_t)a_tail[b];
+                const int32_t *pw = (const int32_t *)(uintptr_t)a_pw[b];
+                for (int64_t e = off[p]; e < off[p + 1]; e++) {
+                    int n = pw[tail[e]], s = slot[e];
+                    if (s < l[n]) l[n] = s;
+                    if (s > h[n]) h[n] = s;
+                }
+            }
         }
+#pragma omp critical
+        for (int n = 0; n < NP; n++) { if (l[n] < lo[n]) lo[n] = l[n]; if (h[n] > hi[n]) hi[n] = h[n]; }
+        free(l); free(h);
     }
+    int best = 0;
+    for (int n = 0; n < NP; n++) if (hi[n] >= 0) best = n;
     return best;
 }
 
@@ -586,91 +690,87 @@ void gi_frame(GI_FRAME_ARGS) {
 
 /* Dense live pixels ((J, 1, …) series): B[p] = Σ_n ckn[n]·V[p, n] for every pixel, plus for live
  * pixels h·scale·Σ_n dpow[n]·Σ_s cv[s]·F[q, n, c, s] with cv the edited unit's coefficients at the
- * pixel's view angle, lerped from CT (KT, 3, S) (transposed, padded with zeros). The radiance is
- * written into the image at pix[p]. */
-#define GI_DENSE_ARGS int64_t P, int NP, const float *V, const float *ckn, const int64_t *qpos, int NPe,        \
-    int S, const uint16_t *Fd, const float *fscale, const float *hq, const int32_t *k0, const float *tt,         \
-    const float *CT, const float *dpow, const int64_t *pix, float *img
+ * pixel's view angle, lerped between two rows of CT (KT, Wd), which holds them in Fd's column
+ * layout (power n's block of 3·bw[n] columns at boff[n], [channel][slot − lo[n]], zero padded;
+ * freeze.Frozen). The two nodes' dot products are accumulated separately and lerped at the end,
+ * so the coefficients are not rewritten per pixel. The radiance is written into the image at pix[p]. */
+#define GI_DENSE_ARGS int64_t P, int NP, const float *V, const float *ckn, const int64_t *qpos, int NB,        \
+    const int32_t *bw, const int32_t *boff, int Wd, const uint16_t *Fd, const float *fscale, const float *hq,    \
+    const int32_t *k0, const float *tt, const float *CT, const float *dpow, const int64_t *pix, float *img
 
 static void dense_soft(GI_DENSE_ARGS) {
-#pragma omp parallel
-    {
-        float *cv = (float *)malloc(sizeof(float) * 3 * (size_t)S);
-#pragma omp for schedule(dynamic, 256)
-        for (int64_t p = 0; p < P; p++) {
-            float b[3] = {0, 0, 0};
-            const float *v = V + p * NP * 3;
-            for (int x = 0; x < NP; x++)
-                for (int c = 0; c < 3; c++) b[c] += ckn[3 * x + c] * v[3 * x + c];
-            int64_t q = qpos[p];
-            if (q >= 0) {
-                const float *c0 = CT + (int64_t)k0[p] * 3 * S, *c1 = c0 + 3 * S;
-                float t = tt[p], a0 = 1.0f - t;
-                for (int x = 0; x < 3 * S; x++) cv[x] = a0 * c0[x] + t * c1[x];
-                const uint16_t *f = Fd + q * (int64_t)NPe * 3 * S;
-                float sc = hq[q] * fscale[q];
-                for (int n = 0; n < NPe; n++)
-                    for (int c = 0; c < 3; c++) {
-                        float acc = 0;
-                        const uint16_t *fr = f + ((int64_t)n * 3 + c) * S;
-                        const float *cr = cv + c * S;
-                        for (int s = 0; s < S; s++) acc += cr[s] * h2f(fr[s]);
-                        b[c] += sc * dpow[3 * n + c] * acc;
-                    }
-            }
-            float *o = img + 3 * pix[p];
-            for (int c = 0; c < 3; c++) o[c] = b[c];
+#pragma omp parallel for schedule(dynamic, 256)
+    for (int64_t p = 0; p < P; p++) {
+        float b[3] = {0, 0, 0};
+        const float *v = V + p * NP * 3;
+        for (int x = 0; x < NP; x++)
+            for (int c = 0; c < 3; c++) b[c] += ckn[3 * x + c] * v[3 * x + c];
+        int64_t q = qpos[p];
+        if (q >= 0) {
+            const float *c0 = CT + (int64_t)k0[p] * Wd, *c1 = c0 + Wd;
+            float t = tt[p], a0 = 1.0f - t;
+            const uint16_t *f = Fd + q * (int64_t)Wd;
+            float sc = hq[q] * fscale[q];
+            for (int n = 0; n < NB; n++)
+                for (int c = 0; c < 3; c++) {
+                    float x0 = 0, x1 = 0;
+                    int o = boff[n] + c * bw[n];
+                    for (int s = 0; s < bw[n]; s++) { float h = h2f(f[o + s]); x0 += c0[o + s] * h; x1 += c1[o + s] * h; }
+                    b[c] += sc * dpow[3 * n + c] * (a0 * x0 + t * x1);
+                }
         }
-        free(cv);
+        float *o = img + 3 * pix[p];
+        for (int c = 0; c < 3; c++) o[c] = b[c];
     }
 }
 
 #ifdef GI_X86
+static inline float hsum8(__m256 a) __attribute__((target("avx2")));
+static inline float hsum8(__m256 a) {
+    __m128 h = _mm_add_ps(_mm256_castps256_ps128(a), _mm256_extractf128_ps(a, 1));
+    h = _mm_hadd_ps(h, h); h = _mm_hadd_ps(h, h);
+    return _mm_cvtss_f32(h);
+}
+
 __attribute__((target("f16c,avx2,fma"))) static void dense_avx2(GI_DENSE_ARGS) {
-#pragma omp parallel
-    {
-        float *cv = (float *)aligned_alloc(32, sizeof(float) * 3 * (size_t)S + 32);
-#pragma omp for schedule(dynamic, 256)
-        for (int64_t p = 0; p < P; p++) {
-            float b[3] = {0, 0, 0};
-            const float *v = V + p * NP * 3;
-            for (int x = 0; x < NP; x++)
-                for (int c = 0; c < 3; c++) b[c] += ckn[3 * x + c] * v[3 * x + c];
-            int64_t q = qpos[p];
-            if (q >= 0) {
-                const float *c0 = CT + (int64_t)k0[p] * 3 * S, *c1 = c0 + 3 * S;
-                __m256 vt = _mm256_set1_ps(tt[p]), va = _mm256_set1_ps(1.0f - tt[p]);
-                for (int x = 0; x < 3 * S; x += 8)
-                    _mm256_store_ps(cv + x, _mm256_fmadd_ps(va, _mm256_loadu_ps(c0 + x), _mm256_mul_ps(vt, _mm256_loadu_ps(c1 + x))));
-                const uint16_t *f = Fd + q * (int64_t)NPe * 3 * S;
-                float sc = hq[q] * fscale[q];
-                for (int n = 0; n < NPe; n++)
-                    for (int c = 0; c < 3; c++) {
-                        __m256 acc = _mm256_setzero_ps();
-                        const uint16_t *fr = f + ((int64_t)n * 3 + c) * S;
-                        const float *cr = cv + c * S;
-                        for (int s = 0; s < S; s += 8)
-                            acc = _mm256_fmadd_ps(_mm256_load_ps(cr + s),
-                                                  _mm256_cvtph_ps(_mm_loadu_si128((const __m128i *)(fr + s))), acc);
-                        __m128 h = _mm_add_ps(_mm256_castps256_ps128(acc), _mm256_extractf128_ps(acc, 1));
-                        h = _mm_hadd_ps(h, h); h = _mm_hadd_ps(h, h);
-                        b[c] += sc * dpow[3 * n + c] * _mm_cvtss_f32(h);
+#pragma omp parallel for schedule(dynamic, 256)
+    for (int64_t p = 0; p < P; p++) {
+        float b[3] = {0, 0, 0};
+        const float *v = V + p * NP * 3;
+        for (int x = 0; x < NP; x++)
+            for (int c = 0; c < 3; c++) b[c] += ckn[3 * x + c] * v[3 * x + c];
+        int64_t q = qpos[p];
+        if (q >= 0) {
+            const float *c0 = CT + (int64_t)k0[p] * Wd, *c1 = c0 + Wd;
+            float t = tt[p], a0 = 1.0f - t;
+            const uint16_t *f = Fd + q * (int64_t)Wd;
+            float sc = hq[q] * fscale[q];
+            for (int n = 0; n < NB; n++)
+                for (int c = 0; c < 3; c++) {
+                    __m256 x0 = _mm256_setzero_ps(), x1 = _mm256_setzero_ps();
+                    int o = boff[n] + c * bw[n];
+                    for (int s = 0; s < bw[n]; s += 8) {
+                        __m256 h = _mm256_cvtph_ps(_mm_loadu_si128((const __m128i *)(f + o + s)));
+                        x0 = _mm256_fmadd_ps(_mm256_loadu_ps(c0 + o + s), h, x0);
+                        x1 = _mm256_fmadd_ps(_mm256_loadu_ps(c1 + o + s), h, x1);
                     }
-            }
-            float *o = img + 3 * pix[p];
-            for (int c = 0; c < 3; c++) o[c] = b[c];
+                    b[c] += sc * dpow[3 * n + c] * (a0 * hsum8(x0) + t * hsum8(x1));
+                }
         }
-        free(cv);
+        float *o = img + 3 * pix[p];
+        for (int c = 0; c < 3; c++) o[c] = b[c];
     }
 }
 #endif
 
 void gi_frame_dense(GI_DENSE_ARGS) {
 #ifdef GI_X86
-    if (S % 8 == 0 && __builtin_cpu_supports("f16c") && __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma")) {
-        dense_avx2(P, NP, V, ckn, qpos, NPe, S, Fd, fscale, hq, k0, tt, CT, dpow, pix, img);
+    int aligned = 1;
+    for (int n = 0; n < NB; n++) aligned &= bw[n] % 8 == 0;
+    if (aligned && __builtin_cpu_supports("f16c") && __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma")) {
+        dense_avx2(P, NP, V, ckn, qpos, NB, bw, boff, Wd, Fd, fscale, hq, k0, tt, CT, dpow, pix, img);
         return;
     }
 #endif
-    dense_soft(P, NP, V, ckn, qpos, NPe, S, Fd, fscale, hq, k0, tt, CT, dpow, pix, img);
+    dense_soft(P, NP, V, ckn, qpos, NB, bw, boff, Wd, Fd, fscale, hq, k0, tt, CT, dpow, pix, img);
 }

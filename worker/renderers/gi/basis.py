@@ -175,6 +175,46 @@ def _iso_basis(J: int, qkind: int):
 
 
 @lru_cache(maxsize=16)
+def _iso_valid(J: int, qkind: int):
+    """The pairs of ``_iso_basis`` that carry weight (both directions above the horizon; about
+    half of them: at θo = 0 every band beyond θh = 45° sends ωi below it), for the projection of
+    a material each frame: (Geometry of the n pairs, weight (n,) = dωi cos θi, starts (K·J,)
+    int64 first pair of each (node, band) group in node-major order, has (K·J,) bool groups
+    with pairs). Pairs keep their order, so the groups are contiguous."""
+    from ...models.base import Geometry
+    wi1, wo1, w1, Es, per, *_ = _iso_basis(J, qkind)
+    keep = (w1 > 0).reshape(-1)
+    g = Geometry.of(wi1.reshape(-1, 3)[keep], wo1.reshape(-1, 3)[keep])
+    group = np.repeat(np.arange(THETA_NODES * J), per)[keep]
+    counts = np.bincount(group, minlength=THETA_NODES * J)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    return g, w1.reshape(-1)[keep], starts, counts > 0
+
+
+def _project_single(material, albedo: np.ndarray, J: int, qkind: int):
+    """``project_measure`` for one layer and a (J, 1, …) series from the weighted pairs alone
+    (``_iso_valid``): (first (THETA_NODES, 1 + J, 3), d (3,)) float64, the same sums in another
+    order. Pairs of zero weight add nothing to any band, so they are not evaluated."""
+    g, wv, starts, has = _iso_valid(J, qkind)
+    *_, mu, _a12, _a22 = _iso_basis(J, qkind)
+    if isinstance(material, AshikhminShirley):
+        spec = evaluate_as(material, g.wi, g.wo) - albedo * INV_PI
+    else:
+        spec = material.pack().specular(g)            # ρ − albedo/π: both cosines are positive
+    Ew = wv[:, None] * spec
+    g_mu = np.zeros((THETA_NODES * J, 3))
+    g_mu[has] = np.add.reduceat(Ew, starts[has], axis=0)
+    g_mu = g_mu.reshape(THETA_NODES, J, 3)
+    first = np.zeros((THETA_NODES, 1 + J, 3))
+    first[:, 0] = albedo
+    first[:, 1:] = np.where(mu[..., None] > 0, g_mu / np.maximum(mu[..., None], 1e-300), 0.0)
+    _, edges = theta_nodes()
+    wk = np.sin(edges[1:]) ** 2 - np.sin(edges[:-1]) ** 2
+    d = albedo + (wk[:, None] * g_mu.sum(1)).sum(0)    # eq. 36, as _tails
+    return first, d
+
+
+@lru_cache(maxsize=16)
 def _aniso_basis(J: int, qkind: int):
     """Quadrature with view azimuths for the anisotropic units' diffuse equivalent and
     second-vertex bands: (wi, wo, w, Es (K, Q) averaged over azimuths)."""
@@ -206,6 +246,9 @@ def project(material, J: int, layers: int, J2: int = 1, anisotropic_nu: float | 
         Erho = np.einsum("kaq,kaqc->kqc", w, spec) / wi.shape[1]           # averaged over azimuths
         d, second = _tails(Erho, albedo, Es, J2)
         return Projection(first.astype(np.float32), None if second is None else second.astype(np.float32), d)
+    if layers == 1 and J2 <= 1:
+        first, d = _project_single(material, albedo, J, qkind)
+        return Projection(first.astype(np.float32), None, d)
     wi1, wo1, w1, *_ = _iso_basis(J, qkind)
     Erho = w1[..., None] * _spec_part(material, wi1, wo1)                   # (K, Q, 3)
     first, d, second, ok = project_measure(Erho, albedo, J, layers, J2, qkind)

@@ -20,10 +20,21 @@ measure (``projectors``, which keeps the energy Σ μ_j c_j), exact for coeffici
 piecewise linear between the nodes; indirect light reflected
 by a lobe narrower than the node spacing (a few bands near θh = 0 are kept as nodes) is
 smoothed (bounce 2: 12 nodes per layer; bounces ≥ 3, a few percent of the image: 6). Per
-bounce, the basis images holding ENERGY_SHARE of its energy are denoised, the many tiny rest
-keep their noise. The hat components live in slots K1 … of the stored tensor, and the
+bounce, the basis images holding ENERGY_SHARE of its energy under every probe material (white
+GGX from α 0.02 to 1, and equal coefficients) are denoised, the many tiny rest keep their
+noise. The hat components live in slots K1 … of the stored tensor, and the
 renderer extends each unit's coefficient table with c̃ (``extend_coefficients``), so the
 freeze and frame kernels are unchanged.
+
+The tails of one hat component are denoised together: OIDN runs once on their sum
+S_r = Σ_t Y_{r,t} (one image per component instead of one per component and tail: 82 OIDN
+images instead of 208 on the sofa, half the CPU), and each tail takes the share of D(S_r)
+that it has of the sum under a box filter B within objects,
+Ỹ_{r,t} = D(S_r) · B(Y_{r,t}) / B(S_r) (``share_filter``, SHARE_WIDTH). The tails still sum to
+the denoised sum exactly, so a frame whose tails weigh alike (every d̄_t equal) is exactly the
+denoised image; otherwise the approximation is that the tails' mix varies slowly over the
+object (it is the route the light took through the scene's objects, e.g. the sofa's floor-lit
+underside against its wall-lit back), which it does at the box's scale.
 
 Guides (OIDN ``albedo`` and ``normal``, noise-free, ``cleanAux``): the shading normal of the
 first vertex, and an albedo of 1 on editable objects (the basis BRDFs are not the material) or
@@ -43,8 +54,24 @@ SCALE_MAX = 16384.0
 # made bounce 3 of a glossy floor 35 % wrong per pixel in tests/gi/test_gi_denoise.py)
 HATS = (12, 6)
 # per bounce, basis images are denoised in decreasing order of energy until this share of the
-# bounce's energy is covered; the rest (many tiny tail images) keep their noise
+# bounce's energy is covered; the rest (many tiny tail images) keep their noise. The share is
+# kept for every probe material (``slot_weights``: an image's energy is its magnitude times its
+# slot's coefficient under the probe) as well as for equal coefficients: the near-mirror bands
+# and hats hold little light but a glossy material multiplies them by hundreds (ranked by
+# magnitude alone and left raw, they made a GGX α 0.1 floor sparkle at 640×480)
 ENERGY_SHARE = 0.995
+PROBE_ALPHAS = (0.02, 0.05, 0.1, 0.2, 0.4, 1.0)
+# OIDN's quality: "fast" halves the CPU time of "balanced" but left 0.05 points more error
+# against Mitsuba on the sofa (2.02 against 1.97 %, docs/benchmarks/history/
+# 2026-12-06-gi-denoise-speed.md); with the tails denoised together the images are few enough
+QUALITY = "balanced"
+# box width (pixels at 320 wide) of the tails' shares when the indirect bounces' tails are
+# denoised together (denoise_bounce): a wider box smooths the shares' noise and blurs where the
+# tails' mix changes (bias), a narrower one the reverse, and a share is zero wherever its box
+# saw none of the tail, so narrower boxes leave sparser tensors. Against Mitsuba, one render,
+# 320×240: sofa 1.95 / 1.95 / 1.97 % and the Cornell box 2.61 / - / 2.62 % at 5 / 7 / 11 pixels
+# (21: Cornell 2.79 %); bounce-4 entries 3.0 / 3.9 / 4.4 M on the sofa
+SHARE_WIDTH = 5
 
 
 def hat_nodes(J: int, count: int) -> np.ndarray:
@@ -135,6 +162,30 @@ def basis_weights(J: int, layers: int, qkind: int) -> np.ndarray:
     return np.maximum(w, 1e-9 * w.max())
 
 
+def slot_weights(J: int, layers: int, qkinds, phis: list[np.ndarray]) -> list[np.ndarray]:
+    """What an entry of each slot weighs in a frame under each probe material: equal
+    coefficients, then white GGX probes (PROBE_ALPHAS, albedo 1) projected with each quotient
+    in ``qkinds``, their |coefficient| maximised over view-angle nodes and channels. Returns
+    [(M, K1) for the first-vertex slots, then (M, R) per hat set of ``phis``] float64, M
+    probes (the first all ones)."""
+    from ...scene import GGX
+    from .basis import project
+    K1 = 1 + J * layers
+    w1 = [np.ones(K1)]
+    wh = [[np.ones(p.shape[1])] for p in phis]
+    for q in sorted(set(int(x) for x in qkinds)) or [0]:
+        maps = [projectors(p, basis_weights(J, layers, q)) for p in phis]
+        for a in PROBE_ALPHAS:
+            first = project(GGX(alpha=a, specular=(1.0, 1.0, 1.0), albedo=(1.0, 1.0, 1.0)), J, layers, 1, None, q).first
+            ext = np.abs(extend_coefficients(first.astype(np.float64), maps)).max(axis=(0, 2))
+            w1.append(ext[:K1])
+            off = K1
+            for i, p in enumerate(phis):
+                wh[i].append(ext[off:off + p.shape[1]])
+                off += p.shape[1]
+    return [np.stack(w1)] + [np.stack(w) for w in wh]
+
+
 def guides(prim, fixed: np.ndarray, fixed_albedo: list, shape: tuple[int, int]):
     """(albedo, normal) (H, W, 3) float32 guide images (module docstring)."""
     H, W = shape
@@ -164,14 +215,47 @@ def _entries(b: Bounce):
     return pix, b.slot.astype(np.int64), b.tail.astype(np.int64), b.val.astype(np.float32) * b.scale[pix, None]
 
 
+def share_filter(obj_img: np.ndarray, width: int) -> "callable":
+    """A box filter of ``width`` pixels that does not mix objects: f(img (H, W, C)) -> (H, W, C)
+    = Σ over the box of the pixels of the centre's object / their count (0 off objects).
+    obj_img (H, W) int object ids, −1 off objects."""
+    from scipy.ndimage import uniform_filter
+    objs = [int(o) for o in np.unique(obj_img) if o >= 0]
+    masks = [(obj_img == o).astype(np.float32) for o in objs]
+    dens = [uniform_filter(m, size=width, mode="constant") for m in masks]
+
+    def f(img: np.ndarray) -> np.ndarray:
+        out = np.zeros_like(img)
+        for m, den in zip(masks, dens):
+            num = uniform_filter(img * m[..., None], size=(width, width, 1), mode="constant")
+            out += np.where((m > 0)[..., None], num / np.maximum(den, 1e-12)[..., None], 0.0)
+        return out
+    return f
+
+
+def share_width(W: int) -> int:
+    """Box width of the tails' shares (``denoise_bounce``): SHARE_WIDTH pixels at 320 wide, in
+    proportion to the image (odd, at least 3)."""
+    return 2 * max(1, round(W * SHARE_WIDTH / 320 / 2)) + 1
+
+
 def denoise_bounce(b: Bounce, pixel: np.ndarray, shape: tuple[int, int], albedo: np.ndarray,
-                   normal: np.ndarray, mix: np.ndarray | None, slot0: int, quality: str = "balanced",
-                   denoiser=None) -> tuple[Bounce, int]:
+                   normal: np.ndarray, mix: np.ndarray | None, slot0: int, quality: str = QUALITY,
+                   denoiser=None, obj: np.ndarray | None = None,
+                   weights: np.ndarray | None = None) -> tuple[Bounce, int]:
     """One bounce's tensor with every basis image denoised: (new Bounce, images denoised).
 
-    mix None: the slots themselves (entries keep their slots). mix (K1, R): component r is
-    Σ_s mix[s, r] T_s, stored in slot slot0 + r. pixel (P,) flat hit-pixel indices of the
-    (H, W) = shape image. ``denoiser(img, albedo, normal) -> img`` replaces OIDN (tests)."""
+    mix None: the slots themselves (entries keep their slots), one image each. mix (K1, R):
+    component r is Σ_s mix[s, r] T_s, stored in slot slot0 + r; with ``obj`` (P,) the object
+    of each hit pixel, the tails of a component are denoised together: D(Σ_t Y_t) once, split
+    among the tails by their shares B(Y_t) / B(Σ_t Y_t) under a box filter B within objects
+    (``share_filter``), so the tails sum to the denoised sum exactly and a frame at any
+    diffuse equivalents weighs smooth images (module docstring); without ``obj``, one image
+    per (component, tail). pixel (P,) flat hit-pixel indices of the (H, W) = shape image.
+    weights (M, slots or components) per probe material the coefficient of each
+    (``slot_weights``): an image is left raw only if, under every probe, the images left raw
+    hold less than 1 − ENERGY_SHARE of the bounce's energy (None: magnitude alone).
+    ``denoiser(img, albedo, normal) -> img`` replaces OIDN (tests)."""
     H, W = shape
     P = len(b.offsets) - 1
     pix, slot, tail, val = _entries(b)
@@ -197,26 +281,65 @@ def denoise_bounce(b: Bounce, pixel: np.ndarray, shape: tuple[int, int], albedo:
     groups = np.flatnonzero(np.r_[True, key_s[1:] != key_s[:-1]]) if len(key_s) else np.zeros(0, np.int64)
     bounds = np.r_[groups, len(key_s)]
     energy = np.add.reduceat(np.abs(val[order]).sum(1), groups) if len(groups) else np.zeros(0)
-    rank = np.argsort(-energy, kind="stable")
-    cum = np.cumsum(energy[rank]) / max(float(energy.sum()), 1e-300)
     todo = np.zeros(len(groups), bool)
-    todo[rank[:int(np.searchsorted(cum, ENERGY_SHARE)) + 1]] = True
-    out_cols = []                                 # (key, per-pixel values (P, 3))
+    probes = np.ones((1, 1)) if weights is None else np.asarray(weights, np.float64)
+    for w in probes:
+        e = energy * (w[key_s[groups] // T] if weights is not None and len(groups) else 1.0)
+        rank = np.argsort(-e, kind="stable")
+        cum = np.cumsum(e[rank]) / max(float(e.sum()), 1e-300)
+        todo[rank[:int(np.searchsorted(cum, ENERGY_SHARE)) + 1]] = True
     img = np.zeros((H * W, 3), np.float32)
     images = 0
-    for g in range(len(groups)):
+
+    def column(g):
         idx = order[bounds[g]:bounds[g + 1]]
-        k = int(key_s[bounds[g]])
         dense = np.zeros((P, 3), np.float32)
         np.add.at(dense, pix[idx], val[idx])
+        return dense
+
+    def denoised(dense):
+        img[:] = 0.0
+        img[pixel] = dense
+        return np.maximum(fn(img.reshape(H, W, 3), albedo, normal).reshape(H * W, 3)[pixel], 0.0)
+
+    cols: dict[int, np.ndarray] = {}               # group key -> per-pixel values (P, 3)
+    merge = mix is not None and obj is not None
+    if merge:
+        oimg = np.full(H * W, -1, np.int64)
+        oimg[pixel] = obj
+        box = share_filter(oimg.reshape(H, W), share_width(W))
+        comp = key_s[groups] // T
+        for r in np.unique(comp[todo]):
+            gs = np.nonzero(todo & (comp == r))[0]
+            Y = np.stack([column(g) for g in gs], 1)                       # (P, n, 3)
+            total = Y.sum(1)
+            if not np.any(total):
+                continue
+            D = denoised(total)
+            images += 1
+            full = np.zeros((H * W, len(gs) * 3), np.float32)
+            full[pixel] = Y.reshape(P, -1)
+            Bt = box(full.reshape(H, W, -1)).reshape(H * W, len(gs), 3)[pixel]   # (P, n, 3)
+            Bs = Bt.sum(1)
+            # shares of the smoothed tails; where the box saw nothing, the pixel's own
+            ok = Bs > 1e-30 * max(float(Bs.max()), 1e-30)
+            own = total > 0
+            share = np.where(ok[:, None], Bt / np.where(ok, Bs, 1.0)[:, None],
+                             np.where(own[:, None], Y / np.where(own, total, 1.0)[:, None], 0.0))
+            for j, g in enumerate(gs):
+                cols[int(key_s[bounds[g]])] = D * share[:, j]
+    for g in range(len(groups)):
+        k = int(key_s[bounds[g]])
+        if k in cols:
+            continue
+        dense = column(g)
         if not np.any(dense):
             continue
-        if todo[g]:
-            img[:] = 0.0
-            img[pixel] = dense
-            dense = np.maximum(fn(img.reshape(H, W, 3), albedo, normal).reshape(H * W, 3)[pixel], 0.0)
+        if todo[g] and not merge:
+            dense = denoised(dense)
             images += 1
-        out_cols.append((k, dense))
+        cols[k] = dense
+    out_cols = sorted(cols.items())
     keys = np.array([k for k, _ in out_cols], np.int64)
     vals = np.stack([v for _, v in out_cols], 1) if out_cols else np.zeros((P, 0, 3), np.float32)  # (P, G, 3)
     amax = np.abs(vals).max(axis=(1, 2)) if vals.size else np.zeros(P, np.float32)

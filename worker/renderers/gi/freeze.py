@@ -17,7 +17,7 @@ and ``frame_numpy`` are the references of the C kernels ``gi_freeze`` / ``gi_fra
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -88,9 +88,13 @@ class Frozen:
     live (Q,) int64 indices of the hit pixels on unit i, h (Q,) float32 its weight there,
     scale (Q,) float32 per live pixel, and F^i (eq. 27) in one of two layouts:
 
-    * dense (K2 = 1, the (J, 1, …) series): ``dense`` (Q, NPe, 3, S) uint16 half floats,
-      [power n][channel][slot], slots padded with zeros to S (a multiple of 8) for SIMD, NPe the
-      largest power present + 1;
+    * dense (K2 = 1, the (J, 1, …) series): ``dense`` (Q, Wd) uint16 half floats holding, for
+      each power n < NPe of d_i, the slots lo[n] … lo[n] + width[n] − 1 only (width a multiple
+      of 8 for SIMD, zero padded beyond the last slot): a block of 3·width[n] columns at
+      ``block_offsets[n]``, [channel][slot − lo[n]]. Only the slots the live entries of each
+      power reach are kept: with denoised tensors the powers ≥ 1 come from the indirect bounces
+      alone, which live on a few hat components (denoise.py), so most of the (power, slot) grid
+      is empty;
     * sparse (J2 series): offsets (Q + 1,) int64 into entries (m, 4) uint16 = [key, r, g, b],
       key = (slot·K2 + k)·NP + n, 8 bytes an entry.
     """
@@ -104,10 +108,51 @@ class Frozen:
     offsets: np.ndarray | None = None
     entries: np.ndarray | None = None
     dense: np.ndarray | None = None
+    lo: np.ndarray | None = None
+    width: np.ndarray | None = None
+    # per-frame lookups derived once (qpos, dense_cells)
+    _memo: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def qpos(self, P: int) -> np.ndarray:
+        """(P,) int64 position of each hit pixel among the live ones, −1 elsewhere."""
+        q = self._memo.get("qpos")
+        if q is None or len(q) != P:
+            q = np.full(P, -1, np.int64)
+            q[self.live] = np.arange(len(self.live))
+            self._memo["qpos"] = q
+        return q
 
     @property
     def NPe(self) -> int:
-        return self.dense.shape[1] if self.dense is not None else self.NP
+        return len(self.lo) if self.dense is not None else self.NP
+
+    @property
+    def block_offsets(self) -> np.ndarray:
+        """(NPe,) int32 first column of each power's block in ``dense``."""
+        return np.concatenate([[0], np.cumsum(3 * self.width)[:-1]]).astype(np.int32)
+
+    def dense_cells(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(slot, power, channel) (Wd,) int64 of each column of ``dense``; the padding columns
+        past the last slot (slot ≥ K1) hold zeros and are masked by the callers."""
+        if "cells" in self._memo:
+            return self._memo["cells"]
+        slot, pw, ch = [], [], []
+        for n, (lo, w) in enumerate(zip(self.lo, self.width)):
+            j = np.arange(int(w))
+            for c in range(3):
+                slot.append(lo + j); pw.append(np.full(len(j), n)); ch.append(np.full(len(j), c))
+        cat = lambda x: np.concatenate(x).astype(np.int64) if x else np.zeros(0, np.int64)
+        self._memo["cells"] = cat(slot), cat(pw), cat(ch)
+        return self._memo["cells"]
+
+    def dense_full(self, rows: np.ndarray, K1: int) -> np.ndarray:
+        """(len(rows), NPe, 3, K1) float64 F^i of the live rows ``rows`` from the dense layout
+        (scaled like ``dense``: times ``scale`` for the radiance)."""
+        slot, pw, ch = self.dense_cells()
+        ok = (slot >= 0) & (slot < K1)
+        out = np.zeros((len(rows), self.NPe, 3, K1))
+        out[:, pw[ok], ch[ok], slot[ok]] = self.dense.view(np.float16)[rows][:, ok].astype(np.float64)
+        return out
 
     @property
     def key(self) -> np.ndarray:
@@ -128,15 +173,20 @@ class Frozen:
         return sum(a.nbytes for a in arrs)
 
 
-def padded_slots(K1: int) -> int:
-    return (K1 + 7) // 8 * 8
+def dense_blocks(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The dense layout's slot ranges from the smallest and largest slot of each power's live
+    entries, lo, hi (NPe,) (hi < 0: none): (lo (NPe,) int32, width (NPe,) int32 a multiple
+    of 8, 0 for a power without entries)."""
+    lo = np.where(hi >= 0, lo, 0).astype(np.int32)
+    width = np.where(hi >= 0, (hi - lo + 1 + 7) // 8 * 8, 0).astype(np.int32)
+    return lo, width
 
 
-def use_dense(K1: int, K2: int, NP: int, NPe: int, Q: int, sparse_bound: int) -> bool:
+def use_dense(K2: int, width: np.ndarray, Q: int, sparse_bound: int) -> bool:
     """The dense live layout when it is possible (K2 = 1) and at most twice the bytes of the
     sparse one's upper bound (its SIMD loop streams about twice as fast per byte); sparse
-    tensors from few paths per pixel stay sparse."""
-    return K2 == 1 and Q * NPe * 3 * padded_slots(K1) * 2 <= 2 * 8 * sparse_bound
+    tensors from few paths per pixel stay sparse. width (NPe,) the blocks' slot counts."""
+    return K2 == 1 and Q * 3 * int(np.sum(width)) * 2 <= 2 * 8 * sparse_bound
 
 
 def sparse_bound(bounces, live: np.ndarray, K1: int, K2: int, NP: int) -> np.ndarray:
@@ -165,7 +215,7 @@ def freeze_numpy(bounces: list[Bounce], tables, pu: PixelUnits, C1: np.ndarray, 
     live = np.nonzero(h > 0)[0]
     qpos = np.full(P, -1, np.int64); qpos[live] = np.arange(len(live))
     Fd = np.zeros((len(live), K1, K2, NP, 3))
-    npmax = 0
+    lo = np.full(NP, K1, np.int64); hi = np.full(NP, -1, np.int64)
     for b, (kk, n, A) in zip(bounces, tables):
         cnt = np.diff(b.offsets)
         pix = np.repeat(np.arange(P), cnt)
@@ -176,20 +226,22 @@ def freeze_numpy(bounces: list[Bounce], tables, pu: PixelUnits, C1: np.ndarray, 
         q = qpos[pix]
         m = q >= 0
         np.add.at(Fd, (q[m], s[m], k_[m], n_[m]), v[m])
-        npmax = max(npmax, int(n_[m].max()) if m.any() else 0)
+        np.minimum.at(lo, n_[m], s[m]); np.maximum.at(hi, n_[m], s[m])
     # half floats with a scale per live pixel
     Q = len(live)
     flat = Fd.reshape(Q, K1 * K2 * NP, 3)
     amax = np.abs(flat).max(axis=(1, 2)) if Q else np.zeros(0)
     scale = np.where(amax > 0, amax / SCALE_MAX, 1.0).astype(np.float32)
-    NPe = npmax + 1
-    if use_dense(K1, K2, NP, NPe, Q, int(sparse_bound(bounces, live, K1, K2, NP)[-1])):
-        S = padded_slots(K1)
-        dense = np.zeros((Q, NPe, 3, S), np.float16)
-        q16 = (Fd[:, :, 0, :NPe, :] / scale[:, None, None, None]).astype(np.float16)     # (Q, K1, NPe, 3)
-        dense[..., :K1] = q16.transpose(0, 2, 3, 1)
-        return Frozen(i, K2, NP, V.astype(np.float32), live.astype(np.int64), h[live], scale,
-                      dense=dense.view(np.uint16))
+    NPe = int(np.nonzero(hi >= 0)[0].max()) + 1 if (hi >= 0).any() else 1
+    blo, width = dense_blocks(lo[:NPe], hi[:NPe])
+    if use_dense(K2, width, Q, int(sparse_bound(bounces, live, K1, K2, NP)[-1])):
+        fz = Frozen(i, K2, NP, V.astype(np.float32), live.astype(np.int64), h[live], scale, lo=blo, width=width)
+        slot, pw, ch = fz.dense_cells()
+        ok = (slot >= 0) & (slot < K1)
+        dense = np.zeros((Q, len(slot)), np.float16)
+        dense[:, ok] = (Fd[:, slot[ok], 0, pw[ok], ch[ok]] / scale[:, None]).astype(np.float16)
+        fz.dense = dense.view(np.uint16)
+        return fz
     qv = (flat / scale[:, None, None]).astype(np.float16)
     qi, cell = np.nonzero((qv != 0).any(-1))
     offsets = np.concatenate([[0], np.cumsum(np.bincount(qi, minlength=Q))]).astype(np.int64)
@@ -214,8 +266,11 @@ def frame_numpy(fz: Frozen, pu: PixelUnits, C1i: np.ndarray, ck: np.ndarray, d: 
     B = np.einsum("pknc,knc->pc", fz.V.astype(np.float64), ckn)
     if len(fz.live) and fz.dense is not None:
         c = lerp_coeffs(C1i.astype(np.float64), pu.k0[fz.live], pu.t[fz.live])   # (Q, K1, 3)
-        F = fz.dense.view(np.float16)[..., :K1].astype(np.float64)                # (Q, NPe, 3, K1)
-        acc = np.einsum("qnck,qkc,nc->qc", F, c, dp[:fz.NPe])
+        slot, pw, ch = fz.dense_cells()
+        ok = (slot >= 0) & (slot < K1)
+        F = fz.dense.view(np.float16)[:, ok].astype(np.float64)                   # (Q, cells)
+        term = F * c[:, slot[ok], ch[ok]] * dp[pw[ok], ch[ok]]
+        acc = np.stack([term[:, ch[ok] == k].sum(1) for k in range(3)], 1)
         B[fz.live] += (fz.h * fz.scale)[:, None] * acc
     elif len(fz.live):
         c = lerp_coeffs(C1i.astype(np.float64), pu.k0[fz.live], pu.t[fz.live])   # (Q, K1, 3)

@@ -265,7 +265,9 @@ def tensor_key(scene, opts: GIOptions, region_images: list[np.ndarray]) -> str:
         anisotropic=[a.model_dump(mode="json", exclude={"material"}) for a in opts.anisotropic],
         series=list(opts.series), spp=opts.spp, fresnel=opts.fresnel,
         quotients=unit_layout(scene, opts).quotients(scene, opts), seed=opts.seed,
-        **({"denoise": [denoise.HATS, denoise.ENERGY_SHARE]} if opts.denoise else {}))
+        **({"denoise": [denoise.HATS, denoise.ENERGY_SHARE, denoise.QUALITY, "tails-together", denoise.SHARE_WIDTH,
+                       "weighted", denoise.PROBE_ALPHAS]}
+           if opts.denoise else {}))
 
 
 _MATERIAL = TypeAdapter(Material)

@@ -121,23 +121,31 @@ class GIPrecomputation(Precomputation):
         return GIData(meta, arrays["pixel"], arrays["obj"], tensors.bounces_from(arrays, meta["bounces"]), opts)
 
 
-def denoise_tensors(scene, S, bounces, denoiser=None):
+def denoise_tensors(scene, S, bounces, denoiser=None, quality: str | None = None, together: bool = True):
     """Every basis image of the tensors denoised (denoise.py): direct light per slot, further
-    bounces per hat component; returns (bounces, meta["denoise"]). ``denoiser(img, albedo,
-    normal)`` replaces OIDN (tests)."""
+    bounces per hat component, their tails together (``together``, else one image per tail);
+    returns (bounces, meta["denoise"]). ``denoiser(img, albedo, normal)`` replaces OIDN
+    (tests); ``quality`` OIDN's (default denoise.QUALITY)."""
     cam = scene.spec.camera
     shape = (cam.height, cam.width)
     alb, nrm = dn.guides(S.prim, S.fixed, [getattr(m, "albedo", (1.0, 1.0, 1.0)) for m in S.fixed_materials], shape)
     out, images = [], 0
     phis = dn.component_sets(S.J, S.layers, S.N)
     offs = dn.component_offsets(S.K1, phis)
+    quality = quality or dn.QUALITY
+    c0 = time.process_time()
+    editable = ~np.asarray(S.fixed, bool)
+    qk = np.asarray(S.qkind)[editable] if editable.any() else [0]
+    w = dn.slot_weights(S.J, S.layers, qk, phis)
     for k, b in enumerate(bounces, start=1):
         c = min(k - 2, len(phis) - 1)
         nb, n = dn.denoise_bounce(b, S.prim.pixel, shape, alb, nrm, None if k == 1 else phis[c], 0 if k == 1 else offs[c],
-                                    denoiser=denoiser)
+                                    quality=quality, denoiser=denoiser, obj=S.prim.obj if together else None,
+                                    weights=w[0] if k == 1 else w[1 + c])
         out.append(nb)
         images += n
-    return out, {"hats": list(dn.HATS[:len(phis)]), "components": [int(p.shape[1]) for p in phis], "images": images}
+    return out, {"hats": list(dn.HATS[:len(phis)]), "components": [int(p.shape[1]) for p in phis], "images": images,
+                 "quality": quality, "tails_together": bool(together), "cpu_seconds": time.process_time() - c0}
 
 
 @dataclass
@@ -190,9 +198,13 @@ class GIRenderer(Renderer):
     kind = KIND
     controls = DECLARATION.controls
     capabilities = frozenset({"stroke_fit", "polynomial_transfer", "live_object"})
-    # every precomputed pixel of the object is a fit row (a row costs a lookup into the frozen
-    # tensors, not a transfer; the fitter's row bound keeps the solve small)
+    # fit rows: every precomputed pixel of the object up to a grid of FIT_PIXELS, then every
+    # other (or third…) one: a row costs a lookup into the frozen tensors, not a transfer, but
+    # the painted rows are not bounded by the fitter (its bound is on the unpainted ones), and a
+    # stroke at 640×480 paints 4× the pixels of the same stroke at 320×240 for the same
+    # information; the instance sets it from the view's size
     stroke_fit_scale = 1.0
+    FIT_PIXELS = 320 * 240
 
     def __init__(self, scene, data: GIData, kernels=None, max_bounces: int | None = None):
         super().__init__(scene, data, kernels)
@@ -217,6 +229,8 @@ class GIRenderer(Renderer):
         self.N = m["bounces"]
         self.K2 = 1 if self.J2 <= 1 else 1 + second_codes(self.J2)
         self.max_bounces = self.N if max_bounces is None else int(max_bounces)
+        cam = scene.spec.camera
+        self.stroke_fit_scale = min(1.0, float(np.sqrt(self.FIT_PIXELS / (cam.width * cam.height))))
         geo = Geometry(scene)
         self.prim: Primary = primary_hits(geo, scene, self.k)
         if len(self.prim.pixel) != len(data.pixel) or not np.array_equal(self.prim.pixel, data.pixel):

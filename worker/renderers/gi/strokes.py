@@ -148,7 +148,7 @@ class Sampled:
         rows, q = np.nonzero(on)[0], pos[on]
         w = (h_all[hit[rows]] * fz.scale[q]).astype(np.float64)
         if fz.dense is not None:
-            F = fz.dense.view(np.float16)[q][..., :K1].astype(np.float64)           # (nq, NPe, 3, K1)
+            F = fz.dense_full(q, K1)                                                 # (nq, NPe, 3, K1)
             r, n, s = np.nonzero(np.any(F != 0, axis=2))
             self.row = rows[r].astype(np.int64)
             self.slot, self.kk, self.pw = s.astype(np.int64), np.zeros(len(r), np.int64), n.astype(np.int64)
