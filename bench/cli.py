@@ -218,9 +218,9 @@ def add_bench_commands(bsub) -> None:
     br = bsub.add_parser("render", help="frame time while light and BRDF change")
     br.add_argument("scene"); br.add_argument("--frames", type=int, default=60); br.add_argument("--json", action="store_true")
     br.add_argument("--per-pixel", action="store_true", help="the same as --shading pixel")
-    br.add_argument("--shading", choices=("vertex", "refined", "pixel"), default="vertex",
-                    help="vertex (default: vertex shading, interpolated), refined (per pixel too where that is "
-                         "wrong), pixel")
+    br.add_argument("--shading", choices=("vertex", "refined", "pixel"), default="refined",
+                    help="refined (default: vertex shading, per pixel where its interpolation is wrong), "
+                         "vertex (the interpolation alone), pixel")
     br.add_argument("--cuts"); br.add_argument("--tau", type=float, default=DEFAULT_TAU)
     br.set_defaults(fn=cmd_bench_render)
     ba = bsub.add_parser("accuracy", help="relative RMSE of each shading mode against Mitsuba 3 (GGX α list)")

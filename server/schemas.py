@@ -67,9 +67,9 @@ class RenderRequest(Strict):
     materials: dict[str, Material] = Field(default_factory=dict, max_length=MAX_OBJECTS, description="per object name")
     transforms: dict[str, Transform] = Field(default_factory=dict, max_length=MAX_OBJECTS, description="per object name: where the scene's "
                                              "movable objects stand (\"movable\": true; nothing is precomputed again)")
-    mode: Literal["vertex", "refined", "pixel"] = Field(
-        "vertex", description="cut renderer shading: vertex (vertex shading interpolated), refined (per pixel too where "
-                              "that interpolation is wrong) or pixel (every pixel)")
+    mode: Literal["refined", "vertex", "pixel"] = Field(
+        "refined", description="cut renderer shading: refined (the default: vertex shading, per pixel where its "
+                               "interpolation is wrong), vertex (the interpolation alone) or pixel (every pixel)")
     format: Literal["png", "exr"] = "png"
     exposure: float = Field(0.0, ge=-20, le=20)
     tone: Literal["linear", "aces", "neutral"] = "neutral"

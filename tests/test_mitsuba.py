@@ -63,10 +63,10 @@ def test_ggx_bunny_matches_mitsuba_per_pixel(bunny_renderer, artifacts):
 
 
 @pytest.mark.slow
-def test_refined_mode_has_per_pixel_accuracy_on_a_glossy_bunny(bunny_renderer, cache_dir, artifacts):
-    """GGX α = 0.15 on the bunny under sunset at 320×240 (faces of ~5 pixels): the refined
-    mode must be within 1.5× of pixel mode's error against Mitsuba, where Gouraud
-    interpolation of vertex shading alone (``vertex``, the default) is not. Reference: two 256-spp renders,
+def test_default_mode_has_per_pixel_accuracy_on_a_glossy_bunny(bunny_renderer, cache_dir, artifacts):
+    """GGX α = 0.15 on the bunny under sunset at 320×240 (faces of ~5 pixels): the default
+    (``refined``) mode must be within 1.5× of pixel mode's error against Mitsuba, where Gouraud
+    interpolation of vertex shading alone (``vertex``) is not. Reference: two 256-spp renders,
     cached in tests/.cache/mitsuba by content (fit/recovery.py mitsuba_target)."""
     from PIL import Image
 
@@ -83,6 +83,8 @@ def test_refined_mode_has_per_pixel_accuracy_on_a_glossy_bunny(bunny_renderer, c
     ref, imgs = mitsuba_target(sc, 256, (1, 2), cache_dir / "mitsuba")
     rel = {}
     for mode in ("vertex", "refined", "pixel"):
+        if mode == "refined":       # the default
+            assert FrameRequest(camera=spec.camera).shading == mode
         out = r.render(FrameRequest(camera=spec.camera, materials=[mat], shading=mode))
         inner = binary_erosion(out.object_id >= 0, iterations=2)
         norm = np.sqrt((ref[inner] ** 2).mean())

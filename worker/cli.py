@@ -123,7 +123,7 @@ def load_material_overrides(scene, specs) -> list:
     return mats
 
 
-def _frame(r, materials=None, shading="vertex", rotation_deg=None, camera=None, lod="full", samples=1):
+def _frame(r, materials=None, shading="refined", rotation_deg=None, camera=None, lod="full", samples=1):
     from .renderers import FrameRequest, Lighting
 
     spec = r.scene.spec
@@ -141,7 +141,7 @@ def cmd_render(a) -> int:
     r, ens = _renderer(a, quiet=a.json)
     mats = load_material_overrides(r.scene, a.material)
     t0 = time.perf_counter()
-    img = _frame(r, mats, "pixel" if a.per_pixel else "vertex", samples=a.samples).radiance
+    img = _frame(r, mats, "pixel" if a.per_pixel else "refined", samples=a.samples).radiance
     dt = time.perf_counter() - t0
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)

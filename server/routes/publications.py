@@ -61,7 +61,7 @@ class BundleIn(BaseModel):
     width: int | None = Field(None, ge=16, le=4096, description="1× frame width; default: the scene camera's")
     height: int | None = Field(None, ge=16, le=4096, description="1× frame height; default: the scene camera's")
     samples: int = Field(1, ge=1, le=8, description="samples per pixel of the 2× frame (the 1× frame has 4× as many)")
-    shading: Literal["vertex", "refined", "pixel"] = "vertex"
+    shading: Literal["refined", "vertex", "pixel"] = "refined"
     tone: Literal["neutral", "aces", "linear"] = "neutral"
     exposure: float = Field(0.0, ge=-10, le=10)
     ground_shadow: bool | None = Field(None, description="default: the scene's ground (objects standing on it)")

@@ -462,3 +462,23 @@ def test_the_background_builder_runs_below_the_sessions():
     here = os.getpriority(os.PRIO_PROCESS, 0)
     there = fit_driver._builder.submit(lambda: os.getpriority(os.PRIO_PROCESS, threading.get_native_id())).result()
     assert there == min(19, here + fit_driver.BUILDER_NICE), (here, there)
+
+
+def test_settled_frames_are_refined_and_moving_ones_interpolated(bunny_renderer):
+    """The default mode where it is looked at: a session's settled (anti-aliased) frame is
+    shaded per pixel where vertex interpolation is wrong (refined), its one-sample frames while
+    the camera moves are interpolated alone (an orbit refined ran at half the rate)."""
+    r = bunny_renderer
+    st = new_state(r.scene.spec, materials=[GGX(alpha=0.1, albedo=(0.1, 0.1, 0.1), specular=(0.8, 0.8, 0.8)).model_dump()])
+    rt = SessionRuntime(r.scene, CutRenderer(r.scene, r.data), {"state": st.model_dump(mode="json"), "strokes": []})
+    seen = []
+    real = rt.renderer.render
+    rt.renderer.render = lambda req: seen.append((req.samples, req.shading)) or real(req)
+    rt.frame(-1)                                     # the first frame: one sample (no hits traced yet)
+    rt.handle({"seq": 1, "type": "view", "eye": [0.4, 0.7, 3.0]})
+    rt.frame(1)                                      # the camera moved: one sample
+    assert rt.needs_still_frame()
+    hdr, _ = rt.frame(1)                             # the settled frame
+    assert hdr["samples"] > 1
+    assert [sh for s, sh in seen if s == 1] and all(sh == "vertex" for s, sh in seen if s == 1), seen
+    assert seen[-1] == (hdr["samples"], "refined"), seen

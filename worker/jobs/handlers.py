@@ -44,7 +44,7 @@ def _render(cache: DataCache, p: dict) -> dict:
             raise JobError(f"transforms: no object {name!r} in the scene (objects: {', '.join(names)})")
         transforms[name] = Transform.model_validate(t)
     out = r.render(FrameRequest(camera=cam, lighting=Lighting(rot, inten), materials=mats,
-                                shading=p.get("mode", "vertex"), transforms=transforms or None))
+                                shading=p.get("mode", "refined"), transforms=transforms or None))
     img = out.radiance
     if p.get("format") == "exr":
         import tempfile

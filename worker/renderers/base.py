@@ -67,9 +67,10 @@ class FrameRequest:
         "quick": a first frame shown at once before the anti-aliased still (full resolution;
         the cut renderer draws one sample with clusters refined to its drag level; renderers
         without such a level treat it as "full").
-    shading : renderer-specific shading mode (for cuts: "vertex", the default, vertex shading
-        interpolated; "refined", per-pixel shading too where that interpolation is wrong;
-        "pixel", every pixel shaded).
+    shading : renderer-specific shading mode (for cuts: "refined", the default, vertex shading
+        with per-pixel shading where its interpolation is wrong; "vertex", the interpolation
+        alone; "pixel", every pixel shaded). A session asks for "vertex" in its one-sample
+        frames while something moves and "refined" in its settled (anti-aliased) frames.
     transforms : object name -> scene.Transform for movable objects (cut renderer).
     samples : primary-visibility samples per pixel (anti-aliasing), ≥ 1.
     vertex_radiance : object index -> (vertex ids (K,) int32, radiance (K, 3) float32), radiance
@@ -90,7 +91,7 @@ class FrameRequest:
     lighting: Lighting = Lighting()
     materials: Sequence[Any] = ()
     lod: str = "full"
-    shading: str = "vertex"
+    shading: str = "refined"
     transforms: Mapping[str, Any] | None = None
     samples: int = 1
     vertex_radiance: Mapping[int, tuple[np.ndarray, np.ndarray]] | None = None

@@ -4,11 +4,10 @@ cyber-worlds eq. 3 / inverse-brdf-modeling eq. 22: B(x, ωo) = Σ_k l_k v_k f_r(
 point's cut, with l_k the map integrated over cluster k (core/lighting.py), v_k its mean
 cosine-weighted visibility and ω_k its light-weighted centroid. Three shading modes:
 
-* ``vertex`` (default): radiance at the vertices of the triangles the camera sees, barycentric
+* ``vertex``: radiance at the vertices of the triangles the camera sees, barycentric
   interpolation per pixel (Gouraud). Its cost scales with the visible vertices; sharp lobes are
-  smeared across a triangle.
-* ``refined`` (opt-in; not the default yet: its anti-aliased stills of a fitted srbf cost
-  several times vertex mode's): vertex shading plus per-pixel shading on the faces where its
+  smeared across a triangle. A session's one-sample frames while something moves.
+* ``refined`` (default; a session's settled frames): vertex shading plus per-pixel shading on the faces where its
   interpolation is wrong: those whose vertices' mirror directions span more than a fraction of
   their material's lobe and whose vertex radiance differs by more than their object's mean
   (refine.py). Per-pixel accuracy for glossy lobes at a cost that scales with the visible
