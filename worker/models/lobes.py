@@ -46,13 +46,28 @@ class Lobes(BRDFModel):
             out += ((e + 2.0) / (2.0 * np.pi) * rv ** e)[..., None] * (gl + np.asarray(dd))
         return out
 
+    def _live(self) -> list[tuple[float, tuple[float, float, float]]]:
+        """(exponent, RGB weight gloss + dd) of the lobes that reflect anything. A paint fit on
+        the fixed basis leaves most of its 24-32 lobes at zero (a 100 GU paint: one of 24), and
+        the kernels evaluate a pow() per lobe per light cluster: a refined 640×480 frame of the
+        test bunny cost 31 CPU s with all 24 packed."""
+        out = []
+        for e, g, dd in zip(self.exponents, self.gloss, self.directional_diffuse):
+            w = (g + dd[0], g + dd[1], g + dd[2])
+            if max(w) > 0:
+                out.append((float(e), w))
+        return out
+
     def lobe_width(self) -> float:
-        return 2.0 / np.sqrt(max(self.exponents) + 2.0)
+        """Radians: the sharpest lobe that reflects anything (π when none does)."""
+        live = [e for e, _ in self._live()]
+        return 2.0 / np.sqrt(max(live) + 2.0) if live else np.pi
 
     def pack(self) -> PackedBRDF:
-        p = [*self.albedo, float(len(self.exponents))]
-        for e, g, dd in zip(self.exponents, self.gloss, self.directional_diffuse):
-            p += [e, g + dd[0], g + dd[1], g + dd[2]]
+        live = self._live()
+        p = [*self.albedo, float(len(live))]
+        for e, w in live:
+            p += [e, *w]
         return PackedBRDF("lobes", p, self.specular_part, lobe_width=min(np.pi, self.lobe_width()))
 
     @classmethod
