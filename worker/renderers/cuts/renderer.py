@@ -542,9 +542,10 @@ class CutRenderer(Renderer):
             tri = v.tri
             if radius is not None and np.isfinite(radius).any() and len(v.visible):
                 scale = refinemod.object_scale(v.visible, self.scene.object_of_vertex, vert, len(materials))
-                rows, weight = self._refinement(v, camera).select(radius, vert, scale, self.k,
-                                                                  refinemod.SPREAD_FRACTION, refinemod.CONTRAST,
-                                                                  refinemod.RAMP)
+                ref = self._refinement(v, camera)
+                rows, weight = ref.select(radius, vert, scale, self.k, refinemod.SPREAD_FRACTION,
+                                          refinemod.CONTRAST, refinemod.RAMP,
+                                          None if layers is None else ref.face_radius(radius, mats.refine, layers))
                 if len(rows):
                     part = self._pixel_samples(v, camera, rows)
                     px = self._shade_chunked(part, cuts, node_l, node_w, mats, node8, req.cancelled, layers)
