@@ -45,8 +45,11 @@ def test_full_frames_while_dragging_when_they_fit_the_budget(bunny_renderer):
     assert h["lod"] is False and h["samples"] == 1 and rt.needs_still_frame()
     still, _ = rt.frame(6)
     assert still["lod"] is False and still["samples"] == S.STILL_SAMPLES and not rt.needs_still_frame()
-    # a material change in that settled view is anti-aliased at once: its hits are cached
+    # a material change in that settled view: one sample at once (a new material's settled,
+    # refined frame may cost seconds: a sharp paint), then the still, anti-aliased
     rt.handle({"seq": 7, "type": "material", "material": {"model": "lambert", "albedo": [0.6, 0.3, 0.2]}})
+    h, _ = rt.frame(7)
+    assert h["samples"] == 1 and rt.needs_still_frame()
     h, _ = rt.frame(7)
     assert h["samples"] == S.STILL_SAMPLES and not rt.needs_still_frame()
 
