@@ -68,7 +68,8 @@ def publish_body(sid: str, env2: str, ids: list[str], bundle: dict) -> dict:
 
 def bench_publish(azimuths: int = 72, elevations: int = 2, width: int = 640, height: int = 480,
                   port: int | None = None, data_dir: str | None = None, workers: int | None = None,
-                  scene: str | None = None, quiet: bool = False, keep: bool = False, env2: str | None = None):
+                  scene: str | None = None, quiet: bool = False, keep: bool = False, env2: str | None = None,
+                  samples: int | None = None):
     """Build a bundle of 2 variants × 2 environments × ``azimuths`` × ``elevations`` at
     width × height (and its 2× set), then republish with one variant changed. Returns the
     figures (and, with keep, the running server and the publication id)."""
@@ -83,6 +84,8 @@ def bench_publish(azimuths: int = 72, elevations: int = 2, width: int = 640, hei
         els = default_elevations(cam)
         els = (els + [min(80.0, els[-1] + 20.0 * k) for k in range(1, 4)])[:elevations]
         bundle = {"azimuths": azimuths, "elevations_deg": els, "width": width, "height": height}
+        if samples is not None:         # else the service's default
+            bundle["samples"] = samples
         body = publish_body(sid, env2, ids, bundle)
         with httpx.Client(base_url=srv.base, timeout=600) as c:
             cpu0 = srv.cpu_seconds()
@@ -263,7 +266,7 @@ class _LocalCache:
 
 
 def frame_cost(scene: str | None = None, cameras: int = 4, width: int = 640, height: int = 480,
-               env2: Path = SECOND_ENV) -> dict:
+               env2: Path = SECOND_ENV, samples: int | None = None, shading: str | None = None) -> dict:
     """CPU seconds per view of the bundle_frames job, in this process (all its threads:
     time.process_time), over ``cameras`` cameras × 2 variants × 2 environments at width ×
     height, by stage: the machine's other load does not count, so it bounds the build time of
@@ -293,7 +296,9 @@ def frame_cost(scene: str | None = None, cameras: int = 4, width: int = 640, hei
     payload = {"renderer": "cuts", "parts": {"scene": hashlib.sha256(path.read_bytes()).hexdigest()},
                "files": {o["mesh"]: {"sha256": o["mesh"]} for o in spec["objects"]}, "spec": spec}
     opts = {"azimuths": 72, "elevations_deg": default_elevations(spec["camera"]), "width": width, "height": height,
-            "samples": 1, "shading": "vertex", "tone": "neutral", "exposure": 0.0,
+            # the service's defaults (docs/guides/publishing.md) unless asked
+            "samples": 1 if samples is None else samples,
+            "shading": shading or "refined", "tone": "neutral", "exposure": 0.0,
             "ground_shadow": bool(spec.get("ground")),
             "encode": {"avif_quality": 60, "avif_quality_2x": 40, "avif_speed": 10, "jpeg_quality": 85}}
     pl = plan(payload, spec["objects"][0]["name"], [v["material"] for v in VARIANTS], env_list, opts)
@@ -307,7 +312,8 @@ def frame_cost(scene: str | None = None, cameras: int = 4, width: int = 640, hei
         res = render_frames(cache, {**job, "views": views}, lambda f, m: None)
         cpu, wall = time.process_time() - c0, time.perf_counter() - t0
     n = len(views)
-    return {"views": n, "width": width, "height": height, "cpu_s_per_view": round(cpu / n, 4),
+    return {"views": n, "width": width, "height": height, "samples": opts["samples"], "shading": opts["shading"],
+            "cpu_s_per_view": round(cpu / n, 4),
             "wall_s_per_view": round(wall / n, 4), "stage_ms_per_view": {k: round(v / n, 1) for k, v in res["ms"].items()},
             "bytes_per_view": round(sum(sum(m["bytes"].values()) for m in res["meta"].values()) / n),
             "idle_2core_estimate_s_576_views": round(576 * cpu / n / 2, 1)}
@@ -335,12 +341,13 @@ def bench_viewer_static(publication: str, data_dir: str, clients: int = 1000, ra
         out = {"publication": publication, "clients": clients, "shopper": {
             "requests": len(shop["urls"]), "frame_requests": frames, "on_open": shop["on_open"],
             "first_image_ms": shop["first_image_ms"], "turn": shop["turn"],
+            "opening_ms": shop["times_ms"][shop["on_open"] - 1] if shop["on_open"] else None,
             "viewport": shop["viewport"], "dpr": shop["dpr"], "first": shop["urls"][:6]}, "runs": []}
         mem0, cpu0 = srv.memory(), srv.cpu_seconds()
         for rate in rates:
             n0, s0 = ngx.cpu_seconds(), srv.cpu_seconds()
             r = h2load(ngx.base_h2, shop["urls"], clients, int(rate), nice=nice, visit_s=visit_s,
-                       on_open=shop["on_open"])
+                       on_open=shop["on_open"], times_ms=shop["times_ms"])
             n1, s1 = ngx.cpu_seconds(), srv.cpu_seconds()
             r["server"] = server_times(ngx.rotate_log())
             r["nginx_cpu_seconds"] = round(n1 - n0, 2)

@@ -186,21 +186,28 @@ def shopper_requests(base: str, pid: str, viewport=(1280, 860), dpr: float = 1.0
     (a cold cache), its player preloads the bundle, then the shopper picks the second variant
     and the player preloads that; recorded until the player has nothing left to load (turning
     afterwards requests nothing: ``turn_rate`` turns it between the two and counts its requests).
-    Returns {"urls": [path?query in request order], "on_open": requests before the variant
-    switch, "first_image_ms", "viewport", "dpr", "turn": turn_rate's figures and "requests"}."""
+    Returns {"urls": [path?query in request order], "times_ms": when Chromium sent each (ms after
+    the first: the player's own pacing, six in flight, the frame on screen first), "on_open":
+    requests before the variant switch, "first_image_ms", "viewport", "dpr", "turn": turn_rate's
+    figures and "requests"}."""
     from urllib.parse import urlsplit
 
     from playwright.sync_api import sync_playwright
 
-    urls = []
+    urls, sent = [], []
+
+    def on_request(r):
+        if urlsplit(r.url).netloc == urlsplit(base).netloc:
+            urls.append(r.url)
+            sent.append(time.perf_counter())
+
     with sync_playwright() as p:
         b = p.chromium.launch(executable_path=shutil.which("chromium") or "/usr/bin/chromium", headless=True,
                               args=["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage"])
         try:
             ctx = b.new_context(viewport={"width": viewport[0], "height": viewport[1]}, device_scale_factor=dpr)
             page = ctx.new_page()
-            page.on("request", lambda r: urls.append(r.url) if urlsplit(r.url).netloc == urlsplit(base).netloc
-                    else None)
+            page.on("request", on_request)
             page.goto(f"{base}/view/{pid}")
             page.wait_for_function("() => performance.getEntriesByName('glint-first-frame').length > 0",
                                    timeout=30_000)
@@ -222,31 +229,38 @@ def shopper_requests(base: str, pid: str, viewport=(1280, 860), dpr: float = 1.0
     for u in urls:
         s = urlsplit(u)
         paths.append(s.path + (f"?{s.query}" if s.query else ""))
-    return {"urls": paths, "on_open": on_open, "first_image_ms": round(first, 1), "viewport": list(viewport),
+    times = [round(1e3 * (t - sent[0]), 3) for t in sent]
+    return {"urls": paths, "times_ms": times, "on_open": on_open, "first_image_ms": round(first, 1), "viewport": list(viewport),
             "dpr": dpr, "turn": dict(turn, requests=turned)}
 
 
 def h2load(base: str, paths: list[str], clients: int, rate: int, streams: int = 6, threads: int = 1,
-           nice: int = 0, visit_s: float = 0.0, on_open: int | None = None) -> dict:
+           nice: int = 0, visit_s: float = 0.0, on_open: int | None = None,
+           times_ms: list[float] | None = None) -> dict:
     """``clients`` shoppers replaying ``paths`` each, ``rate`` new ones a second, each on one
     HTTP/2 connection with ``streams`` requests in flight at most; the client runs at
     ``nice``. Returns latency percentiles (ms) over every request, the offered and served
     rates and the client's CPU seconds.
 
     visit_s > 0: each shopper stays on the page that long: its first ``on_open`` requests (the
-    page and the preload) go at once, the rest (the variant switch) ``visit_s`` seconds later,
-    on the same open connection (an h2load timing script). Without it a shopper's requests run
-    back to back and its visit lasts a fraction of a second, so the shoppers connected at once
-    are about ``rate`` × that fraction, not ``clients``; with it, min(clients, rate × visit_s).
-    Caveat: h2load sends a timing script's requests at their time without holding to
-    ``streams`` in flight, so a shopper's opening requests go at once and their latencies include
-    waiting behind each other (the player keeps 6 in flight): an upper bound of the player's."""
+    page and the preload) are sent when the recorded browser sent them (``times_ms``, ms after
+    its first request), the rest (the variant switch) ``visit_s`` seconds later at their own
+    recorded spacing, on the same open connection (an h2load timing script). Without it a
+    shopper's requests run back to back and its visit lasts a fraction of a second, so the
+    shoppers connected at once are about ``rate`` × that fraction, not ``clients``; with it,
+    min(clients, rate × visit_s). h2load sends a timing script's requests at their time whatever
+    is still in flight (an open loop: a loaded server does not slow the senders, as it would slow
+    the player, which waits for one of its six before sending the next), so under load the
+    latencies are an upper bound of the player's; without ``times_ms`` every opening request goes
+    at once, the bound for a player that did not pace at all."""
     exe = need("h2load")
     with tempfile.TemporaryDirectory(prefix="glint-h2load-") as d:
         lst, log = Path(d) / "uris.txt", Path(d) / "requests.tsv"
         if visit_s > 0:
             k = len(paths) if on_open is None else on_open
-            lst.write_text("".join(f"{0.0 if i < k else 1e3 * visit_s:.3f}\t{base}{p}\n" for i, p in enumerate(paths)))
+            t = times_ms or [0.0] * len(paths)
+            at = [t[i] if i < k else 1e3 * visit_s + t[i] - t[k] for i in range(len(paths))]
+            lst.write_text("".join(f"{a:.3f}\t{base}{p}\n" for a, p in zip(at, paths)))
             script = ["--timing-script-file", str(lst)]
         else:
             lst.write_text("".join(f"{base}{p}\n" for p in paths))
@@ -284,6 +298,7 @@ def h2load(base: str, paths: list[str], clients: int, rate: int, streams: int = 
     arrive = clients / max(1, rate)
     return {"clients": clients, "requests_per_shopper": len(paths), "arrival_per_s": rate,
             "arrival_seconds": round(arrive, 1), "visit_seconds": visit_s,
+            "paced": bool(times_ms) and visit_s > 0,
             "shoppers_connected_at_once": int(min(clients, rate * visit_s)) if visit_s > 0 else None, "requests": len(rows), "ok": ok, "failed": n_total - ok,
             "seconds": round(span, 2), "wall_seconds": round(wall, 2),
             "offered_per_s": round(n_total / arrive, 1) if arrive else None,
