@@ -101,3 +101,31 @@ def test_srbf_table_through_the_cached_basis_matches_the_direct_sum():
         got = srbf_table(b.centers, b.bandwidths, coef)
         err = np.abs(got - ref).max() / np.abs(ref).max()
         assert err < 1e-5, f"cached-basis table differs from the direct sum by {err:.2e} (relative to its max)"
+
+
+@pytest.mark.skipif(not native.available(), reason="C kernels not built")
+def test_lobes_pack_only_the_lobes_that_reflect(bunny):
+    """A paint fit leaves most of its fixed lobes at zero: only the others are packed (the kernel
+    evaluates a pow() per packed lobe per cluster), the sharpest of them sets the refine radius,
+    and the kernel still shades as the NumPy reference over every lobe."""
+    from worker.models.lobes import Lobes
+
+    m = Lobes(exponents=[2.0, 30.0, 300.0, 10000.0], gloss=[0.0, 0.05, 0.0, 0.0],
+              directional_diffuse=[(0.1, 0.05, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)],
+              albedo=(0.1, 0.1, 0.1))
+    p = m.pack()
+    assert p.params[3] == 2 and list(p.params[4:12:4]) == [2.0, 30.0]
+    assert p.refine_radius == pytest.approx(Lobes(exponents=[30.0], gloss=[0.05], directional_diffuse=[(0, 0, 0)],
+                                                  albedo=(0.1, 0.1, 0.1)).pack().refine_radius)
+    scene, cuts = bunny
+    tree = get_tree()
+    nl, nw = node_lighting(*LeafLighting(scene.envmap, tree).leaf_radiance(33.0, 1.3), tree)
+    vi = np.random.default_rng(3).choice(len(scene.mesh.vertices), 300, replace=False).astype(np.int32)
+    wo = np.array([0.3, 0.8, 3.0], np.float32) - scene.mesh.vertices[vi]
+    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    mats = MaterialTable([p])
+    mat_of = np.zeros(len(vi), np.int32)
+    a = kernels("native").shade_points(scene.mesh.normals[vi], wo, vi, mat_of, cuts, nl, nw, tree, mats)
+    b = shade_points_numpy(scene.mesh.normals[vi], wo, vi, mat_of, cuts, nl, nw, tree, mats)
+    assert b.max() > 0
+    np.testing.assert_allclose(a, b, rtol=2e-4, atol=1e-6 * b.max())
