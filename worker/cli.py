@@ -183,8 +183,11 @@ def cmd_fit(a) -> int:
         raise _UsageError("--mask goes with --target")
     if a.regions and not a.strokes:
         raise _UsageError("--regions goes with --strokes")
-    r, _ = _renderer(a, quiet=a.json)
+    # the user's files are read before the scene loads (seconds): a bad one fails at once
     sf = files.load_strokes(a.strokes) if a.strokes else None
+    target = files.load_target(a.target) if a.target else None
+    mask = files.load_mask(a.mask) if a.mask else None
+    r, _ = _renderer(a, quiet=a.json)
     fx = _fitter(r, a, sf)
     t0 = time.perf_counter()
     if sf is not None:
@@ -204,8 +207,6 @@ def cmd_fit(a) -> int:
             out = fx.fit(constrained=not a.unconstrained, unpainted_weight=uw)
     else:
         fx.add_view()
-        target = files.load_target(a.target)
-        mask = files.load_mask(a.mask) if a.mask else None
         out = fx.fit_targets([target], [mask], constrained=not a.unconstrained)
     seconds_total = time.perf_counter() - t0
     dest = Path(a.out)
