@@ -53,10 +53,11 @@ test-assets: install
 
 # Two pytest processes (a file's tests stay in one, so its module fixtures are built once): much of
 # the suite waits on servers, browsers and subprocesses, so two keep both cores busy. PYTEST_WORKERS=0
-# runs it in one process.
+# runs it in one process. Files go out in collection order, the slowest folders first
+# (tests/conftest.py SLOW_FIRST).
 PYTEST_WORKERS ?= 2
 test: install browser postgres static tools test-assets
-	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -ra --durations=15 -n $(PYTEST_WORKERS) --dist loadfile $(PYTEST_ARGS)
+	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -ra --durations=15 -n $(PYTEST_WORKERS) --dist loadfile --no-loadscope-reorder $(PYTEST_ARGS)
 
 # The docs site: reference pages generated from the code (CLI parser, openapi.yaml,
 # stream-schema.json), then mkdocs build --strict into site/ (tests/test_docs.py does the same)

@@ -66,6 +66,20 @@ def pytest_configure(config):
     config.addinivalue_line("markers", "both_databases: run this service test on SQLite and on PostgreSQL")
 
 
+# Folders whose files take minutes each (real browsers, servers, databases), handed out first:
+# pytest-xdist gives files to its workers in collection order (the Makefile turns off its own
+# reordering, by number of tests, which put these few-test files last), and when they came last
+# one worker ran them alone while the other idled (make test 15.4 min).
+SLOW_FIRST = ("/web/", "/server/", "/scale/")
+
+
+def pytest_collection_modifyitems(session, config, items):
+    def rank(item):
+        path = "/" + item.nodeid.split("::", 1)[0]
+        return next((k for k, d in enumerate(SLOW_FIRST) if d in path), len(SLOW_FIRST))
+    items.sort(key=rank)                  # stable: each file's own order is kept
+
+
 def pytest_generate_tests(metafunc):
     """Every test that needs ``database`` (through ``server``) gets it as a parameter: sqlite, and
     postgresql too for the tests named above or marked both_databases."""
