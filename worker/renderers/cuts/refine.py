@@ -92,7 +92,6 @@ class Refinement:
         rows = np.nonzero(w > 0)[0]
         return rows, w[rows]
 
-
     def face_radius(self, radius, refine, layers) -> np.ndarray:
         """(F_s,) float32 radians: each seen face's refine radius: its object's (radius (O,),
         ``_refine_radius``), or on an object with regions the narrowest of the layers whose
