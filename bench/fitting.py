@@ -299,7 +299,7 @@ def cmd_bench_regions(a) -> int:
             rnd = _renderer_for(s, env, a.cuts, a.tau, a.json)
             sc = rnd.scene
             name = sc.spec.objects[0].name
-            fx = Fitter(rnd, name, fit_scale=a.fit_scale)
+            fx = Fitter(rnd, name, fit_scale=a.fit_scale or rnd.stroke_fit_scale)
             fx.add_view()
             v = fx.views[0]
             for label, st in standard_strokes(fx):
