@@ -4,6 +4,7 @@ import json
 import os
 from pathlib import Path
 
+from helpers import proc_cpu_s
 from websockets.sync.client import connect
 
 # a live publication with the smallest bundle: these tests are about its sessions
@@ -22,18 +23,6 @@ def _rss_mib(pids) -> float:
     return total / 1024
 
 
-def _cpu_s(pids) -> float:
-    """CPU seconds (user + system) the processes have used."""
-    total = 0
-    for pid in pids:
-        try:
-            f = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-            total += int(f[11]) + int(f[12])
-        except (OSError, ValueError, IndexError):
-            pass
-    return total / os.sysconf("SC_CLK_TCK")
-
-
 def _quiet(pids, timeout: float = 180.0) -> None:
     """Wait until the processes use under 5% of a core over a second: on the server the suite
     shares, work that earlier tests started (a GI scene's precomputation made in the studio) may
@@ -42,9 +31,9 @@ def _quiet(pids, timeout: float = 180.0) -> None:
 
     end = time.monotonic() + timeout
     while time.monotonic() < end:
-        c0 = _cpu_s(pids)
+        c0 = proc_cpu_s(pids)
         time.sleep(1.0)
-        if _cpu_s(pids) - c0 < 0.05:
+        if proc_cpu_s(pids) - c0 < 0.05:
             return
     raise AssertionError(f"the workers stayed busy for {timeout:.0f} s")
 

@@ -15,7 +15,7 @@ import httpx
 import pytest
 import websockets
 
-from helpers import GlintServer, connect, next_frame
+from helpers import GlintServer, connect, next_frame, proc_cpu_s
 from test_security import _upload_scene
 
 VIEWER_LIMIT = 100          # viewer sessions a minute per address in this server
@@ -251,11 +251,6 @@ def _rss_mib(pid: int) -> float:
     return 0.0
 
 
-def _cpu_s(pid: int) -> float:
-    f = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(f[11]) + int(f[12])) / os.sysconf("SC_CLK_TCK")
-
-
 def test_a_camera_over_the_frame_budget_is_refused_and_a_big_frame_gives_its_memory_back(abuse):
     srv, c, scene, _ = abuse
     cam = {"eye": [0.0, 0.6, 3.2], "target": [0.0, 0.1, 0.0], "fov_y_deg": 30}
@@ -304,14 +299,14 @@ def test_a_camera_over_the_frame_budget_is_refused_and_a_big_frame_gives_its_mem
             return pid, before, during
 
     pid, before, during = asyncio.run(go())
-    cpu0, t0 = _cpu_s(pid), time.monotonic()
+    cpu0, t0 = proc_cpu_s([pid]), time.monotonic()
     after = during
     for _ in range(80):       # the session's thread ends, its build under way ends, it releases
         time.sleep(0.25)
         after = _rss_mib(pid)
         if after - before < 0.5 * (during - before):
             break
-    busy = (_cpu_s(pid) - cpu0) / (time.monotonic() - t0)
+    busy = (proc_cpu_s([pid]) - cpu0) / (time.monotonic() - t0)
     print(f"worker RSS: {before:.0f} MiB resting (the scene loaded) before a 1920×1080 session, {during:.0f} MiB with its still "
           f"frame, {after:.0f} MiB {time.monotonic() - t0:.1f} s after it closed (worker CPU meanwhile {busy:.2f} cores)")
     assert during > before + 300, (before, during)           # the frame is big enough to measure
