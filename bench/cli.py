@@ -173,12 +173,12 @@ def cmd_bench_publish(a) -> int:
 
     if a.in_process:
         res = frame_cost(a.scene, cameras=a.cameras, width=a.width, height=a.height, samples=a.samples,
-                         shading=a.shading, **({"env2": Path(a.env2)} if a.env2 else {}))
+                         shading=a.shading, antialias=a.antialias, **({"env2": Path(a.env2)} if a.env2 else {}))
         print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items()))
         return 0
     res = bench_publish(azimuths=a.azimuths, elevations=a.elevations, width=a.width, height=a.height, port=a.port,
                         data_dir=a.data_dir, workers=a.workers, scene=a.scene, quiet=a.json, env2=a.env2,
-                        samples=a.samples)
+                        samples=a.samples, antialias=a.antialias)
     print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items()))
     return 0
 
@@ -260,6 +260,7 @@ def add_bench_commands(bsub) -> None:
     bp.add_argument("--cameras", type=int, default=4, help="with --in-process: cameras (4 views each) measured")
     bp.add_argument("--samples", type=int, help="samples per pixel of the 2× frames (default: the service's)")
     bp.add_argument("--shading", choices=["vertex", "refined"], help="with --in-process (default: the service's)")
+    bp.add_argument("--antialias", choices=["edges", "full"], help="where the 2× frames' samples go (default: the service's)")
     bp.add_argument("--json", action="store_true")
     bp.set_defaults(fn=cmd_bench_publish)
     bv = bsub.add_parser("viewer", help="N concurrent shoppers opening and turning a published object (loopback)")

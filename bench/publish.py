@@ -69,7 +69,7 @@ def publish_body(sid: str, env2: str, ids: list[str], bundle: dict) -> dict:
 def bench_publish(azimuths: int = 72, elevations: int = 2, width: int = 640, height: int = 480,
                   port: int | None = None, data_dir: str | None = None, workers: int | None = None,
                   scene: str | None = None, quiet: bool = False, keep: bool = False, env2: str | None = None,
-                  samples: int | None = None):
+                  samples: int | None = None, antialias: str | None = None):
     """Build a bundle of 2 variants × 2 environments × ``azimuths`` × ``elevations`` at
     width × height (and its 2× set), then republish with one variant changed. Returns the
     figures (and, with keep, the running server and the publication id)."""
@@ -86,6 +86,8 @@ def bench_publish(azimuths: int = 72, elevations: int = 2, width: int = 640, hei
         bundle = {"azimuths": azimuths, "elevations_deg": els, "width": width, "height": height}
         if samples is not None:         # else the service's default
             bundle["samples"] = samples
+        if antialias is not None:
+            bundle["antialias"] = antialias
         body = publish_body(sid, env2, ids, bundle)
         with httpx.Client(base_url=srv.base, timeout=600) as c:
             cpu0 = srv.cpu_seconds()
@@ -266,7 +268,8 @@ class _LocalCache:
 
 
 def frame_cost(scene: str | None = None, cameras: int = 4, width: int = 640, height: int = 480,
-               env2: Path = SECOND_ENV, samples: int | None = None, shading: str | None = None) -> dict:
+               env2: Path = SECOND_ENV, samples: int | None = None, shading: str | None = None,
+               antialias: str | None = None) -> dict:
     """CPU seconds per view of the bundle_frames job, in this process (all its threads:
     time.process_time), over ``cameras`` cameras × 2 variants × 2 environments at width ×
     height, by stage: the machine's other load does not count, so it bounds the build time of
@@ -297,7 +300,7 @@ def frame_cost(scene: str | None = None, cameras: int = 4, width: int = 640, hei
                "files": {o["mesh"]: {"sha256": o["mesh"]} for o in spec["objects"]}, "spec": spec}
     opts = {"azimuths": 72, "elevations_deg": default_elevations(spec["camera"]), "width": width, "height": height,
             # the service's defaults (docs/guides/publishing.md) unless asked
-            "samples": 1 if samples is None else samples,
+            "samples": 4 if samples is None else samples, "antialias": antialias or "edges",
             "shading": shading or "refined", "tone": "neutral", "exposure": 0.0,
             "ground_shadow": bool(spec.get("ground")),
             "encode": {"avif_quality": 60, "avif_quality_2x": 40, "avif_speed": 10, "jpeg_quality": 85}}
@@ -312,7 +315,8 @@ def frame_cost(scene: str | None = None, cameras: int = 4, width: int = 640, hei
         res = render_frames(cache, {**job, "views": views}, lambda f, m: None)
         cpu, wall = time.process_time() - c0, time.perf_counter() - t0
     n = len(views)
-    return {"views": n, "width": width, "height": height, "samples": opts["samples"], "shading": opts["shading"],
+    return {"views": n, "width": width, "height": height, "samples": opts["samples"],
+            "antialias": pl["render"].get("antialias"), "shading": opts["shading"],
             "cpu_s_per_view": round(cpu / n, 4),
             "wall_s_per_view": round(wall / n, 4), "stage_ms_per_view": {k: round(v / n, 1) for k, v in res["ms"].items()},
             "bytes_per_view": round(sum(sum(m["bytes"].values()) for m in res["meta"].values()) / n),

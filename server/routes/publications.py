@@ -60,7 +60,11 @@ class BundleIn(BaseModel):
                                                description="default: the scene camera's and 20° above it")
     width: int | None = Field(None, ge=16, le=4096, description="1× frame width; default: the scene camera's")
     height: int | None = Field(None, ge=16, le=4096, description="1× frame height; default: the scene camera's")
-    samples: int = Field(1, ge=1, le=8, description="samples per pixel of the 2× frame (the 1× frame has 4× as many)")
+    samples: Literal[1, 2, 4, 9, 16] = Field(4, description="samples per pixel of the 2× frame where it "
+                                             "anti-aliases (see antialias); the 1× frame averages 2 × 2 of them")
+    antialias: Literal["edges", "full"] = Field("edges", description="edges: the samples at pixels next to a "
+                                                "silhouette, occlusion or crease, one elsewhere (where more change "
+                                                "nothing); full: at every pixel")
     shading: Literal["refined", "vertex", "pixel"] = "refined"
     tone: Literal["neutral", "aces", "linear"] = "neutral"
     exposure: float = Field(0.0, ge=-10, le=10)

@@ -39,8 +39,8 @@ from .errors import Conflict, Invalid, NotFound
 log = logging.getLogger("glint")
 
 # the bundle options a publication has when its request names none (docs/guides/publishing.md)
-DEFAULT_BUNDLE = {"azimuths": 72, "elevations_deg": None, "width": None, "height": None, "samples": 1,
-                  "shading": "refined", "tone": "neutral", "exposure": 0.0, "ground_shadow": None,
+DEFAULT_BUNDLE = {"azimuths": 72, "elevations_deg": None, "width": None, "height": None, "samples": 4,
+                  "antialias": "edges", "shading": "refined", "tone": "neutral", "exposure": 0.0, "ground_shadow": None,
                   "encode": {"avif_quality": 60, "avif_quality_2x": 40, "avif_speed": 10, "jpeg_quality": 85}}
 MAX_VIEWS = 20_000           # variants × environments × azimuths × elevations of one bundle
 # rendered pixels of one bundle (views × its 2× frame): 5.6× the 2 × 2 × 72 × 2 views at 640×480

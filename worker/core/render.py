@@ -63,6 +63,26 @@ def camera_dirs(eye, target, up, fov_y_deg: float, width: int, height: int, samp
                                                                    int(samples)), basis)
 
 
+def pixel_dirs(eye, target, up, fov_y_deg: float, width: int, height: int, pixels, samples: int = 1,
+               kernels=None) -> np.ndarray:
+    """(n·S, 3) float32 unit world directions of the S sample rays (rows i·S + s, offsets
+    ``sample_offsets(S)``) of the pixels pixels (n,) int64 (flat, y·W + x) of a camera: the rows
+    of ``camera_dirs`` for those pixels, without making the whole frame's."""
+    pix = np.asarray(pixels, np.int64)
+    t = np.tan(np.radians(float(fov_y_deg)) / 2.0)
+    aspect = width / height
+    off = sample_offsets(samples)
+    px = (pix % width)[:, None] + 0.5 + off[None, :, 0]             # (n, S)
+    py = (pix // width)[:, None] + 0.5 + off[None, :, 1]
+    xs = (2.0 * px / width - 1.0) * t * aspect
+    ys = (1.0 - 2.0 * py / height) * t
+    d = np.stack([xs, ys, np.ones_like(xs)], axis=-1).reshape(-1, 3)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    right, true_up, fwd = camera_axes(eye, target, up)
+    basis = np.stack([right, true_up, fwd]).astype(np.float32)
+    return (kernels or _kernels()).rotate_dirs(np.ascontiguousarray(d, np.float32), basis)
+
+
 def rotate_dirs_numpy(dirs, basis) -> np.ndarray:
     """(P, 3) float32 directions dirs (P, 3) in a frame whose axes are the rows of basis (3, 3),
     in the world: dirs @ basis."""

@@ -26,7 +26,7 @@ from ..protocol import CurveEvent, FitEvent, StrokeEvent
 from ..renderers.base import Lighting
 from ..scene import SRBF, Camera
 from .curves import _dump, brdf_curve
-from .lod import STILL_SAMPLES, busy_sessions
+from .lod import STILL_ANTIALIAS, STILL_SAMPLES, busy_sessions
 from .reporting import _msg
 
 QUICK_ROWS_MIN = 100        # a quick view's unpainted rows under load (QUICK_ROWS / busy sessions)
@@ -322,7 +322,8 @@ class FitDriver:
         (inverse-brdf-modeling eq. 22 with the basis): while only the fitted coefficients change
         (strokes, undo, redo), a frame's shading of that object is one mat-vec."""
         r = self.renderer
-        smp = r.vertex_samples(cam, self.state.object_index, samples=STILL_SAMPLES)   # stroke frames are still
+        smp = r.vertex_samples(cam, self.state.object_index, samples=STILL_SAMPLES,     # stroke frames are still
+                               antialias=STILL_ANTIALIAS)
         T, E = r.transfer(smp, self.fitter.basis, Lighting(rot, inten))
         return (self._view_key(cam, rot, inten), smp.pix, T, E)
 

@@ -14,6 +14,9 @@ from collections import deque
 
 FRAME_BUDGET_MS = 33.0     # a frame while the user drags: 30 fps
 STILL_SAMPLES = 4          # anti-aliasing samples per pixel of a still frame
+# ... taken at the pixels next to a silhouette, occlusion or crease only (renderers/cuts/edges.py):
+# elsewhere more samples change nothing, and the settled frame after an orbit needs no 4-sample view
+STILL_ANTIALIAS = "edges"
 REPROBE_S = 2.0            # while at the drag level of detail, try a full frame this often
 DRAG_SCALES = (2, 4)        # drag level of detail: half the resolution, a quarter under load
 ACTIVE_S = 1.0              # a session that moved something this recently shares the worker

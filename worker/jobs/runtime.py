@@ -31,7 +31,7 @@ from . import compose
 from .compose import BIG_FRAME_PIXELS
 from .curves import _dump, brdf_curve
 from .fit_driver import FitDriver
-from .lod import LevelOfDetail, mark_busy
+from .lod import STILL_ANTIALIAS, LevelOfDetail, mark_busy
 
 MEASURE_WIDTH = 200     # pixels across of the frames a model conversion measures the object's colour in
 # effect class -> handler(runtime, message, effect) -> events; filled by ``handles`` below
@@ -318,7 +318,7 @@ class SessionRuntime(FitDriver):
         return self.lod.choose(self.state, self._drag)
 
     def _still_view_ready(self, camera, samples: int) -> bool:
-        return not self.renderer.can("view_cache") or self.renderer.has_view(camera, samples)
+        return not self.renderer.can("view_cache") or self.renderer.has_view(camera, samples, STILL_ANTIALIAS)
 
     def needs_still_frame(self) -> bool:
         """Whether the last frame was a moving one (one sample, or the drag level of detail) and
@@ -350,7 +350,7 @@ class SessionRuntime(FitDriver):
             lod, samples = "quick", 1
         self._quick_next = False
         req = FrameRequest(camera=camera, lighting=lighting, materials=st.materials, lod=lod, samples=samples,
-                           drag_scale=self.lod.drag_scale, cancelled=clock.cancelled,
+                           antialias=STILL_ANTIALIAS, drag_scale=self.lod.drag_scale, cancelled=clock.cancelled,
                            ground_shadow=st.shadow, transforms=st.transforms or None,
                            # the per-vertex transfer is per view: built for still views, not per drag frame
                            vertex_radiance=None if self._drag else self._override(),

@@ -74,7 +74,8 @@ def render_frames(cache, p: dict, progress) -> dict:
     p : {"scene": scene payload, "object": name, "variants": [scene material dicts],
     "environments": [{"sha256", "filename", "rotation_deg", "intensity"}], "views": [{"key",
     "variant", "environment", "camera" (the 2× camera)}] (grouped by camera), "render":
-    {"samples", "shading", "tone", "exposure", "ground_shadow"}, "encode": encoder settings}.
+    {"samples", "antialias" (when samples > 1), "shading", "tone", "exposure", "ground_shadow"},
+    "encode": encoder settings}.
     Returns {"files": {key: {name: sha256}}, "meta": {key: meta}, "rendered", "skipped",
     "seconds", "ms": {stage: total ms}}. A view whose files are already stored is skipped."""
     from worker.core.tonemap import tonemap_pair
@@ -122,7 +123,8 @@ def render_frames(cache, p: dict, progress) -> dict:
             a = time.perf_counter()
             res = r.render(FrameRequest(camera=Camera.model_validate(v["camera"]),
                                         lighting=Lighting(e["rotation_deg"], e["intensity"]),
-                                        materials=mats[v["variant"]], samples=rend["samples"], shading=rend["shading"],
+                                        materials=mats[v["variant"]], samples=rend["samples"],
+                                        antialias=rend.get("antialias", "full"), shading=rend["shading"],
                                         ground_shadow=rend["ground_shadow"]))
             b = time.perf_counter()
             rgb2, rgb1 = tonemap_pair(res.radiance, rend["exposure"], rend["tone"])

@@ -40,8 +40,8 @@ def scene_inputs(scene: dict, obj: str, material: dict) -> dict:
 
 def frame_key(scene_inputs_: dict, environment: dict, camera: dict, render: dict, encode: dict) -> str:
     """Hex key of one frame. environment : {"sha256", "rotation_deg", "intensity"};
-    camera : the 2× camera (scene.Camera dict); render : {"samples", "shading", "tone",
-    "exposure", "ground_shadow"}; encode : the encoder settings."""
+    camera : the 2× camera (scene.Camera dict); render : {"samples", "antialias" (when samples
+    > 1), "shading", "tone", "exposure", "ground_shadow"}; encode : the encoder settings."""
     return _digest({"format": FRAME_FORMAT, "scene": scene_inputs_, "environment": environment,
                     "camera": camera, "render": render, "encode": encode})
 

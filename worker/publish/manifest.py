@@ -28,7 +28,7 @@ def plan(scene: dict, obj: str, variants: list[dict], environments: list[dict], 
 
     scene : the scene payload; variants : scene material dicts; environments : {"sha256",
     "filename", "rotation_deg", "intensity"}; opts : the bundle options (width, height,
-    azimuths, elevations_deg, samples, shading, tone, exposure, ground_shadow, encode).
+    azimuths, elevations_deg, samples, antialias, shading, tone, exposure, ground_shadow, encode).
     Returns {"azimuths_deg", "elevations_deg", "width", "height", "render", "encode",
     "views": [{"key", "variant", "environment", "elevation", "azimuth", "camera"}]}."""
     cam = scene["spec"]["camera"]
@@ -37,6 +37,8 @@ def plan(scene: dict, obj: str, variants: list[dict], environments: list[dict], 
     azs = azimuths(cam, int(opts["azimuths"]))
     render = {"samples": int(opts["samples"]), "shading": opts["shading"], "tone": opts["tone"],
               "exposure": float(opts["exposure"]), "ground_shadow": opts["ground_shadow"]}
+    if render["samples"] > 1:       # where the samples go (a one-sample bundle's keys stay as they were)
+        render["antialias"] = opts.get("antialias") or "full"
     enc = dict(opts["encode"])
     inputs = [scene_inputs(scene, obj, m) for m in variants]
     envs = [{"sha256": e["sha256"], "rotation_deg": float(e["rotation_deg"]), "intensity": float(e["intensity"])}

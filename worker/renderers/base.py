@@ -73,6 +73,10 @@ class FrameRequest:
         frames while something moves and "refined" in its settled (anti-aliased) frames.
     transforms : object name -> scene.Transform for movable objects (cut renderer).
     samples : primary-visibility samples per pixel (anti-aliasing), ≥ 1.
+    antialias : where the samples are taken: "full", at every pixel; "edges", only at pixels
+        next to a discontinuity of the surface seen (silhouettes, occlusions, object boundaries,
+        creases), one sample elsewhere, where more change nothing but the cost (cut renderer,
+        vertex and refined shading; others treat it as "full").
     vertex_radiance : object index -> (vertex ids (K,) int32, radiance (K, 3) float32), radiance
         already known (e.g. from a per-vertex transfer matrix); renderers that shade vertices
         use it instead of shading those vertices.
@@ -94,6 +98,7 @@ class FrameRequest:
     shading: str = "refined"
     transforms: Mapping[str, Any] | None = None
     samples: int = 1
+    antialias: str = "full"
     vertex_radiance: Mapping[int, tuple[np.ndarray, np.ndarray]] | None = None
     ground_shadow: bool | None = None
     ground_intensity: float | None = None
@@ -123,7 +128,7 @@ class Rendered:
 # "drag_level"   coarse_cuts() -> Any
 #                    build the drag-time level of detail now (the session does it at open, so
 #                    the first drag does not pay it).
-# "view_cache"   has_view(camera, samples: int = 1) -> bool
+# "view_cache"   has_view(camera, samples: int = 1, antialias: str = "full") -> bool
 #                    whether a frame of (camera, samples) costs only shading (its primary hits
 #                    are cached); without the capability every view counts as ready.
 #                forget_views(min_pixels: int) -> int
@@ -151,7 +156,7 @@ class Rendered:
 #                    given): the GI renderer freezes every other object (polynomial-gi eq. 27),
 #                    the mode switch a session pays when the object is picked, not on its first
 #                    edit; returns seconds.
-# "vertex_transfer"  vertex_samples(camera, object_index: int, samples: int = 1) -> Samples
+# "vertex_transfer"  vertex_samples(camera, object_index: int, samples: int = 1, antialias: str = "full") -> Samples
 #                    the object's visible vertices, whose transfer rows give the fitted
 #                    material's radiance there (FrameRequest.vertex_radiance); with transfer.
 CAPABILITIES: dict[str, tuple[str, ...]] = {

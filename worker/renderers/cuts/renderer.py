@@ -33,6 +33,11 @@ sample's triangle are shaded once, and each pixel is the mean of its samples' in
 or background (C glk_resolve). Inside a triangle this equals one sample exactly; silhouettes
 and the background's edges get S levels of coverage. It costs S× primary rays (once per view)
 and S× interpolation, no extra shading beyond the few vertices only a sub-pixel sample sees.
+With ``FrameRequest.antialias = "edges"`` (a session's settled frames, publications) the S
+samples are taken only where they change the pixel (edges.py): next to silhouettes, occlusions,
+object boundaries and creases (found once per view from the one-sample hits, traced through
+Embree) and where refined shading is curved at the pixel scale (found per frame); every other
+pixel is the one-sample frame's.
 
 Ground shadow (ground.py): when the scene's precomputation has the ground part and the frame
 asks for it (``FrameRequest.ground_shadow``, default the scene's ``ground.shadow``), background
@@ -63,6 +68,7 @@ from ...core.render import (
     camera_dirs,
     camera_rays,
     env_coords,
+    pixel_dirs,
     resolve,
     shade_blend,
     shade_points,
@@ -72,6 +78,8 @@ from ...models.regions import has_regions
 from ...native.kernels import kernels as _kernels
 from ..base import FrameCancelled, FrameRequest, Lighting, Rendered, Renderer, Unsupported
 from . import DECLARATION
+from . import edges as edgemod
+from .edges import edge_pixels
 from .layers import Layers, frame_layers
 from .precompute import CutData
 from . import refine as refinemod
@@ -137,6 +145,10 @@ class View:
     bg_key: object = None
     refinement: Refinement | None = None
     traced: int = 0          # primary rays traced (the others cannot hit the mesh: ``_screen_box``)
+    # edge sampling (edges.py): on a one-sample view, its edge views by sample count; on an edge
+    # view, pix (n,) int64 the frame's pixels its rows belong to (rows i·S + s: pixel pix[i])
+    edges: dict | None = None
+    pix: np.ndarray | None = None
 
 
 @dataclass
@@ -207,12 +219,15 @@ class CutRenderer(Renderer):
             self.lighting = self.data.lighting(envmap, self.tree)
             self._light_key = None
 
-    def has_view(self, camera, samples: int = 1) -> bool:
-        """Whether the primary hits of (camera, samples) are cached: a frame of them costs
-        only shading. Movable-object scenes draw one sample (always ready)."""
+    def has_view(self, camera, samples: int = 1, antialias: str = "full") -> bool:
+        """Whether the primary hits of (camera, samples, antialias) are cached: a frame of them
+        costs only shading. Movable-object scenes draw one sample (always ready)."""
         if self._moving is not None:
             return True
         with self._lock:
+            if antialias == "edges" and samples > 1:
+                return any(v.samples == 1 and v.camera == camera and samples in (v.edges or {})
+                           for v in self._views)
             return any(v.samples == samples and v.camera == camera for v in self._views)
 
     def forget_views(self, min_pixels: int) -> int:
@@ -486,10 +501,18 @@ class CutRenderer(Renderer):
         samples = 1 if drag or quick else int(req.samples)
         if samples < 1:
             raise ValueError(f"samples: {samples} per pixel (at least 1)")
+        if req.antialias not in ("full", "edges"):
+            raise ValueError(f"antialias: {req.antialias!r} (full or edges)")
         materials = list(req.materials) or self.scene.materials
         if len(materials) != len(self.scene.spec.objects):
             raise ValueError(f"{len(materials)} materials for {len(self.scene.spec.objects)} objects")
-        v = self.view(camera, samples)
+        # edge sampling: the one-sample view, and S samples only at the pixels next to an edge
+        ev = None
+        if samples > 1 and req.antialias == "edges" and req.shading in ("vertex", "refined"):
+            v = self.view(camera, 1)
+            ev = self.edge_view(v, samples)
+        else:
+            v = self.view(camera, samples)
         t1 = time.perf_counter(); t["view"] = (t1 - t0) * 1e3
         with self._lock:        # the tables of one lighting, even if the fitter's thread asks for another
             node_l, node_w = self.light(req.lighting)
@@ -501,10 +524,12 @@ class CutRenderer(Renderer):
         t3 = time.perf_counter(); t["background"] = (t3 - t2) * 1e3
         mesh = self.scene.mesh
         img = np.empty((camera.width * camera.height, 3), np.float32)
-        n_refined = 0
+        n_refined = n_steep = 0
         if req.shading in ("vertex", "refined"):
             known = {} if drag else dict(req.vertex_radiance or {})
             vi, wo = v.visible, v.wo
+            if ev is not None and len(ev.visible):       # vertices only a sub-pixel edge sample sees
+                vi, wo = np.concatenate([vi, ev.visible]), np.concatenate([wo, ev.wo])
             if known:
                 keep = ~np.isin(vi, np.concatenate([ids for ids, _ in known.values()]))
                 vi, wo = vi[keep], wo[keep]
@@ -539,29 +564,35 @@ class CutRenderer(Renderer):
             for ids, r in known.values():
                 vert[ids] = r
             t4 = time.perf_counter(); t["shade"] = (t4 - t3) * 1e3
-            tri = v.tri
+            tri, scale, rows = v.tri, None, np.zeros(0, np.int64)
             if radius is not None and np.isfinite(radius).any() and len(v.visible):
                 scale = refinemod.object_scale(v.visible, self.scene.object_of_vertex, vert, len(materials))
-                ref = self._refinement(v, camera)
-                rows, weight = ref.select(radius, vert, scale, self.k, refinemod.SPREAD_FRACTION,
-                                          refinemod.CONTRAST, refinemod.RAMP,
-                                          None if layers is None else ref.face_radius(radius, mats.refine, layers))
-                if len(rows):
-                    part = self._pixel_samples(v, camera, rows)
-                    px = self._shade_chunked(part, cuts, node_l, node_w, mats, node8, req.cancelled, layers)
-                    ramp = weight < 1
-                    if ramp.any():      # faces near a threshold: partly the interpolation
-                        g = (part.bary[ramp, :, None] * vert[part.verts[ramp]]).sum(1)
-                        px[ramp] = g + weight[ramp, None] * (px[ramp] - g)
-                    # the refined rows are hit samples: the background buffer's rows there are never
-                    # read as background, so they carry the per-pixel radiance into the resolve
-                    bg[rows] = px
-                    tri = v.tri.copy()
-                    tri[rows] = -1
-                    n_refined = len(rows)
+                tri, rows = self._refine(v, camera, radius, vert, scale, bg, mats, layers, cuts, node_l, node_w,
+                                         node8, req.cancelled)
+                n_refined = len(rows)
             t5 = time.perf_counter(); t["refine"] = (t5 - t4) * 1e3
-            resolve(tri, v.uv, mesh.faces, vert, bg, samples, img, self.k)
-            t["resolve"] = (time.perf_counter() - t5) * 1e3
+            resolve(tri, v.uv, mesh.faces, vert, bg, v.samples, img, self.k)
+            t6 = time.perf_counter(); t["resolve"] = (t6 - t5) * 1e3
+            if ev is not None:
+                # S samples where the surface seen changes (cached with the view) and where a
+                # refined highlight changes steeply between pixels (this frame's)
+                hp = (edgemod.steep_pixels(img, rows, ev.pix, v.obj, scale, camera.height, camera.width)
+                      if len(rows) else np.zeros(0, np.int64))
+                n_steep = len(hp)
+                for sv in ([ev] if len(ev.pix) else []) + ([self._sample_view(v, hp, samples)] if len(hp) else []):
+                    if sv is not ev and len(sv.visible):      # vertices only its sub-pixel samples see
+                        vert[sv.visible] = self._shade_vertices(sv.visible, sv.wo, self.scene.object_of_vertex[sv.visible],
+                                                                cuts, node_l, node_w, mats, node8, layers)
+                    sbg = self._background(sv, req.lighting, shadow, bg_key)
+                    stri = sv.tri
+                    if scale is not None:       # refined by the frame's own thresholds
+                        stri, srows = self._refine(sv, camera, radius, vert, scale, sbg, mats, layers, cuts, node_l,
+                                                   node_w, node8, req.cancelled)
+                        n_refined += len(srows)
+                    out = np.empty((len(sv.pix), 3), np.float32)
+                    resolve(stri, sv.uv, mesh.faces, vert, sbg, samples, out, self.k)
+                    img[sv.pix] = out
+                t["edges"] = (time.perf_counter() - t6) * 1e3
         elif req.shading == "pixel":
             hit = np.nonzero(v.tri >= 0)[0]
             layers = self.layers(materials)
@@ -576,6 +607,9 @@ class CutRenderer(Renderer):
         return Rendered(img.reshape(camera.height, camera.width, 3), v.obj, t,
                         {"lod": req.lod, "tau": DRAG_TAU if drag else self.data.tau, "width": camera.width,
                          "height": camera.height, "visible_vertices": int(len(v.visible)), "samples": samples,
+                         "antialias": "edges" if ev is not None else "full",
+                         "edge_pixels": 0 if ev is None else int(len(ev.pix)),
+                         "steep_pixels": 0 if ev is None else n_steep,
                          "refined_samples": n_refined,
                          "ground_shadow": None if self.data.ground is None else shadow is not None})
 
@@ -592,6 +626,68 @@ class CutRenderer(Renderer):
             if on[o]:
                 out[o] = mats.refine[slots].min()
         return out
+
+    def _refine(self, v: View, camera, radius, vert, scale, bg, mats, layers, cuts, node_l, node_w, node8,
+                cancelled) -> tuple[np.ndarray, int]:
+        """Shade per pixel the sample rows of view v the refinement picks (refine.py), writing
+        them into bg (the background buffer's rows of hit samples are never read as background,
+        so they carry the per-pixel radiance into the resolve). Returns (tri (P·S,) int32 with
+        those rows set to −1, so the resolve reads bg there; the refined rows (m,) int64)."""
+        ref = self._refinement(v, camera)
+        rows, weight = ref.select(radius, vert, scale, self.k, refinemod.SPREAD_FRACTION,
+                                  refinemod.CONTRAST, refinemod.RAMP,
+                                  None if layers is None else ref.face_radius(radius, mats.refine, layers))
+        if not len(rows):
+            return v.tri, rows
+        part = self._pixel_samples(v, camera, rows)
+        px = self._shade_chunked(part, cuts, node_l, node_w, mats, node8, cancelled, layers)
+        ramp = weight < 1
+        if ramp.any():      # faces near a threshold: partly the interpolation
+            g = (part.bary[ramp, :, None] * vert[part.verts[ramp]]).sum(1)
+            px[ramp] = g + weight[ramp, None] * (px[ramp] - g)
+        bg[rows] = px
+        tri = v.tri.copy()
+        tri[rows] = -1
+        return tri, rows
+
+    def edge_view(self, v: View, samples: int) -> View:
+        """The edge samples of a one-sample view v (edges.py): S rays through each pixel next to
+        an edge of the surface seen (rows i·S + s of pixel ``pix[i]``), traced through Embree,
+        with what a View carries for them (``visible``: only the vertices the one-sample view
+        does not see, ``wo`` theirs; background rows, directions and map coordinates). Kept with
+        v, by S."""
+        with self._lock:
+            got = (v.edges or {}).get(samples)
+        if got is not None:
+            return got
+        cam = v.camera
+        e = self._sample_view(v, edge_pixels(v.tri, self.scene.mesh.faces, self.scene.object_of_face, cam.height,
+                                             cam.width), samples)
+        with self._lock:
+            v.edges = {**(v.edges or {}), samples: e}
+        return e
+
+    def _sample_view(self, v: View, pix: np.ndarray, samples: int) -> View:
+        """A View of S samples through each of the pixels pix (n,) int64 of the one-sample view
+        v (rows i·S + s of pixel pix[i]), traced through Embree: its ``visible`` only the vertices
+        v does not see (``wo`` theirs), with its background rows, directions and map coordinates."""
+        cam = v.camera
+        mesh = self.scene.mesh
+        d = pixel_dirs(cam.eye, cam.target, cam.up, cam.fov_y_deg, cam.width, cam.height, pix, samples,
+                       kernels=self.k)
+        if len(d):
+            tri, uv = self._first_hit(np.broadcast_to(np.asarray(cam.eye, np.float32), d.shape).copy(), d)
+        else:
+            tri, uv = np.zeros(0, np.int32), np.zeros((0, 2), np.float32)
+        vmask = np.zeros(len(mesh.vertices), bool)
+        vmask[mesh.faces[tri[tri >= 0]].reshape(-1)] = True
+        vmask[v.visible] = False
+        extra = np.nonzero(vmask)[0].astype(np.int32)
+        wo = np.asarray(cam.eye, np.float32) - mesh.vertices[extra]
+        wo /= np.maximum(np.linalg.norm(wo, axis=1, keepdims=True), np.float32(1e-30))
+        bg = np.nonzero(tri < 0)[0]
+        return View(cam, tri, uv, d, extra, samples, wo.astype(np.float32), bg, env_coords(d[bg], self.k),
+                    bgdirs=d[bg], traced=len(d), pix=pix)
 
     def _refinement(self, v: View, camera) -> Refinement:
         """The view's refinement geometry (refine.py Refinement), made once per view."""
@@ -701,13 +797,17 @@ class CutRenderer(Renderer):
         pix = np.nonzero(obj_of == object_index)[0]
         return self._pixel_samples(View(camera, tri, uv, d, np.zeros(0, np.int32)), camera, pix)
 
-    def vertex_samples(self, camera, object_index: int, samples: int = 1) -> Samples:
+    def vertex_samples(self, camera, object_index: int, samples: int = 1, antialias: str = "full") -> Samples:
         """The object's vertices the camera sees (vertex-mode shading points): with samples S > 1,
-        those of the one-sample and the S-sample views, so that radiance known for them
-        (``FrameRequest.vertex_radiance``) covers anti-aliased frames too."""
+        those of the one-sample and the S-sample views (antialias "edges": its edge samples'),
+        so that radiance known for them (``FrameRequest.vertex_radiance``) covers anti-aliased
+        frames too."""
         vx, vn = self._geometry()
-        vis = self.view(camera).visible
-        if samples > 1:
+        v1 = self.view(camera)
+        vis = v1.visible
+        if samples > 1 and antialias == "edges" and self._moving is None:
+            vis = np.union1d(vis, self.edge_view(v1, samples).visible).astype(np.int32)
+        elif samples > 1:
             vis = np.union1d(vis, self.view(camera, samples).visible).astype(np.int32)
         ids = vis[self.scene.object_of_vertex[vis] == object_index].astype(np.int32)
         wo = np.asarray(camera.eye, np.float32) - vx[ids]
