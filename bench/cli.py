@@ -65,6 +65,14 @@ def cmd_bench_render(a) -> int:
     return 0
 
 
+def cmd_bench_antialias(a) -> int:
+    from .antialias import bench_antialias
+
+    res = bench_antialias(a.scene, views=a.views, width=a.width, height=a.height, alpha=a.alpha)
+    print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items()))
+    return 0
+
+
 def cmd_bench_accuracy(a) -> int:
     """Relative RMSE against Mitsuba 3 (scalar_rgb, direct; the mean of two renders) over the
     object's pixels at least 2 pixels from silhouettes, per shading mode and GGX α (albedo 0.1,
@@ -231,6 +239,11 @@ def add_bench_commands(bsub) -> None:
     ba.add_argument("--cuts"); ba.add_argument("--tau", type=float, default=DEFAULT_TAU)
     ba.add_argument("--json", action="store_true")
     ba.set_defaults(fn=cmd_bench_accuracy)
+    bq = bsub.add_parser("antialias", help="each sampling (1, 4 everywhere, 4 at edges) against 16 samples, and its CPU")
+    bq.add_argument("scene"); bq.add_argument("--views", type=int, default=3)
+    bq.add_argument("--width", type=int, default=1280); bq.add_argument("--height", type=int, default=960)
+    bq.add_argument("--alpha", type=float, default=0.1); bq.add_argument("--json", action="store_true")
+    bq.set_defaults(fn=cmd_bench_antialias)
     bf = bsub.add_parser("fit", help="transfer-matrix and solve times at the default sizes")
     bf.add_argument("scene"); bf.add_argument("--object", help="default: the first object")
     bf.add_argument("--repeat", type=int, default=7); bf.add_argument("--json", action="store_true")
