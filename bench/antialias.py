@@ -16,7 +16,7 @@ SAMPLINGS = ((1, "full"), (4, "full"), (4, "edges"))
 
 
 def bench_antialias(scene: str, views: int = 3, width: int = 1280, height: int = 960, alpha: float = 0.1,
-                    reference: int = 16) -> dict:
+                    reference: int = 16, cuts: str | None = None) -> dict:
     """Relative RMSE against ``reference`` samples everywhere over the pixels some sample of
     which sees the mesh, per sampling (samples, antialias) of SAMPLINGS, and CPU seconds per
     frame (the second frame of each view: its primary hits cached, as a publication's other
@@ -30,7 +30,7 @@ def bench_antialias(scene: str, views: int = 3, width: int = 1280, height: int =
     from worker.scene import Camera
 
     path = Path(scene)
-    r, _ = _renderer(types.SimpleNamespace(scene=str(path), cuts=None, tau=DEFAULT_TAU), quiet=True)
+    r, _ = _renderer(types.SimpleNamespace(scene=str(path), cuts=cuts, tau=DEFAULT_TAU), quiet=True)
     cam0 = json.loads(path.read_text())["camera"]
     mat = parse_material({"model": "ggx", "alpha": alpha, "specular": [0.3, 0.3, 0.3], "albedo": [0.6, 0.04, 0.04]})
     mats = [mat] + list(r.scene.materials)[1:]

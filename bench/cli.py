@@ -68,7 +68,7 @@ def cmd_bench_render(a) -> int:
 def cmd_bench_antialias(a) -> int:
     from .antialias import bench_antialias
 
-    res = bench_antialias(a.scene, views=a.views, width=a.width, height=a.height, alpha=a.alpha)
+    res = bench_antialias(a.scene, views=a.views, width=a.width, height=a.height, alpha=a.alpha, cuts=a.cuts)
     print(json.dumps(res) if a.json else "\n".join(f"{k}: {v}" for k, v in res.items()))
     return 0
 
@@ -243,6 +243,7 @@ def add_bench_commands(bsub) -> None:
     bq.add_argument("scene"); bq.add_argument("--views", type=int, default=3)
     bq.add_argument("--width", type=int, default=1280); bq.add_argument("--height", type=int, default=960)
     bq.add_argument("--alpha", type=float, default=0.1); bq.add_argument("--json", action="store_true")
+    bq.add_argument("--cuts", help="cut cache folder (default: the scene's)")
     bq.set_defaults(fn=cmd_bench_antialias)
     bf = bsub.add_parser("fit", help="transfer-matrix and solve times at the default sizes")
     bf.add_argument("scene"); bf.add_argument("--object", help="default: the first object")

@@ -38,6 +38,12 @@ def test_precompute_render_bench(tmp_path, cache_dir, bunny):
               "tau", "tau_drag", "refined_samples"):
         assert k in b
     assert b["width"] == 160 and b["width_drag"] == 160 and b["tau_drag"] == 16.0   # 160 px: no half resolution
+    aa = json.loads(glint("bench", "antialias", SCENE, "--views", "1", "--width", "160", "--height", "120", "--json",
+                          "--cuts", str(cache_dir)).stdout)["samplings"]
+    # edge sampling: nearly four samples' error at a fraction of their pixels
+    assert aa["4-edges"]["rel_rmse_pct"] < 0.6 * aa["1-full"]["rel_rmse_pct"], aa
+    assert aa["4-edges"]["rel_rmse_pct"] < 1.2 * aa["4-full"]["rel_rmse_pct"], aa
+    assert 0 < aa["4-edges"]["edge_pixels"] < 0.25 * 160 * 120, aa
 
 
 def test_bad_scene_is_a_clear_error(tmp_path):

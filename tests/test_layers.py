@@ -11,7 +11,7 @@ IMPORT = r"^\s*(?:from|import)\s+({})\b"
 # every command `glint --help` listed before the command line was split into layers
 COMMANDS = {"precompute", "render", "fit", "bench", "serve", "token", "openapi", "schema", "db", "assets", "demo",
             "gi", "paint", "capture", "capture-synth", "field", "bench-ray", "export", "nginx-conf", "mesh"}
-BENCHMARKS = {"render", "fit", "stream", "load", "move", "recovery", "strokes", "export-recovery", "accuracy", "publish",
+BENCHMARKS = {"render", "fit", "stream", "load", "move", "recovery", "strokes", "export-recovery", "accuracy", "antialias", "publish",
               "viewer", "first-start"}
 
 
