@@ -74,10 +74,13 @@ def cmd_bench_antialias(a) -> int:
 
 
 def cmd_bench_accuracy(a) -> int:
-    """Relative RMSE against Mitsuba 3 (scalar_rgb, direct; the mean of two renders) over the
-    object's pixels at least 2 pixels from silhouettes, per shading mode and GGX α (albedo 0.1,
-    specular 0.8), with the reference's own noise and each mode's frame time (after a warm-up
-    frame; light and BRDF fixed, so the view's refinement candidates are cached)."""
+    """Relative RMSE against Mitsuba 3 (scalar_rgb, direct, box pixel filter; the mean of two
+    renders) over the object's pixels at least 2 pixels from silhouettes, per shading mode and
+    GGX α (albedo 0.1, specular 0.8), with the reference's own noise and each mode's frame time
+    (after a warm-up frame; light and BRDF fixed, so the view's refinement candidates are
+    cached). Glint renders with ``samples`` per pixel where ``antialias`` puts them (default the
+    studio's settled frame: 4 at edges and curved highlights), since a reference pixel is the
+    mean over its area: one sample against it counts the aliasing of fine detail as error."""
     import numpy as np
     from scipy.ndimage import binary_erosion
 
@@ -97,7 +100,8 @@ def cmd_bench_accuracy(a) -> int:
         ref, imgs = mitsuba_target(sc, a.spp, (1, 2), a.cache)
         row = {"alpha": alpha}
         for mode in ("vertex", "refined", "pixel"):
-            req = FrameRequest(camera=spec.camera, materials=[mat] * len(spec.objects), shading=mode)
+            req = FrameRequest(camera=spec.camera, materials=[mat] * len(spec.objects), shading=mode,
+                               samples=a.samples, antialias=a.antialias)
             r.render(req)
             t0 = time.perf_counter()
             out = r.render(req)
@@ -114,7 +118,8 @@ def cmd_bench_accuracy(a) -> int:
         if not a.json:
             print(" ".join(f"{k}={v:.4g}" for k, v in row.items()), flush=True)
     res = {"scene": a.scene, "width": r.scene.spec.camera.width, "height": r.scene.spec.camera.height,
-           "vertices": int(len(r.scene.mesh.vertices)), "spp": a.spp, "rows": rows}
+           "vertices": int(len(r.scene.mesh.vertices)), "spp": a.spp, "samples": a.samples,
+           "antialias": a.antialias, "rows": rows}
     if a.json:
         print(json.dumps(res))
     return 0
@@ -237,6 +242,10 @@ def add_bench_commands(bsub) -> None:
     ba.add_argument("--spp", type=int, default=256, help="Mitsuba samples per pixel of each of its two renders")
     ba.add_argument("--cache", default="tests/.cache/mitsuba", help="where Mitsuba's renders are kept by content")
     ba.add_argument("--cuts"); ba.add_argument("--tau", type=float, default=DEFAULT_TAU)
+    ba.add_argument("--samples", type=int, default=4,
+                    help="Glint's samples per pixel (default 4, the studio's settled frame: Mitsuba's pixels "
+                         "are box-filtered means too)")
+    ba.add_argument("--antialias", choices=["edges", "full"], default="edges")
     ba.add_argument("--json", action="store_true")
     ba.set_defaults(fn=cmd_bench_accuracy)
     bq = bsub.add_parser("antialias", help="each sampling (1, 4 everywhere, 4 at edges) against 16 samples, and its CPU")

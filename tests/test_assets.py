@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from worker.assets import (ASSETS, BY_PATH, SETS, SOURCES, AssetError, cornell_box_obj, ensure, ensure_scene,
+from worker.assets import (ASSETS, BENCH_ONLY, BY_PATH, SETS, SOURCES, AssetError, cornell_box_obj, ensure, ensure_scene,
                            repo_asset_dir, write_checked)
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -98,7 +98,8 @@ def test_every_scene_file_points_into_the_manifest():
 
 
 def test_the_manifest():
-    assert SETS["test"] == [a.path for a in ASSETS] and set(SETS["demo"]) <= set(BY_PATH)
+    assert SETS["bench"] == [a.path for a in ASSETS] and set(SETS["demo"]) <= set(BY_PATH)
+    assert set(SETS["test"]) == set(SETS["bench"]) - BENCH_ONLY and "meshes/dragon/dragon.ply" in BENCH_ONLY
     assert all(a.source in SOURCES and len(a.sha256) == 64 for a in ASSETS)
     # the CC-BY car keeps the licence that names its author beside it
     assert any(p.startswith("meshes/fordFocus/") and "License" in p for p in BY_PATH)

