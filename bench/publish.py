@@ -72,9 +72,17 @@ def bench_publish(azimuths: int = 72, elevations: int = 2, width: int = 640, hei
                   samples: int | None = None, antialias: str | None = None):
     """Build a bundle of 2 variants × 2 environments × ``azimuths`` × ``elevations`` at
     width × height (and its 2× set), then republish with one variant changed. Returns the
-    figures (and, with keep, the running server and the publication id)."""
+    figures (and, with keep, the running server and the publication id). Without ``data_dir``
+    (and ``port``) the server gets a fresh temporary data folder, removed afterwards unless
+    kept: frames stored by an earlier run under the same keys would be reused, not built."""
+    import shutil
+    import tempfile
+
     import httpx
 
+    tmp = None
+    if data_dir is None and port is None:
+        data_dir = tmp = tempfile.mkdtemp(prefix="glint-bench-publish-")
     srv = Server(port, data_dir, quiet, workers=workers, demo=False)
     try:
         sid, env2, ids = setup(srv, Path(scene) if scene else SCENE, Path(env2) if env2 else SECOND_ENV)
@@ -122,12 +130,17 @@ def bench_publish(azimuths: int = 72, elevations: int = 2, width: int = 640, hei
                "bytes_by_set": sizes, "files": man["files"],
                "rebuild_seconds": round(rebuild_s, 2), "rebuild_rendered": b2["stats"]["rendered"],
                "rebuild_reused": b2["stats"]["reused"]}
+        if b["stats"]["rendered"] != views:
+            raise RuntimeError(f"the build rendered {b['stats']['rendered']} of {views} views (the rest were stored "
+                               "already): measure with a fresh --data-dir")
         if keep:
             return res, srv, pub["id"]
         return res
     finally:
         if not keep:
             srv.close()
+            if tmp is not None:
+                shutil.rmtree(tmp, ignore_errors=True)
 
 
 _TLS = None       # one TLS context for every shopper's client (loopback is plain HTTP; httpx builds

@@ -159,3 +159,19 @@ def test_edge_sampling_finds_occlusions_and_object_boundaries():
     assert not mark[0, 0] and not mark[0, 1] and not mark[0, 2]
     assert mark[0, 3] and mark[0, 4]
     assert mark[2].all() and mark[1].all()      # next to the background and to object 1
+
+
+def test_edge_kernels_agree_on_a_real_view(bunny_renderer):
+    """The C edge kernel (refine.c glk_edge_pixels) and its NumPy reference pick the same pixels."""
+    from worker.native.kernels import kernels
+    from worker.renderers.cuts.edges import edge_pixels_numpy
+
+    r = bunny_renderer
+    cam = r.scene.spec.camera.model_copy(update={"width": 320, "height": 240})
+    t = r.view(cam, 1).tri
+    a = kernels("native").refine.edge_pixels(t, r.scene.mesh.faces, r.scene.object_of_face, 240, 320)
+    b = edge_pixels_numpy(t, r.scene.mesh.faces, r.scene.object_of_face, 240, 320)
+    assert len(a) > 500
+    np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(kernels("numpy").refine.edge_pixels(t, r.scene.mesh.faces, r.scene.object_of_face,
+                                                                     240, 320), b)

@@ -1,6 +1,7 @@
 """The refinement kernel (src/refine.c) behind the backend's ``refine`` family:
-``k.refine.mirror_spread`` (per face, the largest angle between its vertices' mirror directions)
-and ``k.refine.face_contrast`` (per face, the spread of its vertices' radiance),
+``k.refine.mirror_spread`` (per face, the largest angle between its vertices' mirror directions),
+``k.refine.face_contrast`` (per face, the spread of its vertices' radiance) and
+``k.refine.edge_pixels`` (the pixels next to another surface: renderers/cuts/edges.py),
 the same arrays in and out in both backends; the NumPy reference is ``mirror_spread_numpy`` here
 (tests/core/test_refine.py checks they agree). The cut renderer shades per pixel only the faces
 whose spread exceeds a fraction of their material's lobe (worker/renderers/cuts/refine.py).
@@ -9,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import bind, c, f32p, f64, i32p, i64, lib
+from . import bind, c, f32p, f64, i32, i32p, i64, lib, u8p
 
 
 def mirror_spread_numpy(faces, vertices, normals, eye) -> np.ndarray:
@@ -41,6 +42,10 @@ class NumpyRefine:
     """The reference of the refinement kernel."""
     name = "numpy"
 
+    def edge_pixels(self, tri, faces, object_of_face, height, width):
+        from ..renderers.cuts.edges import edge_pixels_numpy
+        return edge_pixels_numpy(tri, faces, object_of_face, height, width)
+
     def mirror_spread(self, faces, vertices, normals, eye):
         return mirror_spread_numpy(faces, vertices, normals, eye)
 
@@ -58,6 +63,14 @@ class NativeRefine:
         self._spread = bind("glk_mirror_spread", None, F=i64, faces=i32p, vx=f32p, vn=f32p, ex=f64, ey=f64, ez=f64,
                             out=f32p)
         self._contrast = bind("glk_face_contrast", None, F=i64, faces=i32p, vert_rgb=f32p, out=f32p)
+        self._edges = bind("glk_edge_pixels", None, H=i32, W=i32, tri=i32p, faces=i32p, obj=i32p, out=u8p)
+
+    def edge_pixels(self, tri, faces, object_of_face, height, width):
+        """(n,) int64 flat pixel indices (see renderers/cuts/edges.py edge_pixels_numpy)."""
+        out = np.empty(int(height) * int(width), np.uint8)
+        self._edges(int(height), int(width), c(tri, np.int32), c(faces, np.int32).reshape(-1, 3),
+                    c(object_of_face, np.int32), out)
+        return np.flatnonzero(out).astype(np.int64)
 
     def mirror_spread(self, faces, vertices, normals, eye):
         """(F,) float32 (see mirror_spread_numpy)."""

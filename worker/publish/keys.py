@@ -14,7 +14,8 @@ from __future__ import annotations
 import hashlib
 import json
 
-FRAME_FORMAT = 3          # 2: the 1× frame tone-mapped in the same pass as the 2× (glk_tonemap_pair); 3: AVIF
+FRAME_FORMAT = 4          # 2: the 1× frame tone-mapped in the same pass as the 2× (glk_tonemap_pair); 3: AVIF;
+# 4: refined faces also chosen by a centroid probe (a sun highlight between dark vertices)
 # the encoded files of one frame: its name in the manifest -> (PartStore key suffix, extension)
 FILES = {"avif1": ".avif", "jpeg1": ".jpg", "avif2": ".avif"}
 

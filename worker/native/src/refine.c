@@ -55,3 +55,41 @@ void glk_face_contrast(int64_t F, const int32_t *faces, const float *vert_rgb, f
         out[f] = m;
     }
 }
+
+/* Per pixel of a one-sample hit buffer tri (H·W, row-major; −1 background): 1 when one of its
+ * 8 neighbours sees another surface: the background against the mesh, another object's face,
+ * or a face sharing no vertex with its own (worker/renderers/cuts/edges.py edge_pixels is the
+ * reference): the pixels where one sample is not the pixel's mean. */
+static inline int other_surface(int32_t a, int32_t b, const int32_t *faces, const int32_t *obj)
+{
+    if (a == b) return 0;
+    if (a < 0 || b < 0) return 1;
+    if (obj[a] != obj[b]) return 1;
+    const int32_t *fa = faces + 3 * (int64_t)a, *fb = faces + 3 * (int64_t)b;
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            if (fa[i] == fb[j]) return 0;
+    return 1;
+}
+
+void glk_edge_pixels(int32_t H, int32_t W, const int32_t *tri, const int32_t *faces, const int32_t *obj,
+                     uint8_t *out)
+{
+    #pragma omp parallel for schedule(static, 16)
+    for (int32_t y = 0; y < H; y++) {
+        for (int32_t x = 0; x < W; x++) {
+            const int32_t a = tri[(int64_t)y * W + x];
+            uint8_t e = 0;
+            for (int dy = -1; dy <= 1 && !e; dy++) {
+                const int32_t yy = y + dy;
+                if (yy < 0 || yy >= H) continue;
+                for (int dx = -1; dx <= 1; dx++) {
+                    const int32_t xx = x + dx;
+                    if ((dy == 0 && dx == 0) || xx < 0 || xx >= W) continue;
+                    if (other_surface(a, tri[(int64_t)yy * W + xx], faces, obj)) { e = 1; break; }
+                }
+            }
+            out[(int64_t)y * W + x] = e;
+        }
+    }
+}

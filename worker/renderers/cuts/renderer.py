@@ -9,8 +9,8 @@ cosine-weighted visibility and ω_k its light-weighted centroid. Three shading m
   smeared across a triangle. A session's one-sample frames while something moves.
 * ``refined`` (default; a session's settled frames): vertex shading plus per-pixel shading on the faces where its
   interpolation is wrong: those whose vertices' mirror directions span more than a fraction of
-  their material's lobe and whose vertex radiance differs by more than their object's mean
-  (refine.py). Per-pixel accuracy for glossy lobes at a cost that scales with the visible
+  their material's lobe and whose vertex radiance differs by more than their object's mean, or
+  whose radiance at the centroid departs from the interpolation (refine.py). Per-pixel accuracy for glossy lobes at a cost that scales with the visible
   vertices plus the refined pixels (none for Lambert). Vertices whose radiance the request
   brings (a stroke's transfer) are refined alike, their pixels shaded with the object's
   material, so a stroke's settled frame is the settled frame. The drag and quick levels of
@@ -564,11 +564,11 @@ class CutRenderer(Renderer):
             for ids, r in known.values():
                 vert[ids] = r
             t4 = time.perf_counter(); t["shade"] = (t4 - t3) * 1e3
-            tri, scale, rows = v.tri, None, np.zeros(0, np.int64)
+            tri, scale, rows, face_w = v.tri, None, np.zeros(0, np.int64), None
             if radius is not None and np.isfinite(radius).any() and len(v.visible):
                 scale = refinemod.object_scale(v.visible, self.scene.object_of_vertex, vert, len(materials))
-                tri, rows = self._refine(v, camera, radius, vert, scale, bg, mats, layers, cuts, node_l, node_w,
-                                         node8, req.cancelled)
+                tri, rows, face_w = self._refine(v, camera, radius, vert, scale, bg, mats, layers, cuts, node_l,
+                                                 node_w, node8, req.cancelled)
                 n_refined = len(rows)
             t5 = time.perf_counter(); t["refine"] = (t5 - t4) * 1e3
             resolve(tri, v.uv, mesh.faces, vert, bg, v.samples, img, self.k)
@@ -585,9 +585,9 @@ class CutRenderer(Renderer):
                                                                 cuts, node_l, node_w, mats, node8, layers)
                     sbg = self._background(sv, req.lighting, shadow, bg_key)
                     stri = sv.tri
-                    if scale is not None:       # refined by the frame's own thresholds
-                        stri, srows = self._refine(sv, camera, radius, vert, scale, sbg, mats, layers, cuts, node_l,
-                                                   node_w, node8, req.cancelled)
+                    if face_w is not None:      # the faces the one-sample view refined
+                        stri, srows, _ = self._refine(sv, camera, radius, vert, scale, sbg, mats, layers, cuts,
+                                                      node_l, node_w, node8, req.cancelled, faces=face_w)
                         n_refined += len(srows)
                     out = np.empty((len(sv.pix), 3), np.float32)
                     resolve(stri, sv.uv, mesh.faces, vert, sbg, samples, out, self.k)
@@ -628,17 +628,41 @@ class CutRenderer(Renderer):
         return out
 
     def _refine(self, v: View, camera, radius, vert, scale, bg, mats, layers, cuts, node_l, node_w, node8,
-                cancelled) -> tuple[np.ndarray, int]:
+                cancelled, faces=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Shade per pixel the sample rows of view v the refinement picks (refine.py), writing
         them into bg (the background buffer's rows of hit samples are never read as background,
-        so they carry the per-pixel radiance into the resolve). Returns (tri (P·S,) int32 with
-        those rows set to −1, so the resolve reads bg there; the refined rows (m,) int64)."""
-        ref = self._refinement(v, camera)
-        rows, weight = ref.select(radius, vert, scale, self.k, refinemod.SPREAD_FRACTION,
-                                  refinemod.CONTRAST, refinemod.RAMP,
-                                  None if layers is None else ref.face_radius(radius, mats.refine, layers))
+        so they carry the per-pixel radiance into the resolve). faces : (F + 1,) float32 the
+        frame's weight per mesh face (−1: not chosen yet; last slot, the background rows', 0)
+        when another view of the frame chose them (an edge view takes its one-sample view's:
+        the same faces, no second probe; only faces that view did not see are chosen here);
+        None: all chosen here. Returns (tri (P·S,) int32 with those rows set to −1, so the
+        resolve reads bg there; the refined rows (m,) int64; the weight per mesh face)."""
+        if faces is None:
+            faces = np.full(len(self.scene.mesh.faces) + 1, -1.0, np.float32)
+            faces[-1] = 0.0
+            ref = self._refinement(v, camera)
+        else:
+            new = np.zeros(len(faces), bool)
+            new[v.tri] = True
+            new &= faces < 0
+            ref = None
+            if new.any():                    # faces only its sub-pixel samples see
+                ref = Refinement.of_view(np.where(new[v.tri], v.tri, -1), self.scene.mesh.faces,
+                                         self.scene.mesh.vertices, self.scene.mesh.normals, camera.eye,
+                                         self.scene.object_of_face, self.k)
+        if ref is not None:
+            w_seen = ref.face_weights(radius, vert, scale, self.k, refinemod.SPREAD_FRACTION, refinemod.CONTRAST,
+                                      refinemod.RAMP,
+                                      None if layers is None else ref.face_radius(radius, mats.refine, layers),
+                                      probe=self._probe(ref, camera, cuts, node_l, node_w, mats, node8, layers)
+                                      if refinemod.PROBE is not None else None,
+                                      probe_limit=refinemod.PROBE or 0.0)
+            faces[ref.faces] = w_seen[:-1]
+        w = faces[v.tri]                     # row −1 (background) reads the last slot: 0
+        rows = np.nonzero(w > 0)[0]
+        weight = w[rows]
         if not len(rows):
-            return v.tri, rows
+            return v.tri, rows, faces
         part = self._pixel_samples(v, camera, rows)
         px = self._shade_chunked(part, cuts, node_l, node_w, mats, node8, cancelled, layers)
         ramp = weight < 1
@@ -648,7 +672,24 @@ class CutRenderer(Renderer):
         bg[rows] = px
         tri = v.tri.copy()
         tri[rows] = -1
-        return tri, rows
+        return tri, rows, faces
+
+    def _probe(self, ref: Refinement, camera, cuts, node_l, node_w, mats, node8, layers):
+        """The refinement's probe (refine.py face_weights): radiance at the centroids of seen
+        faces (indices into ref.faces)."""
+
+        def probe(idx):
+            s = self._centroid_samples(ref.faces[idx], camera)
+            if layers is not None:
+                return self._shade(s, cuts, node_l, node_w, mats, self.scene.object_of_vertex, node8, layers)
+            # one vertex's cut with the centroid's normal and view direction: the probe looks for a
+            # lobe peak the vertices miss, not for visibility (linear, interpolated exactly); a
+            # third of the cost of blending the face's three cuts
+            v0 = np.ascontiguousarray(s.verts[:, 0])
+            return shade_points(s.normals, s.wo, v0, self.scene.object_of_vertex[v0].astype(np.int32), cuts,
+                                node_l, node_w, self.tree, mats, self.k, node8=node8)
+
+        return probe
 
     def edge_view(self, v: View, samples: int) -> View:
         """The edge samples of a one-sample view v (edges.py): S rays through each pixel next to
@@ -662,7 +703,7 @@ class CutRenderer(Renderer):
             return got
         cam = v.camera
         e = self._sample_view(v, edge_pixels(v.tri, self.scene.mesh.faces, self.scene.object_of_face, cam.height,
-                                             cam.width), samples)
+                                             cam.width, self.k), samples)
         with self._lock:
             v.edges = {**(v.edges or {}), samples: e}
         return e
@@ -775,6 +816,20 @@ class CutRenderer(Renderer):
         wo /= np.linalg.norm(wo, axis=1, keepdims=True)
         return Samples(pix, pos.astype(np.float32), nrm.astype(np.float32), wo.astype(np.float32),
                        f.astype(np.int32), bary, v.tri[pix])
+
+    def _centroid_samples(self, faces: np.ndarray, camera) -> Samples:
+        """Samples at the centroids of faces (k,) int64, shaded like pixels (refine.py's probe)."""
+        mesh = self.scene.mesh
+        vx, vn = self._geometry()
+        f = mesh.faces[faces]
+        bary = np.full((len(faces), 3), np.float32(1.0 / 3.0), np.float32)
+        nrm = vn[f].sum(1)
+        nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), np.float32(1e-30))
+        pos = vx[f].mean(1)
+        wo = np.asarray(camera.eye, np.float32) - pos
+        wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+        return Samples(np.asarray(faces, np.int64), pos.astype(np.float32), nrm.astype(np.float32),
+                       wo.astype(np.float32), f.astype(np.int32), bary, np.asarray(faces, np.int32))
 
     def surface_samples(self, camera, object_index: int, pixels: np.ndarray | None = None) -> Samples:
         """The object's pixels in a view at the camera's resolution, each with its own normal and
