@@ -19,9 +19,11 @@ from pathlib import Path
 
 def cmd_bench_render(a) -> int:
     """Frame time while the light and the BRDF change every frame, at full quality (the
-    precomputed τ, full resolution), at the drag level of detail, and as still frames
-    (full quality anti-aliased with 4 samples per pixel: ``_aa4``), after two warm-up frames
-    (hit buffer, lighting matrices) that a user's first frame pays once."""
+    precomputed τ, full resolution, one sample), as the studio draws while something changes
+    (``_quick``: one sample, interpolated, clusters no finer than the drag level's), at the drag
+    level of detail, and as the studio's settled frames (4 samples at edges and curved
+    highlights: ``_aa4``), after two warm-up frames (hit buffer, lighting matrices) that a
+    user's first frame pays once."""
     import numpy as np
 
     from worker import native
@@ -37,9 +39,12 @@ def cmd_bench_render(a) -> int:
            "vertices": int(len(r.scene.mesh.vertices)), "native": native.available(), "threads": native.max_threads(),
            "simd": bool(r.k.simd()) if hasattr(r.k, "simd") else False,
            "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY")}
-    for lod, samples in (("full", 1), ("drag", 1), ("full", 4)):
+    from worker.jobs.lod import STILL_ANTIALIAS, STILL_SAMPLES
+
+    for lod, samples in (("full", 1), ("quick", 1), ("drag", 1), ("full", STILL_SAMPLES)):
+        aa = STILL_ANTIALIAS if samples > 1 else "full"
         for _ in range(2):  # warm-up: hit buffer, lighting matrices, caches
-            tonemap(_frame(r, shading=mode, lod=lod, samples=samples).radiance)
+            tonemap(_frame(r, shading=mode, lod=lod, samples=samples, antialias=aa).radiance)
         times = []
         for i in range(a.frames):
             rot = (i * 360.0 / max(a.frames, 1)) % 360.0
@@ -47,15 +52,15 @@ def cmd_bench_render(a) -> int:
             mats = [GGX(alpha=0.1 + 0.3 * ((i * 0.37) % 1.0), specular=(0.9, 0.8, 0.6),
                         albedo=(0.3, 0.2 + 0.1 * (i % 3), 0.1)) for _ in range(n)]
             t0 = time.perf_counter()
-            out = _frame(r, mats, mode, rot, lod=lod, samples=samples)
+            out = _frame(r, mats, mode, rot, lod=lod, samples=samples, antialias=aa)
             tonemap(out.radiance)
             times.append(time.perf_counter() - t0)
         ms = float(np.median(times) * 1000)
-        sfx = "_aa4" if samples > 1 else ("" if lod == "full" else "_drag")
+        sfx = "_aa4" if samples > 1 else ("" if lod == "full" else f"_{lod}")
         res.update({f"ms_per_frame{sfx}": ms, f"fps{sfx}": 1000.0 / ms, f"p95_ms{sfx}": float(np.percentile(times, 95) * 1000)})
         if lod == "drag":
             res.update(width_drag=out.info["width"], height_drag=out.info["height"], tau_drag=out.info["tau"])
-        elif samples == 1:
+        elif samples == 1 and lod == "full":
             res.update(visible_vertices=out.info.get("visible_vertices"), tau=out.info["tau"],
                        refined_samples=out.info.get("refined_samples", 0))
         if mode == "pixel":

@@ -42,6 +42,7 @@ def main() -> None:
     ap.add_argument("scene")
     ap.add_argument("--frames", type=int, default=12)
     ap.add_argument("--samples", type=int, default=1)
+    ap.add_argument("--lod", default="full", choices=["full", "quick", "drag"], help="quick: a session's orbit frames")
     ap.add_argument("--model", default="ggx", choices=["ggx", "srbf", "lambert"])
     ap.add_argument("--primary", default=None, choices=["embree", "project"])
     a = ap.parse_args()
@@ -58,7 +59,7 @@ def main() -> None:
         r.primary = a.primary
     cam = scene.spec.camera
     mats = [material(a.model)] * len(scene.spec.objects)
-    r.render(FrameRequest(camera=cam, materials=mats, samples=a.samples))    # warm
+    r.render(FrameRequest(camera=cam, materials=mats, samples=a.samples, lod=a.lod))    # warm
     wall: dict[str, list[float]] = {}
     cpu: dict[str, list[float]] = {}
 
@@ -79,7 +80,7 @@ def main() -> None:
             t("primary_hits", lambda: hits(c, a.samples, d))
         t("view", lambda: r.view(c, a.samples))
         r._views.clear()
-        t("frame", lambda: r.render(FrameRequest(camera=c, materials=mats, samples=a.samples)))
+        t("frame", lambda: r.render(FrameRequest(camera=c, materials=mats, samples=a.samples, lod=a.lod)))
     res = {"wall_ms": {k: round(statistics.median(x), 2) for k, x in wall.items()},
            "cpu_ms": {k: round(statistics.median(x), 2) for k, x in cpu.items()},
            "scene": a.scene, "model": a.model, "samples": a.samples, "frames": a.frames,

@@ -123,13 +123,15 @@ def load_material_overrides(scene, specs) -> list:
     return mats
 
 
-def _frame(r, materials=None, shading="refined", rotation_deg=None, camera=None, lod="full", samples=1):
+def _frame(r, materials=None, shading="refined", rotation_deg=None, camera=None, lod="full", samples=1,
+           antialias="full"):
     from .renderers import FrameRequest, Lighting
 
     spec = r.scene.spec
     rot = spec.environment.rotation_deg if rotation_deg is None else rotation_deg
     return r.render(FrameRequest(camera=camera or spec.camera, lighting=Lighting(rot, spec.environment.intensity),
-                                 materials=materials or r.scene.materials, shading=shading, lod=lod, samples=samples))
+                                 materials=materials or r.scene.materials, shading=shading, lod=lod, samples=samples,
+                                 antialias=antialias))
 
 
 def cmd_render(a) -> int:
