@@ -65,7 +65,7 @@ class FrameRequest:
     materials : one scene material per object, in scene order.
     lod : "full", or "drag" while the user drags (the renderer picks what it coarsens), or
         "quick": a first frame shown at once before the anti-aliased still (full resolution;
-        the cut renderer draws one sample with clusters refined to its drag level; renderers
+        the cut renderer draws one sample with its drag level's cuts and clusters; renderers
         without such a level treat it as "full").
     shading : renderer-specific shading mode (for cuts: "refined", the default, vertex shading
         with per-pixel shading where its interpolation is wrong; "vertex", the interpolation
