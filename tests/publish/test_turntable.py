@@ -55,3 +55,11 @@ def test_the_1x_frame_is_the_mean_of_the_2x_frame():
     mask = np.zeros((4, 6), bool)
     mask[:2] = True
     assert swatch(rgb, mask) == ([200, 10, 20], 0.5)
+    # away from the outline and from a highlight: an object inside a grey background
+    rgb = np.full((12, 12, 3), 128, np.uint8)
+    mask = np.zeros((12, 12), bool)
+    mask[2:10, 2:10] = True
+    rgb[mask] = (180, 20, 20)
+    rgb[2, 2:10] = (150, 80, 80)          # the anti-aliased outline's mix with the background
+    rgb[5, 5] = (255, 255, 255)           # a highlight
+    assert swatch(rgb, mask) == ([180, 20, 20], 64 / 144)

@@ -60,12 +60,19 @@ def encode(rgb1: np.ndarray, rgb2: np.ndarray, enc: dict) -> dict[str, bytes]:
 
 
 def swatch(rgb1: np.ndarray, obj_mask: np.ndarray) -> tuple[list[int], float]:
-    """([r, g, b] mean sRGB colour of the object's pixels, the fraction of pixels it covers):
-    the colour a shopper sees on the object, for the variant's swatch."""
+    """([r, g, b] sRGB colour of the object, the fraction of pixels it covers): the colour a
+    shopper sees on the object, for the variant's swatch: the per-channel median over the
+    object's pixels away from its outline (an anti-aliased outline pixel mixes in the
+    background, and a highlight is the light's colour, not the material's), over all its pixels
+    when too few are inside."""
+    from scipy.ndimage import binary_erosion
+
     n = int(obj_mask.sum())
     if n == 0:
         return [128, 128, 128], 0.0
-    return [int(round(float(c))) for c in rgb1[obj_mask].mean(0)], n / obj_mask.size
+    inner = binary_erosion(obj_mask, iterations=1)
+    px = rgb1[inner] if inner.sum() >= max(16, n // 4) else rgb1[obj_mask]
+    return [int(round(float(c))) for c in np.median(px, axis=0)], n / obj_mask.size
 
 
 def render_frames(cache, p: dict, progress) -> dict:
