@@ -59,8 +59,11 @@ def test_drag_level_of_detail_when_full_frames_do_not_fit(bunny_renderer, monkey
     rt.frame_budget_ms = 1e-3                           # nothing fits
     rt.lod.full_ms["view"].clear()
     h1 = _orbit(rt, 1)                                  # no full frame with a moving view measured yet
-    assert h1["lod"] is False
-    hdrs = [_orbit(rt, i) for i in range(2, 6)]
+    assert h1["lod"] is False and not h1["quick"]
+    for i in (2, 3):                                    # nor quick ones (full resolution, coarse cuts):
+        h = _orbit(rt, i)                               # two, the first may have built the coarse cuts
+        assert h["lod"] is False and h["quick"] and h["width"] == rt.state.camera.width, h
+    hdrs = [_orbit(rt, i) for i in range(4, 6)]
     assert all(h["lod"] is True and h["samples"] == 1 for h in hdrs)
     monkeypatch.setattr(S, "REPROBE_S", 0.0)              # time for another try at full quality
     assert _orbit(rt, 6)["lod"] is False
@@ -175,13 +178,16 @@ def test_under_load_drag_frames_drop_to_a_quarter_of_the_resolution(cache_dir, m
     rt.frame_budget_ms = 1e6
     _orbit(rt, 1)
     assert S.busy_sessions(__import__("time").monotonic()) == 1     # this session, counted once
-    rt.frame_budget_ms = 1e-3                           # full frames never fit: drag level, half first
-    h = _orbit(rt, 2)
+    rt.frame_budget_ms = 1e-3                           # full frames never fit: quick ones are measured,
+    for i in (2, 3):
+        h = _orbit(rt, i)
+        assert h["quick"] and (h["width"], h["height"]) == (640, 480), h
+    h = _orbit(rt, 4)                                   # they do not fit either: drag level, half first
     assert h["lod"] is True and (h["width"], h["height"]) == (320, 240), h
-    h = _orbit(rt, 3)                                   # half did not fit either: a quarter
+    h = _orbit(rt, 5)                                   # half did not fit either: a quarter
     assert h["lod"] is True and (h["width"], h["height"]) == (160, 120), h
     rt.lod.last_half = -float("inf")                       # long since the last half frame: try it again
-    assert _orbit(rt, 4)["width"] == 320
+    assert _orbit(rt, 6)["width"] == 320
     # the budget is shared: two busy sessions halve it
     other = SessionRuntime(r.scene, CutRenderer(r.scene, r.data), {"state": st.model_dump(mode="json"), "strokes": []})
     other.handle({"seq": 1, "type": "view", "eye": [0.2, 0.6, 3.2], "drag": True})
@@ -209,3 +215,20 @@ def test_a_still_frame_is_given_up_when_a_message_arrives(bunny_renderer):
     whole = rt.renderer.render(FrameRequest(**req)).radiance
     parts = rt.renderer.render(FrameRequest(**req, cancelled=lambda: False)).radiance
     np.testing.assert_array_equal(parts, whole)
+
+
+def test_quick_frames_while_dragging_when_full_ones_do_not_fit_but_theirs_do(bunny_renderer):
+    """Between full quality and the half-resolution drag level: full-resolution frames on the
+    drag level's cuts, when their measured cost fits the budget and a full frame's does not."""
+    rt = _runtime(bunny_renderer)
+    rt.frame_budget_ms = 1e6
+    _orbit(rt, 1)
+    rt.lod.full_ms["view"].extend([1e5, 1e5, 1e5])     # full frames: far over any budget
+    rt.frame_budget_ms = 1e4
+    hdrs = [_orbit(rt, i) for i in range(2, 6)]
+    assert all(h["quick"] and h["lod"] is False and h["width"] == rt.state.camera.width for h in hdrs), hdrs
+    assert len(rt.lod.quick_ms["view"]) == 3 and rt.lod.full_ms["view"][-1] == 1e5
+    h = _orbit(rt, 6, drag=False, dx=0.0)               # let go: the settled frame follows
+    assert rt.needs_still_frame()
+    still, _ = rt.frame(6)
+    assert still["samples"] == S.STILL_SAMPLES and not still["quick"]

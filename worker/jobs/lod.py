@@ -56,14 +56,17 @@ class LevelOfDetail:
     """One session's frame-cost history and the level of detail it gives the next frame.
 
     full_ms : ms of full one-sample frames by what changed since the frame before ("view":
-    the camera, "light": the lighting, "other"); drag_ms : ms of drag frames by scale;
+    the camera, "light": the lighting, "other"); quick_ms : the same of quick frames (full
+    resolution, the drag level's cuts); drag_ms : ms of drag frames by scale;
     last : (camera, rotation, intensity, dragging, samples) of the last frame."""
 
     def __init__(self, frame_budget_ms: float = FRAME_BUDGET_MS):
         self.frame_budget_ms = frame_budget_ms
         self.full_ms = {k: deque(maxlen=3) for k in ("view", "light", "other")}
+        self.quick_ms = {k: deque(maxlen=3) for k in ("view", "light", "other")}
         self.last = None
         self.last_full = 0.0                   # time.monotonic() of the last full frame
+        self.last_quick = 0.0                  # … and of the last quick frame
         self.drag_ms = {k: deque(maxlen=3) for k in DRAG_SCALES}
         self.last_half = 0.0                   # time.monotonic() of the last half-resolution drag frame
         self.drag_scale = DRAG_SCALES[0]
@@ -85,7 +88,9 @@ class LevelOfDetail:
         flags gets one sample per frame (``needs_still`` asks for the settled one after).
         While the user drags, frames are full quality (one sample) whenever the measured cost of
         recent full frames of the same kind of change (camera, light, other) fits the frame
-        budget, and at the drag level of detail otherwise, with a full frame tried again every
+        budget; else quick frames (full resolution on the drag level's cuts and clusters: ~1%
+        from full quality, a fitted srbf's frame at about half the cost) when theirs fits; else
+        the drag level of detail (half resolution), with each better level tried again every
         REPROBE_S (the machine's load changes).
 
         The budget is this session's share of its worker: FRAME_BUDGET_MS divided by the
@@ -106,6 +111,14 @@ class LevelOfDetail:
         est = _estimate(hist)
         if est <= budget or now - self.last_full >= _reprobe(est, budget):
             return "full", 1
+        quick = self.quick_ms[change] or self.quick_ms["view"]
+        if len(quick) < 2:
+            # measure (again): the first quick frame of a session (its opening frame, or an
+            # edit's answer) also built its view and the coarse cuts, several times the cost
+            return "quick", 1
+        est = _estimate(quick)
+        if est <= budget or now - self.last_quick >= _reprobe(est, budget):
+            return "quick", 1
         half = self.drag_ms[DRAG_SCALES[0]]
         if half and _estimate(half) > budget and now - self.last_half < _reprobe(_estimate(half), budget):
             self.drag_scale = DRAG_SCALES[1]
@@ -127,6 +140,9 @@ class LevelOfDetail:
             self.last_full = time.monotonic()
             if samples == 1:
                 self.full_ms[change].append(ms)
+        if lod == "quick":
+            self.last_quick = time.monotonic()
+            self.quick_ms[change].append(ms)
         # the samples asked for: a renderer without anti-aliasing (gi, paint, movable objects)
         # draws one, and must not be asked again and again for a still frame
         self.last = (st.camera, st.rotation_deg, st.intensity, dragging, samples)
