@@ -164,7 +164,7 @@ def test_edge_sampling_finds_occlusions_and_object_boundaries():
 def test_edge_kernels_agree_on_a_real_view(bunny_renderer):
     """The C edge kernel (refine.c glk_edge_pixels) and its NumPy reference pick the same pixels."""
     from worker.native.kernels import kernels
-    from worker.renderers.cuts.edges import edge_pixels_numpy
+    from worker.native.refine import edge_pixels_numpy
 
     r = bunny_renderer
     cam = r.scene.spec.camera.model_copy(update={"width": 320, "height": 240})

@@ -69,18 +69,12 @@ def pixel_dirs(eye, target, up, fov_y_deg: float, width: int, height: int, pixel
     ``sample_offsets(S)``) of the pixels pixels (n,) int64 (flat, y·W + x) of a camera: the rows
     of ``camera_dirs`` for those pixels, without making the whole frame's."""
     pix = np.asarray(pixels, np.int64)
-    t = np.tan(np.radians(float(fov_y_deg)) / 2.0)
-    aspect = width / height
     off = sample_offsets(samples)
-    px = (pix % width)[:, None] + 0.5 + off[None, :, 0]             # (n, S)
-    py = (pix // width)[:, None] + 0.5 + off[None, :, 1]
-    xs = (2.0 * px / width - 1.0) * t * aspect
-    ys = (1.0 - 2.0 * py / height) * t
-    d = np.stack([xs, ys, np.ones_like(xs)], axis=-1).reshape(-1, 3)
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    d = _image_to_camera((pix % width)[:, None] + 0.5 + off[None, :, 0],          # (n, S)
+                         (pix // width)[:, None] + 0.5 + off[None, :, 1], float(fov_y_deg), int(width), int(height))
     right, true_up, fwd = camera_axes(eye, target, up)
     basis = np.stack([right, true_up, fwd]).astype(np.float32)
-    return (kernels or _kernels()).rotate_dirs(np.ascontiguousarray(d, np.float32), basis)
+    return (kernels or _kernels()).rotate_dirs(d, basis)
 
 
 def rotate_dirs_numpy(dirs, basis) -> np.ndarray:
@@ -112,18 +106,23 @@ def sample_offsets(samples: int) -> np.ndarray:
 @lru_cache(maxsize=8)
 def _camera_space_dirs(fov_y_deg: float, width: int, height: int, samples: int = 1) -> np.ndarray:
     """(H*W*S, 3) float32 unit directions in the camera frame (x right, y up, z forward)."""
-    t = np.tan(np.radians(fov_y_deg) / 2.0)
-    aspect = width / height
     off = sample_offsets(samples)                                      # (S, 2)
     px = (np.arange(width)[None, :, None] + 0.5 + off[None, None, :, 0])    # (1, W, S)
     py = (np.arange(height)[:, None, None] + 0.5 + off[None, None, :, 1])   # (H, 1, S)
-    xs = (2.0 * px / width - 1.0) * t * aspect
-    ys = (1.0 - 2.0 * py / height) * t
-    d = np.stack(np.broadcast_arrays(xs, ys, np.ones((1, 1, 1))), axis=-1).reshape(-1, 3)
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    d = d.astype(np.float32)
+    d = _image_to_camera(*np.broadcast_arrays(px, py), fov_y_deg, width, height)
     d.setflags(write=False)
     return d
+
+
+def _image_to_camera(px, py, fov_y_deg: float, width: int, height: int) -> np.ndarray:
+    """(n, 3) float32 unit camera-frame directions (x right, y up, z forward) through image
+    points px, py (same shape, float64 pixels from the top-left corner), flattened in C order."""
+    t = np.tan(np.radians(fov_y_deg) / 2.0)
+    xs = (2.0 * px / width - 1.0) * t * (width / height)
+    ys = (1.0 - 2.0 * py / height) * t
+    d = np.stack([xs, ys, np.ones_like(xs)], axis=-1).reshape(-1, 3)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return d.astype(np.float32)
 
 
 # --- shading ----------------------------------------------------------------------------------

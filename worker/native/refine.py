@@ -38,12 +38,49 @@ def face_contrast_numpy(faces, vert_rgb) -> np.ndarray:
     return (r.max(1) - r.min(1)).max(1).astype(np.float32)
 
 
+# (dy, dx) of the neighbour each pixel is compared with: right, down, down-right, down-left;
+# the symmetric half of the 8-neighbourhood (a pair marks both of its pixels)
+_PAIRS = ((0, 1), (1, 0), (1, 1), (1, -1))
+
+
+def edge_pixels_numpy(tri: np.ndarray, faces: np.ndarray, object_of_face: np.ndarray, height: int,
+                      width: int) -> np.ndarray:
+    """NumPy reference of glk_edge_pixels (renderers/cuts/edges.py edge_pixels): (n,) int64 flat
+    indices of the pixels of a one-sample hit buffer tri (H·W,) int32 (−1 background) next to
+    another surface (8-neighbourhood: background against the mesh, another object's face, or a
+    face sharing no vertex with its own); faces (F, 3) int32, object_of_face (F,) int32.
+    Vectorised over the pixel grid, ~30 ms at 1280×960."""
+    t = np.asarray(tri, np.int32).reshape(height, width)
+    mark = np.zeros((height, width), bool)
+    for dy, dx in _PAIRS:
+        ys_a = slice(0, height - dy)
+        ys_b = slice(dy, height)
+        xs_a = slice(max(0, -dx), width - max(0, dx))
+        xs_b = slice(max(0, dx), width - max(0, -dx))
+        a, b = t[ys_a, xs_a], t[ys_b, xs_b]
+        diff = a != b
+        if not diff.any():
+            continue
+        ia, ib = a[diff], b[diff]
+        cut = (ia < 0) | (ib < 0)                  # one side background (both: equal, not here)
+        both = np.nonzero(~cut)[0]
+        if len(both):
+            fa, fb = ia[both], ib[both]
+            va, vb = faces[fa], faces[fb]
+            share = (va[:, :, None] == vb[:, None, :]).any(axis=(1, 2))
+            cut[both] = ~share | (object_of_face[fa] != object_of_face[fb])
+        e = np.zeros(a.shape, bool)
+        e[diff] = cut
+        mark[ys_a, xs_a] |= e
+        mark[ys_b, xs_b] |= e
+    return np.flatnonzero(mark).astype(np.int64)
+
+
 class NumpyRefine:
     """The reference of the refinement kernel."""
     name = "numpy"
 
     def edge_pixels(self, tri, faces, object_of_face, height, width):
-        from ..renderers.cuts.edges import edge_pixels_numpy
         return edge_pixels_numpy(tri, faces, object_of_face, height, width)
 
     def mirror_spread(self, faces, vertices, normals, eye):
@@ -66,7 +103,7 @@ class NativeRefine:
         self._edges = bind("glk_edge_pixels", None, H=i32, W=i32, tri=i32p, faces=i32p, obj=i32p, out=u8p)
 
     def edge_pixels(self, tri, faces, object_of_face, height, width):
-        """(n,) int64 flat pixel indices (see renderers/cuts/edges.py edge_pixels_numpy)."""
+        """(n,) int64 flat pixel indices (see edge_pixels_numpy)."""
         out = np.empty(int(height) * int(width), np.uint8)
         self._edges(int(height), int(width), c(tri, np.int32), c(faces, np.int32).reshape(-1, 3),
                     c(object_of_face, np.int32), out)

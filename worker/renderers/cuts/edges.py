@@ -16,7 +16,8 @@ other the background, or they see faces of different objects, or faces that shar
 (a face and its neighbours share a vertex, so a smooth surface never triggers; split crease
 vertices and occlusion do). The test is O(P) over the pixel grid, once per
 view (a publication renders four frames per camera): the C kernel glk_edge_pixels (refine.c), with
-``edge_pixels_numpy`` its vectorised reference and ``edge_pixels_reference`` the definition.
+native/refine.py ``edge_pixels_numpy`` its vectorised reference and ``edge_pixels_reference``
+here the definition.
 
 The other place one sample is not the pixel's mean is where refined shading (refine.py) is
 curved at the pixel scale: a sharp highlight inside a refined face, and the boundary of a
@@ -39,49 +40,15 @@ import numpy as np
 # docs/benchmarks/index.md (anti-aliasing)
 STEEP = 0.1
 
-# (dy, dx) of the neighbour each pixel is compared with: right, down, down-right, down-left;
-# the symmetric half of the 8-neighbourhood (a pair marks both of its pixels)
-_PAIRS = ((0, 1), (1, 0), (1, 1), (1, -1))
-
-
 def edge_pixels(tri: np.ndarray, faces: np.ndarray, object_of_face: np.ndarray, height: int,
                 width: int, kernels=None) -> np.ndarray:
     """(n,) int64 flat indices (row-major, y·W + x) of the pixels next to an edge of the surface
     seen, from a one-sample view's face per pixel tri (H·W,) int32 (−1 background); faces (F, 3)
     int32 vertex ids, object_of_face (F,) int32; through the kernel backend (C glk_edge_pixels,
-    refine.c; ``edge_pixels_numpy`` is its reference)."""
+    refine.c; native/refine.py ``edge_pixels_numpy`` is its reference)."""
     from ...native.kernels import kernels as _kernels
 
     return (kernels or _kernels()).refine.edge_pixels(tri, faces, object_of_face, height, width)
-
-
-def edge_pixels_numpy(tri: np.ndarray, faces: np.ndarray, object_of_face: np.ndarray, height: int,
-                      width: int) -> np.ndarray:
-    """NumPy reference of ``edge_pixels`` (vectorised over the pixel grid, ~30 ms at 1280×960)."""
-    t = np.asarray(tri, np.int32).reshape(height, width)
-    mark = np.zeros((height, width), bool)
-    for dy, dx in _PAIRS:
-        ys_a = slice(0, height - dy)
-        ys_b = slice(dy, height)
-        xs_a = slice(max(0, -dx), width - max(0, dx))
-        xs_b = slice(max(0, dx), width - max(0, -dx))
-        a, b = t[ys_a, xs_a], t[ys_b, xs_b]
-        diff = a != b
-        if not diff.any():
-            continue
-        ia, ib = a[diff], b[diff]
-        cut = (ia < 0) | (ib < 0)                  # one side background (both: equal, not here)
-        both = np.nonzero(~cut)[0]
-        if len(both):
-            fa, fb = ia[both], ib[both]
-            va, vb = faces[fa], faces[fb]
-            share = (va[:, :, None] == vb[:, None, :]).any(axis=(1, 2))
-            cut[both] = ~share | (object_of_face[fa] != object_of_face[fb])
-        e = np.zeros(a.shape, bool)
-        e[diff] = cut
-        mark[ys_a, xs_a] |= e
-        mark[ys_b, xs_b] |= e
-    return np.flatnonzero(mark).astype(np.int64)
 
 
 def edge_pixels_reference(tri, faces, object_of_face, height: int, width: int) -> np.ndarray:

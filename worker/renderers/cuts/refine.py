@@ -86,16 +86,6 @@ class Refinement:
         spread = kernels.refine.mirror_spread(fv, vertices, normals, eye) if len(fs) else np.zeros(0, np.float32)
         return cls(fs, fv, np.asarray(object_of_face[fs], np.int32), spread, index[tri])
 
-    def select(self, radius, vert_rgb, scale, kernels, fraction: float = SPREAD_FRACTION,
-               contrast: float = CONTRAST, ramp: float = RAMP, face_radius=None, probe=None,
-               probe_limit: float = PROBE) -> tuple[np.ndarray, np.ndarray]:
-        """(rows (m,) int64, weight (m,) float32 in (0, 1]): the sample rows to shade per pixel
-        this frame and how much of the per-pixel value each takes (the rest is the vertex
-        shading's interpolation): the rows of the faces ``face_weights`` gives a weight > 0."""
-        w = self.face_weights(radius, vert_rgb, scale, kernels, fraction, contrast, ramp, face_radius, probe,
-                              probe_limit)
-        return self.rows_of(w)
-
     def rows_of(self, face_weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(rows, weight) of the view's sample rows whose face has weight > 0 in face_weight
         (F_s + 1,) float32 (``face_weights``; its last slot, background rows', is 0)."""
