@@ -175,6 +175,16 @@ def test_bundle_manifest_immutable_files_zip_and_incremental_rebuild(server, cli
     assert b3["stats"]["model"] == b2["stats"]["model"]
 
 
+def test_bundle_samples_the_renderer_has_no_pattern_for_are_refused(client, ground_scene):
+    """3 samples a pixel was accepted and the build failed in the worker (no such pattern): the
+    request is refused, naming the field."""
+    sid, _ = ground_scene
+    mat = client.post("/v1/materials", json={"name": "grey", "material": {"model": "lambert"}}).json()
+    r = client.post("/v1/publications", json={"name": "three", "scene_id": sid, "bundle": {**SMALL, "samples": 3},
+                                              "variants": [{"material_id": mat["id"]}]})
+    assert r.status_code == 422 and "samples" in r.text, r.text
+
+
 def test_the_scenes_map_is_published_turned_as_the_scene_turns_it(client, ground_scene):
     """The scene turns its map by 90° (what the designer sees in the studio); an environment preset
     that names no rotation shows it the same way, so its frames are those of an explicit 90°
