@@ -184,19 +184,20 @@ def wait_new_frame(page, after, timeout=60_000):
     page.wait_for_timeout(150)
 
 
-def settle(page, quiet_ms=1200, timeout=60_000):
-    """Wait until no new frame has arrived for quiet_ms and the last one is not a quick frame
-    (a quick frame, one sample after a new fit or view, is always followed by its anti-aliased
-    still, which a loaded machine may take longer than quiet_ms to draw): the last message's
-    settled frame is in."""
-    waited, last = 0, frame_no(page)
+def settle(page, quiet_ms=600, timeout=60_000):
+    """Wait until the canvas shows a settled frame (FrameHeader.settled: the session draws no
+    still after it, so nothing more comes until a message changes its state) and no other
+    frame has arrived for quiet_ms (the frame answering the test's last action, had it not been
+    drawn yet, would come within that on this machine; a quick or drag frame is never settled)."""
+    waited, quiet, last = 0, 0, frame_no(page)
     while waited < timeout:
-        page.wait_for_timeout(quiet_ms)
-        waited += quiet_ms
+        page.wait_for_timeout(150)
+        waited += 150
         now = frame_no(page)
-        if now == last and page.evaluate("() => document.getElementById('view').dataset.quick") != "true":
-            return
+        quiet = quiet + 150 if now == last else 0
         last = now
+        if quiet >= quiet_ms and page.evaluate("() => document.getElementById('view').dataset.settled") == "true":
+            return
     raise TimeoutError("frames kept coming")
 
 

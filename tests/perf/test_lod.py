@@ -49,9 +49,10 @@ def test_full_frames_while_dragging_when_they_fit_the_budget(bunny_renderer):
     # refined frame may cost seconds: a sharp paint), then the still, anti-aliased
     rt.handle({"seq": 7, "type": "material", "material": {"model": "lambert", "albedo": [0.6, 0.3, 0.2]}})
     h, _ = rt.frame(7)
-    assert h["samples"] == 1 and rt.needs_still_frame()
+    assert h["samples"] == 1 and rt.needs_still_frame() and not h["settled"]
     h, _ = rt.frame(7)
-    assert h["samples"] == S.STILL_SAMPLES and not rt.needs_still_frame()
+    # the still says it is the last frame of this state (the studio's tests wait for it)
+    assert h["samples"] == S.STILL_SAMPLES and not rt.needs_still_frame() and h["settled"]
 
 
 def test_drag_level_of_detail_when_full_frames_do_not_fit(bunny_renderer, monkeypatch):
@@ -227,6 +228,7 @@ def test_quick_frames_while_dragging_when_full_ones_do_not_fit_but_theirs_do(bun
     rt.frame_budget_ms = 1e4
     hdrs = [_orbit(rt, i) for i in range(2, 6)]
     assert all(h["quick"] and h["lod"] is False and h["width"] == rt.state.camera.width for h in hdrs), hdrs
+    assert not any(h["settled"] for h in hdrs)          # a dragging session's frames never are
     assert len(rt.lod.quick_ms["view"]) == 3 and rt.lod.full_ms["view"][-1] == 1e5
     h = _orbit(rt, 6, drag=False, dx=0.0)               # let go: the settled frame follows
     assert rt.needs_still_frame()

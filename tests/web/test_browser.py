@@ -98,6 +98,7 @@ def test_studio_and_viewer(server, client, bunny_scene, browser, artifacts):
     page.click("#save")
     page.wait_for_function("() => document.getElementById('status').textContent.includes('saved')", timeout=60_000)
     page.locator("#versions li").first.wait_for(timeout=30_000)          # the version list loads
+    page.select_option("#publish-frames", "24")                          # a draft turntable
     page.click("#publish")
     link = page.locator("#publish-link")
     link.wait_for(state="visible", timeout=30_000)
@@ -123,6 +124,8 @@ def test_studio_and_viewer(server, client, bunny_scene, browser, artifacts):
     assert waiting and not [t for t in said if "publication" in t or href.rsplit("/", 1)[1] in t], said
     gv = canvas_grid(viewer)
     viewer.screenshot(path=str(artifacts / "web-6-viewer.png"))
+    # the turn the designer chose: 24 frames at each of the two default elevations
+    assert client.get(f"/v1/publications/{href.rsplit('/', 1)[1]}").json()["bundle"]["stats"]["views"] == 48
     assert gv.std() > 5
     assert viewer.locator(".swatch").count() == 1
     assert viewer.locator(".swatch").inner_text() == "curved bunny"       # the design's name, shown

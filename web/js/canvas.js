@@ -38,6 +38,7 @@ export class FrameView {
       while (this.times.length && now - this.times[0] > 1000) this.times.shift();
       this.canvas.dataset.samples = String(f.header.samples);
       this.canvas.dataset.quick = String(!!f.header.quick);
+      this.canvas.dataset.settled = String(!!f.header.settled);
       this.canvas.dataset.frame = String(f.header.frame);
       this.canvas.dataset.ack = String(f.header.ack);
       delete this.canvas.dataset.preview;

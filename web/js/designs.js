@@ -185,7 +185,8 @@ export function mountDesigns({ status, send, session, state, applyMaterial }) {
       // captured map applied in the session is not an uploaded preset here: the scene's map then)
       const environments = st.environment_index == null ? [{ rotation_deg: st.rotation_deg ?? 0 }] : [];
       const p = await api("/v1/publications", { method: "POST", body: { name, scene_id: s.scene_id, object: st.object,
-        variants: ids.map((id) => ({ material_id: id })), environments } });
+        variants: ids.map((id) => ({ material_id: id })), environments,
+        bundle: { azimuths: +$("publish-frames").value } } });
       const a = $("publish-link");
       a.href = p.viewer; a.textContent = `open the viewer (${p.variants.length} variant${p.variants.length > 1 ? "s" : ""})`;
       a.classList.remove("hidden");

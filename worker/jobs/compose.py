@@ -64,10 +64,12 @@ def release_scratch(width: int, height: int) -> None:
 
 
 def header(frame: int, ack: int, width: int, height: int, lod: str, info: dict, ms_render: float,
-           ms_encode: float, ms_paused: float, skipped: int) -> dict:
+           ms_encode: float, ms_paused: float, skipped: int, settled: bool = False) -> dict:
     """The frame header (FrameHeader fields; the session thread adds ms_wait, ms_apply,
-    ms_fit). lod : "full", "drag" or "quick"; info : the renderer's Rendered.info."""
+    ms_fit). lod : "full", "drag" or "quick"; info : the renderer's Rendered.info; settled :
+    no still frame follows this one (FrameHeader.settled)."""
     return {"frame": frame, "ack": ack, "width": width, "height": height, "format": "jpeg",
             "ms_render": round(ms_render, 2), "lod": lod == "drag", "quick": lod == "quick",
             "samples": int(info.get("samples", 1)), "shadow": info.get("ground_shadow"),
-            "ms_encode": round(ms_encode, 2), "ms_paused": round(ms_paused, 2), "skipped": skipped}
+            "ms_encode": round(ms_encode, 2), "ms_paused": round(ms_paused, 2), "skipped": skipped,
+            "settled": bool(settled)}

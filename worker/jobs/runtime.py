@@ -369,8 +369,11 @@ class SessionRuntime(FitDriver):
         self.lod.record(st, self._drag, lod, samples, change, (t2 - t0) * 1e3)
         self.frame_no += 1
         compose.release_scratch(w, h)
+        # settled: the session thread draws no still after it (needs_still_frame once the user
+        # lets go); a drag frame is never settled, its still follows the drag
         hdr = compose.header(self.frame_no, ack, w, h, lod, out.info, (t1 - t0) * 1e3, (t2 - t1) * 1e3,
-                             clock.paused * 1e3, skipped)
+                             clock.paused * 1e3, skipped,
+                             settled=not self._drag and not self.lod.needs_still(False))
         return hdr, jpeg
 
 

@@ -27,6 +27,9 @@ class FrameHeader(BaseModel):
     quick: bool = Field(False, description="a first frame shown at once (after a new fit, or when the user lets go "
                                            "of the camera): one sample, highlights slightly blurred; the anti-aliased "
                                            "still of the same state follows when the session is idle")
+    settled: bool = Field(False, description="the settled image of the session's state: no further frame follows "
+                                             "until a message changes it (false for quick and drag frames, and "
+                                             "for one-sample frames whose anti-aliased still is still to come)")
     shadow: bool | None = Field(None, description="the ground shadow is drawn; null: the scene has no ground")
     ms_render: float = Field(description="rendering, not counting ms_paused")
     ms_encode: float
