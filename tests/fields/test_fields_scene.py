@@ -47,9 +47,14 @@ def lighting(scene):
 
 
 def lambert(points_n, wo, cuts, lights, tree):
+    """Radiance of the points seen from wo; zero where the normal faces away from the eye (the
+    renderer shades those at grazing, for outlines; the cut comparisons here, and the bounds
+    measured on them, are over the surface facing the eye)."""
     mats = MaterialTable([pack(Lambert(albedo=(0.8, 0.8, 0.8)))])
     k = len(points_n)
-    return shade_points(points_n, wo, np.arange(k, dtype=np.int32), np.zeros(k, np.int32), cuts, *lights, tree, mats)
+    out = shade_points(points_n, wo, np.arange(k, dtype=np.int32), np.zeros(k, np.int32), cuts, *lights, tree, mats)
+    out[(np.asarray(points_n, np.float64) * np.asarray(wo, np.float64)).sum(1) <= 0] = 0.0
+    return out
 
 
 def rel_errors(a, b):

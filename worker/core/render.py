@@ -259,6 +259,25 @@ def split_entries(pt, h, start, q, tree: DirectionTree, mirror, pairs):
         h = np.concatenate([h[stay], h[k] - 1, h[k] - 1])
 
 
+GRAZE_COS = 1e-3       # shade.c glint_common.h GRAZE_COS
+
+
+def facing_view(n, wo) -> np.ndarray:
+    """View directions (P, 3) float64 for shading normals n (P, 3) and unit ωo (P, 3): ωo where
+    cosθo ≥ GRAZE_COS, else taken just above the normal's horizon (ωo + n(GRAZE_COS − cosθo),
+    normalised). Every shaded point is seen, but its shading normal (a vertex's, or one
+    interpolated across a face) can face away from the eye at a silhouette: its grazing
+    radiance, not none (a black vertex smeared across a silhouette's faces)."""
+    n = np.asarray(n, np.float64)
+    wo = np.array(wo, np.float64)
+    co = (n * wo).sum(1)
+    low = co < GRAZE_COS
+    if low.any():
+        w = wo[low] + n[low] * (GRAZE_COS - co[low])[:, None]
+        wo[low] = w / np.maximum(np.linalg.norm(w, axis=1, keepdims=True), 1e-30)
+    return wo
+
+
 def cluster_directions(node_w, idx, n):
     """Representative incident directions (M, 3) of clusters idx for points with normals n
     (M, 3): the light-weighted centroid, nudged just above the horizon when a cluster straddling
@@ -272,6 +291,7 @@ def cluster_directions(node_w, idx, n):
 
 
 def _shade_chunk(n, wo, cut_of, mat_of, cuts, node_l, node_w, tree, mats):
+    wo = facing_view(n, wo)
     co = (n * wo).sum(1)
     live = np.nonzero((co > 0) & (cut_of >= 0))[0]
     if len(live) == 0:
@@ -318,6 +338,7 @@ def shade_blend_numpy(normals, wo, verts, bary, mat_of, cuts: CutSet, node_l, no
     for s in range(0, len(normals), chunk):
         e = min(s + chunk, len(normals))
         n, w = normals[s:e].astype(np.float64), wo[s:e].astype(np.float64)
+        w = facing_view(n, w)
         co = (n * w).sum(1)
         live = np.nonzero((co > 0) & (verts[s:e, 0] >= 0))[0]
         if len(live) == 0:

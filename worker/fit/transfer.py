@@ -20,7 +20,7 @@ import scipy.sparse as sp
 from ..core.brdf import onb
 from ..core.cuts import CutSet
 from ..core.directions import DirectionTree
-from ..core.render import cluster_directions, expand_cut_entries
+from ..core.render import cluster_directions, expand_cut_entries, facing_view
 from .basis import SRBFBasis
 
 
@@ -54,6 +54,7 @@ def _transfer_chunk(n, wo, verts, bary, cuts, node_l, node_w, tree, basis, pairs
     p_n, J = len(n), basis.J
     T = np.zeros((3, p_n, J))
     E = np.zeros((p_n, 3))
+    wo = facing_view(n, wo)
     co = (n * wo).sum(1)
     live = np.nonzero(co > 0)[0]
     if len(live) == 0:

@@ -113,7 +113,7 @@ void glk_fit_transfer(
 #pragma omp for schedule(dynamic, 8)
         for (int64_t p = 0; p < P; p++) {
             v3 n = mk(normals[3 * p], normals[3 * p + 1], normals[3 * p + 2]);
-            v3 wo = mk(wo_dirs[3 * p], wo_dirs[3 * p + 1], wo_dirs[3 * p + 2]);
+            v3 wo = facing_view(n, mk(wo_dirs[3 * p], wo_dirs[3 * p + 1], wo_dirs[3 * p + 2]));
             double e[3] = {0, 0, 0};
             memset(acc, 0, sizeof(float) * 3 * J);
             double co = dot(n, wo);

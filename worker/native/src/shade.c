@@ -717,7 +717,7 @@ void glk_shade_points(
 #pragma omp for schedule(dynamic, 16)
         for (int64_t p = 0; p < P; p++) {
             v3 n = mk(normals[3 * p], normals[3 * p + 1], normals[3 * p + 2]);
-            v3 wo = mk(wo_dirs[3 * p], wo_dirs[3 * p + 1], wo_dirs[3 * p + 2]);
+            v3 wo = facing_view(n, mk(wo_dirs[3 * p], wo_dirs[3 * p + 1], wo_dirs[3 * p + 2]));
             double acc[3] = {0, 0, 0};
             double co = dot(n, wo);
             int mi = mat_of[p];
@@ -775,10 +775,10 @@ void glk_shade_blend(
         merged_cuts mc = {0, NULL, NULL, NULL, NULL, NULL, NULL, NULL};
 #pragma omp for schedule(dynamic, 4)
         for (int64_t g = 0; g < G; g++) {
-            int64_t U = -1;                     /* merged lazily: a group's points may all face away */
+            int64_t U = -1;                     /* merged lazily: a group's points may have no cuts */
             for (int64_t p = group[g]; p < group[g + 1]; p++) {
                 v3 n = mk(normals[3 * p], normals[3 * p + 1], normals[3 * p + 2]);
-                v3 wo = mk(wo_dirs[3 * p], wo_dirs[3 * p + 1], wo_dirs[3 * p + 2]);
+                v3 wo = facing_view(n, mk(wo_dirs[3 * p], wo_dirs[3 * p + 1], wo_dirs[3 * p + 2]));
                 double acc[3] = {0, 0, 0};
                 double co = dot(n, wo);
                 int mi = mat_of[p];
