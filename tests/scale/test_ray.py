@@ -126,7 +126,9 @@ def test_session_and_a_killed_actor(ray_server, ray_precomputed):
             assert img0.std() > 5
             ev = []
             await ws.send(json.dumps({"seq": 1, "type": "stroke", "stroke": STROKE}))
-            await next_frame(ws, 1, ev, timeout=180)
+            h, _ = await next_frame(ws, 1, ev, timeout=180)
+            while not h["settled"]:          # its still too: nothing of this actor's left in flight
+                h, _ = await next_frame(ws, 1, ev, timeout=180)
             assert any(e["type"] == "fit" for e in ev), ev
             pid = c.get(f"/v1/sessions/{ses['id']}", headers=hdr).json()["worker_pid"]
             assert pid and pid != f["srv"].proc.pid
