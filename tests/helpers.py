@@ -179,6 +179,18 @@ def frame_no(page) -> int:
     return int(page.evaluate("() => +(document.getElementById('view').dataset.frame || 0)"))
 
 
+def open_scene(page, scene, timeout=60_000):
+    """Open ``scene`` from the studio's Scene panel and wait for its new session's first frame
+    (the URL names the new session, and the canvas's frame numbers start again from 1 then:
+    a frame number read before the click can be the last session's)."""
+    old = page.evaluate("() => new URLSearchParams(location.search).get('session')")
+    page.select_option("#scene-select", scene)
+    page.click("#open-scene")
+    page.wait_for_function("(old) => new URLSearchParams(location.search).get('session') !== old"
+                           " && +(document.getElementById('view').dataset.frame || 0) > 0", arg=old, timeout=timeout)
+    page.wait_for_timeout(150)
+
+
 def wait_new_frame(page, after, timeout=60_000):
     page.wait_for_function(f"() => +(document.getElementById('view').dataset.frame || 0) > {after}", timeout=timeout)
     page.wait_for_timeout(150)

@@ -54,11 +54,9 @@ def test_move_tool_slides_and_turns_the_object(server, crate, crate_scene, artif
             page.goto(server["base"] + "/")
             page.wait_for_function(f"() => [...document.querySelectorAll('#scene-select option')]"
                                    f".some(o => o.value === '{crate_scene}' && !o.disabled)", timeout=60_000)
-            page.select_option("#scene-select", crate_scene)
-            page.click("#open-scene")
+            helpers.open_scene(page, crate_scene)
             page.wait_for_function("() => !document.getElementById('move-tool').classList.contains('hidden')",
                                    timeout=60_000)
-            page.wait_for_function("() => +(document.getElementById('view').dataset.frame || 0) > 0", timeout=60_000)
             settle(page)
             page.check("#tool-move")
             assert page.locator("#move-object").input_value() == "box"

@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 import pytest
-from helpers import drag, frame_no, settle, wait_new_frame
+from helpers import drag, frame_no, open_scene, settle, wait_new_frame
 
 pytest.importorskip("playwright.sync_api")
 
@@ -61,10 +61,7 @@ def _page(browser, server, errors):
 
 
 def _open(page, scene_id):
-    page.select_option("#scene-select", scene_id)
-    n = frame_no(page)
-    page.click("#open-scene")
-    wait_new_frame(page, n)
+    open_scene(page, scene_id)
 
 
 def _status(page, text, timeout=120_000):

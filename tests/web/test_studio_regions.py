@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from helpers import canvas_grid, drag, frame_no, settle, wait_new_frame
+from helpers import canvas_grid, drag, frame_no, open_scene, settle, wait_new_frame
 
 pytest.importorskip("playwright.sync_api")
 
@@ -37,10 +37,7 @@ def test_a_stroke_paints_a_region_and_the_rest_stays(server, bunny_scene, browse
     wait_new_frame(page, 0)
     settle(page)
     if page.locator("#scene-select").input_value() != bunny_scene:
-        page.select_option("#scene-select", bunny_scene)
-        page.click("#open-scene")
-        page.evaluate("() => { document.getElementById('view').dataset.frame = '0'; }")
-        wait_new_frame(page, 0)
+        open_scene(page, bunny_scene)
         settle(page)
     _still(page, 0)
     g0 = canvas_grid(page)

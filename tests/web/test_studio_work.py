@@ -10,7 +10,7 @@ import httpx
 import numpy as np
 import pytest
 
-from helpers import canvas_grid, drag, frame_no, settle, wait_new_frame
+from helpers import canvas_grid, drag, frame_no, open_scene, settle, wait_new_frame
 
 pytest.importorskip("playwright.sync_api")
 
@@ -24,14 +24,7 @@ def _open(ctx, url, errors, scene=None):
     wait_new_frame(page, 0)
     settle(page)
     if scene is not None and page.locator("#scene-select").input_value() != scene:
-        old = _sid(page)
-        page.select_option("#scene-select", scene)
-        page.click("#open-scene")
-        # a new session (its frames are numbered from 1 again): the URL names it, then it draws
-        page.wait_for_function(f"() => new URLSearchParams(location.search).get('session') !== {json.dumps(old)}",
-                               timeout=60_000)
-        page.evaluate("() => { document.getElementById('view').dataset.frame = '0'; }")
-        wait_new_frame(page, 0)
+        open_scene(page, scene)
         settle(page)
     return page
 

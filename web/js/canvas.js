@@ -59,7 +59,7 @@ export class FrameView {
     if (this.pending) { this.pending.bitmap.close(); this.pending = null; }
     if (this.drawn) {
       this.ctx.clearRect(0, 0, this.canvas.width, this.canvas.height);
-      for (const k of ["samples", "quick", "frame", "ack"]) delete this.canvas.dataset[k];
+      for (const k of ["samples", "quick", "settled", "frame", "ack"]) delete this.canvas.dataset[k];
     }
     this.header = null;
     this.drawn = 0;
