@@ -65,6 +65,50 @@ def test_vector_and_scalar_shading_agree_with_the_reference(bunny, m):
         k.simd(1)
 
 
+def test_the_ancestor_test_changes_no_cluster_list(bunny):
+    """The shading walk skips the cone tests of entries under tree nodes whose every descendant
+    is too far from the mirror direction to be split (shade.c ancestors_reaching): a sharp
+    multi-scale srbf (extent ~0.2 rad) shades bit for bit as with every ancestor reaching, and
+    each ancestor's bound covers its descendants' cones."""
+    from worker.models import SRBF
+    from worker.native import kernels as K
+
+    scene, cuts = bunny
+    tree = get_tree()
+    k = kernels("native")
+    nl, nw, n8 = light_tables(LeafLighting(scene.envmap, tree), 47.0, 1.0, tree, k)
+    rng = np.random.default_rng(5)
+    vi = rng.choice(len(scene.mesh.vertices), 600, replace=False).astype(np.int32)
+    n = scene.mesh.normals[vi]
+    wo = np.array([0.3, 0.8, 3.0], np.float32) - scene.mesh.vertices[vi]
+    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    m = SRBF(centers=[(0.0, 0.0, 1.0), (0.05, 0.0, 0.99875), (0.0, 0.3, 0.9539)], bandwidths=[5000.0, 1300.0, 80.0],
+             bandwidth=80.0, coefficients=[(3.0, 3.0, 3.0), (1.0, 0.8, 0.6), (0.05, 0.05, 0.05)], albedo=(0.2, 0.2, 0.2))
+    mats = MaterialTable([m.pack()])
+    assert mats.extent[0] < 0.5
+    mat_of = np.zeros(len(vi), np.int32)
+    got = k.shade_points(n, wo, vi, mat_of, cuts, nl, nw, tree, mats, node8=n8)
+    anc, level = K._ancestor_bounds(tree)
+    saved = K._ANC[id(tree)]
+    try:       # every ancestor reaching: the walk tests every entry as before
+        K._ANC[id(tree)] = (tree, np.tile(np.float32([-1.0, 0.0, np.pi]), (len(anc), 1)), level)
+        every = k.shade_points(n, wo, vi, mat_of, cuts, nl, nw, tree, mats, node8=n8)
+    finally:
+        K._ANC[id(tree)] = saved
+    assert got.max() > 0
+    np.testing.assert_array_equal(got, every)
+    ref = shade_points_numpy(n, wo, vi, mat_of, cuts, nl, nw, tree, mats)
+    np.testing.assert_allclose(got, ref, rtol=2e-4, atol=1e-6 * ref.max())
+    # the bounds, by brute force over each ancestor's descendants at every level
+    lev, H = tree.level_offset, tree.height
+    d = tree.node_dir / np.linalg.norm(tree.node_dir, axis=1, keepdims=True)
+    for a in range(0, len(anc), 5):
+        for h in range(level + 1):
+            ids = lev[h] + np.arange(a << (level - h), (a + 1) << (level - h))
+            ang = np.arccos(np.clip(d[ids] @ d[lev[level] + a], -1, 1)) + tree.node_radius[ids]
+            assert ang.max() <= anc[a, 2] + 1e-5, (a, h, ang.max(), anc[a, 2])
+
+
 def test_background_and_resolve_agree(bunny_renderer):
     """The background from per-view map coordinates equals a direct lookup (and its reference),
     with and without a ground-shadow grid; the resolve of S samples equals the reference's mean."""

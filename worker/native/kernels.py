@@ -153,7 +153,7 @@ class NativeKernels(_Families):
             "glk_shade_points", None, P=i64, normals=f32p, wo_dirs=f32p, cut_of=i32p, mat_of=i32p,
             cut_off=i64p, cut_h=u8p, cut_q=u8p, node8=f32p, node_dir=f32p, node_radius=f32p, node_cs=f32p,
             level_off=i64p, H=i32, mat_kind=i32p, mat_params=f32p, mat_refine=f32p, mat_extent=f32p,
-            tables=f32p, table_off=i64p, out=f32p)
+            tables=f32p, table_off=i64p, anc=f32p, alevel=i32, out=f32p)
         self._blend = bind(
             "glk_shade_blend", None, P=i64, normals=f32p, wo_dirs=f32p, verts=i32p, bary=f32p, mat_of=i32p,
             G=i64, group=i64p, cut_off=i64p, cut_h=u8p, cut_q=u8p, node8=f32p, node_dir=f32p, node_radius=f32p,
@@ -232,7 +232,8 @@ class NativeKernels(_Families):
         self._shade(p, c(normals, np.float32), c(wo, np.float32), cut_c, mat_of, c(cuts.offsets, np.int64),
                     c(cuts.heights, np.uint8), c(cuts.quant, np.uint8), c(node8, np.float32),
                     tree.node_dir, tree.node_radius, _node_cs(tree), c(tree.level_offset, np.int64),
-                    tree.height, kind, mats.params, mats.refine, mats.extent, mats.tables, mats.table_off, out)
+                    tree.height, kind, mats.params, mats.refine, mats.extent, mats.tables, mats.table_off,
+                    *_ancestor_bounds(tree), out)
         if no_kernel.any():
             from ..core.render import shade_points_numpy
 
@@ -450,6 +451,33 @@ def _node_cs(tree) -> np.ndarray:
         r = tree.node_radius.astype(np.float64)
         _CS[id(tree)] = (tree, np.ascontiguousarray(np.stack([np.cos(r), np.sin(r)], 1), np.float32))
     return _CS[id(tree)][1]
+
+
+ANCESTORS = 32        # nodes of the level the shading kernel's ancestor test looks at (shade.c)
+_ANC: dict = {}
+
+
+def _ancestor_bounds(tree) -> tuple[np.ndarray, int]:
+    """(NA, 3) float32 (cos B, sin B, B) per node of the level of NA = ANCESTORS nodes (fewer in a
+    smaller tree), and that level: B (radians) bounds the cone of every descendant D of the node A
+    (angle(dir_A, dir_D) + R_D, D = A included), so that no descendant can reach within e of a
+    direction farther than B + e from dir_A (shade.c ancestors_reaching); kept per tree."""
+    if id(tree) not in _ANC:
+        H = tree.height
+        la = max(0, H - int(np.log2(ANCESTORS)))
+        lev = np.asarray(tree.level_offset, np.int64)
+        d = tree.node_dir.astype(np.float64)
+        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-30)
+        na = 1 << (H - la)
+        da = d[lev[la] + np.arange(na)]
+        b = np.zeros(na)
+        for h in range(la + 1):
+            k = np.arange(1 << (H - h))
+            a = k >> (la - h)
+            ang = np.arccos(np.clip((d[lev[h] + k] * da[a]).sum(1), -1.0, 1.0)) + tree.node_radius[lev[h] + k]
+            np.maximum.at(b, a, ang)
+        _ANC[id(tree)] = (tree, np.ascontiguousarray(np.stack([np.cos(b), np.sin(b), b], 1), np.float32), la)
+    return _ANC[id(tree)][1], _ANC[id(tree)][2]
 
 
 def kernels(name: str | None = None):
