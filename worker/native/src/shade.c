@@ -706,7 +706,7 @@ static void sum_point(int simd, int kind, const float *prm, const float *tab, v3
  * angle(dir_D, r) ≥ angle(dir_A, r) − (B − R_D): none is when angle(dir_A, r) ≥ B + e (a margin
  * ANC_MARGIN over it covers the float directions). The vector walk skips the cone tests of the
  * groups of entries under such ancestors (8 gathers a group, and their cache lines: with a sharp
- * fitted srbf, 40% of the shading); which nodes are split does not change. anc NULL: every bit.
+ * fitted srbf, a third of the shading); which nodes are split does not change. anc NULL: every bit.
  */
 #define ANC_MARGIN 1e-3
 static uint64_t ancestors_reaching(const float *anc, int alevel, int H, const int64_t *lev, const float *node_dir,
