@@ -4,13 +4,13 @@ vertex normal at a silhouette, or one interpolated there) is shaded with its gra
 the faces of a silhouette made dark speckles along every outline."""
 from __future__ import annotations
 
-import math
 import warnings
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from scipy.ndimage import binary_erosion
 
+from bench.profile_orbit import orbit
 from worker.core import render as R
 from worker.models import GGX, Lambert
 from worker.renderers import FrameRequest
@@ -30,7 +30,7 @@ def _facing_away(r, eye):
 
 def test_a_point_facing_away_is_shaded_at_grazing_not_black(bunny_renderer):
     r = bunny_renderer
-    ids, n, wo = _facing_away(r, np.array([0.0, 0.6, 3.2], np.float32))
+    ids, n, wo = _facing_away(r, np.asarray(r.scene.spec.camera.eye, np.float32))
     assert len(ids) > 50
     node_l, node_w = r.light(Lighting(0.0, 1.0))
     mat_of = np.zeros(len(ids), np.int32)
@@ -56,14 +56,9 @@ def test_outlines_have_no_dark_speckles(bunny_renderer):
     here (2.6% when facing-away vertices were black; what remains are outlines of real
     crevices, under the ear and the haunch)."""
     r = bunny_renderer
-    cam = r.scene.spec.camera
-    eye, tgt = np.asarray(cam.eye, float), np.asarray(cam.target, float)
     outline = dark = 0
     for k in range(12):
-        a = math.radians(30 * k)
-        q = eye - tgt
-        e = (tgt[0] + q[0] * math.cos(a) - q[2] * math.sin(a), eye[1], tgt[2] + q[0] * math.sin(a) + q[2] * math.cos(a))
-        c = cam.model_copy(update={"eye": e})
+        c = orbit(r.scene.spec.camera, k, step_deg=30.0)
         for shading in ("vertex", "refined"):
             out = r.render(FrameRequest(camera=c, materials=[Lambert(albedo=(0.7, 0.7, 0.7))], shading=shading))
             lum = out.radiance.mean(2)

@@ -36,21 +36,28 @@ def _cases():
     return out
 
 
+def _bunny_points(bunny, count, seed, eyes):
+    """count random bunny vertices, each seen from one of eyes (cycled), lit by the bunny's map
+    turned 47°: (tree, kernels, (node_l, node_w, node8), vertex ids, normals, unit ωo)."""
+    scene, _ = bunny
+    tree = get_tree()
+    k = kernels("native")
+    lights = light_tables(LeafLighting(scene.envmap, tree), 47.0, 1.0, tree, k)
+    vi = np.random.default_rng(seed).choice(len(scene.mesh.vertices), count, replace=False).astype(np.int32)
+    eye = np.asarray(eyes, np.float32)
+    wo = eye[np.arange(len(vi)) % len(eye)] - scene.mesh.vertices[vi]
+    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    return tree, k, lights, vi, scene.mesh.normals[vi], wo
+
+
 @pytest.mark.parametrize("m", _cases())
 def test_vector_and_scalar_shading_agree_with_the_reference(bunny, m):
     """Every model example, on 400 bunny vertices seen from several sides (so clusters are
     refined near the mirror direction and straddle the horizon): the AVX2 path (when the CPU
     has it) and the forced scalar path both match the NumPy reference."""
-    scene, cuts = bunny
-    tree = get_tree()
-    k = kernels("native")
-    nl, nw, n8 = light_tables(LeafLighting(scene.envmap, tree), 47.0, 1.0, tree, k)
-    rng = np.random.default_rng(3)
-    vi = rng.choice(len(scene.mesh.vertices), 400, replace=False).astype(np.int32)
-    n = scene.mesh.normals[vi]
-    eye = np.array([[0.3, 0.8, 3.0], [-3.0, 0.2, 0.5], [0.5, 3.0, -1.0], [2.0, -1.0, 2.0]], np.float32)
-    wo = eye[np.arange(len(vi)) % 4] - scene.mesh.vertices[vi]
-    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    cuts = bunny[1]
+    tree, k, (nl, nw, n8), vi, n, wo = _bunny_points(
+        bunny, 400, 3, [[0.3, 0.8, 3.0], [-3.0, 0.2, 0.5], [0.5, 3.0, -1.0], [2.0, -1.0, 2.0]])
     mats = MaterialTable([m.pack()])
     mat_of = np.zeros(len(vi), np.int32)
     ref = shade_points_numpy(n, wo, vi, mat_of, cuts, nl, nw, tree, mats)
@@ -73,15 +80,8 @@ def test_the_ancestor_test_changes_no_cluster_list(bunny):
     from worker.models import SRBF
     from worker.native import kernels as K
 
-    scene, cuts = bunny
-    tree = get_tree()
-    k = kernels("native")
-    nl, nw, n8 = light_tables(LeafLighting(scene.envmap, tree), 47.0, 1.0, tree, k)
-    rng = np.random.default_rng(5)
-    vi = rng.choice(len(scene.mesh.vertices), 600, replace=False).astype(np.int32)
-    n = scene.mesh.normals[vi]
-    wo = np.array([0.3, 0.8, 3.0], np.float32) - scene.mesh.vertices[vi]
-    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    cuts = bunny[1]
+    tree, k, (nl, nw, n8), vi, n, wo = _bunny_points(bunny, 600, 5, [[0.3, 0.8, 3.0]])
     m = SRBF(centers=[(0.0, 0.0, 1.0), (0.05, 0.0, 0.99875), (0.0, 0.3, 0.9539)], bandwidths=[5000.0, 1300.0, 80.0],
              bandwidth=80.0, coefficients=[(3.0, 3.0, 3.0), (1.0, 0.8, 0.6), (0.05, 0.05, 0.05)], albedo=(0.2, 0.2, 0.2))
     mats = MaterialTable([m.pack()])
@@ -100,7 +100,7 @@ def test_the_ancestor_test_changes_no_cluster_list(bunny):
     ref = shade_points_numpy(n, wo, vi, mat_of, cuts, nl, nw, tree, mats)
     np.testing.assert_allclose(got, ref, rtol=2e-4, atol=1e-6 * ref.max())
     # the bounds, by brute force over each ancestor's descendants at every level
-    lev, H = tree.level_offset, tree.height
+    lev = tree.level_offset
     d = tree.node_dir / np.linalg.norm(tree.node_dir, axis=1, keepdims=True)
     for a in range(0, len(anc), 5):
         for h in range(level + 1):

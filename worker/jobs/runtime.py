@@ -373,7 +373,7 @@ class SessionRuntime(FitDriver):
         # lets go); a drag frame is never settled, its still follows the drag
         hdr = compose.header(self.frame_no, ack, w, h, lod, out.info, (t1 - t0) * 1e3, (t2 - t1) * 1e3,
                              clock.paused * 1e3, skipped,
-                             settled=not self._drag and not self.lod.needs_still(False))
+                             settled=not self._drag and not self.needs_still_frame())
         return hdr, jpeg
 
 
