@@ -125,14 +125,17 @@ def _authorised(row: Session | None, token: str | None) -> bool:
 
 @router.get("/{sid}", response_model=SessionOut)
 def get_session(sid: str, st: State, db: DB, x_session_token: str | None = Header(None)):
+    # what a stream holds but has not written yet, written before the row is read: read first,
+    # a stream ending meanwhile (its last write, then its copy dropped) left this row stale with
+    # nothing unsaved to refresh it from. Writing early is harmless (the state is written within
+    # FLUSH_S anyway); a stream ending meanwhile holds the lock, so this waits for its write.
+    if st.sessions.has_unsaved(sid):
+        st.sessions.flush(sid)
     row = db.get(Session, sid)
     if row is None:
         raise HTTPException(404, f"no session {sid!r}")
     if not _authorised(row, x_session_token):
         raise HTTPException(403, "wrong or missing session token (X-Session-Token header)")
-    if st.sessions.has_unsaved(sid):
-        st.sessions.flush(sid)
-        db.refresh(row)
     return SessionOut(id=row.id, scene_id=row.scene_id, stream=_stream_url(sid), state=row.state,
                       strokes=_strokes(db, row), closed=row.closed,
                       worker_pid=st.pool.worker_of(sid))
