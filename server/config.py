@@ -25,6 +25,9 @@ class Settings(BaseModel):
     kernels: str | None = Field(None, description="native, numpy, or unset (native when built)")
     worker_nice: int = Field(5, ge=0, le=19, description="scheduling niceness added to worker processes: under "
                              "load the server's message handling and frame sending go before rendering")
+    shared_parts: Path | None = Field(None, description="a folder of precomputed parts shared with other data "
+                                      "directories on this machine: a part (content-keyed) found there is copied "
+                                      "instead of computed, and every computed part is written there too; unset: none")
     preview_min_vertices: int = Field(8000, ge=0, description="a precomputation of a scene with at least this many "
                                       "vertices first draws a quick preview (worker/renderers/cuts/preview.py); smaller "
                                       "ones are done in seconds without it")
@@ -109,7 +112,8 @@ class Settings(BaseModel):
 
         return WorkerSettings(blob_root=str(self.data_dir / "blobs"), tmp_dir=str(self.data_dir / "tmp" / f"worker-{slot}"),
                               threads=self.threads_per_worker(), kernels=self.kernels, nice=self.worker_nice,
-                              preview_min_vertices=self.preview_min_vertices)
+                              preview_min_vertices=self.preview_min_vertices,
+                              shared_parts=str(self.shared_parts) if self.shared_parts else None)
 
     @classmethod
     def from_env(cls, **overrides) -> "Settings":

@@ -11,17 +11,22 @@ works as it is. An S3-compatible store would implement the same five methods (``
 first), since nothing else in Glint touches the folder layout.
 
 ``PartStore`` keeps a precomputation's parts (renderers/base.py) in the blob store under their
-content keys: ``<root>/keys/<key>`` holds the sha256 of the part's blob.
+content keys: ``<root>/keys/<key>`` holds the sha256 of the part's blob. Several data directories
+on one machine (services, test servers) may share a folder of parts (``shared``): a part one of
+them computed is copied, not computed again, by the others.
 """
 from __future__ import annotations
 
 import hashlib
+import logging
 import os
 import tempfile
 from pathlib import Path
 
 from .atomic import atomic_write
 from .errors import GlintError
+
+log = logging.getLogger("glint.blobs")
 
 
 class BlobError(GlintError):
@@ -167,9 +172,14 @@ class PartStore:
     """renderers.base.ArtifactStore over a BlobStore: part bytes are blobs, ``keys/<key>`` names
     their digest (written atomically after the blob, so a key never points at nothing)."""
 
-    def __init__(self, blobs: BlobStore):
+    def __init__(self, blobs: BlobStore, shared: str | Path | None = None):
+        """shared : optional folder of parts shared with other data directories on this machine
+        (``<shared>/<key>``, the part's bytes; read when a key is missing here, written after a
+        put). Parts are content-keyed (worker/keys.py: every input and the format's version), so
+        any store's bytes for a key are the same part."""
         self.blobs = blobs
         self.root = blobs.root / "keys"
+        self.shared = Path(shared) if shared else None
 
     def _key_path(self, key: str) -> Path:
         if not key or any(c not in "0123456789abcdef" for c in key):
@@ -178,7 +188,22 @@ class PartStore:
 
     def sha(self, key: str) -> str | None:
         p = self._key_path(key)
-        return p.read_text().strip() if p.is_file() else None
+        if p.is_file():
+            return p.read_text().strip()
+        return self._from_shared(key)
+
+    def _from_shared(self, key: str) -> str | None:
+        """Adopt the shared folder's bytes for ``key`` into this store (its blob and key written
+        as by put); None when the folder has no such part."""
+        if self.shared is None:
+            return None
+        try:
+            data = (self.shared / key).read_bytes()
+        except FileNotFoundError:
+            return None
+        sha = self.blobs.put(data)
+        atomic_write(self._key_path(key), sha.encode())
+        return sha
 
     def get(self, key: str) -> bytes | None:
         sha = self.sha(key)
@@ -188,6 +213,11 @@ class PartStore:
         """Store data as the part ``key``; returns its blob's SHA-256."""
         sha = self.blobs.put(data)
         atomic_write(self._key_path(key), sha.encode())
+        if self.shared is not None and not (self.shared / key).is_file():
+            try:
+                atomic_write(self.shared / key, data)
+            except OSError as e:         # the shared folder only saves time: this store has the part
+                log.warning("part %s not written to the shared folder %s: %s", key[:12], self.shared, e)
         return sha
 
     def adopt(self, key: str, sha: str) -> None:

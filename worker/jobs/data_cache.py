@@ -21,7 +21,7 @@ class DataCache:
 
         self.settings = settings
         self.blobs = BlobStore(settings.blob_root)
-        self.parts = PartStore(self.blobs)
+        self.parts = PartStore(self.blobs, settings.shared_parts)
         self.tmp = Path(settings.tmp_dir)
         self.tmp.mkdir(parents=True, exist_ok=True)
         self._scenes: OrderedDict = OrderedDict()

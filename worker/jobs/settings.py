@@ -14,7 +14,8 @@ class WorkerSettings(BaseModel):
     or None (native when built). scenes : loaded scenes kept (LRU). nice : niceness added to
     the process (the API server's messages and frames go first under load).
     preview_min_vertices : a precomputation of a scene with at least this many vertices first
-    draws a preview (renderers/cuts/preview.py)."""
+    draws a preview (renderers/cuts/preview.py). shared_parts : a folder of parts shared with
+    other data directories (blobs.PartStore), or None."""
     blob_root: str
     tmp_dir: str
     threads: int = 0
@@ -22,3 +23,4 @@ class WorkerSettings(BaseModel):
     nice: int = 0
     scenes: int = 4
     preview_min_vertices: int = 8000
+    shared_parts: str | None = None
