@@ -114,8 +114,10 @@ def server(tmp_path_factory, database):
     name, env = database
     # the suite opens many viewer sessions from one address within a minute (test_resources:
     # 40 in a row); the limit itself is tested on a server of its own (test_stream_abuse)
+    # its scenes' precomputations are copied from the test servers' shared folder when another
+    # server computed them before (tests of precomputation itself start servers of their own)
     srv = GlintServer(tmp_path_factory.mktemp(f"glint-data-{name}"),
-                      env={"GLINT_VIEWER_SESSIONS_PER_MINUTE": "1000", **env})
+                      env={"GLINT_VIEWER_SESSIONS_PER_MINUTE": "1000", **env}, shared_parts=True)
     yield {**srv.as_dict(), "database": name}
     srv.stop()
 

@@ -94,12 +94,19 @@ class GlintServer:
     """A real ``glint serve`` in a subprocess on a free loopback port (stop() or use as a context)."""
 
     def __init__(self, data: Path, workers: int = 2, demo: bool = False, env: dict | None = None, port: int | None = None,
-                 log_path: Path | None = None):
+                 log_path: Path | None = None, shared_parts: bool = False):
+        """shared_parts : the server copies precomputed parts from tests/.cache/server-parts (and
+        writes its own there) instead of computing again what another test server computed, for
+        tests that need a scene ready, not its precomputation (Settings.shared_parts)."""
         self.data = Path(data)
         self.data.mkdir(parents=True, exist_ok=True)
         self.port = port or free_port()
         self.base = f"http://127.0.0.1:{self.port}"
-        full = {**os.environ, "GLINT_MAX_MESH_BYTES": str(8 * 1024 * 1024), "PYTHONUNBUFFERED": "1", **(env or {})}
+        full = {**os.environ, "GLINT_MAX_MESH_BYTES": str(8 * 1024 * 1024), "PYTHONUNBUFFERED": "1"}
+        full.pop("GLINT_SHARED_PARTS", None)
+        if shared_parts:
+            full["GLINT_SHARED_PARTS"] = str(CACHE / "server-parts")
+        full.update(env or {})
         self.log_path = Path(log_path) if log_path else self.data / "server.log"
         self._log = open(self.log_path, "a")
         args = [sys.executable, "-m", "glint", "serve", "--port", str(self.port), "--data-dir", str(self.data),

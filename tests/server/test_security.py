@@ -126,7 +126,8 @@ def test_materials_a_client_sends_are_bounded(server, client, bunny_scene):
 def limited(tmp_path_factory, shared_assets):
     """A server with small limits: 2 streams per client, 3 in total, 3 s idle."""
     srv = GlintServer(tmp_path_factory.mktemp("limited"), workers=1, env={
-        "GLINT_MAX_SESSIONS_PER_CLIENT": "2", "GLINT_MAX_SESSIONS": "3", "GLINT_SESSION_IDLE_SECONDS": "3"})
+        "GLINT_MAX_SESSIONS_PER_CLIENT": "2", "GLINT_MAX_SESSIONS": "3", "GLINT_SESSION_IDLE_SECONDS": "3"},
+                      shared_parts=True)
     with httpx.Client(base_url=srv.base, timeout=120) as c:
         scene = _upload_scene(c, shared_assets)
         yield srv, c, scene

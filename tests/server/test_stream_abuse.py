@@ -28,7 +28,7 @@ STROKE = {"points": [[62, 62], [88, 64]], "color": [4.0, 4.0, 4.0], "diameter": 
 def abuse(tmp_path_factory, shared_assets):
     srv = GlintServer(tmp_path_factory.mktemp("abuse"), workers=1, env={
         "GLINT_VIEWER_SESSIONS_PER_MINUTE": str(VIEWER_LIMIT), "GLINT_VIEWER_SESSION_SECONDS": str(VIEWER_SECONDS),
-        "GLINT_JANITOR_SECONDS": "1", "GLINT_MAX_STREAM_MESSAGE_BYTES": str(MESSAGE_BYTES)})
+        "GLINT_JANITOR_SECONDS": "1", "GLINT_MAX_STREAM_MESSAGE_BYTES": str(MESSAGE_BYTES)}, shared_parts=True)
     with httpx.Client(base_url=srv.base, timeout=120) as c:
         scene = _upload_scene(c, shared_assets)
         m = c.post("/v1/materials", json={"name": "grey", "material": {"model": "lambert"}}).json()
