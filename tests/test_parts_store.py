@@ -1,23 +1,37 @@
 """Precomputed parts in a data directory's blob store (worker.blobs.PartStore), and the folder of
 parts several data directories on one machine share (Settings.shared_parts): a part one of them
 computed is copied by the others, not computed again."""
+import json
+
 import pytest
 from helpers import scene_file
 
 
 @pytest.fixture(scope="module")
-def bunny_scene_loaded(shared_assets):
+def small_scene(shared_assets, tmp_path_factory):
+    """A subdivided icosahedron (162 vertices) beside the bunny under sunset: its cuts take
+    about a second to trace."""
+    import trimesh
+
     from worker.scene import load_scene
 
-    return load_scene(scene_file("bunny.json"))
+    folder = tmp_path_factory.mktemp("small")
+    mesh = trimesh.creation.icosphere(subdivisions=2, radius=0.4)
+    mesh.apply_translation([0.5, 0.1, 0.0])
+    mesh.export(folder / "ball.ply")
+    spec = json.loads(scene_file("bunny.json").read_text())
+    spec["environment"]["map"] = str(shared_assets / "env" / "sunset.exr")
+    spec["objects"][0].update(name="ball", mesh=str(folder / "ball.ply"))
+    (folder / "scene.json").write_text(json.dumps(spec))
+    return load_scene(folder / "scene.json")
 
 
-def test_a_part_computed_by_one_data_directory_is_copied_by_another(tmp_path, bunny_scene_loaded, caplog):
+def test_a_part_computed_by_one_data_directory_is_copied_by_another(tmp_path, small_scene, caplog):
     from worker.blobs import BlobStore, PartStore
     from worker.renderers import get
     from worker.renderers.base import ensure, load
 
-    sc = bunny_scene_loaded
+    sc = small_scene
     _, pre = get("cuts")
     shared = tmp_path / "shared"
     first = PartStore(BlobStore(tmp_path / "a"), shared)
