@@ -128,3 +128,38 @@ def test_a_sun_highlight_between_dark_vertices_is_probed(bunny_renderer, shared_
           f"{without:.4f} without ({n_without})")
     assert n_with > n_without, (n_with, n_without)
     assert with_probe < 0.7 * without, (with_probe, without)
+
+
+def _fitted_curve():
+    """A half-angle curve like the studio's fit of a stroke (24 bins): a sharp peak at
+    θh 3.75-7.5°, a low plateau to 80°, and a bump at grazing half angles (82.5-86°)."""
+    from worker.models import parse_material
+
+    values = [[0.04, 0.4, 0.09], [3.9, 12.3, 7.0]] + [[0.08, 0.12, 0.08]] * 19 + [[0.08, 0.08, 0.0]] \
+        + [[0.08, 0.66, 1.65], [0.0, 0.0, 0.0]]
+    return parse_material({"model": "curve", "values": values, "fresnel_f0": 1.0, "albedo": [0.57, 0.43, 0.52]})
+
+
+def test_a_curves_refinement_follows_its_peak_not_its_farthest_bump(bunny_renderer):
+    """A fitted curve's sharp peak is refined at its own width: the bump far out used to make
+    the refinement treat the whole curve as a wide lobe (refine radius 1.5 rad), and the settled
+    frame kept the vertex frame's facets. Measured here (320×240): 12.7% from the per-pixel frame
+    before (4.9× fewer refined samples), 3.6% now; the studio's settled 902×677 still of it, 4
+    samples, costs 1.4 s instead of 0.2 s (what a 3.75° ring with box edges asks)."""
+    from worker.models.curve import curve_widths
+
+    mat = _fitted_curve()
+    peak, outer = curve_widths(np.asarray(mat.values))
+    bin_w = np.pi / 2 / 24
+    assert peak == pytest.approx(2 * bin_w) and outer == pytest.approx(2 * 23 * bin_w), (peak, outer)
+    packed = mat.pack()
+    assert packed.refine_radius == pytest.approx(bin_w) and packed.extent == pytest.approx(4 * 23 * bin_w)
+
+    r = bunny_renderer
+    cam = r.scene.spec.camera.model_copy(update={"eye": [-2.62, 0.6, 1.84], "width": 320, "height": 240})
+    out = {m: r.render(FrameRequest(camera=cam, materials=[mat], shading=m)) for m in ("vertex", "refined", "pixel")}
+    obj = out["pixel"].object_id >= 0
+    p = out["pixel"].radiance[obj]
+    rel = {m: float(np.sqrt(((out[m].radiance[obj] - p) ** 2).mean() / (p ** 2).mean())) for m in ("vertex", "refined")}
+    assert out["refined"].info["refined_samples"] > 0.2 * obj.sum(), out["refined"].info["refined_samples"]
+    assert rel["refined"] < 0.4 * rel["vertex"] and rel["refined"] < 0.06, rel

@@ -22,6 +22,36 @@ def curve_p(cos_h: np.ndarray, values: np.ndarray) -> np.ndarray:
     return values[idx]
 
 
+SIGNIFICANT = 0.05   # of the curve's largest value: bins below it count as no lobe for the refinement
+
+
+def curve_widths(values: np.ndarray) -> tuple[float, float]:
+    """(peak, outer) radians about the mirror direction (twice the half-angle) of a curve's
+    values (K, 3): ``peak`` the width of the run of significant bins (above SIGNIFICANT of the
+    largest value) that holds the largest value, measured from θh = 0 when the run starts
+    there, else the run's own width (a ring); ``outer`` the width out to the last significant
+    bin. The refinement works at the peak's scale and within the outer extent: a fitted curve
+    often has a sharp peak and small bumps far out (at grazing half angles), and the outermost
+    bin alone made the refinement treat a sharp highlight as a wide one (faceted stills).
+    π, π for a curve without any value."""
+    peak_bin = values.max(axis=1)
+    top = float(peak_bin.max()) if len(peak_bin) else 0.0
+    if top <= 0:
+        return np.pi, np.pi
+    sig = peak_bin > SIGNIFICANT * top
+    binw = (np.pi / 2) / len(values)
+    k = int(np.argmax(peak_bin))
+    a = k
+    while a > 0 and sig[a - 1]:
+        a -= 1
+    b = k
+    while b + 1 < len(sig) and sig[b + 1]:
+        b += 1
+    peak = 2 * (b + 1) * binw if a == 0 else 2 * (b - a + 1) * binw
+    outer = 2 * (int(np.nonzero(sig)[0].max()) + 1) * binw
+    return min(np.pi, peak), min(np.pi, outer)
+
+
 @register
 class Curve(BRDFModel):
     """Quotient model over a 1D half-angle curve (box basis over θh ∈ [0, π/2]):
@@ -40,10 +70,9 @@ class Curve(BRDFModel):
         d = hemisphere_table_dirs()
         v = np.asarray(self.values, np.float64)
         table = curve_p(d[..., 2], v)
-        nz = np.nonzero(v.max(axis=1) > 0.05 * v.max())[0]
-        width = np.pi if len(nz) == 0 else min(np.pi, 2 * (nz.max() + 1) * (np.pi / 2) / len(v))
+        peak, outer = curve_widths(v)
         return PackedBRDF("table", [*self.albedo, self.fresnel_f0], table_specular(table, self.fresnel_f0), table,
-                          lobe_width=width)
+                          refine_radius=0.5 * peak, extent=2.0 * outer)
 
     @classmethod
     def examples(cls):
