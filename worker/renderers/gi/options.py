@@ -243,7 +243,7 @@ def unit_layout(scene, opts: GIOptions) -> UnitLayout:
 # --- content keys ------------------------------------------------------------------------------
 
 
-FORMAT_VERSION = 4
+FORMAT_VERSION = 5      # 5: shading normals turned to the geometric side, outline points shaded at grazing
 
 
 def tensor_key(scene, opts: GIOptions, region_images: list[np.ndarray]) -> str:

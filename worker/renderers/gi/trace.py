@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ...core.brdf import evaluate, onb
-from ...core.render import camera_rays, env_lookup
+from ...core.render import camera_rays, env_lookup, facing_view
 from ...trace.embree import Tracer
 from . import zspace
 from .basis import J2_NODES, QUOTIENTS, half_band, node_interp, quotient_s
@@ -68,9 +68,19 @@ class Geometry:
         self.hi = [self.V[np.unique(self.F[self.obj_of_face == i])].max(0) if (self.obj_of_face == i).any() else np.ones(3)
                    for i in range(int(self.obj_of_face.max()) + 1)]
 
-    def surface(self, prim, uv, wo):
-        """Hit points from Embree hits: (pos, ng, ns, obj, ok) with both normals turned towards
-        wo (surfaces are two-sided); ok is False where wo grazes the shading normal's plane."""
+    def surface(self, prim, uv, wo, graze: bool = False):
+        """Hit points from Embree hits: (pos, ng, ns, obj, wo, ok). Surfaces are two-sided: the
+        geometric normal is turned towards wo (the side the ray arrived on).
+
+        graze False (a path's later vertices, as Mitsuba's twosided BSDF): the shading normal is
+        turned towards wo; ok is False where wo grazes its plane.
+        graze True (the camera's hits): the shading normal is turned to the geometric normal's
+        side (a file's normals may disagree with its winding), and where it still faces away
+        from wo (an interpolated normal at an outline, seen past its horizon) wo is taken just
+        above its horizon (core.render.facing_view, as the cut renderer shades such points):
+        the pixel gets its grazing radiance, not the back side's, whose light comes from inside
+        the object (dark dots along outlines). At a path's later vertices the same nudge made
+        glossy second bounces noisy (a near-grazing ωo where the flip gives a regular one)."""
         f = self.F[prim]
         u, v = uv[:, 0:1].astype(np.float64), uv[:, 1:2].astype(np.float64)
         w0 = 1.0 - u - v
@@ -79,11 +89,13 @@ class Geometry:
         ns /= np.maximum(np.linalg.norm(ns, axis=1, keepdims=True), 1e-30)
         ng = self.face_n[prim]
         ng = ng * np.where((ng * wo).sum(1) < 0, -1.0, 1.0)[:, None]
-        # two-sided shading as Mitsuba's twosided BSDF: the side is the shading normal's, turned
-        # towards the viewer (a file's normals may disagree with its winding)
-        ns = ns * np.where((ns * wo).sum(1) < 0, -1.0, 1.0)[:, None]
+        if graze:
+            ns = ns * np.where((ns * ng).sum(1) < 0, -1.0, 1.0)[:, None]
+            wo = facing_view(ns, wo)
+        else:
+            ns = ns * np.where((ns * wo).sum(1) < 0, -1.0, 1.0)[:, None]
         ok = (ns * wo).sum(1) > 1e-6
-        return pos, ng, ns, self.obj_of_face[prim], ok
+        return pos, ng, ns, self.obj_of_face[prim], wo, ok
 
     def trace(self, o, d, occluded: bool, threads: int = 2):
         """Embree in ``threads`` Python threads (it releases the GIL, docs/design/conventions.md, measured facts)."""
@@ -140,7 +152,7 @@ def primary_hits(geo: Geometry, scene, kernels=None) -> Primary:
     prim, uv = geo.trace(o, d, occluded=False)
     hit = np.nonzero(prim >= 0)[0]
     wo = -d[hit].astype(np.float64)
-    pos, ng, ns, obj, ok = geo.surface(prim[hit], uv[hit], wo)
+    pos, ng, ns, obj, wo, ok = geo.surface(prim[hit], uv[hit], wo, graze=True)
     oid = np.full(cam.width * cam.height, -1, np.int32)
     oid[hit] = obj
     bg = env_lookup(d, scene.envmap, env.rotation_deg, env.intensity, mask=(prim < 0).astype(np.uint8),
@@ -585,7 +597,7 @@ def trace_tile(S: Setup, tile: int, kernels=None, threads: int = 2) -> tuple[lis
         keep = np.nonzero(cont)[0]
         beta, p1b, p1w, p2c, p2b, p2w, z, zc = (a[keep] for a in nxt)
         wo = -db[keep]
-        pos, ng, ns, obj, ok = S.geo.surface(prim[keep], uv[keep], wo)
+        pos, ng, ns, obj, wo, ok = S.geo.surface(prim[keep], uv[keep], wo)
         unit = S.regions.sample_unit(obj, pos, u[keep, 7])
         nst = PathState(st.path[keep], st.pix[keep], pos, ng, ns, wo, obj, unit, beta, p1b, p1w, p2c, p2b, p2w, z, zc)
         st = nst.take(np.nonzero(ok)[0])
