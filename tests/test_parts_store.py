@@ -37,7 +37,7 @@ def test_a_part_computed_by_one_data_directory_is_copied_by_another(tmp_path, sm
     first = PartStore(BlobStore(tmp_path / "a"), shared)
     done = ensure(pre, sc, first)
     assert done["computed"] == 1, done
-    (key, info), = done["parts"].items()
+    (key, _), = done["parts"].items()
     assert (shared / key).read_bytes() == first.get(key)         # written to the shared folder too
 
     second = PartStore(BlobStore(tmp_path / "b"), shared)
