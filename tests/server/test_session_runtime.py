@@ -482,3 +482,34 @@ def test_settled_frames_are_refined_and_moving_ones_interpolated(bunny_renderer)
     assert hdr["samples"] > 1
     assert [sh for s, sh in seen if s == 1] and all(sh == "vertex" for s, sh in seen if s == 1), seen
     assert seen[-1] == (hdr["samples"], "refined"), seen
+
+
+def test_a_save_sends_the_settled_frame_again_without_drawing(bunny_renderer):
+    """A message that changes nothing the image depends on (a save) is answered with the settled
+    frame it shows, under its own ack: drawn anew it was a one-sample frame (faceted where the
+    still is refined) followed by the still again, 7 s for a sharp paint on the test bunny."""
+    r = bunny_renderer
+    st = new_state(r.scene.spec, materials=[GGX(alpha=0.1, albedo=(0.1, 0.1, 0.1), specular=(0.8, 0.8, 0.8)).model_dump()])
+    rt = SessionRuntime(r.scene, CutRenderer(r.scene, r.data), {"state": st.model_dump(mode="json"), "strokes": []})
+    seen = []
+    real = rt.renderer.render
+    rt.renderer.render = lambda req: seen.append(req.samples) or real(req)
+    rt.frame(-1)
+    while rt.needs_still_frame():
+        rt.frame(-1)
+    hdr, jpeg = rt.frame(-1)                          # the settled frame, asked for again: not drawn again
+    assert hdr["settled"]
+    drawn = len(seen)
+    ev = rt.handle({"seq": 1, "type": "save", "name": "kept"})
+    assert [e for e in ev if e["type"] == "save"], ev
+    again, same = rt.frame(1)
+    assert len(seen) == drawn and same == jpeg, seen           # no render, the same picture
+    assert again["ack"] == 1 and again["settled"] and again["frame"] == hdr["frame"] + 1 and again["ms_render"] == 0
+    assert not rt.needs_still_frame()
+    # anything the image depends on draws again: the exposure, then the material
+    rt.handle({"seq": 2, "type": "display", "exposure": 0.5})
+    rt.frame(2)
+    assert len(seen) == drawn + 1, seen
+    rt.handle({"seq": 3, "type": "material", "material": Lambert(albedo=(0.3, 0.5, 0.2)).model_dump()})
+    rt.frame(3)
+    assert len(seen) == drawn + 2, seen
