@@ -18,8 +18,10 @@
  * E = Σ l_k v_k once and add albedo/π·E: the Lambert path needs no directions at all. GGX's
  * D·G1(ωi)/cosθi is one division per eight clusters (the half vector stays unnormalised:
  * D = α²|h|⁴ / (π (α² h_n² + h_t²)²), and G1(ωi)/cosθi = 2 / (cosθi + √(cos²θi (1−α²) + α²))).
+ * Cosine lobes (paints) run four clusters at a time in double precision (an exponent of 10⁴
+ * needs it): one log per cluster, one exp per lobe (sum_lobes).
  * The scalar path evaluates f exactly as the reference does, for models without a vector
- * path (blinn-phong, lobes) and for CPUs without AVX2.
+ * path (blinn-phong) and for CPUs without AVX2.
  */
 #include <math.h>
 #include <stdint.h>
@@ -74,6 +76,22 @@ static inline void brdf_eval(int kind, const float *p, const float *tab, v3 wi, 
     if (ci <= 0 || co <= 0) return;
     out[0] = p[0] * INV_PI; out[1] = p[1] * INV_PI; out[2] = p[2] * INV_PI;
     if (kind == K_LAMBERT) return;
+    if (kind == K_LOBES) {
+        /* cosine lobes about the mirror direction: (e+2)/(2π)·(ωr·ωi)^e per lobe. One log for
+         * all lobes, then one exp each (a pow per lobe cost most of a paint's still); a lobe
+         * below 1e-30 of its peak adds nothing a float image keeps */
+        double rv = 2.0 * ci * co - dot(wi, wo);
+        if (rv <= 0) return;
+        double lr = rv < 1 ? log(rv) : 0.0;
+        int m = (int)p[3];
+        for (int k = 0; k < m; k++) {
+            double e = p[4 + 4 * k], x = e * lr;
+            if (x < -69.0) continue;
+            double s = (e + 2.0) / (2.0 * PI) * exp(x);
+            out[0] += s * p[5 + 4 * k]; out[1] += s * p[6 + 4 * k]; out[2] += s * p[7 + 4 * k];
+        }
+        return;
+    }
     v3 h = nrm(add(wi, wo));
     double chh = dot(h, n), cd = dot(wi, h);
     if (kind == K_GGX) {
@@ -88,15 +106,6 @@ static inline void brdf_eval(int kind, const float *p, const float *tab, v3 wi, 
         double e = p[6];
         double s = (e + 8.0) / (8.0 * PI) * pow(chh > 0 ? (chh < 1 ? chh : 1) : 0, e);
         out[0] += s * p[3]; out[1] += s * p[4]; out[2] += s * p[5];
-    } else if (kind == K_LOBES) {
-        double rv = 2.0 * ci * co - dot(wi, wo);
-        rv = rv < 0 ? 0 : (rv > 1 ? 1 : rv);
-        int m = (int)p[3];
-        for (int k = 0; k < m; k++) {
-            double e = p[4 + 4 * k];
-            double s = (e + 2.0) / (2.0 * PI) * pow(rv, e);
-            out[0] += s * p[5 + 4 * k]; out[1] += s * p[6 + 4 * k]; out[2] += s * p[7 + 4 * k];
-        }
     } else if (kind == K_TABLE) {
         /* p(h)·s(ωi, ωo); p[3] = F0, p[4] = static (0 paper, 1 smith), p[5] = its α
          * (worker/models/table.py distribution_static) */
@@ -644,6 +653,125 @@ T_AVX2 static void sum_table(int64_t cnt, const int32_t *idx, const uint8_t *qv,
     S[0] = hsum8(sr); S[1] = hsum8(sg); S[2] = hsum8(sb);
 }
 
+/* Natural log of x > 0 (normal doubles), four at a time: x = m·2^k with m in [√½, √2), and
+ * log m = 2 atanh(z), z = (m − 1)/(m + 1), |z| ≤ 0.172, by its series to z^17 (error < 1e-14).
+ * Hand-written because AVX2 has no vector log and the lobes' pow needs double precision: an
+ * exponent of 10⁴ turns a float's 1e-7 in log(ωr·ωi) into 1e-3 of the lobe. */
+T_AVX2 static inline __m256d log_pd(__m256d x) {
+    const __m256d magic = _mm256_set1_pd(4503599627370496.0);        /* 2^52 */
+    __m256i bits = _mm256_castpd_si256(x);
+    __m256i ex = _mm256_srli_epi64(bits, 52);
+    __m256d m = _mm256_castsi256_pd(_mm256_or_si256(_mm256_and_si256(bits, _mm256_set1_epi64x(0x000FFFFFFFFFFFFFLL)),
+                                                    _mm256_set1_epi64x(0x3FF0000000000000LL)));
+    __m256d k = _mm256_sub_pd(_mm256_castsi256_pd(_mm256_or_si256(ex, _mm256_castpd_si256(magic))), magic);
+    __m256d big = _mm256_cmp_pd(m, _mm256_set1_pd(1.4142135623730951), _CMP_GT_OQ);
+    m = _mm256_blendv_pd(m, _mm256_mul_pd(m, _mm256_set1_pd(0.5)), big);
+    k = _mm256_add_pd(_mm256_sub_pd(k, _mm256_set1_pd(1023.0)), _mm256_and_pd(big, _mm256_set1_pd(1.0)));
+    const __m256d one = _mm256_set1_pd(1.0);
+    __m256d z = _mm256_div_pd(_mm256_sub_pd(m, one), _mm256_add_pd(m, one));
+    __m256d z2 = _mm256_mul_pd(z, z);
+    __m256d p = _mm256_set1_pd(1.0 / 17);
+    p = _mm256_fmadd_pd(p, z2, _mm256_set1_pd(1.0 / 15));
+    p = _mm256_fmadd_pd(p, z2, _mm256_set1_pd(1.0 / 13));
+    p = _mm256_fmadd_pd(p, z2, _mm256_set1_pd(1.0 / 11));
+    p = _mm256_fmadd_pd(p, z2, _mm256_set1_pd(1.0 / 9));
+    p = _mm256_fmadd_pd(p, z2, _mm256_set1_pd(1.0 / 7));
+    p = _mm256_fmadd_pd(p, z2, _mm256_set1_pd(1.0 / 5));
+    p = _mm256_fmadd_pd(p, z2, _mm256_set1_pd(1.0 / 3));
+    p = _mm256_fmadd_pd(p, z2, one);
+    return _mm256_fmadd_pd(k, _mm256_set1_pd(0.6931471805599453), _mm256_mul_pd(_mm256_add_pd(z, z), p));
+}
+
+/* exp(x) for x in [−80, 0], four at a time: x = n ln2 + r, |r| ≤ ln2/2 (ln2 in two parts), e^r by
+ * its Taylor series to r^12 (error < 1e-15), 2^n put into the exponent bits. */
+T_AVX2 static inline __m256d exp_pd(__m256d x) {
+    __m256d n = _mm256_round_pd(_mm256_mul_pd(x, _mm256_set1_pd(1.4426950408889634)),
+                                _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
+    __m256d r = _mm256_fnmadd_pd(n, _mm256_set1_pd(0.6931471803691238), x);
+    r = _mm256_fnmadd_pd(n, _mm256_set1_pd(1.9082149292705877e-10), r);
+    __m256d p = _mm256_set1_pd(1.0 / 479001600.0);                    /* 1/12! */
+    static const double inv_fact[12] = {1.0 / 39916800.0, 1.0 / 3628800.0, 1.0 / 362880.0, 1.0 / 40320.0,
+                                        1.0 / 5040.0, 1.0 / 720.0, 1.0 / 120.0, 1.0 / 24.0, 1.0 / 6.0, 0.5, 1.0, 1.0};
+    for (int i = 0; i < 12; i++) p = _mm256_fmadd_pd(p, r, _mm256_set1_pd(inv_fact[i]));
+    /* 2^n: n + 1023 (in 943..1023) is the exponent field */
+    const __m256d magic = _mm256_set1_pd(4503599627370496.0);
+    __m256i e = _mm256_slli_epi64(_mm256_castpd_si256(_mm256_add_pd(_mm256_add_pd(n, _mm256_set1_pd(1023.0)), magic)), 52);
+    return _mm256_mul_pd(p, _mm256_castsi256_pd(e));
+}
+
+/* Cosine lobes (models/lobes.py; reciprocal form (e+2)/(2π)·(ωr·ωi)^e per lobe, ωr the mirror
+ * direction) over a point's clusters, four at a time in double precision: E_c = Σ l_c q and
+ * S_c = Σ l_c q Σ_k s_k w_kc, with ωi nudged above the horizon as the scalar path does. One log per
+ * cluster, one exp per lobe, and a lobe's exp skipped for four clusters all below 1e-30 of its
+ * peak (most clusters of a sharp lobe). n world normal, r = 2(n·ωo)n − ωo, co = n·ωo. */
+T_AVX2 static void sum_lobes(int64_t cnt, const int32_t *idx, const uint8_t *qv, const float *qf, const float *node8,
+                             v3 n, v3 r, double co, const float *prm, double *E, double *S) {
+    const int m = (int)prm[3];
+    double ck[32];
+    for (int k = 0; k < m; k++) ck[k] = (prm[4 + 4 * k] + 2.0) / (2.0 * PI);
+    const __m256d nx = _mm256_set1_pd(n.x), ny = _mm256_set1_pd(n.y), nz = _mm256_set1_pd(n.z);
+    const __m256d rx = _mm256_set1_pd(r.x), ry = _mm256_set1_pd(r.y), rz = _mm256_set1_pd(r.z);
+    const __m256d vco = _mm256_set1_pd(co), lo = _mm256_set1_pd(1e-3), zero = _mm256_setzero_pd();
+    const __m256d floor_x = _mm256_set1_pd(-69.0), tiny = _mm256_set1_pd(1e-300);
+    __m256d er = zero, eg = zero, eb = zero, sr = zero, sg = zero, sb = zero;
+    for (int64_t j = 0; j < cnt; j += 8) {
+        __m256i off = _mm256_slli_epi32(_mm256_loadu_si256((const __m256i *)(idx + j)), 3);
+        __m256 q8 = get_q(qv, qf, j);
+        __m256 g8[6];
+        for (int c = 0; c < 6; c++) g8[c] = _mm256_i32gather_ps(node8 + c, off, 4);
+        for (int half = 0; half < 2; half++) {
+            __m256d v[6], q;
+            for (int c = 0; c < 6; c++)
+                v[c] = _mm256_cvtps_pd(half ? _mm256_extractf128_ps(g8[c], 1) : _mm256_castps256_ps128(g8[c]));
+            q = _mm256_cvtps_pd(half ? _mm256_extractf128_ps(q8, 1) : _mm256_castps256_ps128(q8));
+            __m256d x = v[3], y = v[4], z = v[5];
+            __m256d ci = _mm256_fmadd_pd(x, nx, _mm256_fmadd_pd(y, ny, _mm256_mul_pd(z, nz)));
+            __m256d rv = _mm256_fmadd_pd(x, rx, _mm256_fmadd_pd(y, ry, _mm256_mul_pd(z, rz)));
+            __m256d low = _mm256_cmp_pd(ci, lo, _CMP_LT_OQ);
+            if (_mm256_movemask_pd(low)) {     /* ωi + n(1e-3 − cosθi), normalised: ωr· it */
+                __m256d d = _mm256_sub_pd(lo, ci);
+                __m256d ax = _mm256_fmadd_pd(nx, d, x), ay = _mm256_fmadd_pd(ny, d, y), az = _mm256_fmadd_pd(nz, d, z);
+                __m256d len = _mm256_sqrt_pd(_mm256_fmadd_pd(ax, ax, _mm256_fmadd_pd(ay, ay, _mm256_mul_pd(az, az))));
+                rv = _mm256_blendv_pd(rv, _mm256_div_pd(_mm256_fmadd_pd(vco, d, rv), len), low);
+            }
+            __m256d lq[3] = {_mm256_mul_pd(v[0], q), _mm256_mul_pd(v[1], q), _mm256_mul_pd(v[2], q)};
+            er = _mm256_add_pd(er, lq[0]); eg = _mm256_add_pd(eg, lq[1]); eb = _mm256_add_pd(eb, lq[2]);
+            __m256d valid = _mm256_cmp_pd(rv, zero, _CMP_GT_OQ);
+            if (!_mm256_movemask_pd(valid)) continue;
+            /* log of ωr·ωi clamped to (0, 1] as the reference clips it */
+            __m256d L = _mm256_min_pd(log_pd(_mm256_max_pd(rv, tiny)), zero);
+            __m256d t0 = zero, t1 = zero, t2 = zero;
+            for (int k = 0; k < m; k++) {
+                __m256d xk = _mm256_mul_pd(_mm256_set1_pd(prm[4 + 4 * k]), L);
+                __m256d on = _mm256_and_pd(valid, _mm256_cmp_pd(xk, floor_x, _CMP_GE_OQ));
+                if (!_mm256_movemask_pd(on)) continue;
+                __m256d s = _mm256_and_pd(_mm256_mul_pd(_mm256_set1_pd(ck[k]), exp_pd(_mm256_max_pd(xk, floor_x))), on);
+                t0 = _mm256_fmadd_pd(s, _mm256_set1_pd(prm[5 + 4 * k]), t0);
+                t1 = _mm256_fmadd_pd(s, _mm256_set1_pd(prm[6 + 4 * k]), t1);
+                t2 = _mm256_fmadd_pd(s, _mm256_set1_pd(prm[7 + 4 * k]), t2);
+            }
+            sr = _mm256_fmadd_pd(lq[0], t0, sr); sg = _mm256_fmadd_pd(lq[1], t1, sg); sb = _mm256_fmadd_pd(lq[2], t2, sb);
+        }
+    }
+    double buf[4];
+    __m256d accs[6] = {er, eg, eb, sr, sg, sb};
+    double *outs[6] = {&E[0], &E[1], &E[2], &S[0], &S[1], &S[2]};
+    for (int c = 0; c < 6; c++) {
+        _mm256_storeu_pd(buf, accs[c]);
+        *outs[c] = (buf[0] + buf[1]) + (buf[2] + buf[3]);
+    }
+}
+
+T_AVX2 __attribute__((noinline)) static void sum_lobes_avx2(int64_t cnt, int32_t *idx, uint8_t *qv, float *qf,
+                                                            const float *node8, v3 n, v3 r, double co,
+                                                            const float *prm, double *E, double *S) {
+    for (int64_t j = cnt; j < ((cnt + 7) & ~(int64_t)7); j++) {      /* pad: v = 0 */
+        idx[j] = idx[0];
+        if (qf) qf[j] = 0.0f; else qv[j] = 0;
+    }
+    sum_lobes(cnt, idx, qv, qf, node8, n, r, co, prm, E, S);
+}
+
 /* the vector path of one point (not inlined into the generic caller: it is compiled for AVX2) */
 T_AVX2 __attribute__((noinline)) static void sum_avx2(int kind, int64_t cnt, int32_t *idx, uint8_t *qv, float *qf,
                                                       const float *node8, const float *fr, v3 wol, const float *prm,
@@ -672,6 +800,13 @@ static void sum_point(int simd, int kind, const float *prm, const float *tab, v3
     acc[0] = acc[1] = acc[2] = 0.0;
     if (cnt <= 0) return;
 #ifdef GLK_X86
+    if (simd && kind == K_LOBES) {
+        double E[3], S[3];
+        v3 r = add(scl(n, 2.0 * co), scl(wo, -1.0));
+        sum_lobes_avx2(cnt, idx, qv, qf, node8, n, r, co, prm, E, S);
+        for (int c = 0; c < 3; c++) acc[c] = prm[c] * INV_PI * E[c] + S[c];
+        return;
+    }
     if (simd && (kind == K_LAMBERT || kind == K_GGX || (kind == K_TABLE && tab))) {
         double E[3], S[3] = {0, 0, 0};
         const float fr[9] = {(float)t.x, (float)t.y, (float)t.z, (float)bt.x, (float)bt.y, (float)bt.z,
