@@ -5,7 +5,7 @@
 #ifndef GLINT_BRDF_KERNELS_H
 #define GLINT_BRDF_KERNELS_H
 
-enum { K_LAMBERT, K_GGX, K_BLINN, K_LOBES, K_TABLE, K_COUNT };
+enum { K_LAMBERT, K_GGX, K_BLINN, K_LOBES, K_TABLE, K_AS, K_COUNT };
 #define N_PARAMS 132    /* floats per packed material (worker/models/base.py N_PARAMS) */
 #define TABLE_N 160     /* p(h) table edge (worker/models/base.py TABLE_N) */
 

@@ -16,7 +16,8 @@
 
 /* BRDF kernel branches by name (ids and packed layout in brdf_kernels.h; the shading kernel
  * that evaluates them is in shade.c). */
-static const char *const K_NAMES[K_COUNT] = {"lambert", "ggx", "blinn-phong", "lobes", "table"};
+static const char *const K_NAMES[K_COUNT] = {"lambert", "ggx", "blinn-phong", "lobes", "table",
+                                              "ashikhmin-shirley"};
 
 /* id of a BRDF kernel branch by name, −1 when this library has none */
 int glk_model_id(const char *name) {

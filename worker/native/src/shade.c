@@ -20,8 +20,9 @@
  * D = α²|h|⁴ / (π (α² h_n² + h_t²)²), and G1(ωi)/cosθi = 2 / (cosθi + √(cos²θi (1−α²) + α²))).
  * Cosine lobes (paints) run four clusters at a time in double precision (an exponent of 10⁴
  * needs it): one log per cluster, one exp per lobe (sum_lobes).
- * The scalar path evaluates f exactly as the reference does, for models without a vector
- * path (blinn-phong) and for CPUs without AVX2.
+ * Blinn-Phong and Ashikhmin-Shirley likewise (sum_half: a pow of the half vector's cosine).
+ * The scalar path evaluates f exactly as the reference does, for CPUs without AVX2 and for
+ * the tests.
  */
 #include <math.h>
 #include <stdint.h>
@@ -106,6 +107,18 @@ static inline void brdf_eval(int kind, const float *p, const float *tab, v3 wi, 
         double e = p[6];
         double s = (e + 8.0) / (8.0 * PI) * pow(chh > 0 ? (chh < 1 ? chh : 1) : 0, e);
         out[0] += s * p[3]; out[1] += s * p[4]; out[2] += s * p[5];
+    } else if (kind == K_AS) {
+        /* Ashikhmin-Shirley (models/ashikhmin_shirley.py): p[3], p[4] = n_u, n_v about the
+         * point's tangent frame (t, bt); p[5..7] = F0 */
+        double hx = dot(h, t), hy = dot(h, bt), s2 = hx * hx + hy * hy;
+        double cos2 = s2 > 1e-24 ? hx * hx / s2 : 1.0;
+        double e = p[3] * cos2 + p[4] * (1.0 - cos2);
+        double c = chh < 1e-12 ? 1e-12 : (chh > 1.0 ? 1.0 : chh);
+        double hd = cd > 1e-12 ? cd : 1e-12, mx = ci > co ? ci : co;
+        double f = sqrt(((double)p[3] + 1.0) * ((double)p[4] + 1.0)) / (8.0 * PI) * exp(e * log(c)) / (hd * mx);
+        double m = 1.0 - cd; m = m < 0 ? 0 : (m > 1 ? 1 : m);
+        double m5 = m * m; m5 = m5 * m5 * m;
+        for (int k = 0; k < 3; k++) out[k] += f * (p[5 + k] + (1.0 - p[5 + k]) * m5);
     } else if (kind == K_TABLE) {
         /* p(h)·s(ωi, ωo); p[3] = F0, p[4] = static (0 paper, 1 smith), p[5] = its α
          * (worker/models/table.py distribution_static) */
@@ -762,6 +775,102 @@ T_AVX2 static void sum_lobes(int64_t cnt, const int32_t *idx, const uint8_t *qv,
     }
 }
 
+/* Blinn-Phong and Ashikhmin-Shirley (half-vector lobes with a pow) over a point's clusters, four
+ * at a time in double precision as sum_lobes, in the point's local frame: wol the view direction
+ * there, fr the frame (t, bt, n) as nine doubles. Blinn-Phong: s = (e+8)/(8π) cos^e θh, S_c =
+ * Σ l_c q s (F0_c applied by the caller); Ashikhmin-Shirley: S_c = Σ l_c q f F_c (eq. of
+ * models/ashikhmin_shirley.py, exponent n_u cos²φh + n_v sin²φh about the tangent). */
+T_AVX2 static void sum_half(int kind, int64_t cnt, const int32_t *idx, const uint8_t *qv, const float *qf,
+                            const float *node8, const double *fr, v3 wol, const float *prm, double *E, double *S) {
+    const __m256d tx = _mm256_set1_pd(fr[0]), ty = _mm256_set1_pd(fr[1]), tz = _mm256_set1_pd(fr[2]);
+    const __m256d bx = _mm256_set1_pd(fr[3]), by = _mm256_set1_pd(fr[4]), bz = _mm256_set1_pd(fr[5]);
+    const __m256d nx = _mm256_set1_pd(fr[6]), ny = _mm256_set1_pd(fr[7]), nz = _mm256_set1_pd(fr[8]);
+    const __m256d ot = _mm256_set1_pd(wol.x), ob = _mm256_set1_pd(wol.y), on = _mm256_set1_pd(wol.z);
+    const __m256d zero = _mm256_setzero_pd(), one = _mm256_set1_pd(1.0), lo = _mm256_set1_pd(1e-3);
+    const __m256d tiny = _mm256_set1_pd(1e-300), eps = _mm256_set1_pd(1e-12);
+    const int as = kind == K_AS;
+    /* Blinn: e and its normalisation; AS: n_u, n_v, the normalisation, F0 */
+    const double e = prm[6];
+    const __m256d ve = _mm256_set1_pd(as ? 0.0 : e), vb = _mm256_set1_pd((e + 8.0) / (8.0 * PI));
+    const __m256d nu = _mm256_set1_pd(prm[3]), nv = _mm256_set1_pd(prm[4]);
+    const __m256d van = _mm256_set1_pd(sqrt(((double)prm[3] + 1.0) * ((double)prm[4] + 1.0)) / (8.0 * PI));
+    const __m256d f0[3] = {_mm256_set1_pd(prm[5]), _mm256_set1_pd(prm[6]), _mm256_set1_pd(prm[7])};
+    __m256d er = zero, eg = zero, eb = zero, sr = zero, sg = zero, sb = zero;
+    for (int64_t j = 0; j < cnt; j += 8) {
+        __m256i off = _mm256_slli_epi32(_mm256_loadu_si256((const __m256i *)(idx + j)), 3);
+        __m256 q8 = get_q(qv, qf, j);
+        __m256 g8[6];
+        for (int c = 0; c < 6; c++) g8[c] = _mm256_i32gather_ps(node8 + c, off, 4);
+        for (int half = 0; half < 2; half++) {
+            __m256d v[6], q;
+            for (int c = 0; c < 6; c++)
+                v[c] = _mm256_cvtps_pd(half ? _mm256_extractf128_ps(g8[c], 1) : _mm256_castps256_ps128(g8[c]));
+            q = _mm256_cvtps_pd(half ? _mm256_extractf128_ps(q8, 1) : _mm256_castps256_ps128(q8));
+            __m256d x = v[3], y = v[4], z = v[5];
+            __m256d wt = _mm256_fmadd_pd(x, tx, _mm256_fmadd_pd(y, ty, _mm256_mul_pd(z, tz)));
+            __m256d wb = _mm256_fmadd_pd(x, bx, _mm256_fmadd_pd(y, by, _mm256_mul_pd(z, bz)));
+            __m256d ci = _mm256_fmadd_pd(x, nx, _mm256_fmadd_pd(y, ny, _mm256_mul_pd(z, nz)));
+            __m256d low = _mm256_cmp_pd(ci, lo, _CMP_LT_OQ);
+            if (_mm256_movemask_pd(low)) {     /* ωi + n(1e-3 − cosθi), normalised (local_dirs) */
+                __m256d len = _mm256_sqrt_pd(_mm256_fmadd_pd(wt, wt, _mm256_fmadd_pd(wb, wb, _mm256_set1_pd(1e-6))));
+                wt = _mm256_blendv_pd(wt, _mm256_div_pd(wt, len), low);
+                wb = _mm256_blendv_pd(wb, _mm256_div_pd(wb, len), low);
+                ci = _mm256_blendv_pd(ci, _mm256_div_pd(lo, len), low);
+            }
+            __m256d lq[3] = {_mm256_mul_pd(v[0], q), _mm256_mul_pd(v[1], q), _mm256_mul_pd(v[2], q)};
+            er = _mm256_add_pd(er, lq[0]); eg = _mm256_add_pd(eg, lq[1]); eb = _mm256_add_pd(eb, lq[2]);
+            __m256d hx = _mm256_add_pd(wt, ot), hy = _mm256_add_pd(wb, ob), hz = _mm256_add_pd(ci, on);
+            __m256d hxy = _mm256_fmadd_pd(hx, hx, _mm256_mul_pd(hy, hy));
+            __m256d inv = _mm256_div_pd(one, _mm256_sqrt_pd(_mm256_max_pd(_mm256_fmadd_pd(hz, hz, hxy), tiny)));
+            __m256d chh = _mm256_mul_pd(hz, inv);
+            if (!as) {
+                __m256d pos = _mm256_cmp_pd(chh, zero, _CMP_GT_OQ);
+                __m256d L = _mm256_min_pd(log_pd(_mm256_max_pd(chh, tiny)), zero);
+                __m256d xk = _mm256_max_pd(_mm256_mul_pd(ve, L), _mm256_set1_pd(-80.0));
+                __m256d sv = _mm256_and_pd(_mm256_mul_pd(vb, exp_pd(xk)), pos);
+                sr = _mm256_fmadd_pd(lq[0], sv, sr); sg = _mm256_fmadd_pd(lq[1], sv, sg); sb = _mm256_fmadd_pd(lq[2], sv, sb);
+                continue;
+            }
+            __m256d cos2 = _mm256_blendv_pd(one, _mm256_div_pd(_mm256_mul_pd(hx, hx), _mm256_max_pd(hxy, tiny)),
+                                            _mm256_cmp_pd(hxy, _mm256_set1_pd(1e-24), _CMP_GT_OQ));
+            /* the reference's thresholds are on the unit h; hxy scales with |h|², so compare unit values */
+            cos2 = _mm256_blendv_pd(one, cos2, _mm256_cmp_pd(_mm256_mul_pd(hxy, _mm256_mul_pd(inv, inv)),
+                                                             _mm256_set1_pd(1e-24), _CMP_GT_OQ));
+            __m256d ee = _mm256_fmadd_pd(nu, cos2, _mm256_mul_pd(nv, _mm256_sub_pd(one, cos2)));
+            __m256d c = _mm256_min_pd(_mm256_max_pd(chh, eps), one);
+            __m256d L = _mm256_min_pd(log_pd(c), zero);
+            __m256d xk = _mm256_max_pd(_mm256_mul_pd(ee, L), _mm256_set1_pd(-80.0));
+            __m256d cd = _mm256_mul_pd(_mm256_fmadd_pd(wt, hx, _mm256_fmadd_pd(wb, hy, _mm256_mul_pd(ci, hz))), inv);
+            __m256d den = _mm256_mul_pd(_mm256_max_pd(cd, eps), _mm256_max_pd(ci, on));
+            __m256d f = _mm256_div_pd(_mm256_mul_pd(van, exp_pd(xk)), den);
+            __m256d mm = _mm256_min_pd(_mm256_max_pd(_mm256_sub_pd(one, cd), zero), one);
+            __m256d m2 = _mm256_mul_pd(mm, mm), m5 = _mm256_mul_pd(_mm256_mul_pd(m2, m2), mm);
+            __m256d *acc[3] = {&sr, &sg, &sb};
+            for (int k = 0; k < 3; k++) {
+                __m256d F = _mm256_fmadd_pd(_mm256_sub_pd(one, f0[k]), m5, f0[k]);
+                *acc[k] = _mm256_fmadd_pd(lq[k], _mm256_mul_pd(f, F), *acc[k]);
+            }
+        }
+    }
+    double buf[4];
+    __m256d accs[6] = {er, eg, eb, sr, sg, sb};
+    double *outs[6] = {&E[0], &E[1], &E[2], &S[0], &S[1], &S[2]};
+    for (int c = 0; c < 6; c++) {
+        _mm256_storeu_pd(buf, accs[c]);
+        *outs[c] = (buf[0] + buf[1]) + (buf[2] + buf[3]);
+    }
+}
+
+T_AVX2 __attribute__((noinline)) static void sum_half_avx2(int kind, int64_t cnt, int32_t *idx, uint8_t *qv, float *qf,
+                                                           const float *node8, const double *fr, v3 wol,
+                                                           const float *prm, double *E, double *S) {
+    for (int64_t j = cnt; j < ((cnt + 7) & ~(int64_t)7); j++) {      /* pad: v = 0 */
+        idx[j] = idx[0];
+        if (qf) qf[j] = 0.0f; else qv[j] = 0;
+    }
+    sum_half(kind, cnt, idx, qv, qf, node8, fr, wol, prm, E, S);
+}
+
 T_AVX2 __attribute__((noinline)) static void sum_lobes_avx2(int64_t cnt, int32_t *idx, uint8_t *qv, float *qf,
                                                             const float *node8, v3 n, v3 r, double co,
                                                             const float *prm, double *E, double *S) {
@@ -804,6 +913,14 @@ static void sum_point(int simd, int kind, const float *prm, const float *tab, v3
         double E[3], S[3];
         v3 r = add(scl(n, 2.0 * co), scl(wo, -1.0));
         sum_lobes_avx2(cnt, idx, qv, qf, node8, n, r, co, prm, E, S);
+        for (int c = 0; c < 3; c++) acc[c] = prm[c] * INV_PI * E[c] + S[c];
+        return;
+    }
+    if (simd && (kind == K_BLINN || kind == K_AS)) {
+        double E[3], S[3];
+        const double fr[9] = {t.x, t.y, t.z, bt.x, bt.y, bt.z, n.x, n.y, n.z};
+        sum_half_avx2(kind, cnt, idx, qv, qf, node8, fr, mk(dot(wo, t), dot(wo, bt), co), prm, E, S);
+        if (kind == K_BLINN) { S[0] *= prm[3]; S[1] *= prm[4]; S[2] *= prm[5]; }
         for (int c = 0; c < 3; c++) acc[c] = prm[c] * INV_PI * E[c] + S[c];
         return;
     }
