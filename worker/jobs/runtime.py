@@ -337,8 +337,7 @@ class SessionRuntime(FitDriver):
         # again): that frame again under the new ack. Drawn anew, it was a one-sample frame
         # (faceted where the still is refined) and then the still once more: 7 s for a sharp
         # paint on the test bunny after each "Keep".
-        key = self._image_key()
-        if self._settled is not None and not self._drag and self._settled[0] == key:
+        if self._settled is not None and not self._drag and self._settled[0] == self._image_key():
             self._quick_next = False
             self.frame_no += 1
             return {**self._settled[1], "frame": self.frame_no, "ack": ack, "skipped": skipped, "ms_render": 0.0,
@@ -385,14 +384,16 @@ class SessionRuntime(FitDriver):
         hdr = compose.header(self.frame_no, ack, w, h, lod, out.info, (t1 - t0) * 1e3, (t2 - t1) * 1e3,
                              clock.paused * 1e3, skipped,
                              settled=not self._drag and not self.needs_still_frame())
-        self._settled = (key, hdr, jpeg) if hdr["settled"] else None
+        # a deep copy: a nested part of the state changed in place would change the key with it
+        self._settled = (self._image_key(deep=True), hdr, jpeg) if hdr["settled"] else None
         return hdr, jpeg
 
-    def _image_key(self):
+    def _image_key(self, deep: bool = False):
         """What a frame's pixels depend on: the state but for what only the service keeps (the
         last seq, saves it has not stored yet), the renderer's identity, and the placement of
         movable objects it was last given (compared with ==)."""
-        return (self.state.model_copy(update={"last_seq": -1, "pending_saves": []}), id(self.renderer), self._moves)
+        return (self.state.model_copy(update={"last_seq": -1, "pending_saves": []}, deep=deep), id(self.renderer),
+                self._moves)
 
 
 # -- what each effect does in the worker ----------------------------------------------------------
