@@ -276,13 +276,14 @@ async def run_build(st, pub_id: str, bid: str) -> bool:
         rendered, ms = 0, {}
 
         async def one(i, views):
-            nonlocal rendered
+            nonlocal rendered, reused
             async with sem:
                 res = await st.pool.run_job({"type": "bundle_frames", **pl["common"], "views": views},
                                             on_progress=progress_of(i))
             files.update(res["files"])
             meta.update(res["meta"])
             rendered += res["rendered"]
+            reused += res.get("skipped", 0)     # stored meanwhile (another build) after the check above
             for k, x in res["ms"].items():
                 ms[k] = ms.get(k, 0.0) + x
         # the glTF model is exported beside the frames (one more job for the pool)

@@ -21,7 +21,10 @@ class DataCache:
 
         self.settings = settings
         self.blobs = BlobStore(settings.blob_root)
+        # precomputed parts may come from a folder other data directories share; published frames
+        # (same store, their own keys) are this directory's own: a build renders what it lacks
         self.parts = PartStore(self.blobs, settings.shared_parts)
+        self.frames = PartStore(self.blobs)
         self.tmp = Path(settings.tmp_dir)
         self.tmp.mkdir(parents=True, exist_ok=True)
         self._scenes: OrderedDict = OrderedDict()

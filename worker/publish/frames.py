@@ -117,9 +117,9 @@ def render_frames(cache, p: dict, progress) -> dict:
         for n, v in enumerate(views):
             key = v["key"]
             mk = file_key(key, "meta")
-            if cache.parts.sha(mk) is not None:          # stored meanwhile (another batch, an earlier build)
-                out_files[key] = {k: cache.parts.sha(file_key(key, k)) for k in FILES}
-                out_meta[key] = json.loads(cache.parts.get(mk))
+            if cache.frames.sha(mk) is not None:         # stored meanwhile (another batch, an earlier build)
+                out_files[key] = {k: cache.frames.sha(file_key(key, k)) for k in FILES}
+                out_meta[key] = json.loads(cache.frames.get(mk))
                 skipped += 1
                 progress((n + 1) / len(views), f"{n + 1}/{len(views)} frames")
                 continue
@@ -142,7 +142,7 @@ def render_frames(cache, p: dict, progress) -> dict:
             meta = {"swatch": colour, "coverage": round(cover, 4),
                     "bytes": {k: len(b_) for k, b_ in files.items()}}
             # stored on the store thread (each file is fsynced: the waits overlap the next render)
-            stores.append(storer.submit(_store, cache.parts, key, files, meta))
+            stores.append(storer.submit(_store, cache.frames, key, files, meta))
             ms["render"] += (b - a) * 1e3
             ms["tone"] += (c - b) * 1e3
             ms["encode"] += (d - c) * 1e3
