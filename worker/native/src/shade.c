@@ -717,7 +717,33 @@ T_AVX2 static inline __m256d exp_pd(__m256d x) {
  * S_c = Σ l_c q Σ_k s_k w_kc, with ωi nudged above the horizon as the scalar path does. One log per
  * cluster, one exp per lobe, and a lobe's exp skipped for four clusters all below 1e-30 of its
  * peak (most clusters of a sharp lobe). n world normal, r = 2(n·ωo)n − ωo, co = n·ωo. */
-T_AVX2 static void sum_lobes(int64_t cnt, const int32_t *idx, const uint8_t *qv, const float *qf, const float *node8,
+/* pad a cluster list to a multiple of eight with visibility 0 (the vector paths read eight at a time) */
+static void pad8(int64_t cnt, int32_t *idx, uint8_t *qv, float *qf) {
+    for (int64_t j = cnt; j < ((cnt + 7) & ~(int64_t)7); j++) {
+        idx[j] = idx[0];
+        if (qf) qf[j] = 0.0f; else qv[j] = 0;
+    }
+}
+
+/* one half (four lanes) of eight gathered clusters as doubles: v = (l_r, l_g, l_b, ω_x, ω_y, ω_z),
+ * q the visibilities */
+T_AVX2 static inline void clusters_pd(const __m256 g8[6], __m256 q8, int half, __m256d v[6], __m256d *q) {
+    for (int c = 0; c < 6; c++)
+        v[c] = _mm256_cvtps_pd(half ? _mm256_extractf128_ps(g8[c], 1) : _mm256_castps256_ps128(g8[c]));
+    *q = _mm256_cvtps_pd(half ? _mm256_extractf128_ps(q8, 1) : _mm256_castps256_ps128(q8));
+}
+
+/* E_c and S_c from four-lane double accumulators (E r, g, b, S r, g, b) */
+T_AVX2 static inline void store_sums(const __m256d acc[6], double *E, double *S) {
+    double buf[4];
+    double *outs[6] = {&E[0], &E[1], &E[2], &S[0], &S[1], &S[2]};
+    for (int c = 0; c < 6; c++) {
+        _mm256_storeu_pd(buf, acc[c]);
+        *outs[c] = (buf[0] + buf[1]) + (buf[2] + buf[3]);
+    }
+}
+
+T_AVX2 __attribute__((noinline)) static void sum_lobes(int64_t cnt, const int32_t *idx, const uint8_t *qv, const float *qf, const float *node8,
                              v3 n, v3 r, double co, const float *prm, double *E, double *S) {
     const int m = (int)prm[3];
     double ck[32];
@@ -734,9 +760,7 @@ T_AVX2 static void sum_lobes(int64_t cnt, const int32_t *idx, const uint8_t *qv,
         for (int c = 0; c < 6; c++) g8[c] = _mm256_i32gather_ps(node8 + c, off, 4);
         for (int half = 0; half < 2; half++) {
             __m256d v[6], q;
-            for (int c = 0; c < 6; c++)
-                v[c] = _mm256_cvtps_pd(half ? _mm256_extractf128_ps(g8[c], 1) : _mm256_castps256_ps128(g8[c]));
-            q = _mm256_cvtps_pd(half ? _mm256_extractf128_ps(q8, 1) : _mm256_castps256_ps128(q8));
+            clusters_pd(g8, q8, half, v, &q);
             __m256d x = v[3], y = v[4], z = v[5];
             __m256d ci = _mm256_fmadd_pd(x, nx, _mm256_fmadd_pd(y, ny, _mm256_mul_pd(z, nz)));
             __m256d rv = _mm256_fmadd_pd(x, rx, _mm256_fmadd_pd(y, ry, _mm256_mul_pd(z, rz)));
@@ -766,13 +790,8 @@ T_AVX2 static void sum_lobes(int64_t cnt, const int32_t *idx, const uint8_t *qv,
             sr = _mm256_fmadd_pd(lq[0], t0, sr); sg = _mm256_fmadd_pd(lq[1], t1, sg); sb = _mm256_fmadd_pd(lq[2], t2, sb);
         }
     }
-    double buf[4];
-    __m256d accs[6] = {er, eg, eb, sr, sg, sb};
-    double *outs[6] = {&E[0], &E[1], &E[2], &S[0], &S[1], &S[2]};
-    for (int c = 0; c < 6; c++) {
-        _mm256_storeu_pd(buf, accs[c]);
-        *outs[c] = (buf[0] + buf[1]) + (buf[2] + buf[3]);
-    }
+    const __m256d acc[6] = {er, eg, eb, sr, sg, sb};
+    store_sums(acc, E, S);
 }
 
 /* Blinn-Phong and Ashikhmin-Shirley (half-vector lobes with a pow) over a point's clusters, four
@@ -780,7 +799,7 @@ T_AVX2 static void sum_lobes(int64_t cnt, const int32_t *idx, const uint8_t *qv,
  * there, fr the frame (t, bt, n) as nine doubles. Blinn-Phong: s = (e+8)/(8π) cos^e θh, S_c =
  * Σ l_c q s (F0_c applied by the caller); Ashikhmin-Shirley: S_c = Σ l_c q f F_c (eq. of
  * models/ashikhmin_shirley.py, exponent n_u cos²φh + n_v sin²φh about the tangent). */
-T_AVX2 static void sum_half(int kind, int64_t cnt, const int32_t *idx, const uint8_t *qv, const float *qf,
+T_AVX2 __attribute__((noinline)) static void sum_half(int kind, int64_t cnt, const int32_t *idx, const uint8_t *qv, const float *qf,
                             const float *node8, const double *fr, v3 wol, const float *prm, double *E, double *S) {
     const __m256d tx = _mm256_set1_pd(fr[0]), ty = _mm256_set1_pd(fr[1]), tz = _mm256_set1_pd(fr[2]);
     const __m256d bx = _mm256_set1_pd(fr[3]), by = _mm256_set1_pd(fr[4]), bz = _mm256_set1_pd(fr[5]);
@@ -803,9 +822,7 @@ T_AVX2 static void sum_half(int kind, int64_t cnt, const int32_t *idx, const uin
         for (int c = 0; c < 6; c++) g8[c] = _mm256_i32gather_ps(node8 + c, off, 4);
         for (int half = 0; half < 2; half++) {
             __m256d v[6], q;
-            for (int c = 0; c < 6; c++)
-                v[c] = _mm256_cvtps_pd(half ? _mm256_extractf128_ps(g8[c], 1) : _mm256_castps256_ps128(g8[c]));
-            q = _mm256_cvtps_pd(half ? _mm256_extractf128_ps(q8, 1) : _mm256_castps256_ps128(q8));
+            clusters_pd(g8, q8, half, v, &q);
             __m256d x = v[3], y = v[4], z = v[5];
             __m256d wt = _mm256_fmadd_pd(x, tx, _mm256_fmadd_pd(y, ty, _mm256_mul_pd(z, tz)));
             __m256d wb = _mm256_fmadd_pd(x, bx, _mm256_fmadd_pd(y, by, _mm256_mul_pd(z, bz)));
@@ -852,43 +869,14 @@ T_AVX2 static void sum_half(int kind, int64_t cnt, const int32_t *idx, const uin
             }
         }
     }
-    double buf[4];
-    __m256d accs[6] = {er, eg, eb, sr, sg, sb};
-    double *outs[6] = {&E[0], &E[1], &E[2], &S[0], &S[1], &S[2]};
-    for (int c = 0; c < 6; c++) {
-        _mm256_storeu_pd(buf, accs[c]);
-        *outs[c] = (buf[0] + buf[1]) + (buf[2] + buf[3]);
-    }
-}
-
-T_AVX2 __attribute__((noinline)) static void sum_half_avx2(int kind, int64_t cnt, int32_t *idx, uint8_t *qv, float *qf,
-                                                           const float *node8, const double *fr, v3 wol,
-                                                           const float *prm, double *E, double *S) {
-    for (int64_t j = cnt; j < ((cnt + 7) & ~(int64_t)7); j++) {      /* pad: v = 0 */
-        idx[j] = idx[0];
-        if (qf) qf[j] = 0.0f; else qv[j] = 0;
-    }
-    sum_half(kind, cnt, idx, qv, qf, node8, fr, wol, prm, E, S);
-}
-
-T_AVX2 __attribute__((noinline)) static void sum_lobes_avx2(int64_t cnt, int32_t *idx, uint8_t *qv, float *qf,
-                                                            const float *node8, v3 n, v3 r, double co,
-                                                            const float *prm, double *E, double *S) {
-    for (int64_t j = cnt; j < ((cnt + 7) & ~(int64_t)7); j++) {      /* pad: v = 0 */
-        idx[j] = idx[0];
-        if (qf) qf[j] = 0.0f; else qv[j] = 0;
-    }
-    sum_lobes(cnt, idx, qv, qf, node8, n, r, co, prm, E, S);
+    const __m256d acc[6] = {er, eg, eb, sr, sg, sb};
+    store_sums(acc, E, S);
 }
 
 /* the vector path of one point (not inlined into the generic caller: it is compiled for AVX2) */
 T_AVX2 __attribute__((noinline)) static void sum_avx2(int kind, int64_t cnt, int32_t *idx, uint8_t *qv, float *qf,
                                                       const float *node8, const float *fr, v3 wol, const float *prm,
                                                       const float *tab, double *E, double *S) {
-    for (int64_t j = cnt; j < ((cnt + 7) & ~(int64_t)7); j++) {      /* pad: v = 0 */
-        idx[j] = idx[0];
-        if (qf) qf[j] = 0.0f; else qv[j] = 0;
-    }
     frame8 f;
     f.tx = _mm256_set1_ps(fr[0]); f.ty = _mm256_set1_ps(fr[1]); f.tz = _mm256_set1_ps(fr[2]);
     f.bx = _mm256_set1_ps(fr[3]); f.by = _mm256_set1_ps(fr[4]); f.bz = _mm256_set1_ps(fr[5]);
@@ -909,27 +897,23 @@ static void sum_point(int simd, int kind, const float *prm, const float *tab, v3
     acc[0] = acc[1] = acc[2] = 0.0;
     if (cnt <= 0) return;
 #ifdef GLK_X86
-    if (simd && kind == K_LOBES) {
-        double E[3], S[3];
-        v3 r = add(scl(n, 2.0 * co), scl(wo, -1.0));
-        sum_lobes_avx2(cnt, idx, qv, qf, node8, n, r, co, prm, E, S);
-        for (int c = 0; c < 3; c++) acc[c] = prm[c] * INV_PI * E[c] + S[c];
-        return;
-    }
-    if (simd && (kind == K_BLINN || kind == K_AS)) {
-        double E[3], S[3];
-        const double fr[9] = {t.x, t.y, t.z, bt.x, bt.y, bt.z, n.x, n.y, n.z};
-        sum_half_avx2(kind, cnt, idx, qv, qf, node8, fr, mk(dot(wo, t), dot(wo, bt), co), prm, E, S);
-        if (kind == K_BLINN) { S[0] *= prm[3]; S[1] *= prm[4]; S[2] *= prm[5]; }
-        for (int c = 0; c < 3; c++) acc[c] = prm[c] * INV_PI * E[c] + S[c];
-        return;
-    }
-    if (simd && (kind == K_LAMBERT || kind == K_GGX || (kind == K_TABLE && tab))) {
+    if (simd && (kind == K_LAMBERT || kind == K_GGX || kind == K_BLINN || kind == K_LOBES || kind == K_AS ||
+                 (kind == K_TABLE && tab))) {
         double E[3], S[3] = {0, 0, 0};
-        const float fr[9] = {(float)t.x, (float)t.y, (float)t.z, (float)bt.x, (float)bt.y, (float)bt.z,
-                             (float)n.x, (float)n.y, (float)n.z};
-        sum_avx2(kind, cnt, idx, qv, qf, node8, fr, mk(dot(wo, t), dot(wo, bt), co), prm, tab, E, S);
-        if (kind == K_GGX) { S[0] *= gpo * prm[3]; S[1] *= gpo * prm[4]; S[2] *= gpo * prm[5]; }
+        v3 wol = mk(dot(wo, t), dot(wo, bt), co);
+        pad8(cnt, idx, qv, qf);
+        if (kind == K_LOBES) {
+            sum_lobes(cnt, idx, qv, qf, node8, n, add(scl(n, 2.0 * co), scl(wo, -1.0)), co, prm, E, S);
+        } else if (kind == K_BLINN || kind == K_AS) {
+            const double fr[9] = {t.x, t.y, t.z, bt.x, bt.y, bt.z, n.x, n.y, n.z};
+            sum_half(kind, cnt, idx, qv, qf, node8, fr, wol, prm, E, S);
+            if (kind == K_BLINN) { S[0] *= prm[3]; S[1] *= prm[4]; S[2] *= prm[5]; }
+        } else {
+            const float fr[9] = {(float)t.x, (float)t.y, (float)t.z, (float)bt.x, (float)bt.y, (float)bt.z,
+                                 (float)n.x, (float)n.y, (float)n.z};
+            sum_avx2(kind, cnt, idx, qv, qf, node8, fr, wol, prm, tab, E, S);
+            if (kind == K_GGX) { S[0] *= gpo * prm[3]; S[1] *= gpo * prm[4]; S[2] *= gpo * prm[5]; }
+        }
         for (int c = 0; c < 3; c++) acc[c] = prm[c] * INV_PI * E[c] + S[c];
         return;
     }
