@@ -61,16 +61,23 @@ def _greenhouse(car, shared_assets, folder, renderer: str, material: str):
     return sc
 
 
-def _roof_mask(sc) -> np.ndarray:
-    """(H, W) bool: pixels whose first hit is an upward face of the roof panel (above ROOF_Y),
-    2 px from its border."""
+def _first_faces(sc) -> np.ndarray:
+    """(H·W,) int: the face each pixel centre sees first (−1: none)."""
     from worker.core.render import camera_rays
     from worker.trace.embree import Tracer
 
     cam = sc.spec.camera
-    v, f = sc.mesh.vertices.astype(np.float64), sc.mesh.faces
     o, d = camera_rays(cam.eye, cam.target, cam.up, cam.fov_y_deg, cam.width, cam.height)
-    prim, _, _ = Tracer(sc.mesh.vertices, f).first_hit(o, d)
+    prim, _, _ = Tracer(sc.mesh.vertices, sc.mesh.faces).first_hit(o, d)
+    return prim
+
+
+def _roof_mask(sc) -> np.ndarray:
+    """(H, W) bool: pixels whose first hit is an upward face of the roof panel (above ROOF_Y),
+    2 px from its border."""
+    cam = sc.spec.camera
+    v, f = sc.mesh.vertices.astype(np.float64), sc.mesh.faces
+    prim = _first_faces(sc)
     fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
     up = fn[:, 1] / np.linalg.norm(fn, axis=1)
     roof = (v[f][:, :, 1].mean(1) > ROOF_Y) & (np.abs(up) > 0.7)
@@ -109,21 +116,31 @@ def test_the_ford_focus_roof_matches_mitsuba_without_speckles(roof_scene, cache_
     luma = np.array([0.2126, 0.7152, 0.0722])
     dark = int(((a @ luma) < 0.5 * (b @ luma)).sum())
     Image.fromarray(np.concatenate([tonemap(ours), tonemap(ref)], axis=1)).save(artifacts / "mitsuba-ford-roof.png")
-    print(f"roof: {inside.sum()} blocks, relative RMSE {rel:.4f} (reference noise {noise:.4f}), {dark} at half")
+    # the whole greenhouse (every block all of whose pixels see the car): windows in their frames,
+    # pillars, the roof's gutters, all layered shells
+    seen = _blocks((_first_faces(sc) >= 0).reshape(cam.height, cam.width, 1).astype(float))[..., 0] == 1
+    ga, gb = _blocks(ours)[seen], _blocks(ref)[seen]
+    whole = float(np.sqrt(((ga - gb) ** 2).mean()) / np.sqrt((gb ** 2).mean()))
+    print(f"roof: {inside.sum()} blocks, relative RMSE {rel:.4f} (reference noise {noise:.4f}), {dark} at half; "
+          f"greenhouse {seen.sum()} blocks, {whole:.4f}")
     assert inside.sum() > 2000, inside.sum()
-    # measured 2026-12-06: 5.5% (reference noise 0.7%) and 6 of 2,560 blocks below half the
-    # reference's luminance; without the repair 59% and about 1,350. The target is 5%: what is left is
-    # the vertex-sampled visibility at the edges of the roof's inset panel, not speckles.
-    assert rel <= 0.06, f"roof relative RMSE {rel:.4f} against Mitsuba (2x2 blocks)"
+    # measured 2026-12-07: roof 2.4% (reference noise 0.7%), 0 blocks below half the reference's
+    # luminance; the greenhouse 4.3%. With rays from the vertices themselves (an offset of 1e-4 of
+    # the scene's diagonal) it was 5.5% and 18.3%: a vertex under the next shell of the mesh (the
+    # gutter over the roof panel's edge, glass in its frame) darkened its faces; without the
+    # mesh repair, 59% and about 1,350 blocks at half. The roof's target is 5%.
+    assert rel <= 0.05, f"roof relative RMSE {rel:.4f} against Mitsuba (2x2 blocks)"
     assert dark <= 12, f"{dark} of {inside.sum()} roof blocks below half of Mitsuba's luminance"
+    assert whole <= 0.08, f"greenhouse relative RMSE {whole:.4f} against Mitsuba (2x2 blocks)"
 
 
 def test_the_car_paint_renderer_draws_the_roof_without_speckles(car, shared_assets, tmp_path, artifacts):
     """The car-paint renderer (per-pixel normals, one Embree hit per pixel, no visibility) on the
     same roof with the benchmark's paint: a speckle is a roof pixel below half the median of its
     9×9 neighbourhood (a layer facing away from the camera winning the depth test, or a normal
-    summed from opposite faces). Measured 2026-12-06: 0 of ~10,860 roof pixels; without the
-    repair 2,220."""
+    summed from opposite faces). Measured 2026-12-06: 0 of ~10,860 roof pixels, 2026-12-07: 4
+    (with the cuts of either ray offset: dots on the thin gutter strips); without the repair
+    2,220."""
     import json
 
     from PIL import Image

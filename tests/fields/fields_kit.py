@@ -10,7 +10,7 @@ import numpy as np
 
 from worker.core.cuts import CutSet, build_cuts
 from worker.core.directions import get_tree
-from worker.renderers.cuts.precompute import ray_epsilon, vertex_visibility
+from worker.renderers.cuts.precompute import ray_offsets, vertex_visibility
 from worker.scene import load_scene
 from worker.trace.embree import Tracer
 
@@ -32,11 +32,11 @@ def reference_cuts(mesh, ids, tau: float = 1.0) -> CutSet:
     as the static precomputation traces them (same origin offset), without tracing the rest."""
     tree = get_tree()
     tracer = Tracer(mesh.vertices, mesh.faces)
-    eps = ray_epsilon(mesh.vertices)
+    eps = ray_offsets(mesh.vertices, mesh.faces)
     parts = []
     for s in range(0, len(ids), 64):
         b = np.asarray(ids[s:s + 64])
-        vis, _ = vertex_visibility(tracer, tree, mesh.vertices[b], mesh.normals[b], eps)
+        vis, _ = vertex_visibility(tracer, tree, mesh.vertices[b], mesh.normals[b], eps[b])
         parts.append(build_cuts(vis, tau))
     return CutSet.concat(parts)
 

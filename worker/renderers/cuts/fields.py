@@ -88,6 +88,7 @@ from ...core.directions import get_tree
 from ...core.lighting import LeafLighting, node_lighting, rotate_map
 from ...errors import GlintError
 from ...keys import content_key
+from .precompute import OFFSET_EDGE, OFFSET_MAX
 from ..base import Part
 from .combine import DEFAULT_HMIN, Combiner, combined_cuts, lookup  # noqa: F401  (the API)
 from .field import Field, FieldError, bounding_sphere, field_key, trace_field  # noqa: F401
@@ -198,7 +199,7 @@ def receiver_from_local(world_from_receiver: np.ndarray, world_from_local: np.nd
 
 # --- precomputed parts -------------------------------------------------------------------------
 
-SELF_CUTS_VERSION = 2   # of the self-visibility cuts' key (worker/keys.py)
+SELF_CUTS_VERSION = 3   # of the self-visibility cuts' key (worker/keys.py); 3: ray offsets by edge length
 
 
 def self_cuts_key(shape: ObjectShape, tau: float, height: int) -> str:
@@ -206,7 +207,8 @@ def self_cuts_key(shape: ObjectShape, tau: float, height: int) -> str:
     (float32, int32), τ and the direction tree's height."""
     return content_key("self-cuts", SELF_CUTS_VERSION, vertices=np.asarray(shape.vertices, np.float32),
                        faces=np.asarray(shape.faces, np.int32), normals=np.asarray(shape.normals, np.float32),
-                       tau=float(tau), height=int(height))
+                       tau=float(tau), height=int(height), offset_edge=float(OFFSET_EDGE),
+                       offset_max=float(OFFSET_MAX))
 
 
 def field_parts(scene, movable: list[str], options: Mapping[str, Any] | None = None) -> list[Part]:
