@@ -113,7 +113,7 @@ def ray_epsilon(vertices: np.ndarray) -> float:
 # OFFSET_EDGE of the vertex's mean edge length off the surface (and along the ray), so an occluder
 # nearer than that, which interpolation could not show anyway, is left out; the offset is at
 # least ray_epsilon and at most OFFSET_MAX of the scene's diagonal (a ground of two triangles).
-# 0.1 was chosen on the fordFocus's greenhouse against Mitsuba (0.03 / 0.1 / 0.3: whole car
+# 0.1 was chosen on the fordFocus's greenhouse against Mitsuba (0.03 / 0.1 / 0.3: the greenhouse
 # 5.9 / 4.3 / 4.6%, roof 2.4% each; a fixed 1e-4 of the diagonal: 18.3%, roof 5.5%) and
 # reported on held-out scenes in docs/benchmarks/history/2026-12-07-ray-offsets.md.
 OFFSET_EDGE = 0.1
