@@ -50,6 +50,7 @@ from ...core.render import camera_rays, env_lookup, interpolate, shade_points
 from ...trace.embree import Tracer
 from ..base import Part, Rendered, Unsupported
 from .combine import DEFAULT_HMIN, Combiner
+from .layers import Layers
 from .fields import (
     MoveError,
     ObjectShape,
@@ -531,7 +532,8 @@ class MovingFrames:
         t1 = time.perf_counter(); t["view"] = (t1 - t0) * 1e3
         node_l, node_w = r.light(req.lighting)
         node8 = r._node8                     # set with node_l (the renderer's lock is held)
-        mats = r.material_table(materials)
+        layers = r.layers(materials)         # painted regions (layers.py), or None
+        mats = r.material_table(materials if layers is None else layers.flat)
         t2 = time.perf_counter(); t["light"] = (t2 - t1) * 1e3
         mesh, d = r.scene.mesh, self.d
         img = self._background(camera, v.dirs, req.lighting).copy()      # surfaces are drawn over it
@@ -545,7 +547,7 @@ class MovingFrames:
         # static vertices: kept radiance minus what the moved objects' fields take away
         sv = vis[~d.is_movable[obj_of[vis]]]
         if len(sv):
-            rad = self._static_radiance(sv, eye, node_l, node_w, mats, lv, req.lod, node8)
+            rad = self._static_radiance(sv, eye, node_l, node_w, mats, lv, req.lod, node8, layers)
             occ = [(d.fields[i], Wf[i]) for i in d.movable]
             x, n = mesh.vertices[sv], mesh.normals[sv]
             cells, wts, _ = lv.combiner.stencils(x, n, occ)
@@ -556,8 +558,8 @@ class MovingFrames:
                                             stencils=(cells[aff], wts[aff]), tag="static", skip=lv.skip)
                 self._count(stats, lv.combiner.last_stats)
                 wo = _unit(eye - x[aff])
-                dr = shade_points(n[aff], wo, np.arange(len(aff), dtype=np.int32), obj_of[sv[aff]], delta, node_l,
-                                  node_w, r.tree, mats, r.k, node8=node8)
+                dr = _shade(n[aff], wo, np.arange(len(aff), dtype=np.int32), sv[aff], obj_of[sv[aff]], delta,
+                            node_l, node_w, r, mats, node8, layers)
                 rad = rad.copy()
                 rad[aff] = np.maximum(rad[aff] - dr, 0.0)
             vert[sv] = rad
@@ -578,8 +580,8 @@ class MovingFrames:
             xw = sh.vertices[local].astype(np.float64) @ W[i][:3, :3].T + W[i][:3, 3]
             wo = _unit((eye - xw) @ q)                                   # into the object's frame
             nl, nw, n8 = self.frame_light_tables(q, req.lighting)
-            vert[ids] = shade_points(sh.normals[local], wo, np.arange(len(ids), dtype=np.int32), obj_of[ids], cs, nl, nw,
-                                     r.tree, mats, r.k, node8=n8)
+            vert[ids] = _shade(sh.normals[local], wo, np.arange(len(ids), dtype=np.int32), ids, obj_of[ids], cs, nl, nw,
+                               r, mats, n8, layers)
             stats["moving_vertices"] += len(ids)
         t4 = time.perf_counter(); t["moving"] = (t4 - t3) * 1e3
         interpolate(v.tri, v.uv, mesh.faces, vert, img, r.k)
@@ -682,9 +684,10 @@ class MovingFrames:
         stats["cells_merged"] += int(cs.get("cells_merged", 0))
 
     def _static_radiance(self, sv: np.ndarray, eye: np.ndarray, node_l, node_w, mats, lv: _Level, lod: str,
-                         node8=None):
+                         node8=None, layers=None):
         """(len(sv), 3) float32 radiance of static vertices with the static cuts alone (no movable
-        object), kept for the eye, lighting and materials; missing vertices are shaded here."""
+        object), kept for the eye, lighting and materials (with their regions' layers: the table
+        of a new regions material is a new table); missing vertices are shaded here."""
         r, d = self.r, self.d
         key = tuple(np.round(eye, 9).tolist())
         st = self._static.get(lod)
@@ -696,11 +699,24 @@ class MovingFrames:
         if len(miss):
             mesh = r.scene.mesh
             wo = _unit(eye - mesh.vertices[miss])
-            st.rad[miss] = shade_points(mesh.normals[miss], wo, d.static_row[miss].astype(np.int32),
-                                        r.scene.object_of_vertex[miss], lv.static, node_l, node_w, r.tree, mats, r.k,
-                                        node8=node8)
+            st.rad[miss] = _shade(mesh.normals[miss], wo, d.static_row[miss].astype(np.int32), miss,
+                                  r.scene.object_of_vertex[miss], lv.static, node_l, node_w, r, mats, node8, layers)
             st.have[miss] = True
         return st.rad[sv]
+
+
+def _shade(normals, wo, cut_of, vids, obj_of, cuts, node_l, node_w, r, mats, node8, layers) -> np.ndarray:
+    """(K, 3) float32 radiance of K points (vertices ``vids`` of the scene, objects ``obj_of``)
+    shaded with cuts[cut_of]: once per point, or with painted regions once per layer of weight
+    > 0 at its vertex, blended by the layers' weights (layers.py; shading is linear in the
+    material, so a delta cut's radiance blends the same way)."""
+    if layers is None:
+        return shade_points(normals, wo, cut_of, obj_of, cuts, node_l, node_w, r.tree, mats, r.k, node8=node8)
+    src, slot, wt = layers.expand(np.asarray(vids, np.int64), obj_of, obj_of)
+    rad = shade_points(np.ascontiguousarray(normals[src]), np.ascontiguousarray(wo[src]),
+                       np.ascontiguousarray(np.asarray(cut_of)[src]), slot, cuts, node_l, node_w, r.tree, mats, r.k,
+                       node8=node8)
+    return Layers.blend(rad, src, wt, len(vids))
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
