@@ -59,6 +59,9 @@ SEARCH_WIDE = {
     "EDGE_PX": [2, 3, 4],
     # the fixed-ratio regions (0: off), chosen after the two sweeps above, the rest held
     "RATIO_SPREAD": [0.0, 0.05, 0.075, 0.1, 0.125, 0.15, 0.2, 0.3],
+    # the extension of rim-attached regions by their own factor (2026-12-07, 0: off), chosen with
+    # every other constant held
+    "RATIO_EXTEND": [0.0, 0.1, 0.15, 0.2, 0.3, 0.4],
 }
 
 

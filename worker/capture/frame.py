@@ -51,6 +51,12 @@ lens, whatever the scene, and together they separate it from the scene:
    not (the same directions at the rim's top and bottom in both shots), the overlap test vetoes
    the region as seen alike.
 
+10. **The same factor along the rim** (last). A found region attached to the rim extends through
+   the pixels of its band along the rim (as deep as the region) where every two shots differ by
+   the region's own factor within ``RATIO_EXTEND`` stops, connected to it: the stretches of a
+   thin polished rim whose glint matched the scene beside it, the faint part of a vignette. A
+   region whose factor is near 1 does not extend (the scene both shots see alike reads 1 too).
+
 Detection runs at about 512 px across the circle. Rim-attached components of the candidates
 are seeds; they grow (hysteresis, at most ``GROW_PX`` working pixels) through pixels that are
 dark in every shot or occluding, texture or not and not seen alike by another shot, which
@@ -62,9 +68,9 @@ Where another shot sees the same directions, stitching fills the frame from it (
 pixels get zero weight and a feathered edge); what no shot sees is inpainted (stitch.py).
 How the constants were chosen and what they achieve: bench/frame_detector.py chooses them on
 its TUNING HDRIs only and reports on its HELD_OUT HDRIs, which no choice saw (the figures:
-docs/benchmarks/history/2026-12-01-frame-detector.md, 2026-12-02-frame-detector-rims.md and
+docs/benchmarks/history/2026-12-01-frame-detector.md, 2026-12-02-frame-detector-rims.md,
 2026-12-06-frame-detector-sweep.md, which chose DARK_STOPS, OCCLUDED_STOPS and GROW_PX again
-and RATIO_SPREAD).
+and RATIO_SPREAD, and 2026-12-07-frame-detector-ratio.md, which chose RATIO_EXTEND).
 """
 from __future__ import annotations
 
@@ -87,6 +93,9 @@ RIM_BAND = 0.05        # ... within this fraction of the radius from the rim (a 
 DIMMED_STOPS = 1.0     # hysteresis: a housing's soft edge reads this much darker than another shot's view
 GROW_PX = 8            # hysteresis: how far (working pixels) a region grows from its seeds
 RATIO_SPREAD = 0.1     # a fixed-ratio region's shots differ by one factor within this many stops (0: off)
+RATIO_EXTEND = 0.15    # a rim-attached region extends along the rim through pixels whose shots differ
+                       # by the region's own factor within this many stops (0: off)
+BAND_PCT = 95
 EDGE_PX = 2            # the found regions grow by this many working pixels (the housing's soft edge)
 WORK_DIAMETER = 512    # working resolution across the image circle
 LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
@@ -232,6 +241,47 @@ def _fixed_ratio(ells, oks, flats, where, rim, min_area: int) -> np.ndarray:
     return out
 
 
+def _ratio_extend(ells, oks, found: np.ndarray, r: np.ndarray, rim: np.ndarray) -> np.ndarray:
+    """(h, w) bool: ``found`` with each of its rim-attached regions extended along the rim. A
+    housing is fixed to the sensor and each shot lights it with one factor, so every two shots
+    differ over it by one factor c (the region's median difference of log₂ luminance); the
+    pixels of the band the region occupies (as far from the rim as its 95th percentile, plus two
+    pixels) where every pair of shots differs by c within RATIO_EXTEND stops, and connected to
+    the region there, are the same housing where the other cues missed it (a thin polished rim
+    whose glint matches the scene beside it, the faint part of a vignette). Skipped for a region
+    whose factor is within 2·RATIO_EXTEND of 1: there the scene both shots see alike (the rim's
+    top and bottom, the same directions in both) reads the same factor."""
+    import cv2
+
+    pairs = [(a, b) for a in range(len(ells)) for b in range(a + 1, len(ells))]
+    diffs = [ells[a] - ells[b] for a, b in pairs]
+    both = [oks[a] & oks[b] for a, b in pairs]
+    n, lab = cv2.connectedComponents(found.astype(np.uint8), connectivity=8)
+    out = found.copy()
+    depth = 1.0 - r
+    px = float(np.max(depth[rim])) / 7.0          # one working pixel, as a fraction of the radius
+    for k in np.unique(lab[rim & found]):
+        if k == 0:
+            continue
+        sel = lab == k
+        match = (r <= 1.0).copy()
+        for d, ok in zip(diffs, both):
+            c = float(np.median(d[sel & ok])) if (sel & ok).any() else 0.0
+            if abs(c) < 2.0 * RATIO_EXTEND:
+                match[:] = False
+                break
+            match &= ok & (np.abs(d - c) <= RATIO_EXTEND)
+        # the band: as deep as the region's own pixels that read its factor (the hysteresis may
+        # have grown it into the scene beside the housing, which does not)
+        own = sel & match
+        if not own.any():
+            continue
+        cand = match & (depth <= np.percentile(depth[own], BAND_PCT) + 2.0 * px)
+        m, lab_c = cv2.connectedComponents((cand | sel).astype(np.uint8), connectivity=8)
+        out |= np.isin(lab_c, np.unique(lab_c[sel])) & (lab_c > 0)
+    return out
+
+
 def detect_frame(radiance: list[np.ndarray], lens: Lens, max_shift: int = 0,
                  yaws: list[float] | None = None) -> FrameMask:
     """Find the lens frame in a capture's merged shots.
@@ -320,7 +370,10 @@ def detect_frame(radiance: list[np.ndarray], lens: Lens, max_shift: int = 0,
                                        ((dark_all | occl | dimmed | glint_part | fixed) & ~agree), seen, agree, rim,
                                        small, min_area)
     keep_regions = int(grown.sum())
-    m = grown[lab2].astype(np.uint8)
+    m = grown[lab2]
+    if multi and RATIO_EXTEND > 0 and m.any():
+        m = _ratio_extend(ells, oks, m, r, rim)
+    m = m.astype(np.uint8)
     grow = EDGE_PX + int(np.ceil(max_shift * scale))
     m = cv2.dilate(m, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1)))
     full = cv2.resize(m * 255, (w, h), interpolation=cv2.INTER_LINEAR) > 0
