@@ -1,4 +1,4 @@
-"""Regions from strokes (worker/fit/regions.py) and their rendering (renderers/cuts/layers.py):
+"""Regions from strokes (worker/fit/regions.py) and their rendering (renderers/layers.py):
 the stroke changes what it covers, the rest of the object keeps its material."""
 import numpy as np
 import pytest

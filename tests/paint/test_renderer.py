@@ -123,3 +123,38 @@ def test_cli_render_and_bench(tmp_path, assets, sphere_mesh, capsys):
     assert [r["lobes"] for r in ex["table"]] == [1, 2, 3]
     assert main(["paint", "render", str(sp), "--out", str(png), "--material", "nope=x.json",
                  "--store", str(tmp_path / "st")]) == 2
+
+
+def test_painted_regions_are_drawn(tmp_path, assets, sphere_mesh, cache):
+    """A regions material on the sphere (a second paint over its upper half): pixels whose face
+    lies wholly in the region are the frame of the region's paint alone, pixels wholly outside
+    are the base's, and the soft band between blends the two (a renderer drawing the base alone
+    fails the first)."""
+    from worker.models import Lobes, Region, Regions
+
+    scene = _scene(tmp_path, assets, sphere_mesh)
+    r, *_ = _renderer(scene, tmp_path, cache)
+    ex = list(r.exponents)
+    base = Lobes(exponents=ex, albedo=(0.3, 0.05, 0.05), gloss=[0.0] * (len(ex) - 1) + [0.04],
+                 directional_diffuse=[(0.0, 0.0, 0.0)] * len(ex))
+    top = Lobes(exponents=ex, albedo=(0.05, 0.1, 0.4), gloss=[0.0] * (len(ex) - 1) + [0.04],
+                directional_diffuse=[(0.0, 0.0, 0.0)] * (len(ex) - 2) + [(0.2, 0.3, 0.5), (0.0, 0.0, 0.0)])
+    y = scene.mesh.vertices[:, 1]
+    up = np.nonzero(y > 0.05)[0]
+    regions = Regions(base=base, vertex_count=len(y), regions=[Region(name="top", material=top,
+                                                                        vertices=up.tolist(), weights=[1.0] * len(up))])
+    cam, light = scene.spec.camera, Lighting(rotation_deg=20.0, intensity=1.0)
+    got = r.render(FrameRequest(cam, light, [regions])).radiance.reshape(-1, 3)
+    a = r.render(FrameRequest(cam, light, [base])).radiance.reshape(-1, 3)
+    b = r.render(FrameRequest(cam, light, [top])).radiance.reshape(-1, 3)
+    v = r.view(cam)
+    inside = (y[v.corners] > 0.05).all(1)
+    outside = (y[v.corners] <= 0.05).all(1)
+    px_in, px_out = v.hit[inside], v.hit[outside]
+    assert len(px_in) > 500 and len(px_out) > 500, (len(px_in), len(px_out))
+    assert np.allclose(got[px_in], b[px_in], rtol=1e-5, atol=1e-7)
+    assert np.allclose(got[px_out], a[px_out], rtol=1e-5, atol=1e-7)
+    assert np.abs(a[px_in] - b[px_in]).mean() > 0.2 * np.abs(b[px_in]).mean()       # the two paints differ
+    band = v.hit[~inside & ~outside]
+    lo, hi = np.minimum(a[band], b[band]), np.maximum(a[band], b[band])
+    assert ((got[band] >= lo - 1e-6) & (got[band] <= hi + 1e-6)).all()

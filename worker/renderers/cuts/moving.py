@@ -50,7 +50,7 @@ from ...core.render import camera_rays, env_lookup, interpolate, shade_points
 from ...trace.embree import Tracer
 from ..base import Part, Rendered, Unsupported
 from .combine import DEFAULT_HMIN, Combiner
-from .layers import Layers
+from ..layers import Layers
 from .fields import (
     MoveError,
     ObjectShape,
@@ -532,7 +532,7 @@ class MovingFrames:
         t1 = time.perf_counter(); t["view"] = (t1 - t0) * 1e3
         node_l, node_w = r.light(req.lighting)
         node8 = r._node8                     # set with node_l (the renderer's lock is held)
-        layers = r.layers(materials)         # painted regions (layers.py), or None
+        layers = r.layers(materials)         # painted regions (renderers/layers.py), or None
         mats = r.material_table(materials if layers is None else layers.flat)
         t2 = time.perf_counter(); t["light"] = (t2 - t1) * 1e3
         mesh, d = r.scene.mesh, self.d
@@ -708,7 +708,7 @@ class MovingFrames:
 def _shade(normals, wo, cut_of, vids, obj_of, cuts, node_l, node_w, r, mats, node8, layers) -> np.ndarray:
     """(K, 3) float32 radiance of K points (vertices ``vids`` of the scene, objects ``obj_of``)
     shaded with cuts[cut_of]: once per point, or with painted regions once per layer of weight
-    > 0 at its vertex, blended by the layers' weights (layers.py; shading is linear in the
+    > 0 at its vertex, blended by the layers' weights (renderers/layers.py; shading is linear in the
     material, so a delta cut's radiance blends the same way)."""
     if layers is None:
         return shade_points(normals, wo, cut_of, obj_of, cuts, node_l, node_w, r.tree, mats, r.k, node8=node8)

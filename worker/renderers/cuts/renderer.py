@@ -80,7 +80,7 @@ from ..base import FrameCancelled, FrameRequest, Lighting, Rendered, Renderer, U
 from . import DECLARATION
 from . import edges as edgemod
 from .edges import edge_pixels
-from .layers import Layers, frame_layers
+from ..layers import Layers, frame_layers
 from .precompute import CutData
 from . import refine as refinemod
 from .refine import Refinement
@@ -925,7 +925,7 @@ class CutRenderer(Renderer):
                            layers).astype(np.float64)
 
     def layers(self, materials) -> Layers | None:
-        """The frame's region layers (layers.py), or None when no material has regions; cached
+        """The frame's region layers (renderers/layers.py), or None when no material has regions; cached
         by the identity of the list's items, as the material table is."""
         key = tuple(id(m) for m in materials)
         if key != self._layers_key:
@@ -953,7 +953,7 @@ class CutRenderer(Renderer):
         three cuts by barycentric weight with its own normal and view direction (one cluster
         list, core/render.py shade_blend; B is linear in visibility, inverse-brdf-modeling
         eq. 22). mat_of_vertex : (V,) object of each vertex (a face's three share it), or None:
-        every sample has material 0. With region layers (layers.py) a sample shades each layer
+        every sample has material 0. With region layers (renderers/layers.py) a sample shades each layer
         its corners carry, weighted by the corners' layer weights interpolated barycentrically, so
         the frame stays linear in every layer's radiance (the blend of a face's cuts is the same
         for every layer)."""

@@ -28,6 +28,7 @@ from ...keys import content_key
 from ...paint.basis import default_exponents
 from ...scene import Lobes
 from ..base import FrameRequest, Part, Precomputation, Rendered, Renderer
+from ..layers import Layers, frame_layers
 from . import DECLARATION
 from .prefilter import LobeMaps, prefilter_all
 from .render import background, material_rows, shade
@@ -117,6 +118,8 @@ class _View:
     bg: np.ndarray         # (B,) pixel indices of the background
     bg_uv: np.ndarray      # (B, 2) float32 unrotated map coordinates of the background rays
     object_id: np.ndarray  # (H, W) int32
+    corners: np.ndarray    # (K, 3) int32 the vertices of each hit's face
+    bary: np.ndarray       # (K, 3) float32 each hit's barycentric weights over them
 
 
 class PaintRenderer(Renderer):
@@ -181,7 +184,8 @@ class PaintRenderer(Renderer):
         bg = np.nonzero(tri < 0)[0].astype(np.int64)
         u, w = direction_to_uv(d[bg].astype(np.float64))
         self._view = _View(camera, hit, nrm.astype(np.float32), views.astype(np.float32), obj, vsh, bg,
-                           np.stack([u, w], 1).astype(np.float32), oid.reshape(camera.height, camera.width))
+                           np.stack([u, w], 1).astype(np.float32), oid.reshape(camera.height, camera.width),
+                           f.astype(np.int32), bary)
         return self._view
 
     def render(self, req: FrameRequest) -> Rendered:
@@ -189,21 +193,52 @@ class PaintRenderer(Renderer):
         cam = req.camera
         v = self.view(cam)
         t1 = time.perf_counter()
-        mats = [as_basis(mt, self.exponents) for mt in (req.materials or self.scene.materials)]
+        materials = list(req.materials or self.scene.materials)
+        layers = frame_layers(materials, self.scene.object_of_vertex, self.scene.vertex_source)
+        mats = [as_basis(mt, self.exponents) for mt in (materials if layers is None else layers.flat)]
         rows = material_rows(mats, self.exponents)
         t2 = time.perf_counter()
         # every pixel is either background or shaded: the kernels write the image in place
         img = np.empty((cam.width * cam.height, 3), np.float32)
         background(v.bg_uv, self.envmap, req.lighting.rotation_deg, req.lighting.intensity,
                    self.k, out=img, dst=v.bg)
-        shade(v.normals, v.views, v.obj, rows, self.data.maps, self.cosine, self.fresnel,
-              v.vsh if self.visibility else None, req.lighting.rotation_deg, req.lighting.intensity,
-              self.k, out=img, dst=v.hit)
+        vsh = v.vsh if self.visibility else None
+        if layers is None:
+            shade(v.normals, v.views, v.obj, rows, self.data.maps, self.cosine, self.fresnel, vsh,
+                  req.lighting.rotation_deg, req.lighting.intensity, self.k, out=img, dst=v.hit)
+        else:
+            src, slot, wt = self._layer_points(v, layers)
+            rad = shade(v.normals[src], v.views[src], slot, rows, self.data.maps, self.cosine, self.fresnel,
+                        None if vsh is None else vsh[src], req.lighting.rotation_deg, req.lighting.intensity,
+                        self.k)
+            img[v.hit] = Layers.blend(rad, src, wt, len(v.hit))
         t3 = time.perf_counter()
         return Rendered(img.reshape(cam.height, cam.width, 3), v.object_id,
                         {"view": 1e3 * (t1 - t0), "materials": 1e3 * (t2 - t1), "shade": 1e3 * (t3 - t2)},
                         {"exponents": list(self.exponents), "cosine": self.cosine, "fresnel": self.fresnel,
                          "visibility": self.visibility and self.data.vertex_vis is not None})
+
+    @staticmethod
+    def _layer_points(v: _View, layers: Layers):
+        """The hits of a view as layer points (renderers/layers.py ``expand``, per pixel): (src (M,)
+        int64 the hit each comes from, slot (M,) int32 its material row, weight (M,) float32). A
+        hit on an object with regions takes each layer whose weight, interpolated from the
+        face's corners by the hit's barycentric weights, is > 0; the others are one point of
+        weight 1 with their object's material."""
+        plain = np.ones(len(v.hit), bool)
+        src, slot, wt = [], [], []
+        for o, (slots, a, off) in layers.objects.items():
+            sel = np.nonzero(v.obj == o)[0]
+            if not len(sel):
+                continue
+            plain[sel] = False
+            w = np.einsum("kc,lkc->lk", v.bary[sel], a[:, v.corners[sel] - off])      # (L, n_sel)
+            lay, col = np.nonzero(w > 0)
+            src.append(sel[col]); slot.append(slots[lay]); wt.append(w[lay, col])
+        rest = np.nonzero(plain)[0]
+        src.insert(0, rest); slot.insert(0, v.obj[rest]); wt.insert(0, np.ones(len(rest), np.float32))
+        return (np.concatenate(src).astype(np.int64), np.concatenate(slot).astype(np.int32),
+                np.concatenate(wt).astype(np.float32))
 
     def object_mask(self, camera) -> np.ndarray:
         return self.view(camera).object_id

@@ -1,6 +1,7 @@
-"""Materials with painted regions in the cut renderer: each shading point of such an object is
-shaded once per layer that has weight there, and the layers' radiance is blended by the
-effective weights (models/regions.py: L(v) = Σ_l a_l(v) L_l(v)).
+"""Materials with painted regions in the renderers that shade points (the cut renderer's vertices
+and pixels, with or without movable objects; the paint renderer's pixels): each shading point of
+such an object is shaded once per layer that has weight there, and the layers' radiance is
+blended by the effective weights (models/regions.py: L(v) = Σ_l a_l(v) L_l(v)).
 
 A frame's material table holds the objects' own materials first (a regions material's base in
 its object's slot, so per-object lookups such as the refine radius keep working), then the
@@ -15,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...models.regions import has_regions, layer_weights
+from ..models.regions import has_regions, layer_weights
 
 
 class Layers:
