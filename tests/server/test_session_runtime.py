@@ -1,6 +1,8 @@
 """The worker-side session, without a server: replay after a crash, strokes that cannot apply,
 messages already in a restored state, saves re-run after a crash, the per-vertex transfer that
 makes stroke frames cheap, and the bound on a fit's size."""
+import time
+
 import numpy as np
 import pytest
 
@@ -106,6 +108,11 @@ def test_a_stroke_mid_drag_gets_a_quick_view_completed_after(bunny_renderer):
     rt.handle({"seq": 4, "type": "display", "exposure": 0.5})     # messages meanwhile keep it coming
     fut = rt._completions[0][2]
     fut.result(timeout=120)
+    # the future's done callback (which wakes the session) runs in the builder's thread after
+    # result() has returned here: give it a moment
+    deadline = time.monotonic() + 10.0
+    while not woke and time.monotonic() < deadline:
+        time.sleep(0.01)
     assert woke and rt.absorb() and not rt.fitter.views[0].provisional
     full = rt.fit_if_needed()[0]["stats"]
     assert full["pixels"] == v.n_object > quick["pixels"]
