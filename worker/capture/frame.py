@@ -52,10 +52,11 @@ lens, whatever the scene, and together they separate it from the scene:
    the region as seen alike.
 
 10. **The same factor along the rim** (last). A found region attached to the rim extends through
-   the pixels of its band along the rim (as deep as the region) where every two shots differ by
-   the region's own factor within ``RATIO_EXTEND`` stops, connected to it: the stretches of a
-   thin polished rim whose glint matched the scene beside it, the faint part of a vignette. A
-   region whose factor is near 1 does not extend (the scene both shots see alike reads 1 too).
+   the pixels of its band along the rim (as deep as its own pixels that read its factor) where
+   every two shots differ by the region's own factor within ``RATIO_EXTEND`` stops, connected to
+   it: the stretches of a thin polished rim whose glint matched the scene beside it, the faint
+   part of a vignette. A region whose factor is near 1 does not extend (the scene both shots see
+   alike reads 1 too).
 
 Detection runs at about 512 px across the circle. Rim-attached components of the candidates
 are seeds; they grow (hysteresis, at most ``GROW_PX`` working pixels) through pixels that are
@@ -95,7 +96,7 @@ GROW_PX = 8            # hysteresis: how far (working pixels) a region grows fro
 RATIO_SPREAD = 0.1     # a fixed-ratio region's shots differ by one factor within this many stops (0: off)
 RATIO_EXTEND = 0.15    # a rim-attached region extends along the rim through pixels whose shots differ
                        # by the region's own factor within this many stops (0: off)
-BAND_PCT = 95
+BAND_PCT = 95          # ... no deeper from the rim than this percentile of its own pixels that read its factor
 EDGE_PX = 2            # the found regions grow by this many working pixels (the housing's soft edge)
 WORK_DIAMETER = 512    # working resolution across the image circle
 LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
@@ -245,18 +246,20 @@ def _ratio_extend(ells, oks, found: np.ndarray, r: np.ndarray, rim: np.ndarray) 
     """(h, w) bool: ``found`` with each of its rim-attached regions extended along the rim. A
     housing is fixed to the sensor and each shot lights it with one factor, so every two shots
     differ over it by one factor c (the region's median difference of log₂ luminance); the
-    pixels of the band the region occupies (as far from the rim as its 95th percentile, plus two
-    pixels) where every pair of shots differs by c within RATIO_EXTEND stops, and connected to
-    the region there, are the same housing where the other cues missed it (a thin polished rim
-    whose glint matches the scene beside it, the faint part of a vignette). Skipped for a region
-    whose factor is within 2·RATIO_EXTEND of 1: there the scene both shots see alike (the rim's
-    top and bottom, the same directions in both) reads the same factor."""
+    pixels of the band the region occupies (from the rim to the BAND_PCT percentile depth of its
+    own pixels that read c, plus two pixels) where every pair of shots differs by c within
+    RATIO_EXTEND stops, and connected to the region there, are the same housing where the other
+    cues missed it (a thin polished rim whose glint matches the scene beside it, the faint part of
+    a vignette). Skipped for a region whose c is within 2·RATIO_EXTEND stops of 0 (a factor near
+    1): there the scene both shots see alike (the rim's top and bottom, the same directions in
+    both) reads the same. ells, oks : per shot (h, w) log₂ luminance and validity; found, rim
+    (h, w) bool; r (h, w) radius over the circle's radius."""
     import cv2
 
     pairs = [(a, b) for a in range(len(ells)) for b in range(a + 1, len(ells))]
     diffs = [ells[a] - ells[b] for a, b in pairs]
     both = [oks[a] & oks[b] for a, b in pairs]
-    n, lab = cv2.connectedComponents(found.astype(np.uint8), connectivity=8)
+    _, lab = cv2.connectedComponents(found.astype(np.uint8), connectivity=8)
     out = found.copy()
     depth = 1.0 - r
     px = float(np.max(depth[rim])) / 7.0          # one working pixel, as a fraction of the radius
@@ -277,7 +280,7 @@ def _ratio_extend(ells, oks, found: np.ndarray, r: np.ndarray, rim: np.ndarray) 
         if not own.any():
             continue
         cand = match & (depth <= np.percentile(depth[own], BAND_PCT) + 2.0 * px)
-        m, lab_c = cv2.connectedComponents((cand | sel).astype(np.uint8), connectivity=8)
+        _, lab_c = cv2.connectedComponents((cand | sel).astype(np.uint8), connectivity=8)
         out |= np.isin(lab_c, np.unique(lab_c[sel])) & (lab_c > 0)
     return out
 

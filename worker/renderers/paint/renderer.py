@@ -144,6 +144,7 @@ class PaintRenderer(Renderer):
         self.visibility = data.vertex_vis is not None
         self.envmap = scene.envmap
         self._view: _View | None = None
+        self._layers_key, self._layers, self._layers_refs = None, None, None
 
     @property
     def exponents(self) -> tuple[float, ...]:
@@ -194,7 +195,11 @@ class PaintRenderer(Renderer):
         v = self.view(cam)
         t1 = time.perf_counter()
         materials = list(req.materials or self.scene.materials)
-        layers = frame_layers(materials, self.scene.object_of_vertex, self.scene.vertex_source)
+        key = tuple(id(m) for m in materials)          # the layers of the same materials, kept
+        if key != self._layers_key:
+            self._layers = frame_layers(materials, self.scene.object_of_vertex, self.scene.vertex_source)
+            self._layers_key, self._layers_refs = key, materials        # refs keep the ids unique
+        layers = self._layers
         mats = [as_basis(mt, self.exponents) for mt in (materials if layers is None else layers.flat)]
         rows = material_rows(mats, self.exponents)
         t2 = time.perf_counter()
