@@ -180,6 +180,18 @@ async def next_frame(ws, min_ack=-1, events=None, timeout=60):
                 events.append(ev)
 
 
+async def next_event(ws, timeout=30):
+    """Receive until a JSON event and return it; binary frames meanwhile are skipped (a session
+    sends its settled still some time after a first frame, before or after an answer)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        x = await asyncio.wait_for(ws.recv(), timeout=max(0.1, deadline - time.monotonic()))
+        if not isinstance(x, bytes):
+            ev = json.loads(x)
+            server_event.validate_python(ev)
+            return ev
+
+
 # -- the studio in a browser (Playwright pages) -------------------------------------------------
 def frame_no(page) -> int:
     """The number of the last frame the studio's canvas drew."""

@@ -11,7 +11,7 @@ import zipfile
 import numpy as np
 import pytest
 
-from helpers import connect, next_frame
+from helpers import connect, next_event, next_frame
 
 
 def _zip_of(folder) -> bytes:
@@ -62,7 +62,7 @@ def test_a_capture_becomes_an_environment_that_lights_a_session(server, client, 
             await ws.send(json.dumps({"seq": 1, "type": "environment", "asset_id": c["asset_id"]}))
             _, after = await next_frame(ws, 1)
             await ws.send(json.dumps({"seq": 2, "type": "environment", "preset": {"sha256": "0" * 64, "filename": "x.exr"}}))
-            ev = json.loads(await asyncio.wait_for(ws.recv(), 30))
+            ev = await next_event(ws)
             assert ev["type"] == "error" and "asset_id" in ev["message"], ev
             return before, after
     before, after = asyncio.run(go())
@@ -101,7 +101,7 @@ def test_a_gi_session_edits_materials_and_goes_back_to_direct_light(server, clie
             _, f1 = await next_frame(ws, 1)
             assert np.abs(f1 - f0).mean() > 2
             await ws.send(json.dumps({"seq": 2, "type": "view", "eye": [1, 0.6, 3]}))
-            ev = json.loads(await asyncio.wait_for(ws.recv(), 30))
+            ev = await next_event(ws)
             assert ev["type"] == "error" and "fixed camera" in ev["message"], ev
             evs = []
             await ws.send(json.dumps({"seq": 3, "type": "renderer", "kind": "cuts"}))

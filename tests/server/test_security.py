@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import websockets
 
-from helpers import ROOT, GlintServer, connect, next_frame
+from helpers import ROOT, GlintServer, connect, next_event, next_frame
 
 
 def _upload_scene(c: httpx.Client, shared_assets) -> str:
@@ -114,7 +114,7 @@ def test_materials_a_client_sends_are_bounded(server, client, bunny_scene):
             await ws.recv()
             await next_frame(ws)
             await ws.send(json.dumps({"seq": 1, "type": "material", "material": big}))
-            ev = json.loads(await asyncio.wait_for(ws.recv(), 30))
+            ev = await next_event(ws)
             assert ev["type"] == "error" and "centers" in ev["message"], ev
             await ws.send(json.dumps({"seq": 2, "type": "light", "rotation_deg": 10}))
             hdr, _ = await next_frame(ws, 2)

@@ -14,7 +14,7 @@ import pytest
 import websockets
 from PIL import Image
 
-from helpers import connect, next_frame
+from helpers import connect, next_event, next_frame
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -101,7 +101,7 @@ def test_stream_errors_keep_the_session_alive(server, client, bunny_scene):
             for bad in ("not json", json.dumps([1, 2]), json.dumps({"seq": 5, "type": "view", "eye": "up"}),
                         json.dumps({"seq": 6, "type": "teleport"}), json.dumps({"seq": 7, "type": "view", "eye": [0, 0.05, 0]})):
                 await ws.send(bad)
-                ev = json.loads(await asyncio.wait_for(ws.recv(), 30))
+                ev = await next_event(ws)
                 assert ev["type"] == "error" and ev["message"], ev
             # eye == target is refused at the edge, not persisted: the session still renders
             await ws.send(json.dumps({"seq": 8, "type": "light", "rotation_deg": 90}))

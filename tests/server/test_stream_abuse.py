@@ -15,7 +15,7 @@ import httpx
 import pytest
 import websockets
 
-from helpers import GlintServer, connect, next_frame, proc_cpu_s
+from helpers import GlintServer, connect, next_event, next_frame, proc_cpu_s
 from test_security import _upload_scene
 
 VIEWER_LIMIT = 100          # viewer sessions a minute per address in this server
@@ -176,7 +176,7 @@ def test_malformed_frames_get_an_error_or_the_right_close_code(abuse):
             await ws.recv()
             await next_frame(ws)
             await ws.send("{not json")
-            ev = json.loads(await asyncio.wait_for(ws.recv(), 30))
+            ev = await next_event(ws)
             assert ev["type"] == "error" and "not JSON" in ev["message"], ev
             await ws.send(json.dumps({"seq": 1, "type": "light", "rotation_deg": 30}))
             hdr, _ = await next_frame(ws, 1)
