@@ -98,6 +98,27 @@ class Layers:
         return (np.concatenate(src).astype(np.int64), np.concatenate(slot).astype(np.int32),
                 np.concatenate(wt).astype(np.float32))
 
+    def expand_faces(self, obj_of: np.ndarray, corners: np.ndarray, bary: np.ndarray):
+        """``expand`` for points inside faces (the paint renderer's pixels): obj_of (P,) their
+        objects, corners (P, 3) global vertex ids of their faces, bary (P, 3) their barycentric
+        weights. A point of an object with regions takes each layer whose weight, interpolated
+        from the corners, is > 0; the others are one entry of weight 1 with their object's slot.
+        Returns (src (M,) int64, slot (M,) int32, weight (M,) float32)."""
+        plain = np.ones(len(obj_of), bool)
+        src, slot, wt = [], [], []
+        for o, (slots, a, off) in self.objects.items():
+            sel = np.nonzero(obj_of == o)[0]
+            if not len(sel):
+                continue
+            plain[sel] = False
+            w = np.einsum("kc,lkc->lk", bary[sel], a[:, corners[sel] - off])      # (L, n_sel)
+            lay, col = np.nonzero(w > 0)
+            src.append(sel[col]); slot.append(slots[lay]); wt.append(w[lay, col])
+        rest = np.nonzero(plain)[0]
+        src.insert(0, rest); slot.insert(0, obj_of[rest]); wt.insert(0, np.ones(len(rest), np.float32))
+        return (np.concatenate(src).astype(np.int64), np.concatenate(slot).astype(np.int32),
+                np.concatenate(wt).astype(np.float32))
+
     @staticmethod
     def blend(rad: np.ndarray, src: np.ndarray, wt: np.ndarray, n: int) -> np.ndarray:
         """Σ over each point's layers of weight × radiance: (n, 3) float32 from the layer
@@ -114,3 +135,20 @@ def frame_layers(materials, object_of_vertex, sources=None) -> Layers | None:
     if not any(has_regions(m) for m in materials):
         return None
     return Layers(materials, object_of_vertex, sources)
+
+
+class LayersCache:
+    """A renderer's layers of the last frame's materials over a scene (scene.LoadedScene), kept
+    while the same material objects come back (keyed by their identities; the list is kept so
+    that the ids stay unique)."""
+
+    def __init__(self, scene):
+        self.scene = scene
+        self._key = self._layers = self._refs = None
+
+    def get(self, materials) -> Layers | None:
+        key = tuple(id(m) for m in materials)
+        if key != self._key:
+            self._layers = frame_layers(materials, self.scene.object_of_vertex, self.scene.vertex_source)
+            self._key, self._refs = key, list(materials)
+        return self._layers

@@ -733,6 +733,22 @@ T_AVX2 static inline void clusters_pd(const __m256 g8[6], __m256 q8, int half, _
     *q = _mm256_cvtps_pd(half ? _mm256_extractf128_ps(q8, 1) : _mm256_castps256_ps128(q8));
 }
 
+/* eight clusters' records (l rgb, ω xyz) gathered into g8[6] from entries idx[j..j+8); returns
+ * their visibilities */
+T_AVX2 static inline __m256 gather_clusters(const float *node8, const int32_t *idx, const uint8_t *qv, const float *qf,
+                                            int64_t j, __m256 g8[6]) {
+    __m256i off = _mm256_slli_epi32(_mm256_loadu_si256((const __m256i *)(idx + j)), 3);
+    for (int c = 0; c < 6; c++) g8[c] = _mm256_i32gather_ps(node8 + c, off, 4);
+    return get_q(qv, qf, j);
+}
+
+/* lq = l_c q of four clusters (v from clusters_pd), added to the diffuse sums E r, g, b */
+T_AVX2 static inline void light_q(const __m256d v[6], __m256d q, __m256d lq[3], __m256d *er, __m256d *eg,
+                                  __m256d *eb) {
+    lq[0] = _mm256_mul_pd(v[0], q); lq[1] = _mm256_mul_pd(v[1], q); lq[2] = _mm256_mul_pd(v[2], q);
+    *er = _mm256_add_pd(*er, lq[0]); *eg = _mm256_add_pd(*eg, lq[1]); *eb = _mm256_add_pd(*eb, lq[2]);
+}
+
 /* E_c and S_c from four-lane double accumulators (E r, g, b, S r, g, b) */
 T_AVX2 static inline void store_sums(const __m256d acc[6], double *E, double *S) {
     double buf[4];
@@ -754,10 +770,8 @@ T_AVX2 __attribute__((noinline)) static void sum_lobes(int64_t cnt, const int32_
     const __m256d floor_x = _mm256_set1_pd(-69.0), tiny = _mm256_set1_pd(1e-300);
     __m256d er = zero, eg = zero, eb = zero, sr = zero, sg = zero, sb = zero;
     for (int64_t j = 0; j < cnt; j += 8) {
-        __m256i off = _mm256_slli_epi32(_mm256_loadu_si256((const __m256i *)(idx + j)), 3);
-        __m256 q8 = get_q(qv, qf, j);
         __m256 g8[6];
-        for (int c = 0; c < 6; c++) g8[c] = _mm256_i32gather_ps(node8 + c, off, 4);
+        const __m256 q8 = gather_clusters(node8, idx, qv, qf, j, g8);
         for (int half = 0; half < 2; half++) {
             __m256d v[6], q;
             clusters_pd(g8, q8, half, v, &q);
@@ -771,8 +785,8 @@ T_AVX2 __attribute__((noinline)) static void sum_lobes(int64_t cnt, const int32_
                 __m256d len = _mm256_sqrt_pd(_mm256_fmadd_pd(ax, ax, _mm256_fmadd_pd(ay, ay, _mm256_mul_pd(az, az))));
                 rv = _mm256_blendv_pd(rv, _mm256_div_pd(_mm256_fmadd_pd(vco, d, rv), len), low);
             }
-            __m256d lq[3] = {_mm256_mul_pd(v[0], q), _mm256_mul_pd(v[1], q), _mm256_mul_pd(v[2], q)};
-            er = _mm256_add_pd(er, lq[0]); eg = _mm256_add_pd(eg, lq[1]); eb = _mm256_add_pd(eb, lq[2]);
+            __m256d lq[3];
+            light_q(v, q, lq, &er, &eg, &eb);
             __m256d valid = _mm256_cmp_pd(rv, zero, _CMP_GT_OQ);
             if (!_mm256_movemask_pd(valid)) continue;
             /* log of ωr·ωi clamped to (0, 1] as the reference clips it */
@@ -816,10 +830,8 @@ T_AVX2 __attribute__((noinline)) static void sum_half(int kind, int64_t cnt, con
     const __m256d f0[3] = {_mm256_set1_pd(prm[5]), _mm256_set1_pd(prm[6]), _mm256_set1_pd(prm[7])};
     __m256d er = zero, eg = zero, eb = zero, sr = zero, sg = zero, sb = zero;
     for (int64_t j = 0; j < cnt; j += 8) {
-        __m256i off = _mm256_slli_epi32(_mm256_loadu_si256((const __m256i *)(idx + j)), 3);
-        __m256 q8 = get_q(qv, qf, j);
         __m256 g8[6];
-        for (int c = 0; c < 6; c++) g8[c] = _mm256_i32gather_ps(node8 + c, off, 4);
+        const __m256 q8 = gather_clusters(node8, idx, qv, qf, j, g8);
         for (int half = 0; half < 2; half++) {
             __m256d v[6], q;
             clusters_pd(g8, q8, half, v, &q);
@@ -834,8 +846,8 @@ T_AVX2 __attribute__((noinline)) static void sum_half(int kind, int64_t cnt, con
                 wb = _mm256_blendv_pd(wb, _mm256_div_pd(wb, len), low);
                 ci = _mm256_blendv_pd(ci, _mm256_div_pd(lo, len), low);
             }
-            __m256d lq[3] = {_mm256_mul_pd(v[0], q), _mm256_mul_pd(v[1], q), _mm256_mul_pd(v[2], q)};
-            er = _mm256_add_pd(er, lq[0]); eg = _mm256_add_pd(eg, lq[1]); eb = _mm256_add_pd(eb, lq[2]);
+            __m256d lq[3];
+            light_q(v, q, lq, &er, &eg, &eb);
             __m256d hx = _mm256_add_pd(wt, ot), hy = _mm256_add_pd(wb, ob), hz = _mm256_add_pd(ci, on);
             __m256d hxy = _mm256_fmadd_pd(hx, hx, _mm256_mul_pd(hy, hy));
             __m256d inv = _mm256_div_pd(one, _mm256_sqrt_pd(_mm256_max_pd(_mm256_fmadd_pd(hz, hz, hxy), tiny)));

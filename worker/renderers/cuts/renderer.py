@@ -80,7 +80,7 @@ from ..base import FrameCancelled, FrameRequest, Lighting, Rendered, Renderer, U
 from . import DECLARATION
 from . import edges as edgemod
 from .edges import edge_pixels
-from ..layers import Layers, frame_layers
+from ..layers import Layers, LayersCache
 from .precompute import CutData
 from . import refine as refinemod
 from .refine import Refinement
@@ -207,7 +207,7 @@ class CutRenderer(Renderer):
         self._bounds = (vx.min(0), vx.max(0)) if len(vx) else (np.zeros(3), np.zeros(3))
         self._mats_key = None
         self._mats: MaterialTable | None = None
-        self._layers_key = self._layers = self._layers_refs = None
+        self._layers = LayersCache(scene)
         self._drag_mats = self._drag_mats_of = None             # drag-level table, and the table it came from
         self._lock = threading.RLock()      # the session thread and its background builder
         self._moving = None                 # frames of a scene with movable objects (moving.py)
@@ -927,11 +927,7 @@ class CutRenderer(Renderer):
     def layers(self, materials) -> Layers | None:
         """The frame's region layers (renderers/layers.py), or None when no material has regions; cached
         by the identity of the list's items, as the material table is."""
-        key = tuple(id(m) for m in materials)
-        if key != self._layers_key:
-            self._layers = frame_layers(materials, self.scene.object_of_vertex, self.scene.vertex_source)
-            self._layers_key, self._layers_refs = key, list(materials)
-        return self._layers
+        return self._layers.get(materials)
 
     def _shade_vertices(self, vi, wo, mat_of, cuts, node_l, node_w, mats, node8, layers) -> np.ndarray:
         """(K, 3) float32 vertex-mode radiance of vertices vi (K,) with view directions wo and

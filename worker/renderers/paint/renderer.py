@@ -28,7 +28,7 @@ from ...keys import content_key
 from ...paint.basis import default_exponents
 from ...scene import Lobes
 from ..base import FrameRequest, Part, Precomputation, Rendered, Renderer
-from ..layers import Layers, frame_layers
+from ..layers import Layers, LayersCache
 from . import DECLARATION
 from .prefilter import LobeMaps, prefilter_all
 from .render import background, material_rows, shade
@@ -144,7 +144,7 @@ class PaintRenderer(Renderer):
         self.visibility = data.vertex_vis is not None
         self.envmap = scene.envmap
         self._view: _View | None = None
-        self._layers_key, self._layers, self._layers_refs = None, None, None
+        self._layers = LayersCache(scene)
 
     @property
     def exponents(self) -> tuple[float, ...]:
@@ -195,11 +195,7 @@ class PaintRenderer(Renderer):
         v = self.view(cam)
         t1 = time.perf_counter()
         materials = list(req.materials or self.scene.materials)
-        key = tuple(id(m) for m in materials)          # the layers of the same materials, kept
-        if key != self._layers_key:
-            self._layers = frame_layers(materials, self.scene.object_of_vertex, self.scene.vertex_source)
-            self._layers_key, self._layers_refs = key, materials        # refs keep the ids unique
-        layers = self._layers
+        layers = self._layers.get(materials)
         mats = [as_basis(mt, self.exponents) for mt in (materials if layers is None else layers.flat)]
         rows = material_rows(mats, self.exponents)
         t2 = time.perf_counter()
@@ -212,7 +208,7 @@ class PaintRenderer(Renderer):
             shade(v.normals, v.views, v.obj, rows, self.data.maps, self.cosine, self.fresnel, vsh,
                   req.lighting.rotation_deg, req.lighting.intensity, self.k, out=img, dst=v.hit)
         else:
-            src, slot, wt = self._layer_points(v, layers)
+            src, slot, wt = layers.expand_faces(v.obj, v.corners, v.bary)
             rad = shade(v.normals[src], v.views[src], slot, rows, self.data.maps, self.cosine, self.fresnel,
                         None if vsh is None else vsh[src], req.lighting.rotation_deg, req.lighting.intensity,
                         self.k)
@@ -222,28 +218,6 @@ class PaintRenderer(Renderer):
                         {"view": 1e3 * (t1 - t0), "materials": 1e3 * (t2 - t1), "shade": 1e3 * (t3 - t2)},
                         {"exponents": list(self.exponents), "cosine": self.cosine, "fresnel": self.fresnel,
                          "visibility": self.visibility and self.data.vertex_vis is not None})
-
-    @staticmethod
-    def _layer_points(v: _View, layers: Layers):
-        """The hits of a view as layer points (renderers/layers.py ``expand``, per pixel): (src (M,)
-        int64 the hit each comes from, slot (M,) int32 its material row, weight (M,) float32). A
-        hit on an object with regions takes each layer whose weight, interpolated from the
-        face's corners by the hit's barycentric weights, is > 0; the others are one point of
-        weight 1 with their object's material."""
-        plain = np.ones(len(v.hit), bool)
-        src, slot, wt = [], [], []
-        for o, (slots, a, off) in layers.objects.items():
-            sel = np.nonzero(v.obj == o)[0]
-            if not len(sel):
-                continue
-            plain[sel] = False
-            w = np.einsum("kc,lkc->lk", v.bary[sel], a[:, v.corners[sel] - off])      # (L, n_sel)
-            lay, col = np.nonzero(w > 0)
-            src.append(sel[col]); slot.append(slots[lay]); wt.append(w[lay, col])
-        rest = np.nonzero(plain)[0]
-        src.insert(0, rest); slot.insert(0, v.obj[rest]); wt.insert(0, np.ones(len(rest), np.float32))
-        return (np.concatenate(src).astype(np.int64), np.concatenate(slot).astype(np.int32),
-                np.concatenate(wt).astype(np.float32))
 
     def object_mask(self, camera) -> np.ndarray:
         return self.view(camera).object_id
