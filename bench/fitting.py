@@ -160,25 +160,63 @@ def standard_strokes(fx, view: int = 0):
             ("colour change", Stroke(points=pts, color=tuple(tint), diameter=d, kappa=0.05, view=view))]
 
 
-def _gi_renderer(path, store, quiet):
+def _gi_renderer(path, store, quiet, env=None):
+    """The GI renderer of a scene file (precomputing into ``store`` when needed), under another
+    environment map when ``env`` is given (GI tensors hold the lighting: one precomputation
+    per map)."""
     from worker.cli import open_renderer, scene_options
-    from worker.scene import load_scene
+    from worker.envmap import load_envmap
+    from worker.scene import LoadedScene, load_scene
 
     sc = load_scene(path)
+    if env is not None:
+        spec = sc.spec.model_copy(deep=True)
+        spec.environment.map = str(Path(env).resolve())
+        sc = LoadedScene(spec, sc.root, envmap=load_envmap(env))
     r, _ = open_renderer(sc, store, quiet, scene_options(sc, 1.0))
     return r
 
 
-def session_stroke(rnd, name: str, stroke) -> dict:
+def _gi_frame_times(r, cam, lighting, materials: dict, frames: int) -> dict:
+    """``_frame_times`` for the GI renderer, one material list at a time: a list that changes
+    the painted regions' weights freezes again (once per stroke in a session), so each list is
+    drawn until frozen with the unit a session would edit live (the region's, after a frame of
+    the same weights with the base's material in it: key "regions_base_material" first), then
+    timed."""
+    import numpy as np
+
+    from worker.renderers import FrameRequest
+
+    wall, cpu = {}, {}
+    for k, m in materials.items():
+        q = FrameRequest(camera=cam, lighting=lighting, materials=m)
+        r.render(q)
+        r.render(q)
+        w, c = [], []
+        for _ in range(frames):
+            t0, c0 = time.perf_counter(), time.process_time()
+            r.render(q)
+            w.append((time.perf_counter() - t0) * 1e3)
+            c.append((time.process_time() - c0) * 1e3)
+        wall[k], cpu[k] = float(np.median(w)), float(np.median(c))
+    return {"wall": wall, "cpu": cpu}
+
+
+def session_stroke(rnd, name: str, stroke, region: str | None = None) -> dict:
     """One live stroke through a fresh session on the renderer (worker/jobs/runtime.py), as the
     studio sends it: milliseconds from the stroke message to its frame (the fit view built on
-    the way), split into the stroke (its view), the fit and the frame."""
+    the way), split into the stroke (its view), the fit and the frame. ``region``: the stroke
+    paints that region (the studio's Paint a region, turned on before it)."""
     from worker.jobs.runtime import SessionRuntime
     from worker.protocol import new_state
 
     rt = SessionRuntime(rnd.scene, rnd, {"state": new_state(rnd.scene.spec, name).model_dump(mode="json"),
                                          "strokes": []})
     rt.frame(-1)
+    if region is not None:
+        rt.handle({"seq": 0, "type": "region", "action": "paint", "name": region})
+        rt.fit_if_needed()
+        rt.frame(0)
     c0 = time.process_time()
     t0 = time.perf_counter()
     ev = rt.handle({"seq": 1, "type": "stroke", "stroke": stroke.model_dump(mode="json", exclude={"view"})})
@@ -290,13 +328,15 @@ def cmd_bench_regions(a) -> int:
     import os
 
     from worker.fit.fitter import Fitter
-    from worker.fit.regions import fit_region, rendered_effect
+    from worker.fit.regions import fit_region, fit_region_gi, rendered_effect
+    from worker.scene import load_scene
 
     res = []
     envs = a.env or [None]
     for s in a.scenes:
+        gi = load_scene(s).spec.renderer == "gi"
         for env in envs:
-            rnd = _renderer_for(s, env, a.cuts, a.tau, a.json)
+            rnd = _gi_renderer(s, a.store, a.json, env) if gi else _renderer_for(s, env, a.cuts, a.tau, a.json)
             sc = rnd.scene
             name = sc.spec.objects[0].name
             fx = Fitter(rnd, name, fit_scale=a.fit_scale or rnd.stroke_fit_scale)
@@ -307,7 +347,7 @@ def cmd_bench_regions(a) -> int:
                 fx.add_stroke(st)
                 fx._last = None
                 t0 = time.perf_counter()
-                reg = fit_region(fx, name=label, parts=a.parts)
+                reg = fit_region_gi(fx, name=label) if gi else fit_region(fx, name=label, parts=a.parts)
                 t_reg = time.perf_counter() - t0
                 one = fx.fit(unpainted_weight=0.25, fit_albedo=True)
                 got = rendered_effect(rnd, 0, v.camera, v.lighting, fx.base_material, reg.material, [st])
@@ -321,14 +361,15 @@ def cmd_bench_regions(a) -> int:
                 same = reg.material.model_copy(update={"regions": [g.model_copy(update={"material": fx.base_material})
                                                                    for g in reg.material.regions]})
                 lists = {}
-                for key, m in (("base", fx.base_material), ("one_brdf", one.material), ("regions", reg.material),
-                               ("regions_base_material", same)):
+                for key, m in (("base", fx.base_material), ("one_brdf", one.material),
+                               ("regions_base_material", same), ("regions", reg.material)):
                     mats = list(sc.materials)
                     mats[0] = m
                     lists[key] = mats
-                tm = _frame_times(rnd, v.camera, v.lighting, lists, a.frames)
+                tm = (_gi_frame_times if gi else _frame_times)(rnd, v.camera, v.lighting, lists, a.frames)
                 ms, cpu = tm["wall"], tm["cpu"]
-                res.append({"scene": Path(s).stem, "env": Path(env).name if env else Path(sc.spec.environment.map).name,
+                res.append({"scene": Path(s).stem, "renderer": sc.spec.renderer,
+                            "env": Path(env).name if env else Path(sc.spec.environment.map).name,
                             "object": name, "vertices": int((sc.object_of_vertex == 0).sum()), "stroke": label,
                             "region_vertices": sum(len(g.vertices) for g in reg.regions), "parts": reg.parts,
                             "tried": reg.tried,
@@ -342,6 +383,9 @@ def cmd_bench_regions(a) -> int:
                             "cost_vs_base": cpu["regions"] / cpu["base"], "cost_vs_one_brdf": cpu["regions"] / cpu["one_brdf"],
                             "blend_cost": cpu["regions_base_material"] / cpu["base"],
                             "wall_cost_vs_base": ms["regions"] / ms["base"]})
+                if gi:
+                    res[-1]["session"] = {"region": session_stroke(rnd, name, st, region=label),
+                                          "one_brdf": session_stroke(rnd, name, st)}
                 if not a.json:
                     r = res[-1]
                     print(f"{r['scene']} {r['env']} {label}: region achieved {100 * got['achieved']:.0f}%, spill beyond D "

@@ -200,7 +200,7 @@ class Fitter:
 
     def __init__(self, renderer, object_name: str, base_material: Material | None = None,
                  basis: SRBFBasis | None = None, fit_scale: float = 0.25, albedo=None, fresnel_f0: float = 1.0,
-                 max_rows: int = MAX_FIT_ROWS):
+                 max_rows: int = MAX_FIT_ROWS, transfer_rows: bool = True):
         scene = renderer.scene
         names = [o.name for o in scene.spec.objects]
         if object_name not in names:
@@ -222,6 +222,9 @@ class Fitter:
         if self.albedo.shape != (3,) or np.any(self.albedo < 0) or np.any(self.albedo > 1):
             raise FitError(f"diffuse albedo must be 3 values in [0, 1], got {self.albedo.tolist()}")
         self.views: list[FitView] = []
+        # False: views hold their samples and base rendering only (a painted region's fit builds
+        # its own rows over the region, fit/regions.py): ``fit`` is refused
+        self.transfer_rows = bool(transfer_rows)
         self.history = StrokeHistory()
         self._last: np.ndarray | None = None
         # GI: rows are expansions around a material (new views: the latest fit's)
@@ -312,7 +315,12 @@ class Fitter:
         # a coarse view's base rendering is on the same cuts as its transfer: the fit then sees
         # no difference between the two where nothing is painted
         kw = {"coarse": True} if view.coarse else {}
-        if self.polynomial:
+        if not self.transfer_rows:
+            # zero rows, never read (calloc'd pages stay untouched)
+            T, E = np.zeros((3, len(smp), self.basis.J), np.float32), np.zeros((len(smp), 3), np.float32)
+            if self.polynomial:
+                view.offset = np.concatenate([view.offset, np.zeros((len(smp), 3))])
+        elif self.polynomial:
             T, E, R = self.renderer.linearise(smp, self.basis, view.lighting, view.lin_material, self.obj, **kw)
             view.offset = np.concatenate([view.offset, R])
         else:
@@ -325,7 +333,7 @@ class Fitter:
         view.base = np.concatenate([view.base, base])
         # Σ_i T_iᵀT_i: additive over rows; a polynomial renderer's rows are re-expanded at
         # every Gauss-Newton step, so theirs is built when a fit needs it (``_gram``)
-        view.gram = None if self.polynomial else view.gram + gram(T)
+        view.gram = None if self.polynomial else (view.gram + gram(T) if self.transfer_rows else view.gram)
         view.samples = _cat(view.samples, smp)
         view.cache.clear()
 
@@ -418,6 +426,8 @@ class Fitter:
             raise FitError("no view saved: add_view() first")
         if unpainted_weight < 0:
             raise FitError("unpainted_weight must be ≥ 0")
+        if not self.transfer_rows:
+            raise FitError("this fitter's views hold no transfer rows (made for a painted region's fit)")
         notes = []
         strokes = targets is None
         if strokes:

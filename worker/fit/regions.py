@@ -229,6 +229,82 @@ def fit_region(fx: Fitter, name: str = "region 1", unpainted_weight: float = DEF
     return best
 
 
+def fit_region_gi(fx: Fitter, name: str = "region 1", unpainted_weight: float = DEFAULT_UNPAINTED_WEIGHT,
+                  fit_albedo: bool = DEFAULT_REGION_ALBEDO, constrained: bool = True,
+                  n_l: int = DEFAULT_NL) -> RegionOutcome:
+    """``fit_region`` under global illumination (a renderer with ``polynomial_transfer``): the
+    region from the strokes' footprint as in direct light, its material fitted through the GI
+    tensors. The GI renderer draws a painted region at the camera hits as a unit of its own
+    (renderers/gi/renderer.py ``_n_units``) whose weight is the region's, interpolated over the
+    hit face; with every other unit frozen (polynomial-gi eq. 27) a pixel's radiance is linear
+    in the region's first-vertex coefficients, so one least-squares solve (eq. 17-19 on the
+    expansion of eq. 28, exact here) fits it. One part; the rest keeps its material."""
+    if not fx.views:
+        raise FitError("no view saved: add_view() first")
+    strokes = fx.history.strokes
+    if not strokes:
+        raise FitError("no stroke to make a region from")
+    if unpainted_weight < 0:
+        raise FitError("unpainted_weight must be ≥ 0")
+    r = fx.renderer
+    t0 = time.perf_counter()
+    off, n_o = object_range(r, fx.obj)
+    cur = fit_mesh(fx.base_material, n_o, r.scene.vertex_source(fx.obj))
+    olds = [g for g in cur.regions if in_group(g.name, name)] if has_regions(cur) else []
+    w = footprint_weights(fx, strokes)
+    for g in olds:
+        w = np.maximum(w, g.dense(n_o))
+    if not np.any(w > 0):
+        raise FitError(f"the strokes touch no vertex of object {fx.object_name!r} the views see")
+    below = _below(cur, name)
+    plain_below = below.base if has_regions(below) else below
+    start = olds[0].material if olds else plain_below
+    ids = np.nonzero(w > 0)[0]
+    wts = np.round(w[ids].astype(np.float64), 6).tolist()
+    rest = list(below.regions) if has_regions(below) else []
+
+    def with_material(m):
+        reg = Region(name=name, material=m, vertices=ids.tolist(), weights=wts)
+        return reg, Regions(base=plain_below, vertex_count=n_o, regions=rest + [reg])
+
+    _, painted_start = with_material(start)
+    targets, _ = fx.targets()
+    mats = list(r.objects_materials or [o.material for o in r.scene.spec.objects])
+    mats[fx.obj] = painted_start
+    with r.painting(fx.obj, name, mats):
+        rows = []
+        for v, (tgt, painted) in zip(fx.views, targets):
+            # only the pixels the region touches depend on its material (elsewhere a row is a
+            # constant): the rows and the solve scale with the region, not the object
+            inside = np.nonzero((w[r.sample_corners(v.samples) - off] > 0).any(1))[0]
+            T, E, R0 = r.linearise(_take(v.samples, inside), fx.basis, v.lighting, start, fx.obj)
+            rows.append(FitRows(T, E, tgt[inside] - R0, np.where(painted[inside], 1.0, unpainted_weight)))
+        if not any(np.any(x.weight > 0) for x in rows):
+            raise FitError("nothing to fit: no painted pixel and unpainted_weight is 0")
+        res = solve(rows, fx.basis, np.asarray(plain_below.albedo, np.float64), constrained=constrained, n_l=n_l,
+                    prior=None, fit_albedo=fit_albedo)
+    mat = SRBF.model_validate(fx.basis.to_material(res.coefficients, res.albedo))
+    region, material = with_material(mat)
+    mats[fx.obj] = material
+    by_view = _strokes_by_view(fx)
+    views = []
+    for vi, (v, (tgt, painted)) in enumerate(zip(fx.views, targets)):
+        pred = r.shade_samples(v.samples, material, fx.obj, v.lighting)
+        far = np.ones(v.n, bool)
+        for st in by_view.get(vi, []):
+            far &= polyline_distance(v.xy, np.asarray(st.points)) > st.diameter
+        views.append((v.base, tgt, painted, far, pred))
+    bases, tgts, pnt, fars, preds = ([x[i] for x in views] for i in range(5))
+    achieved, spill = stroke_effect(bases, tgts, pnt, preds)
+    _, spill_far = stroke_effect(bases, tgts, [~f for f in fars], preds)
+    n_painted = int(sum(p.sum() for p in pnt))
+    out = RegionOutcome(material, [region], res, sum(v.n for v in fx.views), n_painted,
+                        int(sum(len(x.weight) for x in rows)), [], time.perf_counter() - t0, achieved, spill, spill_far,
+                        bool(olds), views)
+    out.notes = region_notes(achieved, res, 0, n_painted)
+    return out
+
+
 def _prepare_view(fx: Fitter, vi: int, v, w: np.ndarray, off: int, cur, below, unpainted_weight: float) -> dict:
     """The rows a view gives a region fit: its pixels the region touches (R), their corner
     vertices' radiance now and under the region (vertex samples), the live corners' transfer,

@@ -89,8 +89,11 @@ class FitDriver:
         if self.fitter is None:
             self._view_moves = {}
             try:
+                # a region's strokes fit over the region's own rows (fit/regions.py): the views
+                # need no transfer rows of the whole object
                 self.fitter = Fitter(self.renderer, self.state.object, base_material=self.state.base_material,
-                                     fit_scale=self.renderer.stroke_fit_scale)
+                                     fit_scale=self.renderer.stroke_fit_scale,
+                                     transfer_rows=self.state.region is None)
             except FitError as e:
                 raise FitError(f"strokes cannot apply: {e}") from None
         return self.fitter
@@ -234,11 +237,12 @@ class FitDriver:
     def _fit_region(self) -> list[dict]:
         """The strokes make or extend the state's region (fit/regions.py): one part, so a stroke's
         frame does not wait for a stacked solve; the rest of the object keeps its material."""
-        from ..fit.regions import fit_region
+        from ..fit.regions import fit_region, fit_region_gi
         from ..models.regions import region_names
 
         fx, st = self.fitter, self.state
-        out = fit_region(fx, name=st.region, unpainted_weight=st.unpainted_weight, constrained=st.constrained)
+        fit = fit_region_gi if self.renderer.can("polynomial_transfer") else fit_region
+        out = fit(fx, name=st.region, unpainted_weight=st.unpainted_weight, constrained=st.constrained)
         self._set_material(st.object_index, out.material)
         self._fitted = out.material
         self._quick_next = True

@@ -112,6 +112,8 @@ def open_renderer(a, quiet):
 def _apply_materials(r, specs) -> None:
     from ...scene import SceneError
     from .options import parse_material
+    objs = [o.name for o in r.scene.spec.objects]
+    mats = list(r.scene.materials)
     for spec in specs or []:
         name, sep, path = spec.partition("=")
         if not sep:
@@ -123,10 +125,14 @@ def _apply_materials(r, specs) -> None:
             data = json.loads(p.read_text())
         except json.JSONDecodeError as e:
             raise SceneError(f"{p}: not valid JSON ({e.msg})") from None
-        objs = [o.name for o in r.scene.spec.objects]
         if name in objs and r.layout.fixed[objs.index(name)]:
             raise SceneError(f"--material {name}=…: {name!r} is fixed (\"editable\": false) in this precomputation")
-        r.set_unit_material(r.layout.index(name), parse_material(data, str(p)))
+        m = parse_material(data, str(p))
+        if name in objs:
+            mats[objs.index(name)] = m          # objects' materials go in together (painted regions)
+        else:
+            r.set_unit_material(r.layout.index(name), m)
+    r.apply_materials(mats)
 
 
 def cmd_render(a) -> int:

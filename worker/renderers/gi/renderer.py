@@ -5,8 +5,11 @@ being edited and draws each frame with one dot product per pixel (freeze.py).
 """
 from __future__ import annotations
 
+import contextlib
+import hashlib
 import threading
 import time
+from types import SimpleNamespace
 from dataclasses import dataclass
 from typing import Any, Mapping
 
@@ -21,6 +24,8 @@ from . import strokes as stm
 from . import tensors
 from .basis import QUOTIENTS, THETA_NODES, Projection, fixed_projection, project, theta_interp
 from .options import GIOptions, UnitLayout, parse_options, tensor_key, unit_layout
+from ...models.regions import has_regions
+from ..layers import LayersCache
 from .trace import Geometry, Primary, make_setup, primary_hits, second_codes, trace_tile
 
 KIND = DECLARATION.kind
@@ -231,7 +236,7 @@ class GIRenderer(Renderer):
         self.max_bounces = self.N if max_bounces is None else int(max_bounces)
         cam = scene.spec.camera
         self.stroke_fit_scale = min(1.0, float(np.sqrt(self.FIT_PIXELS / (cam.width * cam.height))))
-        geo = Geometry(scene)
+        geo = self.geo = Geometry(scene)
         self.prim: Primary = primary_hits(geo, scene, self.k)
         if len(self.prim.pixel) != len(data.pixel) or not np.array_equal(self.prim.pixel, data.pixel):
             raise GlintError("GI tensors do not match the scene's camera hits (precompute again)", status=409)
@@ -239,8 +244,15 @@ class GIRenderer(Renderer):
         reg = Regions(self.layout, self.opts.regions, geo, region_images(scene, self.opts))
         units, weights = reg.weights(self.prim.obj, self.prim.pos)
         k0, t = theta_interp(self.prim.cos_o)
-        self.pu = fzm.PixelUnits(units, weights, k0, t)
+        # the precomputed units' weights (pu0) and with the painted regions' pseudo-units (pu)
+        self.pu0 = self.pu = fzm.PixelUnits(units, weights, k0, t)
         self.materials = [u.material for u in self.layout.units]
+        self.objects_materials: list | None = None      # the scene-order materials last applied
+        self.pseudo: list[tuple[int, str, Any]] = []    # painted regions: (object, name, material)
+        self._painted_key = None
+        self._last_layers = self._lay_key = None
+        self._layers = LayersCache(scene)
+        self._painting: dict[int, str] = {}             # object -> the region strokes fit (painting)
         self.qkind = [QUOTIENTS.index(q) for q in self.layout.quotients(scene, self.opts)]
         self._proj_cache: dict[tuple[int, str], Projection] = {}
         self.frozen: fzm.Frozen | None = None
@@ -256,21 +268,53 @@ class GIRenderer(Renderer):
 
     # --- projections ----------------------------------------------------------------------------
 
+    # --- units: the precomputed ones (0 … U − 1), the fixed pseudo-unit U, painted regions' ---------
+    #
+    # A painted region (models/regions.py, per-vertex weights) is a pseudo-unit U + 1 + k at the
+    # first vertex only: its weight at a camera hit is the layer weight interpolated from the hit
+    # face's corners, taken from its object's own unit there (polynomial-gi eq. 5-6, H(x) applied
+    # per pixel at run time as the precomputed regions' are). The first vertex's transport does
+    # not depend on which unit is there, so the region's look is exact; light it reflects on to
+    # other surfaces is its object's own material's (the tensors' tails know the units they were
+    # traced with).
+
+    def _n_units(self) -> int:
+        return self.U + 1 + len(self.pseudo)
+
+    def _mat(self, u: int):
+        return self.materials[u] if u < self.U else (None if u == self.U else self.pseudo[u - self.U - 1][2])
+
+    def _all_mats(self) -> list:
+        return [self._mat(u) for u in range(self._n_units())]
+
+    def _unit_object(self, u: int) -> int:
+        return self.layout.units[u].object if u < self.U else self.pseudo[u - self.U - 1][0]
+
+    def _unit_name(self, u: int) -> str | None:
+        if u < 0 or u == self.U:
+            return None
+        return self.layout.units[u].name if u < self.U else self.pseudo[u - self.U - 1][1]
+
+    def _unit_aniso(self, u: int):
+        return self.layout.units[u].anisotropic if u < self.U else None
+
     def projection(self, u: int, material) -> Projection:
         key = (u, material.model_dump_json())
         p = self._proj_cache.get(key)
         if p is None:
-            unit = self.layout.units[u]
-            nu = unit.anisotropic.exponent if unit.anisotropic is not None else None
+            aniso = self._unit_aniso(u)
+            unit = self.layout.units[u] if u < self.U else None
+            name = unit.name if unit is not None else self._unit_name(u)
+            nu = aniso.exponent if aniso is not None else None
             if nu is not None and getattr(material, "model", None) != "ashikhmin-shirley":
-                raise GlintError(f"{unit.name!r} was precomputed for anisotropy editing: give it an "
+                raise GlintError(f"{name!r} was precomputed for anisotropy editing: give it an "
                                  f"ashikhmin-shirley material with exponent_u = {nu:g}")
             if nu is not None and abs(material.exponent_u - nu) > 1e-9:
-                raise GlintError(f"{unit.name!r}: exponent_u is fixed at {nu:g} by the precomputation "
+                raise GlintError(f"{name!r}: exponent_u is fixed at {nu:g} by the precomputation "
                                  f"(got {material.exponent_u:g}); edit exponent_v (the anisotropy ratio)")
             if nu is None and getattr(material, "model", None) == "ashikhmin-shirley":
-                raise GlintError(f"{unit.name!r}: ashikhmin-shirley needs the object in gi.anisotropic")
-            p = project(material, self.J, self.layers, self.J2, nu, self.qkind[unit.object])
+                raise GlintError(f"{name!r}: ashikhmin-shirley needs the object in gi.anisotropic")
+            p = project(material, self.J, self.layers, self.J2, nu, self.qkind[self._unit_object(u)])
             if len(self._proj_cache) > 256:
                 self._proj_cache.clear()
             self._proj_cache[key] = p
@@ -288,12 +332,17 @@ class GIRenderer(Renderer):
         return np.ascontiguousarray(dn.extend_coefficients(p.first, maps), np.float32)
 
     def _unit_q(self, u: int) -> int:
-        return self.qkind[self.layout.units[u].object]
+        return self.qkind[self._unit_object(u)]
 
     def _tables(self, mats):
+        """First-vertex tables C1 of every unit (the precomputed ones, the fixed pseudo-unit,
+        the painted regions'), and the precomputed units' d and second-vertex coefficients
+        (the tails'). mats: the precomputed units' materials."""
         projs = [self.projection(u, m) for u, m in enumerate(mats)]
+        extra = [self._first(self.projection(self.U + 1 + k, m), self._unit_q(self.U + 1 + k))
+                 for k, (_, _, m) in enumerate(self.pseudo)]
         C1 = np.stack([self._first(p, self._unit_q(u)) for u, p in enumerate(projs)]
-                      + [self._first(fixed_projection(self.J, self.layers))]).astype(np.float32)
+                      + [self._first(fixed_projection(self.J, self.layers))] + extra).astype(np.float32)
         d = np.stack([p.d for p in projs]) if projs else np.zeros((0, 3))
         second = np.stack([p.second for p in projs]) if (self.J2 > 1 and projs) else None
         return projs, C1, d, second
@@ -317,7 +366,7 @@ class GIRenderer(Renderer):
                                                              self._slot_weight(i))
         else:
             self.last_pruned = 0.0
-        self._frozen_mats = list(self.materials)
+        self._frozen_mats = self._all_mats()
         self._frozen_bounces = nb
         self.last_freeze_seconds = time.perf_counter() - t0
         return self.last_freeze_seconds
@@ -330,11 +379,11 @@ class GIRenderer(Renderer):
         from ...scene import GGX
         w = self._slot_weights.get(i)
         if w is None:
-            unit = self.layout.units[i]
+            aniso = self._unit_aniso(i)
             ws = []
             for al in (0.02, 0.05, 0.1, 0.2, 0.4, 1.0):
-                if unit.anisotropic is not None:
-                    nu = unit.anisotropic.exponent
+                if aniso is not None:
+                    nu = aniso.exponent
                     m = self.materials[i].model_copy(update={"exponent_v": nu * al * 10})
                 else:
                     m = GGX(alpha=al, specular=(1.0, 1.0, 1.0), albedo=(1.0, 1.0, 1.0))
@@ -345,6 +394,12 @@ class GIRenderer(Renderer):
     def set_unit_material(self, name_or_index, material) -> None:
         i = name_or_index if isinstance(name_or_index, int) else self.layout.index(name_or_index)
         self.materials[i] = material
+
+    def apply_materials(self, materials) -> None:
+        """The objects' materials (scene order, optionally followed by the GI regions'), as a
+        frame request gives them: a material with painted regions draws them."""
+        with self._lock:
+            self._apply(list(materials))
 
     def _apply(self, materials) -> None:
         objs = self.scene.spec.objects
@@ -357,9 +412,82 @@ class GIRenderer(Renderer):
                     raise Unsupported(f"object {objs[oi].name!r} is fixed (\"editable\": false) in this GI "
                                       f"precomputation: its material is baked in and cannot change")
                 continue
+            if has_regions(m):
+                if self.layout.aniso_of_object and self.layout.aniso_of_object[oi] is not None:
+                    raise Unsupported(f"object {objs[oi].name!r} is precomputed for anisotropy editing: "
+                                      "painted regions on it are not drawn under GI")
+                m = m.base
             self.materials[self.layout.of_object[oi][0]] = m
         for r, m in enumerate(materials[n:]):
             self.materials[self.layout.index(self.opts.regions[r].name)] = m
+        if len(materials) >= n:
+            self.objects_materials = list(materials[:n])
+            self._set_painted(self.objects_materials)
+
+    def _set_painted(self, materials) -> None:
+        """The painted regions of the objects' materials as pseudo-units (see ``_n_units``):
+        their materials, and the camera hits' unit weights when the regions' weights changed
+        (the frozen tensors then freeze again)."""
+        lay = self._layers.get(materials)
+        pseudo = []
+        if lay is not None:
+            for o, (slots, a, off) in sorted(lay.objects.items()):
+                names = [r.name for r in materials[o].regions]
+                for s, name in zip(slots[1:], names):
+                    pseudo.append((o, name, lay.flat[s]))
+        if lay is not self._last_layers:
+            # the same weights under new region materials keep the frozen tensors: keyed by
+            # content (hashed once per new layers object, not per frame)
+            self._last_layers = lay
+            self._lay_key = None if lay is None else tuple(
+                (o, len(slots), hashlib.blake2b(np.ascontiguousarray(a).tobytes(), digest_size=16).hexdigest())
+                for o, (slots, a, off) in sorted(lay.objects.items()))
+        key = self._lay_key
+        if key == self._painted_key:
+            self.pseudo = pseudo
+            return
+        self.pseudo = pseudo
+        self._painted_key = key
+        self.pu = self.pu0 if lay is None else self._painted_units(lay, len(materials))
+        self.frozen, self._frozen_mats, self._sampled = None, None, []
+
+    def _painted_units(self, lay, n_objects: int) -> fzm.PixelUnits:
+        """PixelUnits with each region object's own-unit weight at a camera hit split among its
+        layers (weights interpolated from the hit face's corners, Layers.expand_faces)."""
+        pr, pu0 = self.prim, self.pu0
+        corners = self.geo.F[pr.face]
+        src, slot, wt = lay.expand_faces(pr.obj, corners, pr.bary)
+        P, L0 = pu0.units.shape
+        is_region = slot >= n_objects
+        extra = int(np.bincount(src[is_region], minlength=P).max(initial=0))
+        units = np.full((P, L0 + extra), -1, np.int32)
+        weights = np.zeros(units.shape, np.float32)
+        units[:, :L0], weights[:, :L0] = pu0.units, pu0.weights
+        # slot k of the layers table: an object's own slot (its base) or a region (pseudo-unit)
+        pseudo_of_slot = {}
+        k = 0
+        for o, (slots, a, off) in sorted(lay.objects.items()):
+            for s in slots[1:]:
+                pseudo_of_slot[int(s)] = self.U + 1 + k
+                k += 1
+        # every layer's weight is a share of the object's own unit's (1 − ΣH of the precomputed
+        # regions there), not of those regions'
+        w_own = pu0.weights[:, 0].astype(np.float64)
+        base_w = np.bincount(src, weights=np.where(is_region, 0.0, wt), minlength=P)
+        on = np.zeros(P, bool)
+        on[src[is_region]] = True
+        weights[on, 0] = (w_own[on] * base_w[on]).astype(np.float32)
+        r = np.nonzero(is_region)[0]
+        r = r[np.argsort(src[r], kind="stable")]
+        p = src[r]
+        first = np.searchsorted(p, p)                     # each entry's rank among its pixel's
+        col = L0 + (np.arange(len(r)) - first)
+        lut = np.zeros(max(pseudo_of_slot, default=0) + 1, np.int32)
+        for s_, u in pseudo_of_slot.items():
+            lut[s_] = u
+        units[p, col] = lut[slot[r]]
+        weights[p, col] = (wt[r] * w_own[p]).astype(np.float32)
+        return fzm.PixelUnits(units, weights, pu0.k0, pu0.t)
 
     def draw(self) -> np.ndarray:
         """(H, W, 3) float32 radiance with the current materials (freezing when needed). The
@@ -370,8 +498,9 @@ class GIRenderer(Renderer):
     def _draw(self) -> np.ndarray:
         t0 = time.perf_counter()
         timings = {}
+        mats = self._all_mats()
         changed = [] if self._frozen_mats is None else \
-            [u for u in range(self.U) if not _same(self.materials[u], self._frozen_mats[u])]
+            [u for u in range(len(mats)) if u != self.U and not _same(mats[u], self._frozen_mats[u])]
         live = None if self.frozen is None else self.frozen.unit
         need = self.frozen is None or self._frozen_bounces != self.max_bounces or any(u != live for u in changed)
         if need and self.U > 0:
@@ -382,7 +511,7 @@ class GIRenderer(Renderer):
         fz = self.frozen
         t1 = time.perf_counter()
         if fz.unit >= 0:
-            p = self.projection(fz.unit, self.materials[fz.unit])
+            p = self.projection(fz.unit, self._mat(fz.unit))
             C1i, d = self._first(p, self._unit_q(fz.unit)), p.d
             ck = np.ones((self.K2, 3), np.float32)
             if self.K2 > 1:
@@ -413,7 +542,7 @@ class GIRenderer(Renderer):
             scale = req.lighting.intensity / env.intensity if env.intensity > 0 else 0.0
             img = img * np.float32(scale) if scale != 1.0 else img.copy()
             return Rendered(img, self.prim.object_id.copy(), dict(self.last_timings),
-                            {"live": self.layout.units[self.frozen.unit].name if self.frozen.unit >= 0 else None,
+                            {"live": self._unit_name(self.frozen.unit),
                              "bounces": self.max_bounces, "series": list(self.opts.series)})
 
     def make_live(self, object_index: int, materials=None) -> float:
@@ -430,12 +559,32 @@ class GIRenderer(Renderer):
 
     # --- strokes (strokes.py) -----------------------------------------------------------------------
 
+    @contextlib.contextmanager
+    def painting(self, object_index: int, region: str, materials):
+        """Strokes on the object fit its painted region ``region`` (a pseudo-unit, see
+        ``_n_units``) while inside, with ``materials`` (scene order) applied; holds the
+        renderer's lock (frames of other sessions on it wait)."""
+        with self._lock:
+            self._apply(list(materials))
+            if not any(o == object_index and nm == region for o, nm, _ in self.pseudo):
+                raise GlintError(f"no painted region {region!r} on object {object_index}")
+            self._painting[object_index] = region
+            try:
+                yield self
+            finally:
+                self._painting.pop(object_index, None)
+
     def _stroke_unit(self, object_index: int, strokes: bool = True) -> int:
         """The unit a stroke (or, ``strokes`` False, any edit) on an object changes: its own
-        material's."""
+        material's, or, while ``painting`` a region of it, the region's pseudo-unit."""
         objs = self.scene.spec.objects
         if not 0 <= object_index < len(objs):
             raise GlintError(f"no object {object_index}", status=404)
+        region = self._painting.get(object_index)
+        if strokes and region is not None:
+            for k, (o, nm, _) in enumerate(self.pseudo):
+                if o == object_index and nm == region:
+                    return self.U + 1 + k
         name = objs[object_index].name
         if self.layout.fixed[object_index]:
             raise GlintError(f"object {name!r} is fixed (\"editable\": false) in this GI precomputation: its "
@@ -460,6 +609,17 @@ class GIRenderer(Renderer):
                               "cannot rotate")
         return lighting.intensity / env.intensity if env.intensity > 0 else 0.0
 
+    def vertex_samples(self, camera, object_index: int):
+        """The object's vertices the precomputed view sees (corners of the faces its camera
+        rays hit): pix (K,) int64 global vertex ids (sorted), positions (K, 3) float64 world."""
+        self._fixed_view(camera)
+        vids = np.unique(self.geo.F[self.prim.face[self.prim.obj == object_index]])
+        return SimpleNamespace(pix=vids.astype(np.int64), positions=self.geo.V[vids])
+
+    def sample_corners(self, samples: "GISamples") -> np.ndarray:
+        """(N, 3) int64 global vertex ids of the faces the samples' camera rays hit."""
+        return self.geo.F[self.prim.face[samples.hit]]
+
     def surface_samples(self, camera, object_index: int, pixels: np.ndarray | None = None) -> "GISamples":
         """The object's hit pixels of the precomputed view (the fitter's rows). pixels : (M,)
         int64 flat image indices to look at; ``pix`` then indexes ``pixels``."""
@@ -478,8 +638,9 @@ class GIRenderer(Renderer):
         (freezing now when they are not)."""
         with self._lock:
             fz = self.frozen
+            mats = self._all_mats()
             stale = fz is None or fz.unit != u or self._frozen_bounces != self.max_bounces or \
-                any(v != u and not _same(self.materials[v], self._frozen_mats[v]) for v in range(self.U))
+                any(v != u and v != self.U and not _same(mats[v], self._frozen_mats[v]) for v in range(len(mats)))
             if stale:
                 self._freeze(u)
             return self.frozen
@@ -506,6 +667,15 @@ class GIRenderer(Renderer):
         """(N, 3) float64 GI radiance at the samples with the object's material replaced (every
         other unit at its current material): what a frame would show there."""
         scale = self._fixed_view(None, lighting)
+        cur = self.objects_materials[object_index] if self.objects_materials else None
+        if has_regions(material) or (has_regions(cur) and object_index not in self._painting):
+            # painted regions: the frame with the material, read at the samples
+            with self._lock:
+                mats = list(self.objects_materials or [o.material for o in self.scene.spec.objects])
+                mats[object_index] = material
+                self._apply(mats)
+                img = self._draw().reshape(-1, 3)
+                return img[self.prim.pixel[samples.hit]].astype(np.float64) * scale
         u = self._stroke_unit(object_index)
         return self._sampled_at(u, samples).radiance(self._coefficients(u, material)) * scale
 
@@ -543,7 +713,7 @@ class GIRenderer(Renderer):
         """(T, E) of ``linearise`` around the object's current material: the Jacobian only (the
         image is not linear in the coefficients; the fitter uses ``linearise``)."""
         obj = int(self.prim.obj[samples.hit[0]]) if len(samples) else 0
-        T, E, _ = self.linearise(samples, basis, lighting, self.materials[self._stroke_unit(obj)], obj)
+        T, E, _ = self.linearise(samples, basis, lighting, self._mat(self._stroke_unit(obj)), obj)
         return T, E
 
     def object_mask(self, camera=None) -> np.ndarray:

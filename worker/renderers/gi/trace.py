@@ -129,7 +129,9 @@ class Geometry:
 class Primary:
     """The camera's hits: pixel (P,) int64 flat indices of hit pixels (row-major), obj (P,),
     pos, ng, ns, wo (P, 3) float64 (wo towards the eye), object_id (H, W) int32 (−1 background),
-    background (H, W, 3) float32 environment radiance along the camera rays."""
+    background (H, W, 3) float32 environment radiance along the camera rays, face (P,) int64 the
+    scene face hit and bary (P, 3) float64 the hit's barycentric weights of its corners (painted
+    regions' per-vertex weights are interpolated with them)."""
     pixel: np.ndarray
     obj: np.ndarray
     pos: np.ndarray
@@ -138,6 +140,8 @@ class Primary:
     wo: np.ndarray
     object_id: np.ndarray
     background: np.ndarray
+    face: np.ndarray | None = None
+    bary: np.ndarray | None = None
 
     @property
     def cos_o(self) -> np.ndarray:
@@ -157,8 +161,10 @@ def primary_hits(geo: Geometry, scene, kernels=None) -> Primary:
     oid[hit] = obj
     bg = env_lookup(d, scene.envmap, env.rotation_deg, env.intensity, mask=(prim < 0).astype(np.uint8),
                     kernels=kernels)
+    uv = uv[hit].astype(np.float64)
+    bary = np.stack([1.0 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]], 1)
     return Primary(hit.astype(np.int64), obj, pos, ng, ns, wo, oid.reshape(cam.height, cam.width),
-                   bg.reshape(cam.height, cam.width, 3))
+                   bg.reshape(cam.height, cam.width, 3), prim[hit].astype(np.int64), bary)
 
 
 # --- regions: H(x) -------------------------------------------------------------------------------

@@ -1,0 +1,141 @@
+"""Painted regions under global illumination (renderers/gi/renderer.py ``_n_units``,
+fit/regions.py ``fit_region_gi``): a region is drawn at the camera hits with its own material,
+its weight interpolated from the hit face's corners and taken from its object's own unit; the
+session's strokes in region mode fit the region's material through the GI tensors."""
+import numpy as np
+import pytest
+
+from gi_harness import gi_renderer, scene_with
+from worker.jobs.runtime import SessionRuntime
+from worker.models import Regions
+from worker.models.regions import Region
+from worker.protocol import new_state
+from worker.renderers import FrameRequest, Lighting
+from worker.scene import GGX
+
+# the live unit's entries are half floats (freeze.py), the frozen part single: the same radiance
+# drawn with another unit live differs by up to ~1e-4 of the frame's largest value
+TOL = 1e-3
+
+
+@pytest.fixture(scope="module")
+def sofa(shared_assets):
+    return gi_renderer(scene_with("sofa", 48, 36), {"spp": 64, "series": [64, 1, 1, 1]})
+
+
+def _draw(r, mats, bounces=None):
+    spec = r.scene.spec
+    env = spec.environment
+    keep = r.max_bounces
+    if bounces is not None:
+        r.max_bounces = bounces
+    try:
+        out = r.render(FrameRequest(camera=spec.camera, lighting=Lighting(env.rotation_deg, env.intensity),
+                                    materials=mats))
+    finally:
+        r.max_bounces = keep
+    return out.radiance.astype(np.float64).copy(), out.object_id
+
+
+def _with_region(r, obj: int, material, weight=None, frac=1.0):
+    """The object's scene material with one region of ``material`` over the first ``frac`` of its
+    vertices (all at ``weight``, or 1)."""
+    n = int((r.scene.object_of_vertex == obj).sum())
+    ids = np.arange(int(n * frac))
+    w = np.full(len(ids), 1.0 if weight is None else weight)
+    base = r.scene.spec.objects[obj].material
+    return Regions(base=base, vertex_count=n, regions=[Region(name="r", material=material, vertices=ids.tolist(),
+                                                              weights=w.tolist())])
+
+
+def test_a_region_of_the_base_material_changes_nothing(sofa):
+    mats = list(sofa.scene.materials)
+    before, ids = _draw(sofa, mats)
+    mats[0] = _with_region(sofa, 0, mats[0], weight=0.6, frac=0.5)
+    after, _ = _draw(sofa, mats)
+    assert np.abs(after - before).max() <= TOL * before.max()
+
+
+def test_a_region_is_its_material_at_the_first_bounce(sofa):
+    """Direct light only (one bounce): a region of weight 1 over the whole object draws as the
+    object with the region's material; at weight ½ as the mean of the two frames. With every
+    bounce too the half-weight frame is the mean, and the other objects' pixels keep the base's
+    (the light the region sends on is its object's own material's)."""
+    red = GGX(alpha=0.3, albedo=(0.6, 0.1, 0.1), specular=(0.2, 0.2, 0.2))
+    mats = list(sofa.scene.materials)
+    base1, ids = _draw(sofa, mats, bounces=1)
+    plain = list(mats); plain[0] = red
+    red1, _ = _draw(sofa, plain, bounces=1)
+    full = list(mats); full[0] = _with_region(sofa, 0, red)
+    got1, _ = _draw(sofa, full, bounces=1)
+    on = ids == 0
+    assert on.sum() > 100
+    assert np.abs(got1 - red1)[on].max() <= TOL * red1[on].max()
+    assert np.abs(got1 - base1)[on].mean() > 0.05 * base1[on].mean()       # the region is drawn
+    half = list(mats); half[0] = _with_region(sofa, 0, red, weight=0.5)
+    got_half, _ = _draw(sofa, half, bounces=1)
+    assert np.abs(got_half - 0.5 * (base1 + red1))[on].max() <= TOL * red1[on].max()
+    # every bounce: the region's BRDF takes all the light arriving at its hits (linear in its
+    # weight there too); the light it sends on to other surfaces stays the base's
+    base_n, _ = _draw(sofa, mats)
+    got_n, _ = _draw(sofa, full)
+    half_n, _ = _draw(sofa, half)
+    assert np.abs(half_n - 0.5 * (base_n + got_n))[on].max() <= TOL * got_n[on].max()
+    assert np.abs(got_n - base_n)[on].mean() > 0.05 * base_n[on].mean()
+    assert np.abs(got_n - base_n)[~on].max() <= TOL * base_n.max()
+
+
+def _runtime(r):
+    return SessionRuntime(r.scene, r, {"state": new_state(r.scene.spec).model_dump(mode="json"), "strokes": []})
+
+
+def _frame(rt):
+    st = rt.state
+    out = rt.renderer.render(FrameRequest(camera=st.camera, lighting=Lighting(st.rotation_deg, st.intensity),
+                                          materials=st.materials))
+    return out.radiance.astype(np.float64).copy(), out.object_id
+
+
+@pytest.mark.parametrize("kind", ["darkening", "colour change"])
+def test_strokes_paint_a_region_under_gi(sofa, kind):
+    """A stroke in region mode on a GI scene makes a region and fits its material through the
+    tensors: the requested change on the painted pixels, nothing far from the stroke, and the
+    frame shows what the fit predicted; undo takes it back."""
+    rt = _runtime(sofa)
+    before, ids = _frame(rt)
+    ys, xs = np.nonzero(ids == 0)
+    y = int(np.median(ys))
+    row = xs[ys == y]
+    x0, x1 = float(np.quantile(row, 0.3)) + 0.5, float(np.quantile(row, 0.7)) + 0.5
+    ev = rt.handle({"seq": 1, "type": "region", "action": "paint", "name": "seat"})
+    assert ev[0]["stats"]["painting"] == "seat"
+    if kind == "darkening":
+        stroke = {"mode": "scale", "scale": 0.5}
+    else:
+        m = before[y, int(x0):int(x1)].mean(0)
+        stroke = {"mode": "color", "color": (m * np.array([1.3, 0.8, 0.6])).tolist()}
+    stroke.update({"points": [[x0, y + 0.5], [x1, y + 0.5]], "diameter": 4, "kappa": 0.05})
+    assert rt.handle({"seq": 2, "type": "stroke", "stroke": stroke})[0]["rejected"] is False
+    fit = rt.fit_if_needed()[0]
+    st = fit["stats"]
+    assert fit["material"]["model"] == "regions" and st["regions"] == ["seat"], fit
+    assert st["achieved"] >= 0.8 and st["spill_far"] <= 0.1, st
+    m = rt.state.materials[0]
+    assert isinstance(m, Regions) and m.regions[0].name == "seat"
+    after, _ = _frame(rt)
+    painted = np.zeros_like(ids, bool)
+    painted[y, int(x0) + 1:int(x1) - 1] = True
+    painted &= ids == 0
+    ratio = after[painted].sum(0) / before[painted].sum(0)
+    if kind == "darkening":
+        assert np.all(np.abs(ratio - 0.5) < 0.12), ratio
+    else:
+        assert ratio[0] > ratio[2] + 0.3, ratio
+    far = np.ones_like(ids, bool)
+    far[max(y - 6, 0):y + 7] = False
+    far &= ids == 0
+    assert np.abs(after - before)[far].mean() <= 0.02 * before[far].mean()
+    rt.handle({"seq": 3, "type": "undo"})
+    assert rt.fit_if_needed()[0]["material"]["model"] != "regions"
+    again, _ = _frame(rt)
+    assert np.abs(again - before).max() <= TOL * before.max()
