@@ -16,8 +16,8 @@ multiplying its transfer rows.
 
 This is the interface other parts use: ``layer_weights(material, n_vertices)`` gives the layer
 materials and their per-vertex weights (any material: a plain one is one layer of weight 1).
-Renderers that blend layers per vertex draw the regions (the cut renderer's vertex, refined and
-pixel modes); everything that only asks a material for one BRDF (``pack``, ``evaluate``) gets
+Renderers that blend layers per vertex or per pixel draw the regions (the cut renderer's modes,
+the paint renderer, the GI renderer at its camera hits: renderers/layers.py); everything that only asks a material for one BRDF (``pack``, ``evaluate``) gets
 the base's, so a renderer that does not know regions draws the base alone.
 
 Vertex ids are the object's own (0 … vertex_count − 1, in the order its mesh file loads, see
