@@ -89,4 +89,12 @@ def test_fit_regions_and_render_them(scene_file, tmp_path, capsys):
     a, b = np.load(tmp_path / "a.npy"), np.load(tmp_path / "b.npy")
     changed = np.abs(b - a).max(axis=2) > 1e-3 * a.max()
     assert 0 < changed.sum() < 0.5 * (ids == 0).sum() and b[changed].mean() < 0.8 * a[changed].mean()
-    assert not changed[ids != 0].any()          # the light off the region is the sofa's own (module doc)
+    assert not changed[ids != 0].any()          # the light off the region is the sofa's own (renderer.py)
+    # traced into the tensors, the darkened region also sends less light on to the floor and walls
+    assert main(base + ["--out", str(tmp_path / "c.png"), "--raw", str(tmp_path / "c.npy"), "--material", f"sofa={mat}",
+                        "--trace-regions", f"sofa={mat}"]) == 0
+    c = np.load(tmp_path / "c.npy")
+    others = (ids >= 0) & (ids != 0)
+    assert c[others].sum() < 0.999 * b[others].sum()
+    assert np.abs(c - b)[ids == 0].mean() < 0.1 * b[ids == 0].mean()
+    assert main(base + ["--out", str(tmp_path / "d.png"), "--trace-regions", "sofa=" + str(tmp_path / "none.json")]) == 2

@@ -139,3 +139,112 @@ def test_strokes_paint_a_region_under_gi(sofa, kind):
     assert rt.fit_if_needed()[0]["material"]["model"] != "regions"
     again, _ = _frame(rt)
     assert np.abs(again - before).max() <= TOL * before.max()
+
+
+WHITE = None     # the sofa's own material (set from the scene)
+RED = {"model": "lambert", "albedo": [0.9, 0.04, 0.04]}
+
+
+def _left_half(r, obj: int, material):
+    """The object's material with a region of ``material`` over the vertices left of its middle
+    (x below the median), weight 1."""
+    from worker.scene import parse_material
+
+    lo, hi = np.searchsorted(r.scene.object_of_vertex, [obj, obj + 1])
+    x = r.scene.mesh.vertices[lo:hi, 0]
+    ids = np.nonzero(x < np.median(x))[0]
+    return Regions(base=r.scene.spec.objects[obj].material, vertex_count=int(hi - lo),
+                   regions=[Region(name="left", material=parse_material(material), vertices=ids.tolist(),
+                                   weights=[1.0] * len(ids))])
+
+
+@pytest.fixture(scope="module")
+def traced(sofa):
+    """The sofa scene with a region over the sofa's left half traced into the tensors."""
+    design = _left_half(sofa, 0, RED)
+    opts = {"spp": 64, "series": [64, 1, 1, 1], "painted": [{"object": "sofa", "material": design.model_dump(mode="json")}]}
+    return gi_renderer(scene_with("sofa", 48, 36), opts), design
+
+
+def test_a_traced_region_of_the_base_material_is_the_base(sofa, traced):
+    """Traced into the tensors, a region holding the object's own material draws what the
+    tensors without it draw (the same paths: a unit choice takes its own random number)."""
+    r, design = traced
+    base_mats = list(sofa.scene.materials)
+    before, _ = _draw(sofa, base_mats)
+    same = design.model_copy(update={"regions": [design.regions[0].model_copy(update={"material": base_mats[0]})]})
+    mats = list(r.scene.materials)
+    mats[0] = same
+    got, _ = _draw(r, mats)
+    assert np.abs(got - before).max() <= TOL * before.max()
+
+
+def test_a_traced_region_sends_its_own_light(sofa, traced):
+    """A red region traced into the tensors: the sofa's pixels are what the first-vertex region
+    draws (up to the light the red half sends on to the other half), and the walls and floor
+    receive red light off it where the first-vertex region left them the base's."""
+    r, design = traced
+    mats = list(r.scene.materials)
+    mats[0] = design
+    got, ids = _draw(r, mats)
+    first, _ = _draw(sofa, mats)             # the same design, the region at the camera hits only
+    base, _ = _draw(sofa, list(sofa.scene.materials))
+    on = ids == 0
+    assert np.abs(got[on] - first[on]).mean() < 0.1 * first[on].mean()
+    others = (ids >= 1)
+    # light off the red half: green falls on the other objects, red hardly
+    g = got[others].sum(0) / first[others].sum(0)
+    assert g[1] < 0.99 and g[0] > g[1] + 0.01, g
+    assert np.abs(first[others] - base[others]).max() <= TOL * base.max()
+    # a design other than the traced one: its regions drawn at the camera hits, the traced
+    # region's light the sofa's own material's (the base frame where the design has none)
+    plain, _ = _draw(r, list(r.scene.materials))
+    assert np.abs(plain - base).max() <= TOL * base.max()
+
+
+def test_painted_options_are_checked(sofa):
+    from worker.renderers.gi.options import GIOptionsError, parse_options, unit_layout
+
+    sc = sofa.scene
+    design = _left_half(sofa, 0, RED).model_dump(mode="json")
+    for bad, msg in (({"object": "nothing", "material": design}, "no object"),
+                     ({"object": "sofa", "material": RED}, "not a material with painted regions"),
+                     ({"object": "side_wall", "material": design}, "not editable"),
+                     ({"object": "floor", "material": design}, "vertices")):
+        with pytest.raises(GIOptionsError, match=msg):
+            unit_layout(sc, parse_options(sc, {"painted": [bad]}))
+
+
+def test_strokes_paint_a_traced_region(traced):
+    """A session on tensors with the region traced in: a stroke inside the region (its weights
+    unchanged) fits the region's material with the traced unit live, its light through the
+    tails too (Gauss-Newton steps), and the frame shows the fit's prediction."""
+    r, design = traced
+    st = new_state(r.scene.spec)
+    st.materials[0] = design
+    st.base_material = design
+    rt = SessionRuntime(r.scene, r, {"state": st.model_dump(mode="json"), "strokes": []})
+    before, ids = _frame(rt)
+    assert r._region_units[(0, "left")] < r.U                 # the traced unit, not a first-vertex one
+    # the pixels whose face lies wholly in the region, and a stroke along the middle of them
+    lo = int(np.searchsorted(r.scene.object_of_vertex, 0))
+    w = design.regions[0].dense(design.vertex_count)
+    full = np.zeros(ids.size, bool)
+    on = np.nonzero(r.prim.obj == 0)[0]
+    inner = on[(w[r.geo.F[r.prim.face[on]] - lo] >= 1.0).all(1)]
+    full[r.prim.pixel[inner]] = True
+    full = full.reshape(ids.shape)
+    ys, xs = np.nonzero(full)
+    y = int(np.median(ys))
+    row = xs[ys == y]
+    x0, x1 = float(np.quantile(row, 0.3)) + 0.5, float(np.quantile(row, 0.7)) + 0.5
+    rt.handle({"seq": 1, "type": "region", "action": "paint", "name": "left"})
+    stroke = {"mode": "scale", "scale": 0.5, "points": [[x0, y + 0.5], [x1, y + 0.5]], "diameter": 2, "kappa": 0.05}
+    assert rt.handle({"seq": 2, "type": "stroke", "stroke": stroke})[0]["rejected"] is False
+    fit = rt.fit_if_needed()[0]
+    assert r._region_units[(0, "left")] < r.U, "the region's weights changed"
+    assert fit["stats"]["achieved"] >= 0.3 and fit["stats"]["spill_far"] <= 0.3, fit["stats"]
+    after, _ = _frame(rt)
+    band = full.copy()
+    band[:y - 1] = band[y + 2:] = False
+    assert after[band].mean() < 0.9 * before[band].mean()

@@ -33,7 +33,7 @@ from ..models.regions import Region, Regions, fit_mesh, has_regions, in_group, w
 from ..scene import SRBF
 from .basis import DEFAULT_NL
 from .brush import DEFAULT_UNPAINTED_WEIGHT, Stroke, apply_stroke, polyline_distance, stroke_effect, stroke_weights
-from .fitter import FitError, Fitter
+from .fitter import GN_STEPS, GN_TOL, FitError, Fitter
 from .guidance import guidance_notes, highlight_guidance
 from .solve import FitRows, SolveResult, solve, solve_blocks
 
@@ -271,19 +271,38 @@ def fit_region_gi(fx: Fitter, name: str = "region 1", unpainted_weight: float = 
     targets, _ = fx.targets()
     mats = list(r.objects_materials or [o.material for o in r.scene.spec.objects])
     mats[fx.obj] = painted_start
+    # only the pixels the region touches depend on its material (elsewhere a row is a constant):
+    # the rows and the solve scale with the region, not the object
+    inside = [np.nonzero((w[r.sample_corners(v.samples) - off] > 0).any(1))[0] for v in fx.views]
+    lin, steps = start, 0
     with r.painting(fx.obj, name, mats):
-        rows = []
-        for v, (tgt, painted) in zip(fx.views, targets):
-            # only the pixels the region touches depend on its material (elsewhere a row is a
-            # constant): the rows and the solve scale with the region, not the object
-            inside = np.nonzero((w[r.sample_corners(v.samples) - off] > 0).any(1))[0]
-            T, E, R0 = r.linearise(_take(v.samples, inside), fx.basis, v.lighting, start, fx.obj)
-            rows.append(FitRows(T, E, tgt[inside] - R0, np.where(painted[inside], 1.0, unpainted_weight)))
-        if not any(np.any(x.weight > 0) for x in rows):
-            raise FitError("nothing to fit: no painted pixel and unpainted_weight is 0")
-        res = solve(rows, fx.basis, np.asarray(plain_below.albedo, np.float64), constrained=constrained, n_l=n_l,
-                    prior=None, fit_albedo=fit_albedo)
-    mat = SRBF.model_validate(fx.basis.to_material(res.coefficients, res.albedo))
+        while True:
+            rows, lins = [], []
+            for v, (tgt, painted), ins in zip(fx.views, targets, inside):
+                smp = _take(v.samples, ins)
+                T, E, R0 = r.linearise(smp, fx.basis, v.lighting, lin, fx.obj)
+                rows.append(FitRows(T, E, tgt[ins] - R0, np.where(painted[ins], 1.0, unpainted_weight)))
+                lins.append((smp, T, E, R0))
+            if not any(np.any(x.weight > 0) for x in rows):
+                raise FitError("nothing to fit: no painted pixel and unpainted_weight is 0")
+            res = solve(rows, fx.basis, np.asarray(plain_below.albedo, np.float64), constrained=constrained,
+                        n_l=n_l, prior=None, fit_albedo=fit_albedo)
+            steps += 1
+            mat = SRBF.model_validate(fx.basis.to_material(res.coefficients, res.albedo))
+            # a region drawn at the camera hits only is linear in its coefficients (one step); one
+            # traced into the tensors also lights the object through its tails (polynomial-gi
+            # eq. 28): Gauss-Newton steps as the fitter's, until the expansion meets the exact
+            # radiance
+            num = den = 0.0
+            for (smp, T, E, R0), v in zip(lins, fx.views):
+                exact = r.shade_samples(smp, mat, fx.obj, v.lighting)
+                alb = res.albedo if res.albedo is not None else np.asarray(plain_below.albedo, np.float64)
+                pred = alb * E + np.stack([T[c] @ res.coefficients[:, c] for c in range(3)], 1) + R0
+                num += float(((exact - pred) ** 2).sum())
+                den += float((exact ** 2).sum())
+            if np.sqrt(num / max(den, 1e-300)) <= GN_TOL or steps >= GN_STEPS:
+                break
+            lin = mat
     region, material = with_material(mat)
     mats[fx.obj] = material
     by_view = _strokes_by_view(fx)

@@ -23,7 +23,26 @@ def _store(a):
 def _overrides(a) -> dict:
     from .options import parse_series
     return {"series": parse_series(a.series) if a.series else None, "bounces": a.bounces, "spp": a.spp,
-            "fresnel": True if a.fresnel else None, "seed": a.seed, "denoise": True if a.denoise else None}
+            "fresnel": True if a.fresnel else None, "seed": a.seed, "denoise": True if a.denoise else None,
+            "painted": _painted(getattr(a, "trace_regions", None))}
+
+
+def _painted(specs) -> list | None:
+    """``--trace-regions OBJECT=FILE`` values as options ``painted`` entries (None: none given)."""
+    from ...scene import SceneError
+    if not specs:
+        return None
+    out = []
+    for spec in specs:
+        name, sep, path = spec.partition("=")
+        p = Path(path)
+        if not sep or not p.is_file():
+            raise SceneError(f"--trace-regions {spec!r}: expected OBJECT=FILE with an existing material file")
+        try:
+            out.append({"object": name, "material": json.loads(p.read_text())})
+        except json.JSONDecodeError as e:
+            raise SceneError(f"{p}: not valid JSON ({e.msg})") from None
+    return out
 
 
 def _ensure(a, quiet: bool):
@@ -168,6 +187,9 @@ def gi_options(p) -> None:
     p.add_argument("--denoise", action="store_true",
                    help="denoise every basis image of the tensors once with Open Image Denoise (denoise.py)")
     p.add_argument("--store", help="tensor store folder (default $GLINT_DATA_DIR or ~/.cache/glint)")
+    p.add_argument("--trace-regions", action="append", metavar="OBJECT=FILE",
+                   help="trace this material's painted regions into the tensors as units of their own (the "
+                        "light they send on to other surfaces); repeatable")
 
 
 def add_commands(sub) -> None:

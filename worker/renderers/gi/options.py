@@ -25,6 +25,11 @@ A scene file may carry an optional ``gi`` object (scene.SceneFile.gi, validated 
 * ``regions``: spatial weight maps H(x) (eq. 5-6, §5.3): a greyscale image projected along
   ``axis`` over the object's bounding box; the region's material applies with weight H(x), the
   object's own with 1 − ΣH. Each region is an editable unit named like an object.
+* ``painted``: objects' painted regions traced into the tensors (``{"object": "sofa", "material":
+  <a "regions" material>}``, models/regions.py): each region is a unit named by the region, its
+  weight at a path vertex its layer weight interpolated over the face hit (eq. 5-6 with per-vertex
+  maps), so the light it reflects on to other surfaces is its own material's. Without this the
+  renderer draws painted regions at the camera's hits only (renderer.py ``_n_units``).
 * ``denoise``: denoise every basis image of the tensors once, at precomputation, with Intel
   Open Image Denoise (denoise.py): frames stay linear in the first-vertex coefficients; the
   indirect bounces carry the first vertex on hat functions over the bands.
@@ -68,6 +73,11 @@ class GIRegion(_Strict):
     material: Material
 
 
+class GIPainted(_Strict):
+    object: str
+    material: Material = Field(description="a material with painted regions (model \"regions\")")
+
+
 class GIAnisotropy(_Strict):
     object: str
     exponent: float = Field(225.0, gt=0.0, le=1e5, description="n_u, fixed at precomputation")
@@ -92,6 +102,7 @@ class GIOptions(_Strict):
     seed: int = Field(0, ge=0)
     denoise: bool = Field(False, description="denoise every basis image of the tensors once (denoise.py)")
     regions: list[GIRegion] = []
+    painted: list[GIPainted] = []
     anisotropic: list[GIAnisotropy] = []
 
     @model_validator(mode="after")
@@ -154,12 +165,15 @@ def parse_series(text: str) -> tuple[int, ...]:
 class Unit:
     """An editable BRDF: an object's own material, or a region's. ``object`` is the object
     index; ``region`` the index into options.regions (None for the object's own material);
-    ``anisotropic`` the GIAnisotropy of the object (None for half-angle bands)."""
+    ``anisotropic`` the GIAnisotropy of the object (None for half-angle bands); ``painted``
+    (index into options.painted, the region's index in its material) for a traced painted
+    region."""
     name: str
     object: int
     region: int | None
     material: Any
     anisotropic: GIAnisotropy | None = None
+    painted: tuple[int, int] | None = None
 
 
 @dataclass
@@ -237,6 +251,29 @@ def unit_layout(scene, opts: GIOptions) -> UnitLayout:
             raise GIOptionsError(f"gi.regions[{k}].name: {r.name!r} is already an object or region name")
         of_object[i].append(len(units))
         units.append(Unit(r.name, i, k, r.material))
+    from ...models.regions import RegionsError, fit_mesh, has_regions
+    seen = set()
+    for k, p in enumerate(opts.painted):
+        if p.object not in names:
+            raise GIOptionsError(f"gi.painted[{k}].object: no object named {p.object!r}")
+        i = names.index(p.object)
+        if i in seen:
+            raise GIOptionsError(f"gi.painted[{k}]: object {p.object!r} is listed twice")
+        seen.add(i)
+        if fixed[i] or aniso[i] is not None:
+            raise GIOptionsError(f"gi.painted[{k}]: object {p.object!r} is "
+                                 f"{'not editable' if fixed[i] else 'anisotropic'}; painted regions need an isotropic editable object")
+        if not has_regions(p.material):
+            raise GIOptionsError(f"gi.painted[{k}].material: not a material with painted regions (model \"regions\")")
+        try:
+            fit_mesh(p.material, int((scene.object_of_vertex == i).sum()), scene.vertex_source(i))
+        except RegionsError as e:
+            raise GIOptionsError(f"gi.painted[{k}]: {e}") from None
+        for j, r in enumerate(p.material.regions):
+            if r.name in names or r.name in [u.name for u in units]:
+                raise GIOptionsError(f"gi.painted[{k}]: region {r.name!r} is already an object or region name")
+            of_object[i].append(len(units))
+            units.append(Unit(r.name, i, None, r.material, painted=(k, j)))
     return UnitLayout(units, of_object, fixed, aniso)
 
 
@@ -261,6 +298,9 @@ def tensor_key(scene, opts: GIOptions, region_images: list[np.ndarray]) -> str:
         lighting={"rotation_deg": spec.environment.rotation_deg, "intensity": spec.environment.intensity},
         fixed_materials=fixed_mats,
         regions=[dict(r.model_dump(mode="json", exclude={"material", "weights"})) for r in opts.regions],
+        painted=[{"object": p.object, "vertex_count": p.material.vertex_count,
+                  "regions": [{"name": r.name, "vertices": r.vertices, "weights": r.weights}
+                              for r in p.material.regions]} for p in opts.painted],
         **{f"region_image_{i}": np.asarray(img) for i, img in enumerate(region_images)},
         anisotropic=[a.model_dump(mode="json", exclude={"material"}) for a in opts.anisotropic],
         series=list(opts.series), spp=opts.spp, fresnel=opts.fresnel,

@@ -241,7 +241,8 @@ class GIRenderer(Renderer):
         if len(self.prim.pixel) != len(data.pixel) or not np.array_equal(self.prim.pixel, data.pixel):
             raise GlintError("GI tensors do not match the scene's camera hits (precompute again)", status=409)
         from .trace import Regions
-        reg = Regions(self.layout, self.opts.regions, geo, region_images(scene, self.opts))
+        reg = Regions(self.layout, self.opts.regions, geo, region_images(scene, self.opts), scene, self.opts.painted)
+        # the camera hits' painted regions are split per frame by the design drawn (_set_painted)
         units, weights = reg.weights(self.prim.obj, self.prim.pos)
         k0, t = theta_interp(self.prim.cos_o)
         # the precomputed units' weights (pu0) and with the painted regions' pseudo-units (pu)
@@ -253,6 +254,12 @@ class GIRenderer(Renderer):
         self._last_layers = self._lay_key = None
         self._layers = LayersCache(scene)
         self._painting: dict[int, str] = {}             # object -> the region strokes fit (painting)
+        self._region_units: dict[tuple[int, str], int] = {}   # (object, region) -> its unit now
+        # object -> (its traced painted material, the units of its regions in order)
+        self._traced: dict[int, tuple[Any, list[int]]] = {}
+        for k, p in enumerate(self.opts.painted):
+            us = [u for u, unit in enumerate(self.layout.units) if unit.painted is not None and unit.painted[0] == k]
+            self._traced[self.layout.units[us[0]].object] = (p.material, us)
         self.qkind = [QUOTIENTS.index(q) for q in self.layout.quotients(scene, self.opts)]
         self._proj_cache: dict[tuple[int, str], Projection] = {}
         self.frozen: fzm.Frozen | None = None
@@ -265,6 +272,8 @@ class GIRenderer(Renderer):
         self._hit_of_pixel = np.full(data.meta["width"] * data.meta["height"], -1, np.int64)
         self._hit_of_pixel[self.prim.pixel] = np.arange(len(self.prim.pixel))
         self._sampled: list = []          # [(Frozen, hit bytes, Sampled)], the latest few
+        if self._traced:
+            self._apply(list(scene.materials))      # the scene's design, until a frame gives one
 
     # --- projections ----------------------------------------------------------------------------
 
@@ -412,11 +421,21 @@ class GIRenderer(Renderer):
                     raise Unsupported(f"object {objs[oi].name!r} is fixed (\"editable\": false) in this GI "
                                       f"precomputation: its material is baked in and cannot change")
                 continue
+            traced = self._traced.get(oi)
             if has_regions(m):
                 if self.layout.aniso_of_object and self.layout.aniso_of_object[oi] is not None:
                     raise Unsupported(f"object {objs[oi].name!r} is precomputed for anisotropy editing: "
                                       "painted regions on it are not drawn under GI")
+                if traced is not None and self._matches_traced(oi, m):
+                    for u, r in zip(traced[1], m.regions):
+                        self.materials[u] = r.material
+                    traced = None
                 m = m.base
+            if traced is not None:
+                # regions traced into the tensors that this design does not have: their light
+                # on to other surfaces is the object's own material's
+                for u in traced[1]:
+                    self.materials[u] = m
             self.materials[self.layout.of_object[oi][0]] = m
         for r, m in enumerate(materials[n:]):
             self.materials[self.layout.index(self.opts.regions[r].name)] = m
@@ -424,25 +443,43 @@ class GIRenderer(Renderer):
             self.objects_materials = list(materials[:n])
             self._set_painted(self.objects_materials)
 
+    def _matches_traced(self, o: int, material) -> bool:
+        """Whether a regions material on object o has the regions traced into the tensors (the
+        same names, vertices and weights, in order; their materials may differ)."""
+        traced = self._traced[o][0]
+        if len(material.regions) != len(traced.regions) or material.vertex_count != traced.vertex_count:
+            return False
+        return all(a.name == b.name and a.vertices == b.vertices and a.weights == b.weights
+                   for a, b in zip(material.regions, traced.regions))
+
     def _set_painted(self, materials) -> None:
         """The painted regions of the objects' materials as pseudo-units (see ``_n_units``):
         their materials, and the camera hits' unit weights when the regions' weights changed
         (the frozen tensors then freeze again)."""
         lay = self._layers.get(materials)
         pseudo = []
+        self._region_units = {}
         if lay is not None:
             for o, (slots, a, off) in sorted(lay.objects.items()):
                 names = [r.name for r in materials[o].regions]
+                traced = self._traced.get(o)
+                if traced is not None and self._matches_traced(o, materials[o]):
+                    # the design traced into the tensors: its regions are the traced units
+                    for u, name in zip(traced[1], names):
+                        self._region_units[(o, name)] = u
+                    continue
                 for s, name in zip(slots[1:], names):
+                    self._region_units[(o, name)] = self.U + 1 + len(pseudo)
                     pseudo.append((o, name, lay.flat[s]))
         if lay is not self._last_layers:
             # the same weights under new region materials keep the frozen tensors: keyed by
             # content (hashed once per new layers object, not per frame)
             self._last_layers = lay
             self._lay_key = None if lay is None else tuple(
-                (o, len(slots), hashlib.blake2b(np.ascontiguousarray(a).tobytes(), digest_size=16).hexdigest())
+                (o, len(slots), hashlib.blake2b(np.ascontiguousarray(a).tobytes(), digest_size=16).hexdigest(),
+                 tuple(self._region_units.get((o, r.name), -1) for r in materials[o].regions))
                 for o, (slots, a, off) in sorted(lay.objects.items()))
-        key = self._lay_key
+        key = (self._lay_key, tuple((o, nm) for o, nm, _ in pseudo))
         if key == self._painted_key:
             self.pseudo = pseudo
             return
@@ -463,13 +500,13 @@ class GIRenderer(Renderer):
         units = np.full((P, L0 + extra), -1, np.int32)
         weights = np.zeros(units.shape, np.float32)
         units[:, :L0], weights[:, :L0] = pu0.units, pu0.weights
-        # slot k of the layers table: an object's own slot (its base) or a region (pseudo-unit)
+        # slot k of the layers table: an object's own slot (its base) or a region (its traced unit,
+        # or a pseudo-unit)
         pseudo_of_slot = {}
-        k = 0
+        mats = self.objects_materials
         for o, (slots, a, off) in sorted(lay.objects.items()):
-            for s in slots[1:]:
-                pseudo_of_slot[int(s)] = self.U + 1 + k
-                k += 1
+            for s, r in zip(slots[1:], mats[o].regions):
+                pseudo_of_slot[int(s)] = self._region_units[(o, r.name)]
         # every layer's weight is a share of the object's own unit's (1 − ΣH of the precomputed
         # regions there), not of those regions'
         w_own = pu0.weights[:, 0].astype(np.float64)
@@ -501,6 +538,8 @@ class GIRenderer(Renderer):
         mats = self._all_mats()
         changed = [] if self._frozen_mats is None else \
             [u for u in range(len(mats)) if u != self.U and not _same(mats[u], self._frozen_mats[u])]
+        if self.frozen is not None and self.frozen.unit >= len(mats):
+            self.frozen = None                    # frozen for painted regions no longer drawn
         live = None if self.frozen is None else self.frozen.unit
         need = self.frozen is None or self._frozen_bounces != self.max_bounces or any(u != live for u in changed)
         if need and self.U > 0:
@@ -566,7 +605,7 @@ class GIRenderer(Renderer):
         renderer's lock (frames of other sessions on it wait)."""
         with self._lock:
             self._apply(list(materials))
-            if not any(o == object_index and nm == region for o, nm, _ in self.pseudo):
+            if (object_index, region) not in self._region_units:
                 raise GlintError(f"no painted region {region!r} on object {object_index}")
             self._painting[object_index] = region
             try:
@@ -581,10 +620,8 @@ class GIRenderer(Renderer):
         if not 0 <= object_index < len(objs):
             raise GlintError(f"no object {object_index}", status=404)
         region = self._painting.get(object_index)
-        if strokes and region is not None:
-            for k, (o, nm, _) in enumerate(self.pseudo):
-                if o == object_index and nm == region:
-                    return self.U + 1 + k
+        if strokes and region is not None and (object_index, region) in self._region_units:
+            return self._region_units[(object_index, region)]
         name = objs[object_index].name
         if self.layout.fixed[object_index]:
             raise GlintError(f"object {name!r} is fixed (\"editable\": false) in this GI precomputation: its "
@@ -639,7 +676,7 @@ class GIRenderer(Renderer):
         with self._lock:
             fz = self.frozen
             mats = self._all_mats()
-            stale = fz is None or fz.unit != u or self._frozen_bounces != self.max_bounces or \
+            stale = fz is None or fz.unit != u or len(mats) != len(self._frozen_mats or []) or self._frozen_bounces != self.max_bounces or \
                 any(v != u and v != self.U and not _same(mats[v], self._frozen_mats[v]) for v in range(len(mats)))
             if stale:
                 self._freeze(u)

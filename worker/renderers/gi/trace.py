@@ -203,9 +203,14 @@ class Regions:
     regions' images are projected along their axis over the object's bounding box (image
     columns along the first remaining axis, rows along the second, row 0 at its minimum),
     sampled bilinearly; the object's own unit takes 1 − ΣH (regions are renormalised where
-    their sum exceeds 1). Fixed objects map to the pseudo-unit U (their baked BRDF)."""
+    their sum exceeds 1). Fixed objects map to the pseudo-unit U (their baked BRDF).
 
-    def __init__(self, layout: UnitLayout, regions: list, geo: Geometry, images: list[np.ndarray]):
+    Painted regions traced into the tensors (options ``painted``) split what is left to the
+    object's own unit by their layer weights (models/regions.py), interpolated from the corners
+    of the face hit with the point's barycentric weights (``face``, ``bary``)."""
+
+    def __init__(self, layout: UnitLayout, regions: list, geo: Geometry, images: list[np.ndarray],
+                 scene=None, painted: list | None = None):
         self.layout = layout
         self.specs = regions
         self.U = len(layout.units)
@@ -213,9 +218,22 @@ class Regions:
         self.geo = geo
         self.axis = {"x": 0, "y": 1, "z": 2}
         self.lmax = max([len(u) for u in layout.of_object] + [1])
+        # object -> (effective layer weights (L, n_o) float32, first global vertex id)
+        self.painted: dict[int, tuple[np.ndarray, int]] = {}
+        if painted:
+            from ...models.regions import layer_weights
+            for k, p in enumerate(painted):
+                o = [u.object for u in layout.units if u.painted is not None and u.painted[0] == k][0]
+                off, end = np.searchsorted(scene.object_of_vertex, [o, o + 1])
+                _, a = layer_weights(p.material, int(end - off), scene.vertex_source(o))
+                self.painted[o] = (np.asarray(a, np.float32), int(off))
 
-    def weights(self, obj: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(units (R, L) int32, −1 padding; weights (R, L) float32) for points on objects."""
+    def weights(self, obj: np.ndarray, pos: np.ndarray, face: np.ndarray | None = None,
+                bary: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(units (R, L) int32, −1 padding; weights (R, L) float32) for points on objects; face
+        (R,) the faces hit and bary (R, 3) their barycentric weights split the object's share
+        among its traced painted regions (face None: not split, the object's own unit takes it:
+        the renderer splits the camera hits' per frame, by the design it draws)."""
         R = len(obj)
         units = np.full((R, self.lmax), -1, np.int32)
         w = np.zeros((R, self.lmax), np.float32)
@@ -227,16 +245,28 @@ class Regions:
                 units[sel, 0] = self.U
                 w[sel, 0] = 1.0
                 continue
+            img = [u for u in us[1:] if self.layout.units[u].painted is None]
+            pnt = [u for u in us[1:] if self.layout.units[u].painted is not None]
             hs = []
-            for u in us[1:]:
+            for u in img:
                 r = self.layout.units[u].region
                 hs.append(self._sample(r, self.specs[r], o, pos[sel]))
             H = np.stack(hs, 1) if hs else np.zeros((len(sel), 0))
             tot = H.sum(1, keepdims=True)
             H = np.where(tot > 1.0, H / np.maximum(tot, 1e-12), H)
-            units[sel, :len(us)] = us
+            if face is None:
+                pnt = []
+            units[sel, :1 + len(img) + len(pnt)] = [us[0]] + img + pnt
             w[sel, 0] = 1.0 - H.sum(1)
-            w[sel, 1:len(us)] = H
+            w[sel, 1:1 + len(img)] = H
+            if pnt:
+                a, off = self.painted[o]
+                corners = self.geo.F[face[sel]] - off
+                la = np.einsum("kc,lkc->lk", bary[sel], a[:, corners])          # (L, n_sel)
+                own = w[sel, 0].copy()
+                w[sel, 0] = own * la[0]
+                for j in range(len(pnt)):
+                    w[sel, 1 + len(img) + j] = own * la[1 + j]
         return units, w
 
     def _sample(self, r, spec, o, pos):
@@ -252,10 +282,11 @@ class Regions:
         fx, fy = x - x0, y - y0
         return ((img[y0, x0] * (1 - fx) + img[y0, x1] * fx) * (1 - fy) + (img[y1, x0] * (1 - fx) + img[y1, x1] * fx) * fy)
 
-    def sample_unit(self, obj: np.ndarray, pos: np.ndarray, u: np.ndarray) -> np.ndarray:
+    def sample_unit(self, obj: np.ndarray, pos: np.ndarray, u: np.ndarray, face: np.ndarray | None = None,
+                    bary: np.ndarray | None = None) -> np.ndarray:
         """One unit per point, chosen with probability H(x) (unbiased for the sum over layers);
         −1 on fixed objects."""
-        units, w = self.weights(obj, pos)
+        units, w = self.weights(obj, pos, face, bary)
         c = np.cumsum(w, 1)
         k = (u[:, None] * c[:, -1:] >= c).sum(1)
         k = np.minimum(k, units.shape[1] - 1)
@@ -315,7 +346,7 @@ def make_setup(scene, opts: GIOptions, layout: UnitLayout, images: list[np.ndarr
                kernels=None) -> Setup:
     geo = geo or Geometry(scene)
     prim = primary_hits(geo, scene, kernels)
-    reg = Regions(layout, opts.regions, geo, images)
+    reg = Regions(layout, opts.regions, geo, images, scene, opts.painted)
     U = len(layout.units)
     J, J2 = opts.J, opts.J2
     n_obj = len(scene.spec.objects)
@@ -604,7 +635,9 @@ def trace_tile(S: Setup, tile: int, kernels=None, threads: int = 2) -> tuple[lis
         beta, p1b, p1w, p2c, p2b, p2w, z, zc = (a[keep] for a in nxt)
         wo = -db[keep]
         pos, ng, ns, obj, wo, ok = S.geo.surface(prim[keep], uv[keep], wo)
-        unit = S.regions.sample_unit(obj, pos, u[keep, 7])
+        uvk = uv[keep].astype(np.float64)
+        unit = S.regions.sample_unit(obj, pos, u[keep, 7], prim[keep],
+                                     np.stack([1.0 - uvk[:, 0] - uvk[:, 1], uvk[:, 0], uvk[:, 1]], 1))
         nst = PathState(st.path[keep], st.pix[keep], pos, ng, ns, wo, obj, unit, beta, p1b, p1w, p2c, p2b, p2w, z, zc)
         st = nst.take(np.nonzero(ok)[0])
     inv = np.float32(1.0 / spp)                        # eq. 21: the mean over the pixel's paths
