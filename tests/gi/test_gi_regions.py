@@ -50,7 +50,7 @@ def _with_region(r, obj: int, material, weight=None, frac=1.0):
 
 def test_a_region_of_the_base_material_changes_nothing(sofa):
     mats = list(sofa.scene.materials)
-    before, ids = _draw(sofa, mats)
+    before, _ = _draw(sofa, mats)
     mats[0] = _with_region(sofa, 0, mats[0], weight=0.6, frac=0.5)
     after, _ = _draw(sofa, mats)
     assert np.abs(after - before).max() <= TOL * before.max()
@@ -141,7 +141,6 @@ def test_strokes_paint_a_region_under_gi(sofa, kind):
     assert np.abs(again - before).max() <= TOL * before.max()
 
 
-WHITE = None     # the sofa's own material (set from the scene)
 RED = {"model": "lambert", "albedo": [0.9, 0.04, 0.04]}
 
 

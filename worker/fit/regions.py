@@ -238,7 +238,10 @@ def fit_region_gi(fx: Fitter, name: str = "region 1", unpainted_weight: float = 
     (renderers/gi/renderer.py ``_n_units``) whose weight is the region's, interpolated over the
     hit face; with every other unit frozen (polynomial-gi eq. 27) a pixel's radiance is linear
     in the region's first-vertex coefficients, so one least-squares solve (eq. 17-19 on the
-    expansion of eq. 28, exact here) fits it. One part; the rest keeps its material."""
+    expansion of eq. 28, exact here) fits it. A region traced into the tensors (GI options
+    ``painted``, its weights unchanged by the strokes) is that unit, tails included: the
+    radiance is then polynomial in it, and Gauss-Newton steps re-expand it at each solution as
+    the one-BRDF fit does. One part; the rest keeps its material."""
     if not fx.views:
         raise FitError("no view saved: add_view() first")
     strokes = fx.history.strokes

@@ -9,14 +9,16 @@ import contextlib
 import hashlib
 import threading
 import time
-from types import SimpleNamespace
 from dataclasses import dataclass
+from types import SimpleNamespace
 from typing import Any, Mapping
 
 import numpy as np
 
 from ...errors import GlintError
+from ...models.regions import has_regions
 from ..base import FrameRequest, Part, Precomputation, Progress, Rendered, Renderer, Unsupported
+from ..layers import LayersCache
 from . import denoise as dn
 from . import DECLARATION
 from . import freeze as fzm
@@ -24,8 +26,6 @@ from . import strokes as stm
 from . import tensors
 from .basis import QUOTIENTS, THETA_NODES, Projection, fixed_projection, project, theta_interp
 from .options import GIOptions, UnitLayout, parse_options, tensor_key, unit_layout
-from ...models.regions import has_regions
-from ..layers import LayersCache
 from .trace import Geometry, Primary, make_setup, primary_hits, second_codes, trace_tile
 
 KIND = DECLARATION.kind
@@ -285,7 +285,8 @@ class GIRenderer(Renderer):
     # per pixel at run time as the precomputed regions' are). The first vertex's transport does
     # not depend on which unit is there, so the region's look is exact; light it reflects on to
     # other surfaces is its object's own material's (the tensors' tails know the units they were
-    # traced with).
+    # traced with). A design whose regions were traced into the tensors (options ``painted``)
+    # draws them as those units instead, tails included (``_matches_traced``).
 
     def _n_units(self) -> int:
         return self.U + 1 + len(self.pseudo)
@@ -453,9 +454,9 @@ class GIRenderer(Renderer):
                    for a, b in zip(material.regions, traced.regions))
 
     def _set_painted(self, materials) -> None:
-        """The painted regions of the objects' materials as pseudo-units (see ``_n_units``):
-        their materials, and the camera hits' unit weights when the regions' weights changed
-        (the frozen tensors then freeze again)."""
+        """The painted regions of the objects' materials as units (pseudo-units, or the traced
+        ones, see ``_n_units``): their materials, and the camera hits' unit weights when the
+        regions' weights changed (the frozen tensors then freeze again)."""
         lay = self._layers.get(materials)
         pseudo = []
         self._region_units = {}
@@ -600,8 +601,8 @@ class GIRenderer(Renderer):
 
     @contextlib.contextmanager
     def painting(self, object_index: int, region: str, materials):
-        """Strokes on the object fit its painted region ``region`` (a pseudo-unit, see
-        ``_n_units``) while inside, with ``materials`` (scene order) applied; holds the
+        """Strokes on the object fit its painted region ``region`` (its unit: a pseudo-unit, or
+        the traced one, see ``_n_units``) while inside, with ``materials`` (scene order) applied; holds the
         renderer's lock (frames of other sessions on it wait)."""
         with self._lock:
             self._apply(list(materials))
@@ -615,7 +616,7 @@ class GIRenderer(Renderer):
 
     def _stroke_unit(self, object_index: int, strokes: bool = True) -> int:
         """The unit a stroke (or, ``strokes`` False, any edit) on an object changes: its own
-        material's, or, while ``painting`` a region of it, the region's pseudo-unit."""
+        material's, or, while ``painting`` a region of it, the region's."""
         objs = self.scene.spec.objects
         if not 0 <= object_index < len(objs):
             raise GlintError(f"no object {object_index}", status=404)
@@ -676,7 +677,8 @@ class GIRenderer(Renderer):
         with self._lock:
             fz = self.frozen
             mats = self._all_mats()
-            stale = fz is None or fz.unit != u or len(mats) != len(self._frozen_mats or []) or self._frozen_bounces != self.max_bounces or \
+            stale = fz is None or fz.unit != u or len(mats) != len(self._frozen_mats or []) or \
+                self._frozen_bounces != self.max_bounces or \
                 any(v != u and v != self.U and not _same(mats[v], self._frozen_mats[v]) for v in range(len(mats)))
             if stale:
                 self._freeze(u)
