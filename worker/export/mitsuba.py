@@ -60,14 +60,21 @@ def _add(parent: ET.Element, name: str | None, value) -> None:
 
 
 def scene_xml(scene: LoadedScene, meshes: list[ObjectMesh], bsdfs: list[dict], spp: int, mesh_files: list[str],
-              env_file: str, two_sided: bool = False) -> str:
-    """The scene.xml text."""
+              env_file: str, two_sided: bool | None = None) -> str:
+    """The scene.xml text. two_sided (default: for GI scenes) wraps every BSDF in ``twosided``:
+    the GI renderer shades both sides of a surface (a floor or wall quad lights the room from
+    either side), as its references do (mitsuba_ref.py)."""
     spec = scene.spec
     cam, env = spec.camera, spec.environment
+    gi = spec.renderer == "gi"
+    if two_sided is None:
+        two_sided = gi
     root = ET.Element("scene", version=SCENE_VERSION)
-    integ = ET.SubElement(root, "integrator", type="path" if spec.renderer == "gi" else INTEGRATOR)
-    if spec.renderer == "gi":
-        bounces = int((spec.gi or {}).get("bounces", 1))
+    integ = ET.SubElement(root, "integrator", type="path" if gi else INTEGRATOR)
+    if gi:
+        # the bounces the GI renderer draws: its options' (the series' length by default)
+        from ..renderers.gi.options import parse_options
+        bounces = parse_options(scene).bounces
         ET.SubElement(integ, "integer", name="max_depth", value=str(bounces + 1))
     s = ET.SubElement(root, "sensor", type="perspective")
     ET.SubElement(s, "float", name="fov", value=f"{cam.fov_y_deg:.9g}")

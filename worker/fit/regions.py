@@ -94,7 +94,10 @@ def footprint_weights(fx: Fitter, strokes: list[Stroke]) -> np.ndarray:
             raise FitError(f"stroke refers to view {s.view} but {len(fx.views)} view(s) are saved")
         if s.view not in seen:
             cam = fx.views[s.view].camera
-            vs = fx.renderer.vertex_samples(cam, fx.obj)
+            # the vertices the view sees: the cut renderer's vertex samples, the GI renderer's
+            # camera hits' corners
+            seen_by = getattr(fx.renderer, "visible_vertices", None) or fx.renderer.vertex_samples
+            vs = seen_by(cam, fx.obj)
             xy, front = project(cam, vs.positions)
             seen[s.view] = (vs.pix[front].astype(np.int64) - off, xy[front])
         ids, xy = seen[s.view]

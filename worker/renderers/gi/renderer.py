@@ -647,9 +647,11 @@ class GIRenderer(Renderer):
                               "cannot rotate")
         return lighting.intensity / env.intensity if env.intensity > 0 else 0.0
 
-    def vertex_samples(self, camera, object_index: int):
+    def visible_vertices(self, camera, object_index: int):
         """The object's vertices the precomputed view sees (corners of the faces its camera
-        rays hit): pix (K,) int64 global vertex ids (sorted), positions (K, 3) float64 world."""
+        rays hit): pix (K,) int64 global vertex ids (sorted), positions (K, 3) float64 world (a
+        painted region's footprint, fit/regions.py; not the cut renderer's vertex samples, which
+        shade)."""
         self._fixed_view(camera)
         vids = np.unique(self.geo.F[self.prim.face[self.prim.obj == object_index]])
         return SimpleNamespace(pix=vids.astype(np.int64), positions=self.geo.V[vids])
