@@ -270,6 +270,8 @@ def test_traced_regions_light_the_room_as_mitsuba_does(sofa, traced, tmp_path):
     export(scene, "mitsuba", out, mitsuba_spp=256)
     xml = (out / "scene.xml").read_text()
     assert "blendbsdf" in xml and "mesh_attribute" in xml
+    # the GI renderer's depth (four bounces: the series' length) and two-sided surfaces
+    assert 'name="max_depth" value="5"' in xml and 'type="twosided"' in xml
     key = hashlib.sha256(xml.encode() + b"".join(p.read_bytes() for p in sorted(out.glob("*.ply")))).hexdigest()[:32]
     path = CACHE / "gi-mitsuba" / f"regions-{key}.npy"
     with cache_lock(str(path)):
