@@ -120,6 +120,7 @@ def test_strokes_paint_a_region_under_gi(sofa, kind):
     st = fit["stats"]
     assert fit["material"]["model"] == "regions" and st["regions"] == ["seat"], fit
     assert st["achieved"] >= 0.8 and st["spill_far"] <= 0.1, st
+    assert any("traced into the tensors" in n for n in fit["notes"]), fit["notes"]
     m = rt.state.materials[0]
     assert isinstance(m, Regions) and m.regions[0].name == "seat"
     after, _ = _frame(rt)
@@ -242,6 +243,7 @@ def test_strokes_paint_a_traced_region(traced):
     assert rt.handle({"seq": 2, "type": "stroke", "stroke": stroke})[0]["rejected"] is False
     fit = rt.fit_if_needed()[0]
     assert r._region_units[(0, "left")] < r.U, "the region's weights changed"
+    assert not any("traced into the tensors" in n for n in fit.get("notes", [])), fit["notes"]
     assert fit["stats"]["achieved"] >= 0.3 and fit["stats"]["spill_far"] <= 0.3, fit["stats"]
     after, _ = _frame(rt)
     band = full.copy()

@@ -327,6 +327,10 @@ def fit_region_gi(fx: Fitter, name: str = "region 1", unpainted_weight: float = 
                         int(sum(len(x.weight) for x in rows)), [], time.perf_counter() - t0, achieved, spill, spill_far,
                         bool(olds), views)
     out.notes = region_notes(achieved, res, 0, n_painted)
+    if not r.region_traced(fx.obj, name):
+        out.notes.append("under global illumination this region is drawn where the camera sees it; the light it "
+                         "reflects on to other surfaces is the object's own material's until the design's regions "
+                         "are traced into the tensors (glint gi precompute --trace-regions)")
     return out
 
 

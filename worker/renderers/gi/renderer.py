@@ -614,6 +614,12 @@ class GIRenderer(Renderer):
             finally:
                 self._painting.pop(object_index, None)
 
+    def region_traced(self, object_index: int, region: str) -> bool:
+        """Whether the object's painted region ``region`` is drawn as a unit traced into the
+        tensors (its light on to other surfaces its own), with the materials last applied."""
+        u = self._region_units.get((object_index, region))
+        return u is not None and u < self.U
+
     def _stroke_unit(self, object_index: int, strokes: bool = True) -> int:
         """The unit a stroke (or, ``strokes`` False, any edit) on an object changes: its own
         material's, or, while ``painting`` a region of it, the region's."""
