@@ -433,6 +433,62 @@ def test_strokes_paint_a_region_in_a_session(bunny_renderer):
     rt.handle({"seq": 9, "type": "material", "material": rt.state.base_material.model_dump(mode="json")})
     ev = rt.handle({"seq": 10, "type": "region", "action": "erase", "name": "left ear"})
     assert ev[0]["material"] == base.model_dump(mode="json") and rt.state.region is None
+def test_region_steps_merge_take_a_material_and_are_undone(bunny_renderer):
+    """A region can take a material (from the library: any material) and be merged into
+    another; undo, once the strokes since are undone, takes these steps back one by one and
+    redo brings them again, each a new epoch as the region message was; the server's state
+    follows the worker's from the events alone."""
+    from worker.models import Regions
+    from worker.protocol.events import apply_event, worker_event
+
+    rt = _runtime(bunny_renderer)
+    mirror = rt.state.model_copy(deep=True)            # the server's copy, events applied
+
+    def send(seq, msg):
+        nonlocal mirror
+        raw = {"seq": seq, **msg}
+        mirror = apply(mirror, client_msg.validate_python(raw))[0]
+        evs = rt.handle(raw) + rt.fit_if_needed()
+        for ev in evs:
+            if ev.get("type") == "fit":
+                mirror = apply_event(mirror, worker_event(ev))[0]
+        return evs
+
+    send(1, {"type": "region", "action": "paint", "name": "ear"})
+    send(2, {"type": "stroke", "stroke": {**STROKE, "mode": "scale", "scale": 0.3}})
+    send(3, {"type": "region", "action": "paint", "name": "belly"})
+    send(4, {"type": "stroke", "stroke": {**STROKE, "points": [[60, 80], [90, 82]], "mode": "scale", "scale": 2.0}})
+    two = rt.state.materials[0]
+    assert isinstance(two, Regions) and [r.name for r in two.regions] == ["ear", "belly"]
+    red = {"model": "ggx", "alpha": 0.3, "specular": [0.2, 0.2, 0.2], "albedo": [0.6, 0.05, 0.05]}
+    ev = send(5, {"type": "region", "action": "material", "name": "ear", "material": red})
+    assert ev[0]["material"]["regions"][0]["material"]["model"] == "ggx"
+    ev = send(6, {"type": "region", "action": "merge", "name": "ear", "new_name": "belly"})
+    merged = rt.state.materials[0]
+    assert [r.name for r in merged.regions] == ["belly"] and ev[0]["stats"]["regions"] == ["belly"]
+    assert len(merged.regions[0].vertices) >= max(len(r.vertices) for r in two.regions)
+    with pytest.raises(Exception, match="no region 'nose'"):
+        rt.handle({"seq": 7, "type": "region", "action": "merge", "name": "belly", "new_name": "nose"})
+    # undo: the merge, then the material; redo: the material again
+    ev = send(8, {"type": "undo"})
+    assert ev[0]["rebase"] and [r.name for r in rt.state.materials[0].regions] == ["ear", "belly"]
+    assert rt.state.materials[0].regions[0].material.model == "ggx"
+    ev = send(9, {"type": "undo"})
+    assert rt.state.materials[0] == two
+    ev = send(10, {"type": "redo"})
+    assert rt.state.materials[0].regions[0].material.model == "ggx"
+    for k in ("materials", "base_material", "region", "epoch"):
+        assert getattr(mirror, k) == getattr(rt.state, k), k
+    # a stroke after an undo: the steps undone are gone
+    send(11, {"type": "undo"})
+    send(12, {"type": "region", "action": "paint", "name": "belly"})
+    send(13, {"type": "stroke", "stroke": {**STROKE, "points": [[60, 80], [90, 82]], "mode": "scale", "scale": 1.5}})
+    send(14, {"type": "undo"})
+    ev = send(15, {"type": "redo"})
+    assert rt.state.materials[0].regions[-1].name == "belly"
+    assert rt.handle({"seq": 16, "type": "redo"})[0]["type"] == "note"         # nothing more to redo
+
+
 def test_a_view_that_keeps_changing_builds_nothing_for_strokes(bunny_renderer):
     """What a stroke in the current view needs (its fit view) is built once the view has stayed
     VIEW_SETTLE_S: an orbit without the drag flag (a new camera every frame) starts no build,

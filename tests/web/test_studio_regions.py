@@ -1,6 +1,7 @@
 """Painted regions in the studio (headless Chromium, the shared server): with "Paint a region"
 on, a stroke changes what it covers and the rest of the bunny stays as it was; the region is
-listed, renamed and erased. Screenshot: test-artifacts/web-regions.png."""
+listed, given a material from the list (and the step undone), renamed and erased. Screenshot:
+test-artifacts/web-regions.png."""
 import json
 
 import numpy as np
@@ -64,6 +65,22 @@ def test_a_stroke_paints_a_region_and_the_rest_stays(server, bunny_scene, browse
     # the top and bottom of the frame (far from the stroke) are unchanged
     far = np.r_[0:int(0.3 * 48), int(0.8 * 48):48]
     assert np.abs(g1 - g0)[far].max() <= 2, np.abs(g1 - g0)[far].max()
+    # a material from the list (Lambert's defaults) for the region: what it covers changes,
+    # nothing far from it; undo takes the step back
+    n = frame_no(page)
+    page.select_option("#region-list li[data-region='belly'] .region-material", "model:lambert")
+    wait_new_frame(page, n)
+    _still(page, n)
+    g2 = canvas_grid(page)
+    page.locator("#region-list").scroll_into_view_if_needed()
+    page.locator("#region-list").screenshot(path=str(artifacts / "web-regions-list.png"))
+    assert np.abs(g2 - g1)[rows, cols].mean() > 5, "the region's material did not change it"
+    assert np.abs(g2 - g1)[far].max() <= 2
+    n = frame_no(page)
+    page.click("#undo")
+    wait_new_frame(page, n)
+    _still(page, n)
+    assert np.abs(canvas_grid(page) - g1)[rows, cols].mean() < 1.5, "undo did not take the material back"
     # renamed to the name in the field, then erased: the bunny is as it was
     page.fill("#region-name", "front")
     n = frame_no(page)

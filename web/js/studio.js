@@ -424,9 +424,43 @@ function showRegions(material, painting) {
     erase.textContent = "Erase";
     erase.className = "region-erase";
     erase.onclick = () => { stream?.send("region", { action: "erase", name: n }); designs.edited(); };
-    li.append(pick, " ", rename, erase);
+    const merge = document.createElement("button");
+    merge.textContent = "Merge";
+    merge.className = "region-merge";
+    merge.title = "merge this region into the region named above (its material, both footprints)";
+    merge.onclick = () => { stream?.send("region", { action: "merge", name: n, new_name: regionName() }); designs.edited(); };
+    const pickMaterial = document.createElement("select");
+    pickMaterial.className = "region-material";
+    pickMaterial.title = "give this region a material: a model's defaults, or a saved design from the library";
+    pickMaterial.append(new Option("material…", ""));
+    fillRegionMaterials(pickMaterial);
+    pickMaterial.onchange = () => {
+      const m = regionMaterials.get(pickMaterial.value);
+      pickMaterial.value = "";
+      if (!m) return;
+      stream?.send("region", { action: "material", name: n, material: m });
+      designs.edited();
+    };
+    li.append(pick, " ", rename, erase, merge, pickMaterial);
     return li;
   }));
+}
+// the materials a region can take (undo takes the step back): every creatable model's defaults
+// and the saved designs of the library (GET /v1/materials; a design with regions gives its base)
+const regionMaterials = new Map();
+async function fillRegionMaterials(sel) {
+  for (const m of Object.values(MODELS)) {
+    if (!m.default) continue;
+    regionMaterials.set(`model:${m.model}`, m.default);
+    sel.append(new Option(`${m.label} (defaults)`, `model:${m.model}`));
+  }
+  let lib = [];
+  try { lib = await api("/v1/materials"); } catch { return; }
+  for (const d of lib) {
+    if (!d.material) continue;
+    regionMaterials.set(`design:${d.id}`, d.material.model === "regions" ? d.material.base : d.material);
+    sel.append(new Option(`${d.name} (design, v${d.version})`, `design:${d.id}`));
+  }
 }
 const sendFit = () => stream?.send("fit", { constrained: $("constrained").checked, unpainted_weight: +$("unpainted-weight").value });
 $("constrained").onchange = sendFit;

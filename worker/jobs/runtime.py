@@ -69,6 +69,8 @@ class SessionRuntime(FitDriver):
         self._drag = False
         self.wake = lambda: None  # called from the builder when a result is ready (SessionThread)
         self._env_key = None
+        self._region_undo: list[tuple] = []    # region steps (_region_step), not stored: a
+        self._region_redo: list[tuple] = []    # reopened session starts without them
         self.lod = LevelOfDetail()
         self._init_fit()
         if renderer.can("place"):
@@ -424,15 +426,47 @@ def _new_material(rt: SessionRuntime, msg, eff: NewMaterial) -> list[dict]:
     return [{"type": "curve", "seq": msg.seq, "object": eff.object, "curve": brdf_curve(msg.material)}]
 
 
-@handles(RegionsChanged)
-def _regions_changed(rt: SessionRuntime, msg, eff: RegionsChanged) -> list[dict]:
+# region steps (rename, erase, merge, material) kept for undo and redo per session: the
+# materials before and after (a design's steps, not its strokes, which the stored rows keep)
+MAX_REGION_STEPS = 16
+
+
+def _rebase(rt: SessionRuntime) -> None:
     rt.fitter = None             # the strokes so far are part of the material now
     rt._needs_fit = False
     rt._fitted = None
     rt._drop_fit_work()
+
+
+@handles(RegionsChanged)
+def _regions_changed(rt: SessionRuntime, msg, eff: RegionsChanged) -> list[dict]:
+    _rebase(rt)
     m = rt.state.materials[rt.state.object_index]
+    if eff.before is not None:
+        rt._region_undo = (rt._region_undo + [(eff.object, eff.before, m, eff.region_before, rt.state.region)])[
+            -MAX_REGION_STEPS:]
+        rt._region_redo = []
     return [FitEvent(object=eff.object, material=_dump(m), curve=brdf_curve(m),
                      stats={"strokes": 0, "regions": region_names(m), "painting": rt.state.region}).model_dump()]
+
+
+def _region_step(rt: SessionRuntime, what: str) -> list[dict] | None:
+    """Undo (or redo) the edited object's last region step, when its strokes since are all
+    undone: the material before (after) it, painted over by the next strokes in a new epoch, as
+    the region message did. None when there is none."""
+    src, dst = (rt._region_undo, rt._region_redo) if what == "undo" else (rt._region_redo, rt._region_undo)
+    if not src or src[-1][0] != rt.state.object:
+        return None
+    step = src.pop()
+    dst.append(step)
+    obj, before, after, region_before, region_after = step
+    m, region = (before, region_before) if what == "undo" else (after, region_after)
+    st = rt.state
+    rt._set_material(st.object_index, m)
+    st.base_material, st.region, st.epoch = m, region, st.fresh_epoch()
+    _rebase(rt)
+    return [FitEvent(object=obj, material=_dump(m), curve=brdf_curve(m), rebase=True, painting=region,
+                     stats={"strokes": 0, "regions": region_names(m), "painting": region}).model_dump()]
 
 
 @handles(RecordStroke)
@@ -440,6 +474,7 @@ def _stroke(rt: SessionRuntime, msg, eff: RecordStroke) -> list[dict]:
     se = rt._add_stroke({**eff.stroke, "seq": msg.seq}, live=True)
     if not se.rejected:
         rt._needs_fit = True
+        rt._region_redo = []             # a new edit: the steps undone are gone
     return [se.model_dump()]
 
 
@@ -448,6 +483,9 @@ def _undo_redo(rt: SessionRuntime, msg, what: str) -> list[dict]:
     if fx is not None and (fx.undo() if what == "undo" else fx.redo()) is not None:
         rt._needs_fit = True
         return []
+    step = _region_step(rt, what)
+    if step is not None:
+        return step
     return [NoteEvent(seq=msg.seq, message=f"nothing to {what}").model_dump()]
 
 

@@ -266,3 +266,33 @@ def without_region(material: Regions, name: str):
     if not rest:
         return material.base
     return Regions(base=material.base, vertex_count=material.vertex_count, regions=rest)
+
+
+def merge_regions(material: Regions, name: str, into: str) -> Regions:
+    """The material with region ``name`` merged into region ``into``: one region named ``into``,
+    at the place of ``into``'s first part, with its first part's material and the union of the two
+    footprints (w = 1 − Π(1 − w_i) over every part of both: painted by either, as much as the
+    layers blended them)."""
+    n = material.vertex_count
+    grp = [r for r in material.regions if in_group(r.name, name) or in_group(r.name, into)]
+    keep = np.ones(n)
+    for r in grp:
+        keep *= 1.0 - r.dense(n)
+    w = 1.0 - keep
+    ids = np.nonzero(w > 0)[0]
+    first = next(r for r in material.regions if in_group(r.name, into))
+    merged = Region(name=into, material=first.material, vertices=ids.tolist(),
+                    weights=np.round(w[ids], 6).tolist())
+    out = []
+    for r in material.regions:
+        if r is first:
+            out.append(merged)
+        elif not (in_group(r.name, name) or in_group(r.name, into)):
+            out.append(r)
+    return Regions(base=material.base, vertex_count=n, regions=out)
+
+
+def with_region_material(material: Regions, name: str, layer) -> Regions:
+    """The material with region ``name`` (every part of it) given the material ``layer``."""
+    regions = [r.model_copy(update={"material": layer}) if in_group(r.name, name) else r for r in material.regions]
+    return Regions(base=material.base, vertex_count=material.vertex_count, regions=regions)

@@ -10,7 +10,7 @@ on it (tests/server/test_protocol.py checks every member of ``Effect`` has a wor
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Union
+from typing import Any, Union
 
 from .state import PendingSave
 
@@ -60,8 +60,12 @@ class NewMaterial:
 @dataclass(frozen=True, slots=True)
 class RegionsChanged:
     """The edited object's painted regions changed (``RegionMsg``): its material is the state's,
-    and strokes of earlier epochs no longer apply (they are part of it)."""
+    and strokes of earlier epochs no longer apply (they are part of it). ``before``: the
+    object's material before, when the message changed it (rename, erase, merge, material: an
+    undoable step), else None; ``region_before``: the region painted before."""
     object: str
+    before: Any = None
+    region_before: str | None = None
 
 
 @dataclass(frozen=True, slots=True)

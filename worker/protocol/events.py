@@ -98,12 +98,21 @@ class FitEvent(_WorkerEvent):
     curve: dict | None = None
     stats: FitStats
     notes: list[str] = Field(default_factory=list)
+    # an undone or redone region step (rename, erase, merge, material: not a fit of strokes):
+    # the material is what the edited object's next strokes paint over, in a new epoch, with
+    # region ``painting`` painted (None: one BRDF), as the region message itself set
+    rebase: bool = False
+    painting: str | None = None
 
     def apply(self, st):
         if self.object in st.objects:
             mats = list(st.materials)
             mats[st.objects.index(self.object)] = parse_material(self.material)
             st.materials = mats
+            if self.rebase and self.object == st.object:
+                st.base_material = st.materials[st.objects.index(self.object)]
+                st.region = self.painting
+                st.epoch = st.fresh_epoch()
         return None
 
 

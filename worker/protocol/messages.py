@@ -182,14 +182,20 @@ class RegionMsg(ClientMsg):
     change); undo and redo then cover the region's strokes, and a save stores the material with
     its regions as a design version. ``stop``: strokes fit one BRDF for the object again.
     ``rename``: region ``name`` (with its parts ``name/1`` …) becomes ``new_name``. ``erase``:
-    region ``name`` is removed (the object shows what was under it)."""
+    region ``name`` is removed (the object shows what was under it). ``merge``: region ``name``
+    is merged into region ``new_name`` (one region with ``new_name``'s material over both
+    footprints). ``material``: region ``name`` takes ``material`` (e.g. a design from the
+    library). Rename, erase, merge and material are steps undo and redo cover, once the strokes
+    painted after them are undone."""
     type: Literal["region"] = "region"
-    action: Literal["paint", "stop", "rename", "erase"]
+    action: Literal["paint", "stop", "rename", "erase", "merge", "material"]
     name: str | None = Field(None, min_length=1, max_length=100, pattern=r"^[^/]+$")
     new_name: str | None = Field(None, min_length=1, max_length=100, pattern=r"^[^/]+$")
+    material: Material | None = None
 
     def apply(self, st):
-        from ..models.regions import has_regions, in_group as _in_group, rename_region, without_region
+        from ..models.regions import (has_regions, in_group as _in_group, merge_regions, rename_region,
+                                      with_region_material, without_region)
 
         if self.action != "stop" and self.name is None:
             raise StateError(f"region: {self.action} needs the region's name")
@@ -197,29 +203,45 @@ class RegionMsg(ClientMsg):
             from ..renderers import why_not
             raise StateError(f"region: {why_not(st.renderer, 'strokes')}")
         i = st.object_index
-        cur = st.materials[i]
-        if self.action in ("rename", "erase"):
+        cur = before = st.materials[i]
+        region_before = st.region
+        if self.action in ("rename", "erase", "merge", "material"):
+            st.refuse_fixed("region", st.object)
             if not has_regions(cur) or not any(_in_group(r.name, self.name) for r in cur.regions):
                 raise StateError(f"region: object {st.object!r} has no region {self.name!r}")
-            if self.action == "rename":
+            if self.action in ("rename", "merge"):
                 if self.new_name is None:
-                    raise StateError("region: rename needs new_name")
-                if any(_in_group(r.name, self.new_name) for r in cur.regions):
+                    raise StateError(f"region: {self.action} needs new_name")
+                there = any(_in_group(r.name, self.new_name) for r in cur.regions)
+                if self.action == "rename" and there:
                     raise StateError(f"region: object {st.object!r} has a region {self.new_name!r} already")
+                if self.action == "merge" and (not there or self.new_name == self.name):
+                    raise StateError(f"region: merge needs another region of object {st.object!r} to merge "
+                                     f"{self.name!r} into (no region {self.new_name!r})")
+            if self.action == "rename":
                 cur = rename_region(cur, self.name, self.new_name)
+            elif self.action == "merge":
+                cur = merge_regions(cur, self.name, self.new_name)
+            elif self.action == "material":
+                if self.material is None:
+                    raise StateError("region: material needs the material")
+                if has_regions(self.material):
+                    raise StateError("region: a region's material cannot itself have regions (give its base)")
+                cur = with_region_material(cur, self.name, self.material)
             else:
                 cur = without_region(cur, self.name)
             mats = list(st.materials)
             mats[i] = cur
             st.materials = mats
             if st.region == self.name:
-                st.region = self.new_name if self.action == "rename" else None
+                st.region = self.new_name if self.action in ("rename", "merge") else \
+                    (None if self.action == "erase" else st.region)
         else:
             st.region = self.name if self.action == "paint" else None
         # what the strokes so far made is now what the next ones paint over
         st.base_material = cur
         st.epoch = st.fresh_epoch()
-        return RegionsChanged(st.object)
+        return RegionsChanged(st.object, before if cur is not before else None, region_before)
 
 
 @message
