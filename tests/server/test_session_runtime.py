@@ -487,6 +487,11 @@ def test_region_steps_merge_take_a_material_and_are_undone(bunny_renderer):
     ev = send(15, {"type": "redo"})
     assert rt.state.materials[0].regions[-1].name == "belly"
     assert rt.handle({"seq": 16, "type": "redo"})[0]["type"] == "note"         # nothing more to redo
+    # a material given otherwise (the Material panel) is not undone by a region step's undo
+    send(17, {"type": "region", "action": "erase", "name": "ear"})
+    send(18, {"type": "material", "material": {"model": "lambert", "albedo": [0.2, 0.4, 0.6]}})
+    assert rt.handle({"seq": 19, "type": "undo"})[0]["type"] == "note"
+    assert rt.state.materials[0].model == "lambert"
 
 
 def test_a_view_that_keeps_changing_builds_nothing_for_strokes(bunny_renderer):

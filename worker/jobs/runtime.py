@@ -423,12 +423,20 @@ def _new_material(rt: SessionRuntime, msg, eff: NewMaterial) -> list[dict]:
         rt.fitter = None             # strokes painted over the old material do not carry over
         rt._needs_fit = False
         rt._drop_fit_work()
+    _forget_region_steps(rt, eff.object)
     return [{"type": "curve", "seq": msg.seq, "object": eff.object, "curve": brdf_curve(msg.material)}]
 
 
 # region steps (rename, erase, merge, material) kept for undo and redo per session: the
 # materials before and after (a design's steps, not its strokes, which the stored rows keep)
 MAX_REGION_STEPS = 16
+
+
+def _forget_region_steps(rt: SessionRuntime, obj: str) -> None:
+    """The object's material changed otherwise (a material message, a conversion, the paint
+    designer): undoing a region step would put back a material from before that change."""
+    rt._region_undo = [x for x in rt._region_undo if x[0] != obj]
+    rt._region_redo = [x for x in rt._region_redo if x[0] != obj]
 
 
 def _rebase(rt: SessionRuntime) -> None:
@@ -544,6 +552,7 @@ def _relight(rt: SessionRuntime, msg, eff) -> list[dict]:
 
 @handles(FitPaint)
 def _fit_paint(rt: SessionRuntime, msg, eff: FitPaint) -> list[dict]:
+    _forget_region_steps(rt, eff.object)
     return rt._paint(eff.object, msg.seq)
 
 
@@ -581,6 +590,7 @@ def _convert(rt: SessionRuntime, msg, eff: Convert) -> list[dict]:
 
     c = convert(rt.state.material_of(eff.object), eff.model, measure=rt._measure(eff.object))
     rt._set_material(rt.state.objects.index(eff.object), c.material)
+    _forget_region_steps(rt, eff.object)
     if eff.object == rt.state.object:
         rt.state.base_material = c.material     # a new base: strokes of earlier epochs do not carry over
         rt.fitter = None
