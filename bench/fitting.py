@@ -383,9 +383,9 @@ def cmd_bench_regions(a) -> int:
                             "cost_vs_base": cpu["regions"] / cpu["base"], "cost_vs_one_brdf": cpu["regions"] / cpu["one_brdf"],
                             "blend_cost": cpu["regions_base_material"] / cpu["base"],
                             "wall_cost_vs_base": ms["regions"] / ms["base"]})
-                if gi:
-                    res[-1]["session"] = {"region": session_stroke(rnd, name, st, region=label),
-                                          "one_brdf": session_stroke(rnd, name, st)}
+                # stroke → frame in one session, the region's and the one BRDF's (the studio's paths)
+                res[-1]["session"] = {"region": session_stroke(rnd, name, st, region=label),
+                                      "one_brdf": session_stroke(rnd, name, st)}
                 if not a.json:
                     r = res[-1]
                     print(f"{r['scene']} {r['env']} {label}: region achieved {100 * got['achieved']:.0f}%, spill beyond D "
