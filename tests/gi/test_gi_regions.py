@@ -298,3 +298,31 @@ def test_traced_regions_light_the_room_as_mitsuba_does(sofa, traced, tmp_path):
     print(f"green on the other objects against Mitsuba: traced {g_traced:.4f}, camera hits only {g_first:.4f} "
           f"(Mitsuba's two halves differ by {noise:.4f})")
     assert abs(g_traced - 1.0) < 0.02 and g_first - 1.0 > abs(g_traced - 1.0) + 0.01, (g_traced, g_first, noise)
+
+
+def test_a_first_vertex_region_linearises_as_the_general_expansion(sofa):
+    """A region drawn at the camera hits is linear in its coefficients: the short expansion
+    (no terms of its d) equals the general one, and the radiance it predicts is exact."""
+    from worker.fit.basis import default_basis
+    from worker.renderers.gi import strokes as stm
+
+    mats = list(sofa.scene.materials)
+    mats[0] = _with_region(sofa, 0, GGX(alpha=0.3, albedo=(0.6, 0.1, 0.1), specular=(0.2, 0.2, 0.2)), frac=0.5)
+    sofa.apply_materials(mats)
+    u = sofa._region_units[(0, "r")]
+    assert u > sofa.U
+    samples = sofa.surface_samples(None, 0)
+    smp = sofa._sampled_at(u, samples)
+    assert smp.linear
+    basis = default_basis()
+    m = sofa._mat(u)
+    p = sofa.projection(u, m)
+    sm = stm.srbf_map(basis, sofa.J, sofa.layers, sofa.J2, sofa._unit_q(u), p.ok)
+    ext = stm.extend_map(sm.first, [])
+    co = sofa._coefficients(u, m)
+    fast = smp.linearise(co, sm, ext)
+    smp.linear = False
+    slow = smp.linearise(co, sm, ext)
+    for a, b in zip(fast, slow):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6 * np.abs(b).max())
+    np.testing.assert_allclose(fast[3], smp.radiance(co), rtol=1e-6, atol=1e-9)

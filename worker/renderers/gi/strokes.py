@@ -169,6 +169,11 @@ class Sampled:
         # of the upper node (gathers of every evaluation)
         self._cell0 = None
         self._et = self.t[self.row][:, None]
+        # a unit that no tail holds (a painted region drawn at the camera hits: every live entry
+        # and the frozen part at power 0 of its d, one second-vertex factor): B is linear in its
+        # first-vertex coefficients, B = V + Σ_s c_s F_s, and ``linearise`` skips the terms of d
+        self.linear = bool(self.K2 == 1 and (len(self.pw) == 0 or int(self.pw.max()) == 0)
+                           and not np.any(self.V[:, :, 1:]))
 
     # --- evaluation ------------------------------------------------------------------------------
 
@@ -217,8 +222,9 @@ class Sampled:
         Jc = ext_first.shape[3]
         dp, ndp = self._powers(co)
         ck = np.asarray(co.ck, np.float64)
-        U = self._U(co)
-        B0 = np.einsum("pknc,kc,nc->pc", U, ck, dp)
+        if not self.linear:
+            U = self._U(co)
+            B0 = np.einsum("pknc,kc,nc->pc", U, ck, dp)
         # ∂B/∂c_s(node): M (N, K1, 3) = Σ_{k,n} ĉ_k d^n F_{s,k,n}, split between the two nodes
         M = np.zeros((N * K1, 3))
         if len(self.row):
@@ -227,8 +233,15 @@ class Sampled:
             for c in range(3):
                 M[:, c] = np.bincount(cell, weights=wv[:, c], minlength=N * K1)
         M = M.reshape(N, K1, 3)
-        dd = np.einsum("pknc,kc,nc->pc", U, ck, ndp)                           # ∂B/∂d
-        dck = np.einsum("pknc,nc->pkc", U, dp)                                 # ∂B/∂ĉ_k
+        if self.linear:
+            # B = R + Σ_s c_s M_s exactly: R the frozen part, no d or ĉ terms
+            R = self.V[:, 0, 0, :].copy()
+            C1 = co.C1.astype(np.float64)
+            C1r = C1[self.k0] * (1.0 - self.t)[:, None, None] + C1[self.k0 + 1] * self.t[:, None, None]
+            B0 = R + (M * C1r).sum(1)
+        else:
+            dd = np.einsum("pknc,kc,nc->pc", U, ck, ndp)                       # ∂B/∂d
+            dck = np.einsum("pknc,nc->pkc", U, dp)                             # ∂B/∂ĉ_k
         Tx = np.zeros((3, N, Jc), np.float32)
         # single precision products (T is float32 for the solver anyway); one product for the
         # three channels when their map is the same (no Fresnel split)
@@ -247,6 +260,8 @@ class Sampled:
             else:
                 for c in range(3):
                     Tx[c, sel] = lo[:, :, c] @ X[c, k] + hi[:, :, c] @ X[c, k + 1]
+        if self.linear:
+            return np.ascontiguousarray(Tx[:, :, :-1]), Tx[:, :, -1].T.copy(), R, B0
         for c in range(3):
             Tx[c] += dd[:, c, None] * m.d[None, :]
             if m.second is not None and self.K2 > 1:
