@@ -326,3 +326,33 @@ def test_a_first_vertex_region_linearises_as_the_general_expansion(sofa):
     for a, b in zip(fast, slow):
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6 * np.abs(b).max())
     np.testing.assert_allclose(fast[3], smp.radiance(co), rtol=1e-6, atol=1e-9)
+
+
+def test_one_brdf_strokes_over_a_painted_object_under_gi(sofa):
+    """After ``stop``, strokes fit one BRDF for the object again (its regions give way to it, as
+    in direct light): the fit's rows and its exact radiance are of the object without its
+    regions, so the frame shows what the fit reported."""
+    rt = _runtime(sofa)
+    before, ids = _frame(rt)
+    ys, xs = np.nonzero(ids == 0)
+    y = int(np.median(ys))
+    row = xs[ys == y]
+    x0, x1 = float(np.quantile(row, 0.3)) + 0.5, float(np.quantile(row, 0.7)) + 0.5
+    rt.handle({"seq": 1, "type": "region", "action": "paint", "name": "seat"})
+    dark = {"mode": "scale", "scale": 0.4, "points": [[x0, y + 0.5], [x1, y + 0.5]], "diameter": 4, "kappa": 0.05}
+    rt.handle({"seq": 2, "type": "stroke", "stroke": dark})
+    assert rt.fit_if_needed()[0]["material"]["model"] == "regions"
+    painted, _ = _frame(rt)
+    rt.handle({"seq": 3, "type": "region", "action": "stop"})
+    up = {**dark, "scale": 1.5, "points": [[x0, y - 2.5], [x1, y - 2.5]]}
+    rt.handle({"seq": 4, "type": "stroke", "stroke": up})
+    fit = rt.fit_if_needed()[0]
+    assert fit["material"]["model"] == "srbf", fit["material"]["model"]
+    after, _ = _frame(rt)
+    # the frame is the plain srbf's: the same as the object given that material directly
+    mats = list(sofa.scene.materials)
+    from worker.protocol.state import parse_material
+    mats[0] = parse_material(fit["material"])
+    direct, _ = _draw(sofa, mats)
+    assert np.abs(after - direct).max() <= TOL * direct.max()
+    assert fit["stats"]["gap"] is None or fit["stats"]["gap"] < 0.05, fit["stats"]

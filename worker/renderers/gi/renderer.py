@@ -731,6 +731,14 @@ class GIRenderer(Renderer):
         E (N, 3) float32, R (N, 3) float64) with radiance ≈ ρ_d E + T c + R for srbf coefficients
         c (J, 3) over ``basis`` (worker/fit/basis.py) near ``material``."""
         scale = self._fixed_view(None, lighting)
+        with self._lock:
+            cur = self.objects_materials[object_index] if self.objects_materials else None
+            if has_regions(cur) and object_index not in self._painting:
+                # one BRDF for an object that has regions: they give way to it (as the fit's
+                # result does), so its rows are of the object without them
+                mats = list(self.objects_materials)
+                mats[object_index] = material.base if has_regions(material) else material
+                self._apply(mats)
         u = self._stroke_unit(object_index)
         smp = self._sampled_at(u, samples)
         p = self.projection(u, material)
