@@ -92,3 +92,30 @@ def compare(ours: tuple, ref: tuple, mask: np.ndarray) -> dict:
     return {"rel_rmse": float(np.sqrt(err2) / norm), "rel_rmse_corrected": float(np.sqrt(max(err2 - n_o - n_r, 0.0)) / norm),
             "noise_ours": float(np.sqrt(n_o) / norm), "noise_ref": float(np.sqrt(n_r) / norm),
             "mean_ratio": float(a[mask].mean() / b[mask].mean()), "pixels": int(mask.sum())}
+
+
+def session_runtime(r, state=None):
+    """A worker session (jobs/runtime.py, no server) on GI renderer r, from a new state of its
+    scene or ``state`` (a SessionState)."""
+    from worker.jobs.runtime import SessionRuntime
+    from worker.protocol import new_state
+    st = state if state is not None else new_state(r.scene.spec)
+    return SessionRuntime(r.scene, r, {"state": st.model_dump(mode="json"), "strokes": []})
+
+
+def session_frame(rt):
+    """(radiance (H, W, 3) float64, object ids (H, W)) of the session's current state."""
+    from worker.renderers import FrameRequest, Lighting
+    st = rt.state
+    out = rt.renderer.render(FrameRequest(camera=st.camera, lighting=Lighting(st.rotation_deg, st.intensity),
+                                          materials=st.materials))
+    return out.radiance.astype(np.float64).copy(), out.object_id
+
+
+def middle_row(ids, obj: int, lo: float = 0.3, hi: float = 0.7):
+    """(y, x0, x1): the object's median image row and the x pixel centres at the lo and hi
+    quantiles of its pixels on that row (a stroke across the object's middle)."""
+    ys, xs = np.nonzero(ids == obj)
+    y = int(np.median(ys))
+    row = xs[ys == y]
+    return y, float(np.quantile(row, lo)) + 0.5, float(np.quantile(row, hi)) + 0.5

@@ -5,8 +5,9 @@ session's strokes in region mode fit the region's material through the GI tensor
 import numpy as np
 import pytest
 
-from gi_harness import gi_renderer, scene_with
-from worker.jobs.runtime import SessionRuntime
+from gi_harness import gi_renderer, middle_row, scene_with
+from gi_harness import session_frame as _frame
+from gi_harness import session_runtime as _runtime
 from worker.models import Regions
 from worker.models.regions import Region
 from worker.protocol import new_state
@@ -85,17 +86,6 @@ def test_a_region_is_its_material_at_the_first_bounce(sofa):
     assert np.abs(got_n - base_n)[~on].max() <= TOL * base_n.max()
 
 
-def _runtime(r):
-    return SessionRuntime(r.scene, r, {"state": new_state(r.scene.spec).model_dump(mode="json"), "strokes": []})
-
-
-def _frame(rt):
-    st = rt.state
-    out = rt.renderer.render(FrameRequest(camera=st.camera, lighting=Lighting(st.rotation_deg, st.intensity),
-                                          materials=st.materials))
-    return out.radiance.astype(np.float64).copy(), out.object_id
-
-
 @pytest.mark.parametrize("kind", ["darkening", "colour change"])
 def test_strokes_paint_a_region_under_gi(sofa, kind):
     """A stroke in region mode on a GI scene makes a region and fits its material through the
@@ -103,10 +93,7 @@ def test_strokes_paint_a_region_under_gi(sofa, kind):
     frame shows what the fit predicted; undo takes it back."""
     rt = _runtime(sofa)
     before, ids = _frame(rt)
-    ys, xs = np.nonzero(ids == 0)
-    y = int(np.median(ys))
-    row = xs[ys == y]
-    x0, x1 = float(np.quantile(row, 0.3)) + 0.5, float(np.quantile(row, 0.7)) + 0.5
+    y, x0, x1 = middle_row(ids, 0)
     ev = rt.handle({"seq": 1, "type": "region", "action": "paint", "name": "seat"})
     assert ev[0]["stats"]["painting"] == "seat"
     if kind == "darkening":
@@ -223,7 +210,7 @@ def test_strokes_paint_a_traced_region(traced):
     st = new_state(r.scene.spec)
     st.materials[0] = design
     st.base_material = design
-    rt = SessionRuntime(r.scene, r, {"state": st.model_dump(mode="json"), "strokes": []})
+    rt = _runtime(r, st)
     before, ids = _frame(rt)
     assert r._region_units[(0, "left")] < r.U                 # the traced unit, not a first-vertex one
     # the pixels whose face lies wholly in the region, and a stroke along the middle of them
@@ -234,10 +221,7 @@ def test_strokes_paint_a_traced_region(traced):
     inner = on[(w[r.geo.F[r.prim.face[on]] - lo] >= 1.0).all(1)]
     full[r.prim.pixel[inner]] = True
     full = full.reshape(ids.shape)
-    ys, xs = np.nonzero(full)
-    y = int(np.median(ys))
-    row = xs[ys == y]
-    x0, x1 = float(np.quantile(row, 0.3)) + 0.5, float(np.quantile(row, 0.7)) + 0.5
+    y, x0, x1 = middle_row(full.astype(int), 1)
     rt.handle({"seq": 1, "type": "region", "action": "paint", "name": "left"})
     stroke = {"mode": "scale", "scale": 0.5, "points": [[x0, y + 0.5], [x1, y + 0.5]], "diameter": 2, "kappa": 0.05}
     assert rt.handle({"seq": 2, "type": "stroke", "stroke": stroke})[0]["rejected"] is False
@@ -334,10 +318,7 @@ def test_one_brdf_strokes_over_a_painted_object_under_gi(sofa):
     regions, so the frame shows what the fit reported."""
     rt = _runtime(sofa)
     before, ids = _frame(rt)
-    ys, xs = np.nonzero(ids == 0)
-    y = int(np.median(ys))
-    row = xs[ys == y]
-    x0, x1 = float(np.quantile(row, 0.3)) + 0.5, float(np.quantile(row, 0.7)) + 0.5
+    y, x0, x1 = middle_row(ids, 0)
     rt.handle({"seq": 1, "type": "region", "action": "paint", "name": "seat"})
     dark = {"mode": "scale", "scale": 0.4, "points": [[x0, y + 0.5], [x1, y + 0.5]], "diameter": 4, "kappa": 0.05}
     rt.handle({"seq": 2, "type": "stroke", "stroke": dark})

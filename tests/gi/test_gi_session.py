@@ -6,25 +6,14 @@ import numpy as np
 import pytest
 
 from gi_harness import gi_renderer, scene_with
-from worker.jobs.runtime import SessionRuntime
+from gi_harness import session_frame as _frame
+from gi_harness import session_runtime as _runtime
 from worker.protocol import StateError, new_state
-from worker.renderers import FrameRequest, Lighting
 
 
 @pytest.fixture(scope="module")
 def sofa(shared_assets):
     return gi_renderer(scene_with("sofa", 48, 36), {"spp": 64, "series": [64, 1, 1, 1]})
-
-
-def _runtime(r):
-    return SessionRuntime(r.scene, r, {"state": new_state(r.scene.spec).model_dump(mode="json"), "strokes": []})
-
-
-def _frame(rt):
-    st = rt.state
-    out = rt.renderer.render(FrameRequest(camera=st.camera, lighting=Lighting(st.rotation_deg, st.intensity),
-                                          materials=st.materials))
-    return out.radiance.copy(), out.object_id
 
 
 def test_pick_freeze_and_paint_the_floor_under_gi(sofa):

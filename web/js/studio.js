@@ -416,19 +416,16 @@ function showRegions(material, painting) {
     const pick = document.createElement("a");
     pick.textContent = n + (n === painting ? " (painting)" : "");
     pick.onclick = () => { $("region-name").value = n; $("region-paint").checked = true; stream?.send("region", { action: "paint", name: n }); };
-    const rename = document.createElement("button");
-    rename.textContent = "Rename";
-    rename.className = "region-rename";
-    rename.onclick = () => { stream?.send("region", { action: "rename", name: n, new_name: regionName() }); designs.edited(); };
-    const erase = document.createElement("button");
-    erase.textContent = "Erase";
-    erase.className = "region-erase";
-    erase.onclick = () => { stream?.send("region", { action: "erase", name: n }); designs.edited(); };
-    const merge = document.createElement("button");
-    merge.textContent = "Merge";
-    merge.className = "region-merge";
-    merge.title = "merge this region into the region named above (its material, both footprints)";
-    merge.onclick = () => { stream?.send("region", { action: "merge", name: n, new_name: regionName() }); designs.edited(); };
+    // a region step: sent, and the design marked edited
+    const step = (text, action, fields, title = "") => {
+      const b = Object.assign(document.createElement("button"), { textContent: text, className: `region-${action}`, title });
+      b.onclick = () => { stream?.send("region", { action, name: n, ...fields() }); designs.edited(); };
+      return b;
+    };
+    const rename = step("Rename", "rename", () => ({ new_name: regionName() }));
+    const erase = step("Erase", "erase", () => ({}));
+    const merge = step("Merge", "merge", () => ({ new_name: regionName() }),
+                       "merge this region into the region named above (its material, both footprints)");
     const pickMaterial = document.createElement("select");
     pickMaterial.className = "region-material";
     pickMaterial.title = "give this region a material: a model's defaults, or a saved design from the library";

@@ -171,6 +171,40 @@ def _strokes_by_view(fx: Fitter):
 AUTO_PARTS = (1, 2, 4)
 
 
+@dataclass
+class _Footprint:
+    """What both region fits start from: the object's vertex range (first global id off, count
+    n_o), its material over today's vertices (cur), the regions of that name it had (olds), the
+    region's weights (n_o,) (the strokes' footprint, the old one kept) and what lies below it."""
+    off: int
+    n_o: int
+    cur: object
+    olds: list
+    w: np.ndarray
+    below: object
+
+
+def _footprint(fx: Fitter, name: str, unpainted_weight: float) -> _Footprint:
+    if not fx.views:
+        raise FitError("no view saved: add_view() first")
+    strokes = fx.history.strokes
+    if not strokes:
+        raise FitError("no stroke to make a region from")
+    if unpainted_weight < 0:
+        raise FitError("unpainted_weight must be ≥ 0")
+    r = fx.renderer
+    off, n_o = object_range(r, fx.obj)
+    # regions painted before the object's vertices were split at creases: over today's vertices
+    cur = fit_mesh(fx.base_material, n_o, r.scene.vertex_source(fx.obj))
+    olds = [g for g in cur.regions if in_group(g.name, name)] if has_regions(cur) else []
+    w = footprint_weights(fx, strokes)
+    for g in olds:                                # extending: the old footprint stays painted
+        w = np.maximum(w, g.dense(n_o))
+    if not np.any(w > 0):
+        raise FitError(f"the strokes touch no vertex of object {fx.object_name!r} the views see")
+    return _Footprint(off, n_o, cur, olds, w, _below(cur, name))
+
+
 def fit_region(fx: Fitter, name: str = "region 1", unpainted_weight: float = DEFAULT_UNPAINTED_WEIGHT,
                fit_albedo: bool = DEFAULT_REGION_ALBEDO, constrained: bool = True, n_l: int = DEFAULT_NL,
                parts: int | str = 1) -> RegionOutcome:
@@ -186,26 +220,10 @@ def fit_region(fx: Fitter, name: str = "region 1", unpainted_weight: float = DEF
         "auto": the fewest of AUTO_PARTS that achieve 80% of the requested change, else the best
         (a part must gain 2 points over fewer parts to be kept).
     """
-    if not fx.views:
-        raise FitError("no view saved: add_view() first")
-    strokes = fx.history.strokes
-    if not strokes:
-        raise FitError("no stroke to make a region from")
-    if unpainted_weight < 0:
-        raise FitError("unpainted_weight must be ≥ 0")
     if parts != "auto" and not (isinstance(parts, int) and 1 <= parts <= 16):
         raise FitError(f"parts must be 1 to 16 or 'auto', got {parts!r}")
-    r = fx.renderer
-    off, n_o = object_range(r, fx.obj)
-    # regions painted before the object's vertices were split at creases: over today's vertices
-    cur = fit_mesh(fx.base_material, n_o, r.scene.vertex_source(fx.obj))
-    olds = [g for g in cur.regions if in_group(g.name, name)] if has_regions(cur) else []
-    w = footprint_weights(fx, strokes)
-    for g in olds:                                # extending: the old footprint stays painted
-        w = np.maximum(w, g.dense(n_o))
-    if not np.any(w > 0):
-        raise FitError(f"the strokes touch no vertex of object {fx.object_name!r} the views see")
-    below = _below(cur, name)
+    fp = _footprint(fx, name, unpainted_weight)
+    off, n_o, cur, olds, w, below = fp.off, fp.n_o, fp.cur, fp.olds, fp.w, fp.below
     prep = [_prepare_view(fx, vi, v, w, off, cur, below, unpainted_weight) for vi, v in enumerate(fx.views)]
     if not any(np.any(p["weight"] > 0) for p in prep if len(p["R"])):
         raise FitError("nothing to fit: the region covers no painted pixel and unpainted_weight is 0")
@@ -245,24 +263,10 @@ def fit_region_gi(fx: Fitter, name: str = "region 1", unpainted_weight: float = 
     ``painted``, its weights unchanged by the strokes) is that unit, tails included: the
     radiance is then polynomial in it, and Gauss-Newton steps re-expand it at each solution as
     the one-BRDF fit does. One part; the rest keeps its material."""
-    if not fx.views:
-        raise FitError("no view saved: add_view() first")
-    strokes = fx.history.strokes
-    if not strokes:
-        raise FitError("no stroke to make a region from")
-    if unpainted_weight < 0:
-        raise FitError("unpainted_weight must be ≥ 0")
     r = fx.renderer
     t0 = time.perf_counter()
-    off, n_o = object_range(r, fx.obj)
-    cur = fit_mesh(fx.base_material, n_o, r.scene.vertex_source(fx.obj))
-    olds = [g for g in cur.regions if in_group(g.name, name)] if has_regions(cur) else []
-    w = footprint_weights(fx, strokes)
-    for g in olds:
-        w = np.maximum(w, g.dense(n_o))
-    if not np.any(w > 0):
-        raise FitError(f"the strokes touch no vertex of object {fx.object_name!r} the views see")
-    below = _below(cur, name)
+    fp = _footprint(fx, name, unpainted_weight)
+    off, n_o, olds, w, below = fp.off, fp.n_o, fp.olds, fp.w, fp.below
     plain_below = below.base if has_regions(below) else below
     start = olds[0].material if olds else plain_below
     ids = np.nonzero(w > 0)[0]

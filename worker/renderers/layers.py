@@ -82,28 +82,21 @@ class Layers:
         material slots ``slot_of``, as the layer points to shade: (src (M,) int64 the point
         each comes from, slot (M,) int32, weight (M,) float32). Points of objects without
         regions are one entry each; a region object's point one entry per layer of weight > 0."""
-        P = len(vids)
-        plain = np.ones(P, bool)
-        src, slot, wt = [], [], []
-        for o, (slots, a, off) in self.objects.items():
-            sel = np.nonzero(obj_of == o)[0]
-            if not len(sel):
-                continue
-            plain[sel] = False
-            aw = a[:, vids[sel] - off]                      # (L, n_sel)
-            lay, col = np.nonzero(aw > 0)
-            src.append(sel[col]); slot.append(slots[lay]); wt.append(aw[lay, col])
-        rest = np.nonzero(plain)[0]
-        src.insert(0, rest); slot.insert(0, slot_of[rest].astype(np.int32)); wt.insert(0, np.ones(len(rest), np.float32))
-        return (np.concatenate(src).astype(np.int64), np.concatenate(slot).astype(np.int32),
-                np.concatenate(wt).astype(np.float32))
+        return self._expand(obj_of, slot_of, lambda sel, a, off: a[:, vids[sel] - off])
 
     def expand_faces(self, obj_of: np.ndarray, corners: np.ndarray, bary: np.ndarray):
-        """``expand`` for points inside faces (the paint renderer's pixels): obj_of (P,) their
-        objects, corners (P, 3) global vertex ids of their faces, bary (P, 3) their barycentric
-        weights. A point of an object with regions takes each layer whose weight, interpolated
-        from the corners, is > 0; the others are one entry of weight 1 with their object's slot.
-        Returns (src (M,) int64, slot (M,) int32, weight (M,) float32)."""
+        """``expand`` for points inside faces (the paint renderer's pixels, the GI renderer's
+        camera hits): obj_of (P,) their objects, corners (P, 3) global vertex ids of their faces,
+        bary (P, 3) their barycentric weights. A point of an object with regions takes each layer
+        whose weight, interpolated from the corners, is > 0; the others are one entry of weight 1
+        with their object's slot. Returns (src (M,) int64, slot (M,) int32, weight (M,) float32)."""
+        return self._expand(obj_of, obj_of,
+                            lambda sel, a, off: np.einsum("kc,lkc->lk", bary[sel], a[:, corners[sel] - off]))
+
+    def _expand(self, obj_of: np.ndarray, slot_of: np.ndarray, layer_weights):
+        """The expansion of ``expand``: layer_weights(sel, a, off) gives the (L, n_sel) layer
+        weights of the points ``sel`` of an object with effective weights a (L, n_o) from its
+        first global vertex id off."""
         plain = np.ones(len(obj_of), bool)
         src, slot, wt = [], [], []
         for o, (slots, a, off) in self.objects.items():
@@ -111,11 +104,12 @@ class Layers:
             if not len(sel):
                 continue
             plain[sel] = False
-            w = np.einsum("kc,lkc->lk", bary[sel], a[:, corners[sel] - off])      # (L, n_sel)
+            w = layer_weights(sel, a, off)                  # (L, n_sel)
             lay, col = np.nonzero(w > 0)
             src.append(sel[col]); slot.append(slots[lay]); wt.append(w[lay, col])
         rest = np.nonzero(plain)[0]
-        src.insert(0, rest); slot.insert(0, obj_of[rest]); wt.insert(0, np.ones(len(rest), np.float32))
+        src.insert(0, rest); slot.insert(0, np.asarray(slot_of)[rest].astype(np.int32))
+        wt.insert(0, np.ones(len(rest), np.float32))
         return (np.concatenate(src).astype(np.int64), np.concatenate(slot).astype(np.int32),
                 np.concatenate(wt).astype(np.float32))
 

@@ -503,11 +503,11 @@ class GIRenderer(Renderer):
         units[:, :L0], weights[:, :L0] = pu0.units, pu0.weights
         # slot k of the layers table: an object's own slot (its base) or a region (its traced unit,
         # or a pseudo-unit)
-        pseudo_of_slot = {}
+        unit_of_slot = {}
         mats = self.objects_materials
         for o, (slots, a, off) in sorted(lay.objects.items()):
             for s, r in zip(slots[1:], mats[o].regions):
-                pseudo_of_slot[int(s)] = self._region_units[(o, r.name)]
+                unit_of_slot[int(s)] = self._region_units[(o, r.name)]
         # every layer's weight is a share of the object's own unit's (1 − ΣH of the precomputed
         # regions there), not of those regions'
         w_own = pu0.weights[:, 0].astype(np.float64)
@@ -520,8 +520,8 @@ class GIRenderer(Renderer):
         p = src[r]
         first = np.searchsorted(p, p)                     # each entry's rank among its pixel's
         col = L0 + (np.arange(len(r)) - first)
-        lut = np.zeros(max(pseudo_of_slot, default=0) + 1, np.int32)
-        for s_, u in pseudo_of_slot.items():
+        lut = np.zeros(max(unit_of_slot, default=0) + 1, np.int32)
+        for s_, u in unit_of_slot.items():
             lut[s_] = u
         units[p, col] = lut[slot[r]]
         weights[p, col] = (wt[r] * w_own[p]).astype(np.float32)
