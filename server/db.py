@@ -125,6 +125,25 @@ class StrokeRow(Base):
     created: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now)
 
 
+class RegionStepRow(Base):
+    """A step on an object's painted regions (rename, erase, merge, a region's material): the
+    object's material before and after it, and the region painted before and after, so that undo
+    and redo cover it after the session is reopened (worker/jobs/runtime.py region steps). Like
+    strokes, undo and redo flip ``undone``; a new edit drops the steps undone (``dropped``)."""
+    __tablename__ = "region_steps"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    session_id: Mapped[str] = mapped_column(ForeignKey("sessions.id"), index=True)
+    seq: Mapped[int] = mapped_column(Integer)
+    object: Mapped[str] = mapped_column(String(200))
+    before: Mapped[dict] = mapped_column(JSON)
+    after: Mapped[dict] = mapped_column(JSON)
+    region_before: Mapped[str | None] = mapped_column(String(100), nullable=True)
+    region_after: Mapped[str | None] = mapped_column(String(100), nullable=True)
+    undone: Mapped[bool] = mapped_column(Boolean, default=False)
+    dropped: Mapped[bool] = mapped_column(Boolean, default=False)
+    created: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True), default=now)
+
+
 class SessionServer(Base):
     """An API process serving streams of a session (server/sessions_store.py, sessions shared
     across processes): ``origin`` names the process, ``seen`` is its last heartbeat, ``peers``

@@ -51,11 +51,13 @@ from dataclasses import dataclass, field
 from sqlalchemy import delete, select, update
 from sqlalchemy.exc import IntegrityError
 
-from worker.protocol import (ClientMsg, EnvPreset, EnvironmentMsg, ErrorEvent, ObjectMsg, RecordStroke, Redo, RejectStroke,
-                             SavedEvent, SessionState, StateError, StoreSave, Undo, apply, apply_event,
-                             restore_state, worker_event)
+from worker.protocol import (MAX_REGION_STEPS, ClientMsg, Convert, EnvPreset, EnvironmentMsg, ErrorEvent, FitPaint,
+                             NewMaterial, ObjectMsg, RecordStroke, Redo, RegionsChanged, RejectStroke, SavedEvent,
+                             SessionState, StateError, StoreSave, Undo, apply, apply_event, restore_state,
+                             worker_event)
 
-from .db import Asset, MaterialDesign, Scene, Session, SessionLogRow, SessionSave, SessionServer, StrokeRow, new_id, now
+from .db import (Asset, MaterialDesign, RegionStepRow, Scene, Session, SessionLogRow, SessionSave, SessionServer, StrokeRow,
+                 new_id, now)
 
 FLUSH_S = 0.5            # the longest a batched change (camera, light, object move, fit) stays unwritten
 CAS_TRIES = 20           # compare-and-set attempts before a write gives up (another process keeps winning)
@@ -549,7 +551,7 @@ class SessionStore:
             return ErrorEvent(seq=msg.seq, message=str(ex)).model_dump(), None
         rows = _ROW_EFFECTS.get(type(eff))
         if rows is not None:
-            rows(s, sid, before.epoch, msg, eff)
+            rows(s, sid, before, state, msg, eff)
         if isinstance(msg, ObjectMsg):
             # the worker replays the picked object's own strokes (its epoch's rows)
             msg = msg.model_copy(update={"strokes": _epoch_strokes(s, sid, state.epoch)})
@@ -614,18 +616,22 @@ class SessionStore:
 # -- what each effect stores besides the state -----------------------------------------------------
 
 
-def _record_stroke(s, sid: str, epoch: int, msg, eff: RecordStroke) -> None:
-    # a new stroke drops the redo stack
-    for r in s.scalars(select(StrokeRow).where(StrokeRow.session_id == sid, StrokeRow.epoch == epoch,
+def _record_stroke(s, sid: str, before: SessionState, after: SessionState, msg, eff: RecordStroke) -> None:
+    # a new stroke drops the redo stack: its strokes', and the region steps undone
+    for r in s.scalars(select(StrokeRow).where(StrokeRow.session_id == sid, StrokeRow.epoch == before.epoch,
                                                StrokeRow.undone.is_(True), StrokeRow.dropped.is_(False))):
         r.dropped = True
-    s.add(StrokeRow(session_id=sid, epoch=epoch, seq=msg.seq, body=eff.stroke))
+    _drop_undone_steps(s, sid)
+    s.add(StrokeRow(session_id=sid, epoch=before.epoch, seq=msg.seq, body=eff.stroke))
     s.flush()
 
 
-def _undo_redo(s, sid: str, epoch: int, msg, eff) -> None:
+def _undo_redo(s, sid: str, before: SessionState, after: SessionState, msg, eff) -> None:
+    """The worker's undo (redo): the epoch's last stroke (first undone one) when there is one,
+    else the edited object's last region step (first undone one), as worker/jobs/runtime.py
+    ``_undo_redo`` decides: the same rows, so a reopened session has the same stacks."""
     undo = isinstance(eff, Undo)
-    q = select(StrokeRow).where(StrokeRow.session_id == sid, StrokeRow.epoch == epoch,
+    q = select(StrokeRow).where(StrokeRow.session_id == sid, StrokeRow.epoch == before.epoch,
                                 StrokeRow.dropped.is_(False), StrokeRow.rejected.is_(False),
                                 StrokeRow.undone.is_(not undo))
     q = q.order_by(StrokeRow.seq.desc() if undo else StrokeRow.seq.asc())
@@ -633,6 +639,52 @@ def _undo_redo(s, sid: str, epoch: int, msg, eff) -> None:
     if r is not None:
         r.undone = undo
         s.flush()
+        return
+    q = select(RegionStepRow).where(RegionStepRow.session_id == sid, RegionStepRow.dropped.is_(False),
+                                    RegionStepRow.undone.is_(not undo))
+    step = s.scalars(q.order_by(RegionStepRow.seq.desc() if undo else RegionStepRow.seq.asc()).limit(1)).first()
+    if step is not None and step.object == before.object:
+        step.undone = undo
+        s.flush()
+
+
+def _drop_undone_steps(s, sid: str) -> None:
+    for r in s.scalars(select(RegionStepRow).where(RegionStepRow.session_id == sid, RegionStepRow.undone.is_(True),
+                                                   RegionStepRow.dropped.is_(False))):
+        r.dropped = True
+
+
+def _region_step(s, sid: str, before: SessionState, after: SessionState, msg, eff: RegionsChanged) -> None:
+    """A rename, erase, merge or region material (``eff.before`` set; painting or stopping a
+    region is no step): its row, the steps undone dropped, and only the last MAX_REGION_STEPS
+    kept, as the worker's stack keeps them."""
+    if eff.before is None:
+        return
+    _drop_undone_steps(s, sid)
+    s.add(RegionStepRow(session_id=sid, seq=msg.seq, object=eff.object, before=eff.before.model_dump(mode="json"),
+                        after=after.materials[after.objects.index(eff.object)].model_dump(mode="json"),
+                        region_before=eff.region_before, region_after=after.region))
+    s.flush()
+    old = s.scalars(select(RegionStepRow).where(RegionStepRow.session_id == sid, RegionStepRow.dropped.is_(False))
+                    .order_by(RegionStepRow.seq.desc()).offset(MAX_REGION_STEPS)).all()
+    for r in old:
+        r.dropped = True
+
+
+def _forget_steps(s, sid: str, before: SessionState, after: SessionState, msg, eff) -> None:
+    """The object's material was set otherwise (a material message, the paint designer, a
+    conversion): undoing a region step would bring back a material from before it."""
+    for r in s.scalars(select(RegionStepRow).where(RegionStepRow.session_id == sid, RegionStepRow.object == eff.object,
+                                                   RegionStepRow.dropped.is_(False))):
+        r.dropped = True
+
+
+def region_steps(s, sid: str) -> list[dict]:
+    """The session's region steps a worker restores (runtime.py ``_restore_region_steps``), in order."""
+    rows = s.scalars(select(RegionStepRow).where(RegionStepRow.session_id == sid, RegionStepRow.dropped.is_(False))
+                     .order_by(RegionStepRow.seq)).all()
+    return [{"seq": r.seq, "object": r.object, "before": r.before, "after": r.after, "region_before": r.region_before,
+             "region_after": r.region_after, "undone": r.undone} for r in rows]
 
 
 def _epoch_strokes(s, sid: str, epoch: int) -> list[dict]:
@@ -643,8 +695,9 @@ def _epoch_strokes(s, sid: str, epoch: int) -> list[dict]:
     return [{**r.body, "seq": r.seq, "undone": r.undone} for r in rows]
 
 
-# effect class -> handler(db session, sid, epoch before the message, message, effect)
-_ROW_EFFECTS = {RecordStroke: _record_stroke, Undo: _undo_redo, Redo: _undo_redo}
+# effect class -> handler(db session, sid, state before the message, state after, message, effect)
+_ROW_EFFECTS = {RecordStroke: _record_stroke, Undo: _undo_redo, Redo: _undo_redo, RegionsChanged: _region_step,
+                NewMaterial: _forget_steps, FitPaint: _forget_steps, Convert: _forget_steps}
 
 
 def _reject_stroke(store: SessionStore, s, sid: str, eff: RejectStroke) -> None:

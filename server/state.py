@@ -20,7 +20,7 @@ from .db import (
     StrokeRow,
     make_sessionmaker,
 )
-from .sessions_store import SessionStore
+from .sessions_store import SessionStore, region_steps
 from .workers import WorkerPool, make_pool
 
 log = logging.getLogger("glint")
@@ -116,7 +116,8 @@ class AppState:
 
     def session_payload(self, sid: str) -> dict:
         """Everything a worker needs to (re)build a session: scene, state, strokes (those of the
-        current epoch that are neither dropped from the redo stack nor rejected)."""
+        current epoch that are neither dropped from the redo stack nor rejected), region steps
+        (sessions_store.region_steps: undo and redo cover them after a reopen too)."""
         self.sessions.flush(sid)         # what the stream holds but has not written yet
         with self.db() as s:
             row = s.get(Session, sid)
@@ -128,4 +129,5 @@ class AppState:
                 StrokeRow.rejected.is_(False)).order_by(StrokeRow.seq)).all()
             return {"scene": self.scene_payload(s, row.scene_id), "state": st,
                     "strokes": [{**r.body, "seq": r.seq, "undone": r.undone} for r in strokes],
+                    "region_steps": region_steps(s, sid),
                     "ack": int(st.get("last_seq", -1))}

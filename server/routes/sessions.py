@@ -33,7 +33,8 @@ from worker.memory import trim_malloc
 from worker.protocol import (BadMessage as BadFrame, ErrorEvent, HelloEvent, PeerEvent, StateError,  # noqa: F401
                              client_msg, encode_frame, json_depth, new_state, parse_message_text, restore_state)
 
-from ..db import Scene, Session, SessionLogRow, SessionSave, SessionServer, StrokeRow, new_secret, now, token_hash
+from ..db import (RegionStepRow, Scene, Session, SessionLogRow, SessionSave, SessionServer, StrokeRow, new_secret, now,
+                  token_hash)
 from ..deps import DB, Client, State, check_host, check_origin, client_key
 from ..schemas import SessionCreate, SessionOut
 from ..services.scenes import precompute_again
@@ -675,6 +676,7 @@ def expire_idle(st, older_than: dt.timedelta, viewers_older_than: dt.timedelta |
         gone = [r.id for r in s.execute(q) if idle(r, viewer_cutoff)]
         if gone:
             s.execute(delete(StrokeRow).where(StrokeRow.session_id.in_(gone)))
+            s.execute(delete(RegionStepRow).where(RegionStepRow.session_id.in_(gone)))
             s.execute(delete(SessionLogRow).where(SessionLogRow.session_id.in_(gone)))
             s.execute(delete(SessionServer).where(SessionServer.session_id.in_(gone)))
             s.execute(delete(SessionSave).where(SessionSave.session_id.in_(gone)))

@@ -91,6 +91,55 @@ def test_session_stroke_save_and_crash_recovery(server, client, bunny_scene, art
     assert s["strokes"][0]["undone"] is True
 
 
+def test_region_steps_survive_a_worker_restart(server, client, bunny_scene):
+    """Undo and redo cover region steps after the session is rebuilt on a new worker: the server
+    keeps each step (the material before and after) as rows, and the undone ones as the redo
+    stack, as it keeps strokes."""
+    ses = client.post("/v1/sessions", json={"scene_id": bunny_scene}).json()
+    sid, token = ses["id"], ses["token"]
+    stroke = {"points": [[62, 62], [88, 64]], "mode": "scale", "scale": 0.3, "diameter": 10, "kappa": 0.05}
+
+    def regions(ev):
+        fits = [e for e in ev if e["type"] == "fit"]
+        assert fits, ev
+        return [r["name"] for r in fits[-1]["material"].get("regions", [])]
+
+    async def go():
+        async with connect(server, ses["stream"], token) as ws:
+            await ws.recv()                                          # hello
+            await next_frame(ws)
+            for seq, msg in enumerate([{"type": "region", "action": "paint", "name": "ear"},
+                                       {"type": "stroke", "stroke": stroke}], 1):
+                await ws.send(json.dumps({"seq": seq, **msg}))
+                await next_frame(ws, seq)
+            ev = []
+            await ws.send(json.dumps({"seq": 3, "type": "region", "action": "rename", "name": "ear",
+                                      "new_name": "left ear"}))
+            await next_frame(ws, 3, ev)
+            assert regions(ev) == ["left ear"]
+            ev = []
+            await ws.send(json.dumps({"seq": 4, "type": "undo"}))    # the rename (no stroke since)
+            await next_frame(ws, 4, ev)
+            assert regions(ev) == ["ear"]
+            pid = client.get(f"/v1/sessions/{sid}", headers={"X-Session-Token": token}).json()["worker_pid"]
+            os.kill(pid, signal.SIGKILL)
+            ev = []
+            await next_frame(ws, 4, ev, timeout=120)                 # restored on a new worker
+            assert any(e["type"] == "note" and "restored" in e["message"] for e in ev), ev
+            ev = []
+            await ws.send(json.dumps({"seq": 5, "type": "redo"}))
+            await next_frame(ws, 5, ev)
+            assert regions(ev) == ["left ear"], ev
+            ev = []
+            await ws.send(json.dumps({"seq": 6, "type": "undo"}))
+            await next_frame(ws, 6, ev)
+            assert regions(ev) == ["ear"], ev
+
+    asyncio.run(go())
+    st = client.get(f"/v1/sessions/{sid}", headers={"X-Session-Token": token}).json()["state"]
+    assert [r["name"] for r in st["materials"][0]["regions"]] == ["ear"]
+
+
 def test_stream_errors_keep_the_session_alive(server, client, bunny_scene):
     ses = client.post("/v1/sessions", json={"scene_id": bunny_scene}).json()
 

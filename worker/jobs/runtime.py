@@ -21,8 +21,9 @@ import numpy as np
 
 from ..fit.fitter import FitError
 from ..models import SRBF
+from ..models.base import parse_material
 from ..models.regions import region_names
-from ..protocol import (ClientMsg, Convert, ConvertedEvent, CurveEvent, ExposureEvent, FitEvent, FitPaint, Moved, NewMaterial,
+from ..protocol import (MAX_REGION_STEPS, ClientMsg, Convert, ConvertedEvent, CurveEvent, ExposureEvent, FitEvent, FitPaint, Moved, NewMaterial,
                         NoEffect, NoteEvent, ObjectEvent, Pick, PickedEvent, RecordStroke, Redo, Refit, RegionsChanged,
                         Relight, RendererEvent,
                         Save, SaveRequest, SelectObject, SwitchRenderer, Undo, apply, client_msg, restore_state)
@@ -69,8 +70,11 @@ class SessionRuntime(FitDriver):
         self._drag = False
         self.wake = lambda: None  # called from the builder when a result is ready (SessionThread)
         self._env_key = None
-        self._region_undo: list[tuple] = []    # region steps (_region_step), not stored: a
-        self._region_redo: list[tuple] = []    # reopened session starts without them
+        # region steps (_region_step): (object, material before, after, region before, after);
+        # the server stores them as rows (sessions_store.py), so a reopened session has them
+        self._region_undo: list[tuple] = []
+        self._region_redo: list[tuple] = []
+        self._restore_region_steps(stored.get("region_steps") or [])
         self.lod = LevelOfDetail()
         self._init_fit()
         if renderer.can("place"):
@@ -107,6 +111,15 @@ class SessionRuntime(FitDriver):
             self.events.append(CurveEvent(object=self.state.object, curve=brdf_curve(m)).model_dump())
         # saves the server has not stored yet (the worker died before they were): run again
         self._resave = list(self.state.pending_saves)
+
+    def _restore_region_steps(self, rows: list[dict]) -> None:
+        """The stacks of stored region steps (server/sessions_store.py region_steps, in order):
+        those not undone to undo, the last on top; the undone ones to redo, the first on top."""
+        def step(r):
+            return (r["object"], parse_material(r["before"]), parse_material(r["after"]), r.get("region_before"),
+                    r.get("region_after"))
+        self._region_undo = [step(r) for r in rows if not r.get("undone")][-MAX_REGION_STEPS:]
+        self._region_redo = [step(r) for r in reversed(rows) if r.get("undone")]
 
     def replay_stored(self) -> None:
         """Replay the stored strokes if they are not yet (__init__): before the first message,
@@ -428,8 +441,7 @@ def _new_material(rt: SessionRuntime, msg, eff: NewMaterial) -> list[dict]:
 
 
 # region steps (rename, erase, merge, material) kept for undo and redo per session: the
-# materials before and after (a design's steps, not its strokes, which the stored rows keep)
-MAX_REGION_STEPS = 16
+# materials before and after (a design's steps, not its strokes); protocol MAX_REGION_STEPS of them
 
 
 def _forget_region_steps(rt: SessionRuntime, obj: str) -> None:
@@ -480,9 +492,11 @@ def _region_step(rt: SessionRuntime, what: str) -> list[dict] | None:
 @handles(RecordStroke)
 def _stroke(rt: SessionRuntime, msg, eff: RecordStroke) -> list[dict]:
     se = rt._add_stroke({**eff.stroke, "seq": msg.seq}, live=True)
+    # a new edit: the region steps undone are gone, even when the stroke is rejected (the server
+    # drops their rows when the stroke comes, before the worker has seen it)
+    rt._region_redo = []
     if not se.rejected:
         rt._needs_fit = True
-        rt._region_redo = []             # a new edit: the steps undone are gone
     return [se.model_dump()]
 
 

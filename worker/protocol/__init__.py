@@ -7,7 +7,7 @@ effects.py   what a message or worker event asks for beyond its state: one datac
 events.py    server → client events, worker → server events and ``apply_event``
 wire.py      binary frames, the stream's JSON Schema, the size and depth checks of a message
 """
-from .effects import (NO_EFFECT, Convert, Effect, FitPaint, Pick, SelectObject, Moved, NewMaterial, NoEffect,  # noqa: F401
+from .effects import (MAX_REGION_STEPS, NO_EFFECT, Convert, Effect, FitPaint, Pick, SelectObject, Moved, NewMaterial, NoEffect,  # noqa: F401
                       RecordStroke, Redo, Refit, RegionsChanged, RejectStroke, Relight, Save, StoreEffect, StoreSave, SwitchRenderer,
                       Undo)
 from .events import (WORKER_EVENTS, ConvertedEvent, CurveEvent, ErrorEvent, ExposureEvent, FitEvent, FitStats,  # noqa: F401

@@ -57,6 +57,11 @@ class NewMaterial:
     rebase: bool
 
 
+# region steps (RegionsChanged with ``before``) kept for undo and redo per session, the most recent:
+# the worker's stacks (jobs/runtime.py) and the server's rows (server/sessions_store.py) alike
+MAX_REGION_STEPS = 16
+
+
 @dataclass(frozen=True, slots=True)
 class RegionsChanged:
     """The edited object's painted regions changed (``RegionMsg``): its material is the state's,
