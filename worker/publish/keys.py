@@ -14,10 +14,11 @@ from __future__ import annotations
 import hashlib
 import json
 
-FRAME_FORMAT = 6          # 2: the 1× frame tone-mapped in the same pass as the 2× (glk_tonemap_pair); 3: AVIF;
+FRAME_FORMAT = 7          # 2: the 1× frame tone-mapped in the same pass as the 2× (glk_tonemap_pair); 3: AVIF;
 # 4: refined faces also chosen by a centroid probe (a sun highlight between dark vertices); 5: shading
 # normals facing away from the eye at silhouettes shaded at grazing (core.render.facing_view); 6: a
-# half-angle curve refined at its peak's width, not its farthest bump's (models/curve.py)
+# half-angle curve refined at its peak's width, not its farthest bump's (models/curve.py); 7: the
+# probe shades with the drag level's cuts (a few faces more or fewer refined)
 # the encoded files of one frame: its name in the manifest -> (PartStore key suffix, extension)
 FILES = {"avif1": ".avif", "jpeg1": ".jpg", "avif2": ".avif"}
 
