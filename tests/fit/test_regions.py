@@ -134,7 +134,9 @@ def test_a_highlight_the_light_cannot_give_is_explained(fitter, across):
     assert out.achieved < 0.8 and g is not None
     assert g["asked"] > g["mirror"] and g["covered"] < 0.8 and g["impossible_share"] < 0.5
     assert 0 <= g["rotate_to_deg"] < 360 and g["covered_at_rotation"] >= g["covered"]
-    assert any("little light near the mirror direction" in n and "sharper lobe" in n for n in out.notes), out.notes
+    told = [n for n in out.notes if "little light near the mirror direction" in n]
+    assert told and f"covers {g['covered'] * 100:.0f}% of the highlight asked" in told[0], out.notes
+    assert "as a region" not in told[0]           # it is a region already
     fitter.history.clear()
     fitter.add_stroke(Stroke(points=pts, color=(500.0, 500.0, 500.0), diameter=12))
     out = fit_region(fitter)

@@ -70,6 +70,22 @@ def test_studio_and_viewer(server, client, bunny_scene, browser, artifacts):
     # the designer is told what the stroke achieved and what spilled
     st = page.locator("#status").inner_text()
     assert "fit" in st and "achieved" in st and "spill" in st, st
+    # a white highlight of 6× under the sunset is more than the light near the mirror directions
+    # gives: after the frame the studio says how much it covers and offers what would help: a
+    # painted region (one BRDF for the whole bunny brightens all of it), and a rotation of the
+    # environment when one covers 10 points more
+    page.locator("#guidance").wait_for(state="visible", timeout=30_000)
+    page.locator("#guidance").scroll_into_view_if_needed()
+    page.screenshot(path=str(artifacts / "web-3-guidance.png"))
+    text = page.locator("#guidance-text").inner_text()
+    assert "of the highlight asked" in text and "as a region" in text, text
+    if page.locator("#guidance-rotate").is_visible():
+        assert page.locator("#guidance-rotate").inner_text().startswith("Rotate the light to ")
+    page.click("#guidance-region")
+    assert page.locator("#region-paint").is_checked() and page.locator("#guidance").is_hidden()
+    page.wait_for_function("() => document.getElementById('status').textContent.includes('no strokes')",
+                           timeout=30_000)
+    page.uncheck("#region-paint")                      # back to one BRDF for the steps below
 
     # 4. dragging a point of the curve editor changes the material and the frame
     pts = json.loads(page.locator("#curve").get_attribute("data-points"))

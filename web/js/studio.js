@@ -207,6 +207,7 @@ let movableNames = [];   // movable objects of the scene (hello), shown when the
 
 function onEvent(ev) {
   if (ev.type === "hello") {
+    hideGuidance();                    // a new session: an earlier stroke's offers are not its own
     // what the server stored (a reopened session: the camera, light and material left there)
     Object.assign(state, ev.state);
     const i = state.objects ? state.objects.indexOf(state.object) : -1;
@@ -263,6 +264,8 @@ function onEvent(ev) {
     showRegions(ev.material, ev.stats?.painting);
     // the figures and the notes together: the notes say why a stroke fell short
     status([fitSummary(ev.stats || {}), ...(ev.notes || [])].join("; "));
+  } else if (ev.type === "guidance") {
+    if (ev.object === state.object) showGuidance(ev);
   } else if (ev.type === "stroke" && ev.notes?.length) {
     status(ev.notes.join("; "));
   } else if (ev.type === "saved") {
@@ -386,6 +389,7 @@ function drawStroke() {
 }
 
 function sendStroke() {
+  hideGuidance();
   const k = +$("brush-strength").value * +$("brush-sign").value;
   const color = hexToLinear($("brush-color").value).map((x) => x * k);
   stream.send("stroke", { stroke: { points: strokePts.slice(0, 10000), color, diameter: +$("brush-diameter").value,
@@ -394,12 +398,38 @@ function sendStroke() {
   designs.edited();
 }
 // (edits made in this tab mark the design edited, for autosave; another tab's, in that tab)
-const undoRedo = (kind) => { stream?.send(kind); designs.edited(); };
+const undoRedo = (kind) => { hideGuidance(); stream?.send(kind); designs.edited(); };
 $("undo").onclick = () => undoRedo("undo");
 $("redo").onclick = () => undoRedo("redo");
 document.addEventListener("keydown", (e) => {
   if ((e.ctrlKey || e.metaKey) && e.key.toLowerCase() === "z") { e.preventDefault(); undoRedo(e.shiftKey ? "redo" : "undo"); }
 });
+// -- guidance (docs/guides/regions.md): a highlight the light cannot give, and what would -------------
+// the offers a guidance event makes: a rotation of the environment that puts more light near the
+// painted pixels' mirror directions (10 points more of the highlight, as the note says), and a
+// painted region when the stroke fitted one BRDF for the whole object
+const hideGuidance = () => $("guidance").classList.add("hidden");
+function showGuidance(ev) {
+  $("guidance-text").textContent = ev.message;
+  const rot = $("guidance-rotate"), turn = ev.covered_at_rotation > ev.covered + 0.1;
+  rot.classList.toggle("hidden", !turn || !controls.has("light"));
+  rot.textContent = `Rotate the light to ${Math.round(ev.rotate_to_deg)}°`;
+  rot.onclick = () => {
+    state.rotation_deg = ev.rotate_to_deg;
+    stream?.send("light", { rotation_deg: state.rotation_deg, drag: false });
+    status(`light turned to ${Math.round(ev.rotate_to_deg)}°: paint the highlight again`);
+    hideGuidance();
+  };
+  const reg = $("guidance-region");
+  reg.classList.toggle("hidden", !ev.region || $("region-paint").checked);
+  reg.onclick = () => {
+    $("region-paint").checked = true;
+    $("region-paint").onchange();
+    hideGuidance();
+  };
+  $("guidance").classList.remove("hidden");
+}
+$("guidance-close").onclick = hideGuidance;
 // -- painted regions (docs/guides/regions.md): strokes make or extend the named region ---------------
 const regionName = () => $("region-name").value.trim().replaceAll("/", " ") || "region 1";
 $("region-paint").onchange = () => {

@@ -34,7 +34,7 @@ from ..scene import SRBF
 from .basis import DEFAULT_NL
 from .brush import DEFAULT_UNPAINTED_WEIGHT, Stroke, apply_stroke, polyline_distance, stroke_effect, stroke_weights
 from .fitter import GN_STEPS, GN_TOL, FitError, Fitter
-from .guidance import guidance_notes, highlight_guidance
+from .guidance import guidance_notes, stroke_guidance
 from .solve import FitRows, SolveResult, solve, solve_blocks
 
 # the region's weight falls from the brush edge (d = D/2) to zero at d = TAPER_END · D
@@ -242,7 +242,7 @@ def fit_region(fx: Fitter, name: str = "region 1", unpainted_weight: float = DEF
     best.tried = tried
     best.extended = bool(olds)
     best.seconds_transfer = sum(p["seconds"] for p in prep)
-    guide = _guidance(fx, best.views)
+    guide = stroke_guidance(fx, best.views)
     told = guidance_notes(guide, best.achieved)
     uncovered = sum(p["uncovered"] for p in prep)
     best.notes = region_notes(best.achieved, best.solve, uncovered, best.painted, guided=bool(told)) + told
@@ -471,16 +471,6 @@ def _fit_parts(fx, name, prep, w, off, n_o, cur, below, k, fit_albedo, constrain
     _, spill_far = stroke_effect(bases, tgts, [~f for f in fars], preds)
     return RegionOutcome(material, regions, res, sum(p["n"] for p in prep), int(sum(x.sum() for x in pnt)),
                          int(sum(len(p["R"]) for p in prep)), [], 0.0, achieved, spill, spill_far, False, views)
-
-
-def _guidance(fx: Fitter, views) -> dict | None:
-    """highlight_guidance over the painted pixels of the first view with any."""
-    for v, (base, tgt, painted, _, _) in zip(fx.views, views):
-        if painted.any():
-            s = v.samples
-            return highlight_guidance(fx.renderer.lighting.map, v.rotation_deg, v.intensity, s.normals[painted],
-                                      s.wo[painted], tgt[painted], base[painted])
-    return None
 
 
 def region_notes(achieved, res: SolveResult, uncovered: int, painted: int, guided: bool = False) -> list[str]:

@@ -22,6 +22,7 @@ import numpy as np
 from ..errors import GlintError
 from ..fit.brush import Stroke
 from ..fit.fitter import QUICK_ROWS, FitError, Fitter, painted_select, quick_select
+from ..fit.guidance import SHORT
 from ..protocol import CurveEvent, FitEvent, StrokeEvent
 from ..renderers.base import Lighting
 from ..scene import SRBF, Camera
@@ -217,6 +218,7 @@ class FitDriver:
                 stats[k] = getattr(out, k)
         stats.setdefault("energy_bound_per_channel", bound.tolist())
         self._curve_later(self.state.object, out.material)
+        self._guidance_later(out.achieved)
         return [FitEvent(object=self.state.object, material=_dump(out.material), stats=stats,
                          notes=out.notes).model_dump(exclude_none=True)]
 
@@ -226,13 +228,34 @@ class FitDriver:
         cost about as much as the fit itself, on the path from stroke to frame."""
         self._curve_pending = (name, material)
 
+    def _guidance_later(self, achieved: float | None, guidance: dict | None = None) -> None:
+        """A stroke fit that fell short of a highlight gets a guidance event after its frame
+        (fit/guidance.py: what the light around the mirror directions can give, the rotation
+        that gives most): measured there, off the path from stroke to frame. guidance : the
+        region fit's, already measured; None: measured then, for the one-BRDF fit."""
+        short = achieved is not None and achieved < SHORT
+        self._guidance_pending = (self.state.object, achieved, guidance, self.state.region is None) if short else None
+
     def after_frame(self) -> list[dict]:
-        """Events that wait for the frame they follow (a fit's curve event)."""
-        if getattr(self, "_curve_pending", None) is None:
-            return []
-        name, m = self._curve_pending
-        self._curve_pending = None
-        return [CurveEvent(object=name, curve=brdf_curve(m)).model_dump()]
+        """Events that wait for the frame they follow (a fit's curve event; its guidance event)."""
+        out = []
+        if getattr(self, "_curve_pending", None) is not None:
+            name, m = self._curve_pending
+            self._curve_pending = None
+            out.append(CurveEvent(object=name, curve=brdf_curve(m)).model_dump())
+        if getattr(self, "_guidance_pending", None) is not None:
+            from ..fit.guidance import guidance_event, stroke_guidance
+
+            obj, achieved, g, one_brdf = self._guidance_pending
+            self._guidance_pending = None
+            fx = self.fitter
+            if g is None and fx is not None and obj == self.state.object:
+                targets, _ = fx.targets()
+                g = stroke_guidance(fx, [(v.base, t, p) for v, (t, p) in zip(fx.views, targets)])
+            ev = guidance_event(obj, g, achieved, one_brdf, rotate=self.state.allows("light"))
+            if ev is not None:
+                out.append(ev)
+        return out
 
     def _fit_region(self) -> list[dict]:
         """The strokes make or extend the state's region (fit/regions.py): one part, so a stroke's
@@ -253,6 +276,7 @@ class FitDriver:
                  "achieved": out.achieved, "spill": out.spill, "spill_far": out.spill_far,
                  "regions": region_names(out.material), "painting": st.region, "region": out.report()}
         self._curve_later(st.object, out.material)
+        self._guidance_later(out.achieved, out.guidance)
         return [FitEvent(object=st.object, material=_dump(out.material), stats=stats,
                          notes=out.notes).model_dump(exclude_none=True)]
 

@@ -236,11 +236,11 @@ class SessionThread(threading.Thread):
         return ack
 
     def _after_frame(self, rt) -> None:
-        """Events that follow the frame (a fit's curve: off the path from stroke to frame)."""
+        """Events that follow the frame (a fit's curve and guidance: off the path from stroke to frame)."""
         from worker.jobs.reporting import error_event
 
         try:
             for e in rt.after_frame():
                 self._event(e)
         except Exception as ex:
-            self._event(error_event(ex) | {"message": f"curve failed: {error_event(ex)['message']}"})
+            self._event(error_event(ex) | {"message": f"after the frame (curve, guidance): {error_event(ex)['message']}"})

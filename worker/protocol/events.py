@@ -116,6 +116,29 @@ class FitEvent(_WorkerEvent):
         return None
 
 
+class GuidanceEvent(_Event):
+    """A brightening stroke fell short (achieved < 80%) and the light is why (fit/guidance.py):
+    luminances over the painted pixels of the light around their mirror directions (``mirror``),
+    the brightest above their horizon and what was asked; the share of the ask the mirror light
+    covers now (``covered``) and at the environment rotation that covers most
+    (``rotate_to_deg``, ``covered_at_rotation``); the share of pixels no BRDF can serve
+    (``impossible_share``). ``region``: the stroke fitted one BRDF for the whole object, and a
+    painted region would change only what it covers. ``message``: the same in words. Sent
+    after the stroke's frame."""
+    type: Literal["guidance"] = "guidance"
+    object: str
+    achieved: float
+    asked: float
+    mirror: float
+    brightest_above: float
+    covered: float
+    rotate_to_deg: float
+    covered_at_rotation: float
+    impossible_share: float
+    region: bool = False
+    message: str
+
+
 class CurveEvent(_Event):
     type: Literal["curve"] = "curve"
     object: str
@@ -257,7 +280,8 @@ class SaveRequest(_WorkerEvent):
 
 
 ServerEvent = Annotated[Union[HelloEvent, StrokeEvent, FitEvent, CurveEvent, SavedEvent, NoteEvent, ErrorEvent,
-                              PaintEvent, RendererEvent, PeerEvent, ObjectEvent, PickedEvent, ConvertedEvent, ExposureEvent],
+                              PaintEvent, RendererEvent, PeerEvent, ObjectEvent, PickedEvent, ConvertedEvent, ExposureEvent,
+                              GuidanceEvent],
                         Field(discriminator="type")]
 server_event = TypeAdapter(ServerEvent)
 
