@@ -113,18 +113,18 @@ def guidance_notes(g: dict | None, achieved: float | None, one_brdf: bool = Fals
 
 def stroke_guidance(fx, views) -> dict | None:
     """highlight_guidance over the painted pixels of the first of a fitter's views with any (None
-    when no stroke brightens, or the renderer's fit rows have no normals: GI's).
+    when no stroke brightens, or under GI).
     fx : fit.fitter.Fitter; views : per fitter view, (base, target, painted, …) with base and
     target (n, 3) radiance and painted (n,) bool over the view's fit pixels."""
-    r = fx.renderer
-    # the cut renderer's current map; a GI renderer's is its scene's (the tensors hold it)
-    envmap = r.lighting.map if getattr(r, "lighting", None) is not None else r.scene.envmap
+    lighting = getattr(fx.renderer, "lighting", None)
     for v, (base, tgt, painted, *_) in zip(fx.views, views):
         if painted.any():
             s = v.samples
-            if getattr(s, "normals", None) is None:
-                return None          # GI fit rows carry no surface normals: no guidance there yet
-            return highlight_guidance(envmap, v.rotation_deg, v.intensity, s.normals[painted], s.wo[painted],
+            # GI fit rows carry no surface normals, and under GI the mirror directions of a room
+            # see its walls as much as the map: no guidance there yet
+            if lighting is None or getattr(s, "normals", None) is None:
+                return None
+            return highlight_guidance(lighting.map, v.rotation_deg, v.intensity, s.normals[painted], s.wo[painted],
                                       tgt[painted], base[painted])
     return None
 

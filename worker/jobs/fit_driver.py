@@ -228,12 +228,12 @@ class FitDriver:
         cost about as much as the fit itself, on the path from stroke to frame."""
         self._curve_pending = (name, material)
 
-    def _guidance_later(self, achieved: float | None, guidance: dict | None = None) -> None:
+    def _guidance_later(self, achieved: float | None, guidance: dict | None = None, measure: bool = True) -> None:
         """A stroke fit that fell short of a highlight gets a guidance event after its frame
         (fit/guidance.py: what the light around the mirror directions can give, the rotation
-        that gives most): measured there, off the path from stroke to frame. guidance : the
-        region fit's, already measured; None: measured then, for the one-BRDF fit."""
-        short = achieved is not None and achieved < SHORT
+        that gives most): measured there, off the path from stroke to frame (``measure``: the
+        one-BRDF fit), or given (``guidance``: the region fit's, measured with its notes)."""
+        short = achieved is not None and achieved < SHORT and (measure or guidance is not None)
         self._guidance_pending = (self.state.object, achieved, guidance, self.state.region is None) if short else None
 
     def after_frame(self) -> list[dict]:
@@ -276,7 +276,7 @@ class FitDriver:
                  "achieved": out.achieved, "spill": out.spill, "spill_far": out.spill_far,
                  "regions": region_names(out.material), "painting": st.region, "region": out.report()}
         self._curve_later(st.object, out.material)
-        self._guidance_later(out.achieved, out.guidance)
+        self._guidance_later(out.achieved, out.guidance, measure=False)
         return [FitEvent(object=st.object, material=_dump(out.material), stats=stats,
                          notes=out.notes).model_dump(exclude_none=True)]
 

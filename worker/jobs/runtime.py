@@ -23,10 +23,10 @@ from ..fit.fitter import FitError
 from ..models import SRBF
 from ..models.base import parse_material
 from ..models.regions import region_names
-from ..protocol import (MAX_REGION_STEPS, ClientMsg, Convert, ConvertedEvent, CurveEvent, ExposureEvent, FitEvent, FitPaint, Moved, NewMaterial,
-                        NoEffect, NoteEvent, ObjectEvent, Pick, PickedEvent, RecordStroke, Redo, Refit, RegionsChanged,
-                        Relight, RendererEvent,
-                        Save, SaveRequest, SelectObject, SwitchRenderer, Undo, apply, client_msg, restore_state)
+from ..protocol import (MAX_REGION_STEPS, ClientMsg, Convert, ConvertedEvent, CurveEvent, ExposureEvent, FitEvent,
+                        FitPaint, Moved, NewMaterial, NoEffect, NoteEvent, ObjectEvent, Pick, PickedEvent, RecordStroke,
+                        Redo, Refit, RegionsChanged, Relight, RendererEvent, Save, SaveRequest, SelectObject,
+                        SwitchRenderer, Undo, apply, client_msg, restore_state)
 from ..renderers.base import FrameRequest, Lighting
 from . import compose
 from .compose import BIG_FRAME_PIXELS

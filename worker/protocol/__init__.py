@@ -11,8 +11,7 @@ from .effects import (MAX_REGION_STEPS, NO_EFFECT, Convert, Effect, FitPaint, Pi
                       RecordStroke, Redo, Refit, RegionsChanged, RejectStroke, Relight, Save, StoreEffect, StoreSave, SwitchRenderer,
                       Undo)
 from .events import (WORKER_EVENTS, ConvertedEvent, CurveEvent, ErrorEvent, ExposureEvent, FitEvent, FitStats,  # noqa: F401
-                     GuidanceEvent,
-                     HelloEvent, NoteEvent, ObjectEvent, PaintEvent, PeerEvent, PickedEvent, RendererEvent, SavedEvent,
+                     GuidanceEvent, HelloEvent, NoteEvent, ObjectEvent, PaintEvent, PeerEvent, PickedEvent, RendererEvent, SavedEvent,
                      SaveRequest, ServerEvent, StrokeEvent, apply_event,
                      server_event, worker_event)
 from .messages import (_MESSAGES, AnyClientMsg, ClientMsg, ConvertMsg, DisplayMsg, ObjectMsg, PickMsg, EnvironmentMsg, FitMsg, LightMsg,  # noqa: F401
