@@ -295,6 +295,40 @@ def test_gi_and_paint_scenes_created_from_the_studio(server, bunny_scene, shared
         page.screenshot(path=str(artifacts / "web-objects-5-gi-stroke.png"))
         change = np.abs(rgb(page) - before).mean(axis=2)
         assert change.max() > 0.05, change.max()
+        # a region painted under GI, then traced into the light transport: a new scene with the
+        # region in its gi.painted, precomputed and opened with its region listed
+        page.check("#region-paint")
+        _status(page, "no strokes")
+        page.select_option("#brush-mode", "scale")
+        page.fill("#brush-scale", "0.3")
+        settle(page)
+        before_region = rgb(page)
+        n = frame_no(page)
+        drag(page, x + 0.42 * w, y + 0.62 * h, 0.16 * w, 0, steps=10)
+        wait_new_frame(page, n)
+        page.locator("#region-trace").wait_for(state="visible", timeout=60_000)
+        settle(page)
+        before_trace = rgb(page)
+        page.click("#region-trace")
+        page.wait_for_function("() => (document.getElementById('scene-select').selectedOptions[0]?.textContent || '')"
+                               ".includes('regions traced')", timeout=300_000)
+        page.locator("#region-list li").first.wait_for(timeout=120_000)
+        settle(page)
+        page.screenshot(path=str(artifacts / "web-objects-6-gi-traced.png"))
+        traced = next(s for s in httpx.get(server["base"] + "/v1/scenes").json()
+                      if s["name"] == "bunny gi · regions traced")
+        (painted,) = traced["spec"]["gi"]["painted"]
+        assert painted["object"] == "bunny" and painted["material"]["model"] == "regions", painted
+        assert traced["spec"]["objects"][0]["material"]["model"] == "regions"
+        assert "global illumination" in page.locator("#renderer-info").inner_text()
+        # the traced scene shows the design as the session did (same exposure; what the eye sees
+        # of the region is exact either way, only the light it sends on differs)
+        traced_img = rgb(page)
+        assert traced_img.std() > 0.01, "the traced scene's frame is blank"
+        diff = float(np.abs(traced_img - before_trace).mean())
+        region = float(np.abs(before_trace - before_region).mean())
+        print(f"traced scene against the painted session: mean |Δ| {diff:.4f}; the region stroke's change {region:.4f}")
+        assert diff < 0.3 * region, (diff, region)
     # the uploaded scene was exposed automatically (median object pixel middle grey)
     page.wait_for_function("() => +document.getElementById('exposure').value !== 0", timeout=60_000)
     assert not errors, errors

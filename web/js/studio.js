@@ -220,6 +220,8 @@ function onEvent(ev) {
              + (view.drawn ? "" : " (its first frame follows)"));
     }
     showRenderer(ev.renderer || "cuts", ev.controls || [], ev.renderers, ev.off || {});
+    // a reopened session's regions are listed at once (not after its next fit)
+    if (i >= 0 && state.materials?.[i]) showRegions(state.materials[i], state.region ?? null);
     objects.show(state.objects, state.object);     // the menu names the object the session edits
     mountPaint(ev.state.object, ev.state.paint?.[ev.state.object] || null);
     state.transforms = ev.state.transforms || state.transforms;
@@ -250,6 +252,7 @@ function onEvent(ev) {
     state.object = ev.object;
     objects.selected(ev.object);
     setMaterial(ev.material, true, ev.curve);
+    showRegions(ev.material);                      // the list is the edited object's
     mountPaint(ev.object, state.paint?.[ev.object] || null);
     status(`editing ${ev.object}` + (ev.strokes ? ` (${ev.strokes} stroke${ev.strokes > 1 ? "s" : ""} of its own)` : ""));
   } else if (ev.type === "exposure") {
@@ -430,6 +433,36 @@ function showGuidance(ev) {
   $("guidance").classList.remove("hidden");
 }
 $("guidance-close").onclick = hideGuidance;
+// -- painted regions under GI traced into the light transport (docs/guides/regions.md): a new scene,
+// this one with the objects' materials as the session has them and the edited object's regions in
+// gi.painted, precomputed, then opened (the regions then light the rest of the scene as painted)
+$("region-trace").onclick = async () => {
+  const obj = state.object, btn = $("region-trace");
+  btn.disabled = true;
+  try {
+    const [sc, ses] = await Promise.all([api(`/v1/scenes/${session.scene_id}`),
+      api(`/v1/sessions/${session.id}`, { headers: { "X-Session-Token": session.token } })]);
+    const spec = structuredClone(sc.spec);
+    spec.objects.forEach((o, k) => { if (ses.state.materials?.[k]) o.material = ses.state.materials[k]; });
+    // shown as the designer sees it now, not exposed anew
+    if (typeof ses.state.exposure === "number") spec.exposure = ses.state.exposure;
+    const i = spec.objects.findIndex((o) => o.name === obj);
+    spec.objects[i].material = material;
+    spec.gi = { ...(spec.gi || {}),
+      painted: [...(spec.gi?.painted || []).filter((p) => p.object !== obj), { object: obj, material }] };
+    const name = `${(sc.name || sc.id).replace(/ · regions traced$/, "")} · regions traced`;
+    status(`tracing the regions of ${obj}: a new scene, "${name}"…`);
+    const s = await api(`/v1/scenes?name=${encodeURIComponent(name)}`, { method: "POST", body: spec });
+    await api(`/v1/scenes/${s.id}/precompute`, { method: "POST" });
+    await waitPrecompute(s.id);
+    await listScenes(s.id);
+    await openScene(s.id);
+  } catch (err) {
+    status(`tracing the regions failed: ${err.message}`);
+  } finally {
+    btn.disabled = false;
+  }
+};
 // -- painted regions (docs/guides/regions.md): strokes make or extend the named region ---------------
 const regionName = () => $("region-name").value.trim().replaceAll("/", " ") || "region 1";
 $("region-paint").onchange = () => {
@@ -438,6 +471,7 @@ $("region-paint").onchange = () => {
 };
 function showRegions(material, painting) {
   const names = [...new Set((material?.model === "regions" ? material.regions : []).map((r) => r.name.split("/")[0]))];
+  $("region-trace").classList.toggle("hidden", !(rendererKind === "gi" && names.length > 0));
   if (painting !== undefined) $("region-paint").checked = painting != null;
   const list = $("region-list");
   list.replaceChildren(...names.map((n) => {
