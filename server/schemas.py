@@ -155,5 +155,9 @@ class SessionOut(BaseModel):
     stream: str
     state: dict[str, Any]
     strokes: list[dict] = Field(default_factory=list)
+    region_steps: list[dict] = Field(default_factory=list, description=(
+        "the steps on painted regions (rename, erase, merge, a region's material) that undo and redo cover, in "
+        "order: seq, object, region_before, region_after (the region painted before and after), undone, dropped "
+        "(left on the redo stack when a new edit came)"))
     worker_pid: int | None = None
     closed: bool = False

@@ -89,6 +89,13 @@ def _stream_url(sid: str) -> str:
     return f"/v1/sessions/{sid}/stream"
 
 
+def _region_steps(db, row: Session) -> list[dict]:
+    """The session's region steps, without their materials (the state holds the current one)."""
+    rows = db.scalars(select(RegionStepRow).where(RegionStepRow.session_id == row.id).order_by(RegionStepRow.id))
+    return [{"seq": r.seq, "object": r.object, "region_before": r.region_before, "region_after": r.region_after,
+             "undone": r.undone, "dropped": r.dropped} for r in rows]
+
+
 def _strokes(db, row: Session) -> list[dict]:
     rows = db.scalars(select(StrokeRow).where(StrokeRow.session_id == row.id).order_by(StrokeRow.id))
     return [{"seq": r.seq, "epoch": r.epoch, "undone": r.undone, "dropped": r.dropped, "rejected": r.rejected,
@@ -138,7 +145,7 @@ def get_session(sid: str, st: State, db: DB, x_session_token: str | None = Heade
     if not _authorised(row, x_session_token):
         raise HTTPException(403, "wrong or missing session token (X-Session-Token header)")
     return SessionOut(id=row.id, scene_id=row.scene_id, stream=_stream_url(sid), state=row.state,
-                      strokes=_strokes(db, row), closed=row.closed,
+                      strokes=_strokes(db, row), region_steps=_region_steps(db, row), closed=row.closed,
                       worker_pid=st.pool.worker_of(sid))
 
 

@@ -136,8 +136,11 @@ def test_region_steps_survive_a_worker_restart(server, client, bunny_scene):
             assert regions(ev) == ["ear"], ev
 
     asyncio.run(go())
-    st = client.get(f"/v1/sessions/{sid}", headers={"X-Session-Token": token}).json()["state"]
-    assert [r["name"] for r in st["materials"][0]["regions"]] == ["ear"]
+    got = client.get(f"/v1/sessions/{sid}", headers={"X-Session-Token": token}).json()
+    assert [r["name"] for r in got["state"]["materials"][0]["regions"]] == ["ear"]
+    (step,) = got["region_steps"]                  # REST clients see the step and that it is undone
+    assert step["seq"] == 3 and step["undone"] and not step["dropped"] and step["object"] == "bunny"
+    assert (step["region_before"], step["region_after"]) == ("ear", "left ear")
 
 
 def test_stream_errors_keep_the_session_alive(server, client, bunny_scene):
