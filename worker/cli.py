@@ -211,7 +211,7 @@ def cmd_fit(a) -> int:
             out = fit_region(fx, name=a.region_name, unpainted_weight=uw, constrained=not a.unconstrained,
                              parts=a.region_parts)
         else:
-            out = fx.fit(constrained=not a.unconstrained, unpainted_weight=uw)
+            out = fx.fit(constrained=not a.unconstrained, unpainted_weight=uw, neutral=False if a.per_channel else None)
     else:
         fx.add_view()
         out = fx.fit_targets([target], [mask], constrained=not a.unconstrained)
@@ -350,6 +350,9 @@ def add_commands(sub, bench=None) -> None:
     ft.add_argument("--mask", help="PNG: non-zero pixels of the target are used")
     ft.add_argument("--out", required=True, help="MATERIAL.json (an srbf material; with --regions a regions material)")
     ft.add_argument("--unconstrained", action="store_true", help="drop non-negativity and energy conservation")
+    ft.add_argument("--per-channel", action="store_true",
+                    help="fit the specular part per channel also for strokes without colour (by default white, grey "
+                         "and scaling strokes keep it white: one lobe shape for the three channels)")
     ft.add_argument("--unpainted-weight", type=float, help="weight of unpainted pixels against painted ones (default 1)")
     ft.add_argument("--albedo", type=float, nargs=3, metavar=("R", "G", "B"),
                     help="diffuse albedo ρ_d (default: the object's current material's)")

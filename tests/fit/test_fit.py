@@ -115,6 +115,55 @@ def test_white_stroke_paints_a_highlight(fitter, across):
     assert after[painted].mean() > before[painted].mean() + 0.3 * asked
 
 
+def test_strokes_without_colour_fit_a_white_specular_part(fitter, across):
+    """White, grey and scaling strokes ask for no colour: the fit keeps one specular part for
+    the three channels (solve ``neutral``), which satisfies the energy rows of the darkest
+    channel's bound; a coloured stroke is fitted per channel. Forced per channel, the white
+    stroke's lobes differ between channels (the light's colour differs), the tint that showed as
+    pink and cyan bands."""
+    from worker.fit.brush import achromatic
+
+    C = 2.0 * float(fitter.views[0].base.max())
+    pts = across(fitter)
+    white = Stroke(points=pts, color=(C, C, C), diameter=8, kappa=0.1)
+    assert achromatic([white]) and achromatic([Stroke(points=pts, mode="scale", scale=0.3)])
+    assert not achromatic([Stroke(points=pts, color=(C, 0.5 * C, C))]) and not achromatic([])
+    fitter.add_stroke(white)
+    out = fitter.fit()
+    c = out.solve.coefficients
+    assert np.ptp(c, axis=1).max() == 0.0 and c.max() > 0, c.max()
+    _constraints_hold(fitter, out)
+    per = fitter.fit(neutral=False).solve.coefficients
+    spread = float(np.abs(per - per.mean(axis=1, keepdims=True)).sum() / np.abs(per).sum())
+    assert spread > 0.01, spread                   # per channel, the lobes do differ
+    fitter.history.clear()
+    fitter.add_stroke(Stroke(points=pts, color=(C, 0.6 * C, 0.3 * C), diameter=8, kappa=0.1))
+    coloured = fitter.fit().solve.coefficients
+    assert np.ptp(coloured, axis=1).max() > 0
+
+
+def test_a_neutral_solve_is_the_per_channel_one_when_the_channels_agree():
+    """With the same rows in every channel and a grey target, one coefficient vector for the
+    three channels is what the per-channel solve finds: neutral only ties what is free to
+    differ, also with the albedo fitted."""
+    from worker.fit.basis import default_basis
+    from worker.fit.solve import FitRows, solve
+
+    b = default_basis()
+    rng = np.random.default_rng(3)
+    T1 = (rng.random((400, b.J)) * 0.02).astype(np.float32)
+    T = np.stack([T1] * 3)
+    E = np.full((400, 3), 0.3, np.float32)
+    tgt = np.repeat(rng.random((400, 1)) * 0.5 + 0.2, 3, axis=1)
+    rows = [FitRows(T, E, tgt, np.ones(400))]
+    for fa in (False, True):
+        a = solve(rows, b, (0.4, 0.4, 0.4), fit_albedo=fa)
+        n = solve(rows, b, (0.4, 0.4, 0.4), fit_albedo=fa, neutral=True)
+        # equal to the solvers' tolerance (their active sets grow along different paths)
+        assert np.allclose(n.coefficients, a.coefficients, atol=1e-4 * a.coefficients.max()), fa
+        assert np.allclose(n.albedo, a.albedo, atol=1e-6) and n.residual_rms == pytest.approx(a.residual_rms, rel=1e-6)
+
+
 def test_unpainted_weight_keeps_untouched_regions(fitter, across):
     """The paper's limitation (§5): unpainted regions change too. Weighting them keeps them:
     the change falls as the weight rises, at the price of a weaker stroke."""

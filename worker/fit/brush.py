@@ -149,6 +149,15 @@ def stroke_effect(base, target, painted, pred) -> tuple[float | None, float | No
     return achieved, spill
 
 
+def achromatic(strokes) -> bool:
+    """Whether strokes ask for no colour: each scales the radiance (scale mode) or paints equal
+    channels (white, grey, or removing light evenly). A fit to such strokes keeps the specular
+    part white (solve.solve ``neutral``)."""
+    strokes = list(strokes)
+    return bool(strokes) and all(
+        s.mode == "scale" or max(s.color) - min(s.color) <= 1e-6 * max(abs(c) for c in s.color) for s in strokes)
+
+
 def stroke_notes(achieved: float | None, solve, albedo) -> list[str]:
     """What a designer should know about a stroke fit that falls short: which channels hit
     energy conservation (ρ_d + specular albedo ≤ 1 per channel)."""

@@ -25,8 +25,8 @@ from ..errors import GlintError
 from ..renderers.base import Lighting
 from ..scene import SRBF, Camera, Material
 from .basis import DEFAULT_NL, SRBFBasis, default_basis, equivalent_roughness, static_alpha_for
-from .brush import (DEFAULT_UNPAINTED_WEIGHT, Stroke, StrokeHistory, apply_stroke, stroke_effect, stroke_notes,
-                    stroke_weights)
+from .brush import (DEFAULT_UNPAINTED_WEIGHT, Stroke, StrokeHistory, achromatic, apply_stroke, stroke_effect,
+                    stroke_notes, stroke_weights)
 from .solve import FitRows, SolveResult, gram, solve
 
 MAX_FIT_ROWS = 4000     # the paper's largest N; see Fitter.row_stride
@@ -418,10 +418,13 @@ class Fitter:
 
     # -- fitting --------------------------------------------------------------------------------
     def fit(self, constrained: bool = True, unpainted_weight: float = DEFAULT_UNPAINTED_WEIGHT,
-            n_l: int = DEFAULT_NL, targets=None, fit_albedo: bool = DEFAULT_FIT_ALBEDO) -> FitOutcome:
+            n_l: int = DEFAULT_NL, targets=None, fit_albedo: bool = DEFAULT_FIT_ALBEDO,
+            neutral: bool | None = None) -> FitOutcome:
         """Solve for the SRBF coefficients matching the strokes (or given per-view targets:
         a list of (target (N, 3), painted/valid (N,) bool) as from ``targets()``); with
-        ``fit_albedo`` the diffuse albedo too (solve.solve)."""
+        ``fit_albedo`` the diffuse albedo too (solve.solve). neutral : one specular part for the
+        three channels (solve.solve); None: when the strokes ask for no colour (brush.achromatic),
+        never for given targets."""
         if not self.views:
             raise FitError("no view saved: add_view() first")
         if unpainted_weight < 0:
@@ -430,6 +433,8 @@ class Fitter:
             raise FitError("this fitter's views hold no transfer rows (made for a painted region's fit)")
         notes = []
         strokes = targets is None
+        if neutral is None:
+            neutral = strokes and achromatic(self.history.strokes)
         if strokes:
             targets, notes = self.targets()
         painted = sum(int(p.sum()) for _, p in targets)
@@ -441,7 +446,7 @@ class Fitter:
             if not any(np.any(r.weight > 0) for r in rows):
                 raise FitError("nothing to fit: no painted pixel and unpainted_weight is 0")
             res = solve(rows, self.basis, self.albedo, constrained=constrained, n_l=n_l, prior=prior,
-                        warm=self._last if constrained else None, fit_albedo=fit_albedo)
+                        warm=self._last if constrained else None, fit_albedo=fit_albedo, neutral=neutral)
             steps += 1
             if constrained:
                 self._last = res.coefficients

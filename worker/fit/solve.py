@@ -178,7 +178,8 @@ def _qp(H, f, G, bound, warm, tol, seed_rows=None, seed_vars=None, grow: int = 2
 
 def solve(rows: list[FitRows], basis: SRBFBasis, albedo, constrained: bool = True,
           n_l: int = DEFAULT_NL, prior: np.ndarray | None = None, prox: float = DEFAULT_PROX,
-          warm: np.ndarray | None = None, tol: float = 1e-9, fit_albedo: bool = False) -> SolveResult:
+          warm: np.ndarray | None = None, tol: float = 1e-9, fit_albedo: bool = False,
+          neutral: bool = False) -> SolveResult:
     """Coefficients (J, 3) for the stacked rows of one or more views (footnote 1).
 
     albedo : (3,) ρ_d in [0, 1]. prior : (J, 3) c₀ (default 0). warm : (J, 3) previous solution.
@@ -188,7 +189,14 @@ def solve(rows: list[FitRows], basis: SRBFBasis, albedo, constrained: bool = Tru
         Σ_j g_j^l c_j + ρ_d ≤ 1 (eq. 14 itself), and the proximal term keeps ρ_d near ``albedo``
         where the strokes do not decide it. This is what makes a darkening or a colour change of a
         matte object possible: the specular part can only add light.
+    neutral : one set of coefficients for the three channels (a white specular part, as a
+        dielectric's; ``_solve_neutral``): the squared errors of all channels summed, the diffuse
+        albedo still per channel. For strokes that ask for no colour (white or grey paint,
+        scaling): fitted per channel, a white highlight under a coloured sky took lobes of
+        different shapes per channel and tinted the rest of the object (pink and cyan bands).
     """
+    if neutral:
+        return _solve_neutral(rows, basis, albedo, constrained, n_l, prior, prox, warm, tol, fit_albedo)
     t0 = time.perf_counter()
     rho = np.asarray(albedo, np.float64)
     J = basis.J
@@ -235,6 +243,73 @@ def solve(rows: list[FitRows], basis: SRBFBasis, albedo, constrained: bool = Tru
         coef, G = coef[:J], G[:, :J]
     seconds = time.perf_counter() - t0
     # report on the rows that count (w > 0), unweighted
+    sse, n, tss = 0.0, 0, 0.0
+    for r in rows:
+        k = r.weight > 0
+        pred = rho * r.E[k] + np.stack([r.T[c][k] @ coef[:, c] for c in range(3)], axis=1)
+        sse += float(((r.target[k] - pred) ** 2).sum())
+        tss += float((r.target[k] ** 2).sum())
+        n += pred.size
+    rms = np.sqrt(sse / max(n, 1))
+    energy = (G @ coef).max(axis=0)
+    return SolveResult(coef, float(rms), float(rms / max(np.sqrt(tss / max(n, 1)), 1e-30)), float(energy.max()),
+                       1.0 - rho, seconds, iters, constrained, energy, rho)
+
+
+def _solve_neutral(rows, basis, albedo, constrained, n_l, prior, prox, warm, tol, fit_albedo) -> SolveResult:
+    """``solve`` with one coefficient vector c (J,) for the three channels: minimise
+    Σ_ch Σ_i w_i (B_i,ch − ρ_ch E_i,ch − T_i,ch c)² (+ ε‖c − c₀‖², c₀ the prior's channel mean)
+    subject to c ≥ 0 and Σ_j g_j^l c_j ≤ 1 − ρ_ch for every channel (eq. 18-19); with
+    fit_albedo the unknowns are [c, ρ_R, ρ_G, ρ_B] and the rows Σ_j g_j^l c_j + ρ_ch ≤ 1."""
+    t0 = time.perf_counter()
+    rho = np.asarray(albedo, np.float64)
+    J = basis.J
+    prior = np.zeros((J, 3)) if prior is None else np.asarray(prior, np.float64)
+    G = basis.energy_rows(n_l)
+    if constrained and np.any(rho > 1):
+        raise ValueError(f"diffuse albedo {rho.tolist()} exceeds 1: no energy-conserving specular part exists")
+    keep = 1.0 - basis.row_margin
+    if fit_albedo:
+        Ha, fa = _augmented_normal_equations(rows)
+        n_var = J + 3
+        H, f = np.zeros((n_var, n_var)), np.zeros(n_var)
+        for c in range(3):
+            H[:J, :J] += Ha[c, :J, :J]
+            H[:J, J + c] = H[J + c, :J] = Ha[c, :J, J]
+            H[J + c, J + c] = Ha[c, J, J]
+            f[:J] += fa[c, :J]
+            f[J + c] = fa[c, J]
+        Gx = np.zeros((3 * len(G), n_var))
+        for c in range(3):
+            Gx[c * len(G):(c + 1) * len(G), :J] = G
+            Gx[c * len(G):(c + 1) * len(G), J + c] = 1.0
+        bound = keep
+        pri = np.concatenate([prior.mean(axis=1), rho])
+        ub = np.concatenate([np.full(J, np.inf), np.ones(3)])
+        always = np.zeros(n_var, bool)
+        always[J:] = True
+    else:
+        Hc, fc = normal_equations(rows, rho)
+        H, f, n_var, Gx = Hc.sum(axis=0), fc.sum(axis=0), J, G
+        bound = (1.0 - float(rho.max())) * keep            # the tightest channel's bound
+        pri, ub, always = prior.mean(axis=1), None, None
+    scale = max(np.trace(H) / n_var, 1e-30)
+    Hs = H / scale + prox * np.eye(n_var)
+    fs = f / scale + prox * pri
+    iters = []
+    if not constrained:
+        x = sla.solve(Hs, fs, assume_a="pos")
+    else:
+        w = None
+        if warm is not None and np.shape(warm)[0] == J:
+            w = np.asarray(warm, np.float64).mean(axis=1)
+            w = np.concatenate([w, rho]) if fit_albedo else w
+        x, it, _, _ = _qp(Hs, fs, Gx, bound, w, tol, ub=ub, always=always)
+        iters.append(it)
+    if fit_albedo:
+        rho = np.clip(x[J:], 0.0, 1.0)
+    coef = np.repeat(x[:J, None], 3, axis=1)
+    seconds = time.perf_counter() - t0
     sse, n, tss = 0.0, 0, 0.0
     for r in rows:
         k = r.weight > 0
