@@ -78,11 +78,13 @@ def test_reload_and_a_second_tab_reopen_the_session(server, bunny_scene, browser
     assert _sid(page) == sid
     assert np.abs(g2 - g1).mean() < 1.5 and (g2 - g0)[ROWS, COLS].mean() > 4, "the reload lost the stroke"
     assert page.locator("#model").input_value() == model
-    # the plot is the worker's evaluation of the stored material (refitted from the stored strokes
-    # on reopen, so a few thousandths may differ from the stroke's first fit; a reset is ~0.1)
+    # the plot is the worker's evaluation of the stored material: a reopened session shows it
+    # without refitting, and the settled frame the stroke waited for came after the fit over the
+    # full view (a quick view's fit can differ from it by 0.1 where the strokes leave the lobe
+    # free), so the curve is the same one
     after = np.array(json.loads(page.locator("#curve").get_attribute("data-points")))
     before = np.array(json.loads(points))
-    assert after.shape == before.shape and np.abs(after - before).max() < 0.03, \
+    assert after.shape == before.shape and np.abs(after - before).max() < 1e-4, \
         f"the reload lost the material: the curve moved by {np.abs(after - before).max():.3f}"
     got = httpx.get(f"{base}/v1/sessions/{sid}", headers={"X-Session-Token": _token(page, sid)}).json()
     assert len([s for s in got["strokes"] if not s["undone"]]) == 1, got["strokes"]

@@ -150,6 +150,16 @@ class FitDriver:
         v = self.fitter.views[i]
         self._adopt(i, self._submit(self._build_view, self.fitter, v.camera, v.rotation_deg, v.intensity))
 
+    def fit_pending(self) -> bool:
+        """Whether a refit of the current strokes is still to come: a quick view whose full build
+        (``_complete``) replaces it and re-runs the fit, so the material and the frame will change
+        without a message (a frame before it is not the settled one)."""
+        fx = self.fitter
+        if fx is None or len(fx.history) == 0 or self.state.readonly:
+            return False
+        return self._needs_fit or any(v.provisional and self._view_moves.get(i, 0) == self._moves
+                                      for i, v in enumerate(fx.views))
+
     def _adopt(self, i: int, fut: Future) -> None:
         self._completions[i] = (self.fitter, self._moves, fut)
         fut.add_done_callback(lambda _f: self.wake())

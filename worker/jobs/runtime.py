@@ -395,10 +395,11 @@ class SessionRuntime(FitDriver):
         self.frame_no += 1
         compose.release_scratch(w, h)
         # settled: the session thread draws no still after it (needs_still_frame once the user
-        # lets go); a drag frame is never settled, its still follows the drag
+        # lets go) and no refit is on its way (a stroke's quick view being completed: the full
+        # view's fit changes the material); a drag frame is never settled, its still follows the drag
         hdr = compose.header(self.frame_no, ack, w, h, lod, out.info, (t1 - t0) * 1e3, (t2 - t1) * 1e3,
                              clock.paused * 1e3, skipped,
-                             settled=not self._drag and not self.needs_still_frame())
+                             settled=not self._drag and not self.needs_still_frame() and not self.fit_pending())
         # a deep copy: a nested part of the state changed in place would change the key with it
         self._settled = (self._image_key(deep=True), hdr, jpeg) if hdr["settled"] else None
         return hdr, jpeg

@@ -29,7 +29,8 @@ class FrameHeader(BaseModel):
                                            "still of the same state follows when the session is idle")
     settled: bool = Field(False, description="the settled image of the session's state: no further frame follows "
                                              "until a message changes it (false for quick and drag frames, and "
-                                             "for one-sample frames whose anti-aliased still is still to come)")
+                                             "for one-sample frames whose anti-aliased still is still to come, and "
+                                             "while a stroke's fit is being completed over the full view)")
     shadow: bool | None = Field(None, description="the ground shadow is drawn; null: the scene has no ground")
     ms_render: float = Field(description="rendering, not counting ms_paused")
     ms_encode: float
