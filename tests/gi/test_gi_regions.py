@@ -337,3 +337,43 @@ def test_one_brdf_strokes_over_a_painted_object_under_gi(sofa):
     direct, _ = _draw(sofa, mats)
     assert np.abs(after - direct).max() <= TOL * direct.max()
     assert fit["stats"]["gap"] is None or fit["stats"]["gap"] < 0.05, fit["stats"]
+
+
+def test_a_one_brdf_stroke_that_falls_short_under_gi_offers_a_region(sofa):
+    """Under GI the light near the mirror directions is not measured (a room's walls light them as
+    much as the map), but a one-BRDF stroke that falls short still gets a guidance event after its
+    frame: what the one BRDF reached and spread to the rest of the object, and a painted region on
+    offer. Taken, the same stroke as a region reaches the change and asks for nothing more."""
+    from worker.protocol import server_event
+
+    def dark_of(y, x0, x1):
+        return {"mode": "scale", "scale": 0.5, "points": [[x0, y + 0.5], [x1, y + 0.5]], "diameter": 4, "kappa": 0.05}
+
+    rt = _runtime(sofa)
+    rt.frame(-1)
+    _, ids = _frame(rt)
+    y, x0, x1 = middle_row(ids, 0)
+    rt.handle({"seq": 1, "type": "stroke", "stroke": dark_of(y, x0, x1)})
+    st = rt.fit_if_needed()[0]["stats"]
+    rt.frame(1)
+    got = [e for e in rt.after_frame() if e["type"] == "guidance"]
+    assert st["achieved"] < 0.8, st                     # one BRDF darkens the whole sofa
+    assert len(got) == 1, got
+    g = got[0]
+    assert g["object"] == "sofa" and g["region"] and "painting the stroke as a region" in g["message"], g
+    assert g["covered"] is None and g["rotate_to_deg"] is None, g          # the light is not measured
+    assert g["achieved"] == st["achieved"] and g["spill"] == st["spill"], (g, st)
+    assert f"{st['achieved'] * 100:.0f}%" in g["message"]
+    server_event.validate_python(g)
+    # the offer taken: the same stroke in region mode
+    rt2 = _runtime(sofa)
+    rt2.frame(-1)
+    rt2.handle({"seq": 1, "type": "region", "action": "paint", "name": "seat"})
+    rt2.fit_if_needed()
+    rt2.frame(1)
+    rt2.after_frame()
+    rt2.handle({"seq": 2, "type": "stroke", "stroke": dark_of(y, x0, x1)})
+    st2 = rt2.fit_if_needed()[0]["stats"]
+    rt2.frame(2)
+    assert st2["achieved"] >= 0.8, st2
+    assert not [e for e in rt2.after_frame() if e["type"] == "guidance"]

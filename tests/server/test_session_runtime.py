@@ -501,7 +501,8 @@ def test_a_highlight_the_light_cannot_give_gets_guidance_after_its_frame(bunny_r
     frame (off the path from stroke to frame) the session sends a guidance event with what the
     light near the mirror directions covers (close to what the fit reached), the environment
     rotation that covers most, and a painted region on offer. Painted again under that rotation
-    the same stroke reaches more; a darkening gets no guidance."""
+    the same stroke reaches more. A darkening (one BRDF: its specular part only adds light) gets
+    no light figures, only the region on offer; in region mode it reaches the change."""
     def stroke(rt, seq, **kw):
         rt.handle({"seq": seq, "type": "stroke", "stroke": {**STROKE, **kw}})
         fit = rt.fit_if_needed()[0]
@@ -526,7 +527,16 @@ def test_a_highlight_the_light_cannot_give_gets_guidance_after_its_frame(bunny_r
     rt3 = _runtime(bunny_renderer)
     rt3.frame(-1)
     fit3, got3 = stroke(rt3, 1, mode="scale", scale=0.3)
-    assert got3 == [], got3
+    assert fit3["stats"]["achieved"] < 0.8 and len(got3) == 1, (fit3["stats"], got3)
+    assert got3[0]["region"] and got3[0]["covered"] is None and got3[0]["mirror"] is None, got3
+    assert "painting the stroke as a region" in got3[0]["message"]
+    server_event.validate_python(got3[0])
+    rt4 = _runtime(bunny_renderer)
+    rt4.frame(-1)
+    rt4.handle({"seq": 1, "type": "region", "action": "paint", "name": "belly"})
+    rt4.fit_if_needed()
+    fit4, got4 = stroke(rt4, 2, mode="scale", scale=0.3)
+    assert fit4["stats"]["achieved"] >= 0.8 and got4 == [], (fit4["stats"], got4)
 
 
 def test_a_view_that_keeps_changing_builds_nothing_for_strokes(bunny_renderer):

@@ -414,7 +414,7 @@ document.addEventListener("keydown", (e) => {
 const hideGuidance = () => $("guidance").classList.add("hidden");
 function showGuidance(ev) {
   $("guidance-text").textContent = ev.message;
-  const rot = $("guidance-rotate"), turn = ev.covered_at_rotation > ev.covered + 0.1;
+  const rot = $("guidance-rotate"), turn = ev.covered_at_rotation != null && ev.covered_at_rotation > ev.covered + 0.1;
   rot.classList.toggle("hidden", !turn || !controls.has("light"));
   rot.textContent = `Rotate the light to ${Math.round(ev.rotate_to_deg)}°`;
   rot.onclick = () => {

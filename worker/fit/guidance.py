@@ -129,19 +129,42 @@ def stroke_guidance(fx, views) -> dict | None:
     return None
 
 
-def guidance_event(obj: str, g: dict | None, achieved: float | None, one_brdf: bool, rotate: bool = True) -> dict | None:
+def spread_notes(achieved: float | None, spill: float | None) -> list[str]:
+    """The note of a one-BRDF stroke fit that fell short where the light is not measured (a
+    darkening or a colour change, or any stroke under GI): one BRDF for the whole object changes
+    every part of it that sees the same light, so a change asked on part of it comes out weaker
+    there and spreads; a painted region changes only what it covers. spill : the RMS change of
+    the object's unpainted pixels relative to their radiance (fit.brush.stroke_effect)."""
+    if achieved is None or achieved >= SHORT:
+        return []
+    spread = (f" and changed the rest of the object by {spill * 100:.0f}% of its radiance"
+              if spill is not None and spill > 0.1 else "")
+    return [f"one BRDF for the whole object reached {achieved * 100:.0f}% of the change painted{spread}: "
+            f"painting the stroke as a region changes only what it covers"]
+
+
+def guidance_event(obj: str, g: dict | None, achieved: float | None, one_brdf: bool, rotate: bool = True,
+                   spill: float | None = None) -> dict | None:
     """The session's guidance event (protocol GuidanceEvent) of a stroke fit that fell short, or
-    None: no highlight asked, or it was achieved. one_brdf : the stroke fitted one BRDF for the
-    whole object (the event then offers a painted region too); rotate : as guidance_notes'."""
+    None: it was achieved, or (a region's fit) no highlight was asked. g : highlight_guidance's
+    result, None where the light was not measured (not a brightening, or under GI); one_brdf :
+    the stroke fitted one BRDF for the whole object (the event then offers a painted region too);
+    rotate : as guidance_notes'; spill : the one-BRDF fit's (spread_notes)."""
+    from ..protocol import GuidanceEvent
+
+    if g is None:
+        notes = spread_notes(achieved, spill) if one_brdf else []
+        if not notes:
+            return None
+        return GuidanceEvent(object=obj, achieved=float(achieved), region=True, message=notes[0],
+                             spill=None if spill is None else float(spill)).model_dump()
     notes = guidance_notes(g, achieved, one_brdf, rotate)
     if not notes:
         return None
-    from ..protocol import GuidanceEvent
-
     # a region is offered where a BRDF could make the highlight at all (guidance_notes' text
     # then suggests one), and only to a stroke that fitted the whole object's BRDF
     region = one_brdf and g["impossible_share"] <= 0.5
     return GuidanceEvent(object=obj, achieved=float(achieved), region=region, message=notes[0],
+                         spill=None if spill is None else float(spill),
                          **{k: float(g[k]) for k in ("asked", "mirror", "brightest_above", "covered", "rotate_to_deg",
                                                      "covered_at_rotation", "impossible_share")}).model_dump()
-

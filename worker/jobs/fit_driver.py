@@ -228,7 +228,7 @@ class FitDriver:
                 stats[k] = getattr(out, k)
         stats.setdefault("energy_bound_per_channel", bound.tolist())
         self._curve_later(self.state.object, out.material)
-        self._guidance_later(out.achieved)
+        self._guidance_later(out.achieved, spill=out.spill)
         return [FitEvent(object=self.state.object, material=_dump(out.material), stats=stats,
                          notes=out.notes).model_dump(exclude_none=True)]
 
@@ -238,13 +238,17 @@ class FitDriver:
         cost about as much as the fit itself, on the path from stroke to frame."""
         self._curve_pending = (name, material)
 
-    def _guidance_later(self, achieved: float | None, guidance: dict | None = None, measure: bool = True) -> None:
-        """A stroke fit that fell short of a highlight gets a guidance event after its frame
-        (fit/guidance.py: what the light around the mirror directions can give, the rotation
-        that gives most): measured there, off the path from stroke to frame (``measure``: the
-        one-BRDF fit), or given (``guidance``: the region fit's, measured with its notes)."""
+    def _guidance_later(self, achieved: float | None, guidance: dict | None = None, measure: bool = True,
+                        spill: float | None = None) -> None:
+        """A stroke fit that fell short gets a guidance event after its frame (fit/guidance.py):
+        for a highlight, what the light around the mirror directions can give and the rotation
+        that gives most, measured there, off the path from stroke to frame (``measure``: the
+        one-BRDF fit), or given (``guidance``: the region fit's, measured with its notes); for
+        any other one-BRDF stroke, and under GI, what the one BRDF reached and spread
+        (``spill``) and a painted region on offer."""
         short = achieved is not None and achieved < SHORT and (measure or guidance is not None)
-        self._guidance_pending = (self.state.object, achieved, guidance, self.state.region is None) if short else None
+        self._guidance_pending = ((self.state.object, achieved, guidance, self.state.region is None, spill)
+                                  if short else None)
 
     def after_frame(self) -> list[dict]:
         """Events that wait for the frame they follow (a fit's curve event; its guidance event)."""
@@ -256,13 +260,13 @@ class FitDriver:
         if getattr(self, "_guidance_pending", None) is not None:
             from ..fit.guidance import guidance_event, stroke_guidance
 
-            obj, achieved, g, one_brdf = self._guidance_pending
+            obj, achieved, g, one_brdf, spill = self._guidance_pending
             self._guidance_pending = None
             fx = self.fitter
             if g is None and fx is not None and obj == self.state.object:
                 targets, _ = fx.targets()
                 g = stroke_guidance(fx, [(v.base, t, p) for v, (t, p) in zip(fx.views, targets)])
-            ev = guidance_event(obj, g, achieved, one_brdf, rotate=self.state.allows("light"))
+            ev = guidance_event(obj, g, achieved, one_brdf, rotate=self.state.allows("light"), spill=spill)
             if ev is not None:
                 out.append(ev)
         return out

@@ -117,24 +117,30 @@ class FitEvent(_WorkerEvent):
 
 
 class GuidanceEvent(_Event):
-    """A brightening stroke fell short (achieved < 80%) and the light is why (fit/guidance.py):
-    luminances over the painted pixels of the light around their mirror directions (``mirror``),
-    the brightest above their horizon and what was asked; the share of the ask the mirror light
-    covers now (``covered``) and at the environment rotation that covers most
-    (``rotate_to_deg``, ``covered_at_rotation``); the share of pixels no BRDF can serve
-    (``impossible_share``). ``region``: the stroke fitted one BRDF for the whole object, and a
-    painted region would change only what it covers. ``message``: the same in words. Sent
-    after the stroke's frame."""
+    """A stroke fit fell short (achieved < 80%), and what would help (fit/guidance.py).
+
+    For a brightening stroke in direct light, the light is measured: luminances over the painted
+    pixels of the light around their mirror directions (``mirror``), the brightest above their
+    horizon and what was asked; the share of the ask the mirror light covers now (``covered``)
+    and at the environment rotation that covers most (``rotate_to_deg``,
+    ``covered_at_rotation``); the share of pixels no BRDF can serve (``impossible_share``).
+    Otherwise (a darkening or a colour change, or any stroke under GI, where a room's walls light
+    the mirror directions as much as the map) those are null, and the event says what one BRDF
+    for the whole object did: ``spill``, the RMS change of the object's unpainted pixels relative
+    to their radiance. ``region``: the stroke fitted one BRDF for the
+    whole object, and a painted region would change only what it covers. ``message``: the same
+    in words. Sent after the stroke's frame."""
     type: Literal["guidance"] = "guidance"
     object: str
     achieved: float
-    asked: float
-    mirror: float
-    brightest_above: float
-    covered: float
-    rotate_to_deg: float
-    covered_at_rotation: float
-    impossible_share: float
+    asked: float | None = None
+    mirror: float | None = None
+    brightest_above: float | None = None
+    covered: float | None = None
+    rotate_to_deg: float | None = None
+    covered_at_rotation: float | None = None
+    impossible_share: float | None = None
+    spill: float | None = None
     region: bool = False
     message: str
 
