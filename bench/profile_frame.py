@@ -83,7 +83,7 @@ def main() -> None:
         nl, nw, n8 = t("light.tables", lambda: light_tables(r.lighting, rot, 1.0, r.tree, r.k))
         t("materials.pack", lambda: MaterialTable([m.pack() for m in mats]))
         bg = np.zeros((len(v.tri), 3), np.float32)
-        t("background", lambda: background(v.bg, v.bgdirs, v.uv0, r.lighting.map, rot, 1.0, bg, kernels=r.k))
+        t("background", lambda: background(v.bg, v.dirs, v.uv0, r.lighting.map, rot, 1.0, bg, kernels=r.k))
         rad = t("shade.kernel", lambda: shade_points(n, wo, vi, ov, r.cuts, nl, nw, r.tree, table, r.k, node8=n8))
         vert[vi] = rad
         img = np.empty((len(v.tri), 3), np.float32)

@@ -111,13 +111,19 @@ def test_the_ancestor_test_changes_no_cluster_list(bunny):
 
 def test_background_and_resolve_agree(bunny_renderer):
     """The background from per-view map coordinates equals a direct lookup (and its reference),
-    with and without a ground-shadow grid; the resolve of S samples equals the reference's mean."""
+    with and without a ground-shadow grid; the map coordinates of the background rows, read in
+    place from all the view's rays, are those of the rows copied out (C and NumPy); the resolve
+    of S samples equals the reference's mean."""
     r = bunny_renderer
     cam = r.scene.spec.camera
     env = r.lighting.map
     for s in (1, 4):
         v = r.view(cam, s)
-        uv0 = env_coords(v.bgdirs)
+        bgdirs = v.dirs[v.bg]
+        uv0 = env_coords(bgdirs)
+        for k in ("native", "numpy"):
+            np.testing.assert_array_equal(env_coords(v.dirs, kernels(k), rows=v.bg), env_coords(bgdirs, kernels(k)))
+        np.testing.assert_array_equal(v.uv0, uv0)
         outs = []
         rng = np.random.default_rng(s)
         grid = (rng.random((16, 16, 3)) * 0.8 + 0.2).astype(np.float32)
@@ -125,11 +131,11 @@ def test_background_and_resolve_agree(bunny_renderer):
         for sh in (None, shadow):
             a = np.zeros((len(v.tri), 3), np.float32)
             b = np.zeros((len(v.tri), 3), np.float32)
-            background(v.bg, v.bgdirs, uv0, env, 123.4, 0.8, a, sh, cam.eye, kernels("native"))
-            background(v.bg, v.bgdirs, uv0, env, 123.4, 0.8, b, sh, cam.eye, kernels("numpy"))
+            background(v.bg, v.dirs, uv0, env, 123.4, 0.8, a, sh, cam.eye, kernels("native"))
+            background(v.bg, v.dirs, uv0, env, 123.4, 0.8, b, sh, cam.eye, kernels("numpy"))
             np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)
             outs.append(a)
-        direct = env_lookup(v.bgdirs, env, 123.4, 0.8, kernels=kernels("numpy"))
+        direct = env_lookup(bgdirs, env, 123.4, 0.8, kernels=kernels("numpy"))
         np.testing.assert_allclose(outs[0][v.bg], direct, rtol=1e-4, atol=1e-5)
         assert (outs[1][v.bg] < outs[0][v.bg] - 1e-6).any()          # the grid darkens some samples
         vert = np.random.default_rng(0).random((len(r.scene.mesh.vertices), 3)).astype(np.float32)

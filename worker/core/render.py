@@ -412,11 +412,14 @@ def env_lookup(dirs, envmap, rotation_deg: float, intensity: float, mask=None, o
 # --- frame assembly ---------------------------------------------------------------------------
 
 
-def env_coords(dirs, kernels=None) -> np.ndarray:
+def env_coords(dirs, kernels=None, rows=None) -> np.ndarray:
     """(P, 2) float32 equirectangular coordinates (u in [0, 1), v = acos(y)/π) of world
-    directions (P, 3) with the environment unrotated (docs/design/conventions.md): once per view, so that a
-    light change costs a lookup (``background``)."""
-    return (kernels or _kernels()).env_coords(dirs)
+    directions (P, 3), or (n, 2) of dirs[rows] for rows (n,) int64 (a view's background rows,
+    without copying them out first), with the environment unrotated
+    (docs/design/conventions.md): once per view, so that a light change costs a lookup
+    (``background``)."""
+    k = kernels or _kernels()
+    return k.env_coords(dirs) if rows is None else k.env_coords(dirs, rows)
 
 
 def env_coords_numpy(dirs) -> np.ndarray:
@@ -430,8 +433,9 @@ def env_coords_numpy(dirs) -> np.ndarray:
 def background_numpy(sample, dirs, uv0, envmap, rotation_deg: float, intensity: float, out, shadow=None,
                      eye=None):
     """NumPy reference of glk_background: out[sample] = the (rotated, scaled) environment along
-    dirs (n, 3), bilinear at the view's coordinates uv0 (n, 2) (env_coords), times the ground
-    shadow factor where a ray from eye (3,) goes down through the shadow plane.
+    dirs[sample] (dirs (P·S, 3): every row's ray direction), bilinear at the view's coordinates
+    uv0 (n, 2) (env_coords), times the ground shadow factor where a ray from eye (3,) goes down
+    through the shadow plane.
 
     shadow : None, or (grid (G, G, 3) float32 factor, (x0, z0, step, y)) with grid node (i, j)
         at (x0 + i·step, y, z0 + j·step); bilinear, 1 outside the grid.
@@ -450,7 +454,7 @@ def background_numpy(sample, dirs, uv0, envmap, rotation_deg: float, intensity: 
     if shadow is not None:
         grid, (gx0, gz0, step, gy) = shadow
         g = grid.shape[0]
-        d = np.asarray(dirs, np.float64)
+        d = np.asarray(dirs, np.float64)[np.asarray(sample, np.int64)]
         e = np.asarray(eye, np.float64)
         fac = np.ones((len(d), 3))
         down = (d[:, 1] < 0) & (e[1] > gy)

@@ -109,9 +109,9 @@ class NumpyKernels(_Families):
         from ..core.render import rotate_dirs_numpy
         return rotate_dirs_numpy(dirs, basis)
 
-    def env_coords(self, dirs):
+    def env_coords(self, dirs, rows=None):
         from ..core.render import env_coords_numpy
-        return env_coords_numpy(dirs)
+        return env_coords_numpy(dirs if rows is None else np.asarray(dirs)[rows])
 
     def env_lookup(self, dirs, envmap, rotation_deg, intensity, mask=None, out=None):
         from ..core.render import env_lookup_numpy
@@ -171,6 +171,7 @@ class NativeKernels(_Families):
                              W=i32, H=i32, S=i32, omax=f64, tri=i32p, uv=f32p, t=f32p, box=i32p)
         self._rotate = bind("glk_rotate_dirs", None, P=i64, src=f32p, basis=f32p, out=f32p)
         self._env_coords = bind("glk_env_coords", None, n=i64, dirs=f32p, out=f32p)
+        self._env_coords_rows = bind("glk_env_coords_rows", None, n=i64, rows=i64p, dirs=f32p, out=f32p)
         self._env_simd = bind("glk_env_simd", i32, want=i32)
         self._resolve = bind("glk_resolve", None, P=i64, S=i32, tri=i32p, uv=f32p, faces=i32p, vert_rgb=f32p,
                              bg=f32p, out=f32p)
@@ -329,11 +330,19 @@ class NativeKernels(_Families):
         (AVX2 + FMA, chosen at run time). Returns the one in use (0 baseline, 1 AVX2)."""
         return int(self._env_simd(int(want)))
 
-    def env_coords(self, dirs):
-        """(n, 2) float32 map coordinates of directions (see core.render.env_coords_numpy)."""
+    def env_coords(self, dirs, rows=None):
+        """(n, 2) float32 map coordinates of directions, or of dirs[rows] (see
+        core.render.env_coords_numpy)."""
         src = c(dirs, np.float32)
-        out = np.empty((len(src), 2), np.float32)
-        self._env_coords(len(src), src, out)
+        if rows is None:
+            out = np.empty((len(src), 2), np.float32)
+            self._env_coords(len(src), src, out)
+            return out
+        rows = c(rows, np.int64)
+        if len(rows) and (rows.min() < 0 or rows.max() >= len(src)):
+            raise IndexError(f"rows out of range for {len(src)} directions")
+        out = np.empty((len(rows), 2), np.float32)
+        self._env_coords_rows(len(rows), rows, src, out)
         return out
 
     def resolve(self, tri, uv, faces, vert_rgb, bg, samples, out):

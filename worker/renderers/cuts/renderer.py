@@ -131,8 +131,8 @@ class View:
     """Primary visibility of one camera with S samples per pixel (rows p·S + s): tri (P·S,) int32
     face per sample (−1 background), uv (P·S, 2) float32 Embree barycentrics, dirs (P·S, 3)
     float32 ray directions, visible (K,) int32 vertices of the faces seen, wo (K, 3) float32 unit
-    directions from them to the eye, bg (n,) int64 the background sample rows, bgdirs (n, 3) their
-    directions and uv0 (n, 2) float32 their map coordinates (render.env_coords), obj (H, W) int32
+    directions from them to the eye, bg (n,) int64 the background sample rows and uv0 (n, 2)
+    float32 their map coordinates (render.env_coords), obj (H, W) int32
     object per pixel (from the pixel centres, −1 background); bgbuf (P·S, 3) float32 the
     background last drawn (bg_key: its lighting and ground shadow)."""
     camera: object
@@ -145,7 +145,6 @@ class View:
     bg: np.ndarray | None = None
     uv0: np.ndarray | None = None
     obj: np.ndarray | None = None
-    bgdirs: np.ndarray | None = None
     bgbuf: np.ndarray | None = None
     bg_key: object = None
     refinement: Refinement | None = None
@@ -276,9 +275,7 @@ class CutRenderer(Renderer):
         wo = np.asarray(camera.eye, np.float32) - mesh.vertices[visible]
         wo /= np.linalg.norm(wo, axis=1, keepdims=True)
         bg = np.nonzero(tri < 0)[0]
-        bgdirs = d[bg]
-        v = View(camera, tri, uv, d, visible, samples, wo, bg, env_coords(bgdirs, self.k), bgdirs=bgdirs,
-                 traced=traced)
+        v = View(camera, tri, uv, d, visible, samples, wo, bg, env_coords(d, self.k, rows=bg), traced=traced)
         if samples == 1:
             obj = np.where(tri >= 0, self.scene.object_of_face[np.maximum(tri, 0)], -1).astype(np.int32)
             v.obj = obj.reshape(camera.height, camera.width)
@@ -445,7 +442,7 @@ class CutRenderer(Renderer):
         if v.bgbuf is None or v.bg_key != key:
             if v.bgbuf is None:
                 v.bgbuf = np.zeros((len(v.tri), 3), np.float32)
-            background(v.bg, v.bgdirs, v.uv0, self.lighting.map, lighting.rotation_deg, lighting.intensity,
+            background(v.bg, v.dirs, v.uv0, self.lighting.map, lighting.rotation_deg, lighting.intensity,
                        v.bgbuf, shadow, v.camera.eye, kernels=self.k)
             v.bg_key = key
         return v.bgbuf
@@ -743,8 +740,8 @@ class CutRenderer(Renderer):
         wo = np.asarray(cam.eye, np.float32) - mesh.vertices[extra]
         wo /= np.maximum(np.linalg.norm(wo, axis=1, keepdims=True), np.float32(1e-30))
         bg = np.nonzero(tri < 0)[0]
-        return View(cam, tri, uv, d, extra, samples, wo.astype(np.float32), bg, env_coords(d[bg], self.k),
-                    bgdirs=d[bg], traced=len(d), pix=pix)
+        return View(cam, tri, uv, d, extra, samples, wo.astype(np.float32), bg, env_coords(d, self.k, rows=bg),
+                    traced=len(d), pix=pix)
 
     def _refinement(self, v: View, camera) -> Refinement:
         """The view's refinement geometry (refine.py Refinement), made once per view."""
