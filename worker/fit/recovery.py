@@ -8,8 +8,10 @@ For each case (scene, environment map, GGX α, specular, diffuse albedo):
    content key of everything they depend on (``mitsuba_target``).
 2. A ``Fitter`` fits the srbf material to the target (constrained: c ≥ 0 and the energy rows),
    with the diffuse albedo given, as a designer would give it.
-3. Glint re-renders the fitted material, in ``pixel`` mode (what the model can do) and ``vertex``
-   mode (what the default frames show), and the GGX material itself (the renderer's own floor).
+3. Glint re-renders the fitted material, in ``pixel`` mode (what the model can do), the default
+   ``refined`` mode (what the studio's settled frames and ``glint render`` show: per pixel where
+   vertex shading is wrong) and ``vertex`` mode (the frames while something moves), and the GGX
+   material itself (the renderer's own floor).
 
 Figures are relative RMSE over the object's pixels away from its silhouette (the object mask
 eroded by one pixel: a pixel straddling the silhouette mixes object and background differently
@@ -174,12 +176,16 @@ def recover(renderer, case: Case, *, basis: SRBFBasis | None = None, fit_scale: 
     if renders:
         mats[object_index] = out.material
         fit_px = _render(renderer, mats, "pixel")
+        fit_rf = _render(renderer, mats, "refined")
         fit_vx = _render(renderer, mats, "vertex")
         mats[object_index] = case.material
         ggx_px = _render(renderer, mats, "pixel")
+        ggx_rf = _render(renderer, mats, "refined")
         ggx_vx = _render(renderer, mats, "vertex")
         res.update({"rel_rmse": rel_rmse(fit_px, target, mask), "rel_rmse_vertex": rel_rmse(fit_vx, target, mask),
+                    "rel_rmse_refined": rel_rmse(fit_rf, target, mask),
                     "ggx_floor": rel_rmse(ggx_px, target, mask), "ggx_floor_vertex": rel_rmse(ggx_vx, target, mask),
+                    "ggx_floor_refined": rel_rmse(ggx_rf, target, mask),
                     "fit_vs_glint_ggx": rel_rmse(fit_px, ggx_px, mask)})
         res["_images"] = {"target": target, "fit": fit_px, "ggx": ggx_px}
     res["_material"] = out.material          # the fitted design (public() leaves it out)
