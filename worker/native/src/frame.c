@@ -16,10 +16,11 @@
 
 /* n background samples: sample (n,) int64 index into out (rows of 3) and into dirs (every row's
  * float32 unit world ray direction, read at the samples' rows), uv0 (n, 2) float32 map
- * coordinates without rotation (u in [0, 1), v = acos(y)/π); map (Hm, Wm, 3) float32; the environment rotated by rot radians about +Y
- * and scaled by intensity (docs/design/conventions.md, as glk_env_lookup). shadow: NULL, or a (G, G, 3)
- * float32 factor grid over the plane y = gy with node (i, j) at (gx0 + i·gstep, gy, gz0 + j·gstep),
- * applied (bilinear, 1 outside the grid) to rays from eye that go down through the plane. */
+ * coordinates without rotation (u in [0, 1), v = acos(y)/π); map (Hm, Wm, 3) float32; the
+ * environment rotated by rot radians about +Y and scaled by intensity (docs/design/conventions.md,
+ * as glk_env_lookup). shadow: NULL, or a (G, G, 3) float32 factor grid over the plane y = gy with
+ * node (i, j) at (gx0 + i·gstep, gy, gz0 + j·gstep), applied (bilinear, 1 outside the grid) to
+ * rays from eye that go down through the plane. */
 void glk_background(int64_t n, const int64_t *sample, const float *dirs, const float *uv0, const float *map,
                     int Hm, int Wm, double rot, double intensity, const float *shadow, int G, double gx0,
                     double gz0, double gstep, double gy, double ex, double ey, double ez, float *out) {
