@@ -241,8 +241,13 @@ def solve(rows: list[FitRows], basis: SRBFBasis, albedo, constrained: bool = Tru
     if fit_albedo:
         rho = np.clip(coef[J], 0.0, 1.0)
         coef, G = coef[:J], G[:, :J]
-    seconds = time.perf_counter() - t0
-    # report on the rows that count (w > 0), unweighted
+    return _solve_result(rows, coef, rho, G, time.perf_counter() - t0, iters, constrained)
+
+
+def _solve_result(rows: list[FitRows], coef: np.ndarray, rho: np.ndarray, G: np.ndarray, seconds: float, iters,
+                  constrained: bool) -> SolveResult:
+    """SolveResult of coefficients coef (J, 3) and albedo rho (3,): the residual reported on the
+    rows that count (w > 0), unweighted, and the energy rows G (R, J) at the solution."""
     sse, n, tss = 0.0, 0, 0.0
     for r in rows:
         k = r.weight > 0
@@ -309,18 +314,7 @@ def _solve_neutral(rows, basis, albedo, constrained, n_l, prior, prox, warm, tol
     if fit_albedo:
         rho = np.clip(x[J:], 0.0, 1.0)
     coef = np.repeat(x[:J, None], 3, axis=1)
-    seconds = time.perf_counter() - t0
-    sse, n, tss = 0.0, 0, 0.0
-    for r in rows:
-        k = r.weight > 0
-        pred = rho * r.E[k] + np.stack([r.T[c][k] @ coef[:, c] for c in range(3)], axis=1)
-        sse += float(((r.target[k] - pred) ** 2).sum())
-        tss += float((r.target[k] ** 2).sum())
-        n += pred.size
-    rms = np.sqrt(sse / max(n, 1))
-    energy = (G @ coef).max(axis=0)
-    return SolveResult(coef, float(rms), float(rms / max(np.sqrt(tss / max(n, 1)), 1e-30)), float(energy.max()),
-                       1.0 - rho, seconds, iters, constrained, energy, rho)
+    return _solve_result(rows, coef, rho, G, time.perf_counter() - t0, iters, constrained)
 
 
 def _augmented_normal_equations(rows: list[FitRows]):
