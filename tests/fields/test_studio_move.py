@@ -103,3 +103,87 @@ def test_move_tool_slides_and_turns_the_object(server, crate, crate_scene, artif
             assert not errors, errors
         finally:
             b.close()
+
+
+def test_a_stroke_painted_while_the_frame_size_changes_lands_under_the_brush(server, crate, crate_scene, artifacts):
+    """The window is resized: the studio asks for frames of the canvas's new size, and until one
+    arrives it still shows (and paints on) the old frame, stretched to the new canvas. A stroke
+    painted then is recorded on the rays it was painted on (the old camera's pixel (x, y) is the
+    new camera's (W/2 + (x − w/2) s, y s), s = H / h: the same vertical field of view), not at the
+    old pixel numbers in the new frame. Frames are held back by routing the stream, so the stroke
+    is always painted in that window."""
+    if server["database"] != "sqlite":
+        pytest.skip("reads the stroke's row from the SQLite file")
+    import re
+    import sqlite3
+
+    hold = {"on": False, "held": [], "page": None, "sent": []}
+
+    def route(ws):
+        up = ws.connect_to_server()
+        hold["page"] = ws
+
+        def send(m):
+            hold["sent"].append(m)
+            up.send(m)
+        ws.on_message(send)
+        up.on_message(lambda m: hold["held"].append(m) if hold["on"] else ws.send(m))
+
+    with pw.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, headless=True,
+                              args=["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage"])
+        try:
+            page = b.new_page(viewport={"width": 1280, "height": 860}, device_scale_factor=1.5)
+            errors = []
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.route_web_socket(re.compile(r".*/stream$"), route)
+            page.goto(server["base"] + "/")
+            page.wait_for_function(f"() => [...document.querySelectorAll('#scene-select option')]"
+                                   f".some(o => o.value === '{crate_scene}' && !o.disabled)", timeout=60_000)
+            helpers.open_scene(page, crate_scene)
+            settle(page)
+            c0 = page.locator("#view").bounding_box()
+            page.wait_for_function("(w) => document.getElementById('view').width > 1.3 * w", arg=c0["width"],
+                                   timeout=60_000)
+            w0, h0 = page.evaluate("() => [document.getElementById('view').width, document.getElementById('view').height]")
+            sid = page.evaluate("() => new URLSearchParams(location.search).get('session')")
+            hold["on"] = True
+            n_sent = len(hold["sent"])
+            page.set_viewport_size({"width": 900, "height": 700})
+            c = page.locator("#view").bounding_box()
+            assert c["width"] < 0.9 * c0["width"], (c, c0)
+            page.wait_for_timeout(600)                      # the new size is asked for (held: no frame)
+            views = [json.loads(m) for m in hold["sent"][n_sent:] if isinstance(m, str) and '"view"' in m]
+            assert views and views[-1]["width"] < 0.9 * w0, views
+            assert page.evaluate("() => document.getElementById('view').width") == w0     # still the old frame
+            page.check("#tool-brush")
+            fx, fy, dx = 0.3, 0.62, 0.08                    # on the floor, in front of the box
+            helpers.drag(page, c["x"] + fx * c["width"], c["y"] + fy * c["height"], dx * c["width"], 0)
+            page.wait_for_timeout(300)
+            hold["on"] = False
+            for m in hold["held"]:
+                hold["page"].send(m)
+            hold["held"].clear()
+            body = None
+            for _ in range(100):
+                with sqlite3.connect(server["data"] / "glint.db") as con:
+                    rows = con.execute("SELECT body FROM strokes WHERE session_id = ?", (sid,)).fetchall()
+                if rows:
+                    body = json.loads(rows[-1][0])
+                    break
+                page.wait_for_timeout(100)
+            assert body is not None, "no stroke row"
+            cam, pts = body["camera"], np.asarray(body["stroke"]["points"], float)
+            W, H = cam["width"], cam["height"]
+            assert (W, H) == (views[-1]["width"], views[-1]["height"]), (cam, views[-1])
+            s = H / h0
+            want = [W / 2 + (fx * w0 - w0 / 2) * s, fy * h0 * s]
+            assert np.allclose(pts[0], want, atol=0.01 * W), (pts[0], want, (w0, h0), (W, H))
+            assert np.isclose(pts[-1][0] - pts[0][0], dx * w0 * s, atol=0.01 * W), pts
+            assert np.isclose(body["stroke"]["diameter"], float(page.input_value("#brush-diameter")) * s), body
+            page.wait_for_function("(w) => document.getElementById('view').width === w", arg=W, timeout=60_000)
+            settle(page)
+            page.screenshot(path=str(artifacts / "web-move-4-stroke-new-size.png"))
+            assert not errors, errors
+        finally:
+            b.close()

@@ -8,6 +8,7 @@ import typing
 from pathlib import Path
 from typing import ClassVar, Literal
 
+import numpy as np
 import pytest
 from pydantic import Field
 
@@ -197,3 +198,37 @@ def test_worker_events_are_applied_by_the_store(tmp_path):
     with db() as s:
         assert [r.rejected for r in s.query(StrokeRow).filter_by(session_id=sid)] == [True]
     store.forget(sid)
+
+
+def test_a_stroke_painted_on_a_frame_of_another_size_lands_where_it_was_painted():
+    """The studio asks for frames at its canvas's size and draws strokes in the pixels of the
+    frame it shows, which until the first frame of the new size arrives is the old size: a
+    stroke says which (``frame``), and is recorded in the camera's pixels, on the same rays (a
+    point scaled by H/h about the image centre, also when the aspect differs)."""
+    from worker.fit.brush import Stroke, rescale_stroke
+    from worker.scene import Camera
+
+    st = new_state(SPEC)
+    cam = st.camera
+    W, H = cam.width, cam.height
+    full = {"points": [[0.25 * W, 0.5 * H], [0.75 * W, 0.6 * H]], "color": [2.0, 2.0, 2.0], "diameter": 20,
+            "kappa": 0.05}
+    half = {**full, "points": [[x / 2, y / 2] for x, y in full["points"]], "diameter": 10, "kappa": 0.1}
+
+    def recorded(stroke, frame=None):
+        msg = client_msg.validate_python({"seq": 1, "type": "stroke", "stroke": stroke,
+                                          **({"frame": frame} if frame else {})})
+        return msg.apply(st.model_copy(deep=True)).stroke["stroke"]
+
+    want = recorded(full)
+    assert recorded(full, [W, H]) == want
+    got = recorded(half, [W // 2, H // 2])          # without the rescale: points at half the place
+    assert np.allclose(got["points"], want["points"]) and got["diameter"] == 20 and got["kappa"] == 0.05, got
+    # a wider frame of the same height: the same rays, so x shifts about the centre, y stays
+    wide = Camera(**{**cam.model_dump(), "width": W + 200})
+    moved = rescale_stroke(Stroke.model_validate(full), (W, H), wide)
+    assert np.allclose(np.asarray(moved.points), np.asarray(full["points"]) + [100, 0]), moved.points
+    assert moved.diameter == 20 and moved.kappa == 0.05
+    for bad in ([0, 10], [10], [10, 10, 10], "640x480"):
+        with pytest.raises(Exception):
+            client_msg.validate_python({"seq": 1, "type": "stroke", "stroke": full, "frame": bad})

@@ -303,7 +303,11 @@ function sendMove(drag) {
 }
 
 // -- camera, light, display -----------------------------------------------------------------------
-let dragging = null, strokePts = [], pressed = null;
+// A gesture keeps the frame size it started in (strokeSize, the Move tool's camera): a frame of a
+// new size can arrive mid-gesture (the canvas was resized, or the first full frame after opening),
+// and points in two sizes would draw a broken stroke or make a dragged object jump. The server
+// rescales a stroke from its ``frame`` size to the camera's.
+let dragging = null, strokePts = [], strokeSize = null, pressed = null;
 const tool = () => document.querySelector("input[name=tool]:checked")?.value || "none";
 
 $("view").addEventListener("pointerdown", (e) => {
@@ -313,25 +317,30 @@ $("view").addEventListener("pointerdown", (e) => {
     : !controls.has("camera") ? "fixed" : (e.altKey || tool() === "light" ? "light" : "orbit");
   dragging = { mode, x: e.clientX, y: e.clientY };
   pressed = { x: e.clientX, y: e.clientY, t: performance.now() };
-  if (mode === "brush") { strokePts = [view.toFrame(e, state.camera.width, state.camera.height)]; drawStroke(); }
+  if (mode === "brush") {
+    strokeSize = [state.camera.width, state.camera.height];
+    strokePts = [view.toFrame(e, ...strokeSize)];
+    drawStroke();
+  }
   if (mode === "move") {
     const name = $("move-object").value;
     state.transforms = state.transforms || {};
-    dragging.move = new MoveDrag(state.camera, { cssPerFramePx: $("view").getBoundingClientRect().width / state.camera.width });
+    const cam = { ...state.camera };
+    dragging.move = new MoveDrag(cam, { cssPerFramePx: $("view").getBoundingClientRect().width / cam.width });
     dragging.turning = e.shiftKey;
-    dragging.move.start(...view.toFrame(e, state.camera.width, state.camera.height), fullTransform(state.transforms[name]));
+    dragging.move.start(...view.toFrame(e, cam.width, cam.height), fullTransform(state.transforms[name]));
   }
 });
 $("view").addEventListener("pointermove", (e) => {
   if (!dragging) return;
   const dx = e.clientX - dragging.x, dy = e.clientY - dragging.y;
   if (dragging.mode === "brush") {
-    strokePts.push(view.toFrame(e, state.camera.width, state.camera.height));
+    strokePts.push(view.toFrame(e, ...strokeSize));
     drawStroke();
     return;
   }
   if (dragging.mode === "move") {
-    const name = $("move-object").value, [px, py] = view.toFrame(e, state.camera.width, state.camera.height);
+    const cam = dragging.move.cam, name = $("move-object").value, [px, py] = view.toFrame(e, cam.width, cam.height);
     if (e.shiftKey !== dragging.turning) {          // Shift pressed or released mid-drag
       dragging.turning = e.shiftKey;
       dragging.move.rebase(px, py, state.transforms[name]);
@@ -381,13 +390,15 @@ function drawStroke() {
   const c = $("overlay");
   overlay.clearRect(0, 0, c.width, c.height);
   if (!strokePts.length) return;
-  const s = c.width / state.camera.width;
+  // the stroke's pixels to the overlay's (same vertical field of view: scaled about the centre)
+  const [w, h] = strokeSize || [state.camera.width, state.camera.height], s = c.height / h;
+  const X = (x) => c.width / 2 + (x - w / 2) * s;
   overlay.strokeStyle = $("brush-sign").value === "1" ? "rgba(255,255,255,0.55)" : "rgba(20,20,20,0.55)";
   overlay.lineWidth = +$("brush-diameter").value * s;
   overlay.lineCap = overlay.lineJoin = "round";
   overlay.beginPath();
-  strokePts.forEach(([x, y], i) => (i ? overlay.lineTo(x * s, y * s) : overlay.moveTo(x * s, y * s)));
-  if (strokePts.length === 1) overlay.lineTo(strokePts[0][0] * s + 0.1, strokePts[0][1] * s);
+  strokePts.forEach(([x, y], i) => (i ? overlay.lineTo(X(x), y * s) : overlay.moveTo(X(x), y * s)));
+  if (strokePts.length === 1) overlay.lineTo(X(strokePts[0][0]) + 0.1, strokePts[0][1] * s);
   overlay.stroke();
 }
 
@@ -396,7 +407,8 @@ function sendStroke() {
   const k = +$("brush-strength").value * +$("brush-sign").value;
   const color = hexToLinear($("brush-color").value).map((x) => x * k);
   stream.send("stroke", { stroke: { points: strokePts.slice(0, 10000), color, diameter: +$("brush-diameter").value,
-    kappa: +$("brush-kappa").value, mode: $("brush-mode").value, scale: +$("brush-scale").value } });
+    kappa: +$("brush-kappa").value, mode: $("brush-mode").value, scale: +$("brush-scale").value },
+    frame: strokeSize || [state.camera.width, state.camera.height] });
   setTimeout(() => { strokePts = []; drawStroke(); }, 250);
   designs.edited();
 }

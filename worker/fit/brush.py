@@ -51,6 +51,21 @@ class Stroke(BaseModel):
         return v
 
 
+def rescale_stroke(stroke: Stroke, frame: tuple[int, int], camera) -> Stroke:
+    """The stroke painted on a frame of ``frame`` = (w, h) pixels, in the pixels of ``camera``'s
+    (W, H): the camera's vertical field of view spans both heights, so a point keeps its ray when
+    scaled by s = H / h about the image centre (x' = W/2 + (x − w/2) s, y' = y s), also where the
+    aspect differs; the diameter scales by s and κ (1/pixel) by 1/s."""
+    w, h = (int(v) for v in frame)
+    W, H = int(camera.width), int(camera.height)
+    if (w, h) == (W, H):
+        return stroke
+    sc = H / h
+    pts = [(W / 2 + (x - w / 2) * sc, y * sc) for x, y in stroke.points]
+    return stroke.model_copy(update={"points": pts, "diameter": min(stroke.diameter * sc, 10_000.0),
+                                     "kappa": min(stroke.kappa / sc, 100.0)})
+
+
 def polyline_distance(xy: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Distance (N,) from points xy (N, 2) to the polyline through points (K, 2)."""
     pts = np.asarray(points, np.float64).reshape(-1, 2)

@@ -34,7 +34,7 @@ from typing import Annotated, Any, ClassVar, Literal, Union
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 from pydantic_core import PydanticCustomError, core_schema
 
-from ..fit.brush import Stroke
+from ..fit.brush import Stroke, rescale_stroke
 from ..models import Material, Vec3
 from ..scene import Camera, Transform
 from .effects import (NO_EFFECT, Convert, Effect, FitPaint, Moved, NewMaterial, Pick, RecordStroke, Redo, Refit,
@@ -159,6 +159,11 @@ class StrokeMsg(ClientMsg):
     urgent: ClassVar[bool] = True
     type: Literal["stroke"] = "stroke"
     stroke: Stroke
+    frame: tuple[Annotated[int, Field(ge=1, le=65536)], Annotated[int, Field(ge=1, le=65536)]] | None = Field(
+        None, description="(width, height) of the frame whose pixels the stroke's points, diameter and κ are "
+        "in, when it may differ from the session camera's (a client that has asked for a new frame size "
+        "and not yet received a frame of it); the stroke is rescaled to the camera's size. Default: the "
+        "camera's size.")
 
     def apply(self, st):
         if not st.allows("strokes"):
@@ -169,7 +174,8 @@ class StrokeMsg(ClientMsg):
         if min(a) < 0 or max(a) > 1:
             raise StateError(f"stroke: strokes paint over the edited object's material, whose diffuse albedo "
                              f"{list(a)} is outside [0, 1]; choose a physical material first")
-        return RecordStroke({"stroke": self.stroke.model_dump(mode="json"),
+        stroke = self.stroke if self.frame is None else rescale_stroke(self.stroke, self.frame, st.camera)
+        return RecordStroke({"stroke": stroke.model_dump(mode="json"),
                              "camera": st.camera.model_dump(mode="json"),
                              "rotation_deg": st.rotation_deg, "intensity": st.intensity})
 
