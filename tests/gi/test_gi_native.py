@@ -147,3 +147,32 @@ def test_independent_streams_agree_statistically(shared_assets):
     cross, same = rel(c0, n1), rel(c0, c2)
     assert cross <= 1.3 * same, (cross, same)
     assert abs(n1[m].mean() / c0[m].mean() - 1) < 0.02
+
+
+def test_freeze_of_some_pixels_agrees_and_keeps_the_rest(shared_assets):
+    """gi_freeze over a list of pixels (a region's grown footprint, every live pixel among them)
+    writes V there as a whole freeze does, and leaves V's other rows as the caller's; the NumPy
+    reference the same."""
+    from worker.renderers.gi import freeze as fzm
+
+    rc = gi_renderer(scene_with("sofa", 32, 24), {"series": [64, 1, 1], "spp": 64}, "native")
+    rn = gi_renderer(scene_with("sofa", 32, 24), {"series": [64, 1, 1], "spp": 64}, "numpy")
+    i, nb = 0, rc.max_bounces
+    P = len(rc.pu.k0)
+    rng = np.random.default_rng(3)
+    live = np.nonzero((rc.pu.units == i).any(1))[0]
+    pixels = np.union1d(live, rng.choice(P, P // 5, replace=False)).astype(np.int64)
+    assert len(live) > 20 and len(pixels) < P
+    outs = []
+    for r in (rc, rn):
+        _, C1, d, second = r._tables(r.materials)
+        tables = fzm.tail_tables(i, nb, r.U, r.J2, d, second)
+        whole = r.k.gi.freeze(r.data.bounces[:nb], tables, r.pu, C1, i, r.K1, r.K2, r.N)
+        V0 = rng.standard_normal(whole.V.shape).astype(np.float32)
+        part = r.k.gi.freeze(r.data.bounces[:nb], tables, r.pu, C1, i, r.K1, r.K2, r.N, pixels, V0)
+        rest = np.setdiff1d(np.arange(P), pixels)
+        assert np.array_equal(part.V[rest], V0[rest])
+        assert np.array_equal(part.V[pixels], whole.V[pixels]) and np.array_equal(part.live, whole.live)
+        outs.append(part)
+    a, b = outs
+    np.testing.assert_allclose(a.V[pixels], b.V[pixels], rtol=1e-6, atol=1e-6 * np.abs(b.V).max())

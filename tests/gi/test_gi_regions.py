@@ -377,3 +377,56 @@ def test_a_one_brdf_stroke_that_falls_short_under_gi_offers_a_region(sofa):
     rt2.frame(2)
     assert st2["achieved"] >= 0.8, st2
     assert not [e for e in rt2.after_frame() if e["type"] == "guidance"]
+
+
+def test_a_grown_region_refreezes_only_the_pixels_it_changed(sofa):
+    """A stroke extends a region whose unit is live: the freeze its new weights need computes
+    only the pixels whose units changed or that are on the region (the rest of V does not depend
+    on its material, and its weights reach only the first vertex of its own pixels), and gives
+    what a whole-image freeze gives: the same V, live rows and frame. Back to the layout before
+    (a region fit draws the look below the region), its freeze is taken back."""
+    red = GGX(alpha=0.3, albedo=(0.6, 0.1, 0.1), specular=(0.2, 0.2, 0.2))
+    mats = list(sofa.scene.materials)
+    mats[0] = _with_region(sofa, 0, red, frac=0.3)
+    sofa.apply_materials(mats)
+    u = sofa._region_units[(0, "r")]
+    sofa._stash.clear()                                 # (the module's other tests' layouts)
+    sofa.frozen = None
+    sofa.freeze(u)
+    before = sofa.frozen
+    P = len(sofa.pu.k0)
+    assert sofa.last_freeze_pixels == P
+    img_before, _ = _draw(sofa, mats)
+    grown = list(mats)
+    grown[0] = _with_region(sofa, 0, GGX(alpha=0.2, albedo=(0.1, 0.5, 0.1), specular=(0.3, 0.3, 0.3)), frac=0.45)
+    sofa.apply_materials(grown)
+    assert sofa._region_units[(0, "r")] == u and sofa.frozen is None
+    sofa.freeze(u)
+    part = sofa.frozen
+    assert 0 < sofa.last_freeze_pixels < 0.9 * P, (sofa.last_freeze_pixels, P)
+    img_part, _ = _draw(sofa, grown)
+    assert sofa.frozen is part                          # drawn with it, not frozen again
+    # back and forth: each layout's freeze is taken back
+    sofa.apply_materials(mats)
+    assert sofa.frozen is before
+    assert np.array_equal(_draw(sofa, mats)[0], img_before) and sofa.frozen is before
+    sofa.apply_materials(grown)
+    assert sofa.frozen is part
+    # against a freeze of every pixel
+    sofa._stash.clear()
+    sofa.frozen = None
+    sofa.freeze(u)
+    whole = sofa.frozen
+    assert sofa.last_freeze_pixels == P
+    img_whole, _ = _draw(sofa, grown)
+    assert np.array_equal(part.live, whole.live) and np.array_equal(part.V, whole.V)
+    assert np.array_equal(img_part, img_whole)
+    # another unit's material changed meanwhile: every pixel again
+    other = list(grown)
+    other[1] = GGX(alpha=0.5, albedo=(0.2, 0.2, 0.6), specular=(0.1, 0.1, 0.1))
+    sofa.apply_materials(other)
+    regrown = list(other)
+    regrown[0] = _with_region(sofa, 0, red, frac=0.6)
+    sofa.apply_materials(regrown)
+    sofa.freeze(u)
+    assert sofa.last_freeze_pixels == P

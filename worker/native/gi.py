@@ -24,6 +24,7 @@ from . import (
     u16p,
     u32p,
     u64p,
+    voidp,
 )
 from ..renderers.gi import zspace
 from ..renderers.gi.freeze import Frozen, PixelUnits, dense_blocks, sparse_bound, use_dense
@@ -46,7 +47,7 @@ if _lib is not None:
     bind("gi_freeze", None, P=i64, nb=i32, a_off=u64p, a_slot=u64p, a_tail=u64p, a_val=u64p, a_scale=u64p,
          a_kk=u64p, a_pw=u64p, a_A=u64p, L=i32, units=i32p, weights=f32p, k0=i32p, tt=f32p, C1=f32p, KT=i32,
          K1=i32, K2=i32, NP=i32, iu=i32, qpos=i64p, ub=i64p, V=f32p, F=u16p, cnt=i32p, fscale=f32p, dense=i32,
-         NB=i32, blo=i32p, bw=i32p, boff=i32p, Wd=i32, Fd=u16p)
+         NB=i32, blo=i32p, bw=i32p, boff=i32p, Wd=i32, Fd=u16p, sel=voidp)
     bind("gi_powslots", i32, P=i64, nb=i32, a_off=u64p, a_slot=u64p, a_tail=u64p, a_pw=u64p, qpos=i64p, NP=i32,
          K1=i32, lo=i32p, hi=i32p)
     bind("gi_frame", None, P=i64, K2NP=i32, V=f32p, ckn=f32p, qpos=i64p, offs=i64p, F=u16p, fscale=f32p,
@@ -84,10 +85,15 @@ class NumpyGI:
         from ..renderers.gi.trace import compact
         return compact(acc * np.float32(inv_spp))
 
-    def freeze(self, bounces, tables, pu, C1, i, K1, K2, NP):
-        """Frozen of unit i live (freeze.freeze_numpy)."""
+    def freeze(self, bounces, tables, pu, C1, i, K1, K2, NP, pixels=None, V0=None):
+        """Frozen of unit i live (freeze.freeze_numpy); ``pixels``, V0 as ``freeze``."""
         from ..renderers.gi.freeze import freeze_numpy
-        return freeze_numpy(bounces, tables, pu, C1, i, K1, K2, NP)
+        fz = freeze_numpy(bounces, tables, pu, C1, i, K1, K2, NP)
+        if pixels is not None:
+            V = np.array(V0, np.float32, copy=True)
+            V[pixels] = fz.V[pixels]
+            fz.V = V
+        return fz
 
     def frame(self, fz, pu, C1i, ck, d, K1, pix, img):
         """Writes the hit pixels' radiance into img (H·W, 3) float32 at pix (P,) int64; returns
@@ -125,8 +131,8 @@ class NativeGI:
     def compact(self, acc, inv_spp: float):
         return acc.compact(inv_spp)
 
-    def freeze(self, bounces, tables, pu, C1, i, K1, K2, NP):
-        return freeze(bounces, tables, pu, C1, i, K1, K2, NP)
+    def freeze(self, bounces, tables, pu, C1, i, K1, K2, NP, pixels=None, V0=None):
+        return freeze(bounces, tables, pu, C1, i, K1, K2, NP, pixels, V0)
 
     def frame(self, fz, pu, C1i, ck, d, K1, pix, img):
         return frame(fz, pu, C1i, ck, d, K1, pix, img)
@@ -223,13 +229,21 @@ def from_half(h: np.ndarray) -> np.ndarray:
     return out
 
 
-def freeze(bounces, tables, pu: PixelUnits, C1: np.ndarray, i: int, K1: int, K2: int, NP: int) -> Frozen:
-    """gi_freeze (reference: freeze.freeze_numpy), the same Frozen layout."""
+def freeze(bounces, tables, pu: PixelUnits, C1: np.ndarray, i: int, K1: int, K2: int, NP: int,
+           pixels: np.ndarray | None = None, V0: np.ndarray | None = None) -> Frozen:
+    """gi_freeze (reference: freeze.freeze_numpy), the same Frozen layout. ``pixels`` (n,) int64
+    sorted: freeze only these hit pixels (every pixel on unit i among them) and take V's other
+    rows from V0 (P, K2, NP, 3), a freeze of unit i whose pixel units were the same there."""
     P = len(pu.k0)
     h = (pu.weights * (pu.units == i)).sum(1).astype(np.float32)
     live = np.nonzero(h > 0)[0].astype(np.int64)
     qpos = np.full(P, -1, np.int64); qpos[live] = np.arange(len(live))
-    V = np.empty((P, K2, NP, 3), np.float32)
+    if pixels is not None:
+        pixels = c(pixels, np.int64)
+        assert V0 is not None and V0.shape == (P, K2, NP, 3) and np.isin(live, pixels).all()
+        V = V0.copy()
+    else:
+        V = np.empty((P, K2, NP, 3), np.float32)
     fscale = np.ones(len(live), np.float32)
     keep = []  # the arrays whose addresses C reads
 
@@ -261,13 +275,13 @@ def freeze(bounces, tables, pu: PixelUnits, C1: np.ndarray, i: int, K1: int, K2:
         Fub = np.empty((int(ub[-1]), 4), np.uint16)
     counts = np.zeros(len(live), np.int32)
     C1 = c(C1, np.float32)
-    _lib.gi_freeze(P, nb, a_off, a_slot, a_tail,
+    _lib.gi_freeze(P if pixels is None else len(pixels), nb, a_off, a_slot, a_tail,
                    addr([b.val.view(np.uint16) for b in bounces], np.uint16),
                    addr([b.scale for b in bounces], np.float32), addr([t[0] for t in tables], np.int32), a_pw,
                    addr([t[2] for t in tables], np.float32),
                    pu.units.shape[1], c(pu.units, np.int32), c(pu.weights, np.float32), c(pu.k0, np.int32),
                    c(pu.t, np.float32), C1, C1.shape[1], K1, K2, NP, int(i), qpos, ub, V, Fub, counts, fscale,
-                   int(dense), NPe, blo, width, boff, Wd, Fd)
+                   int(dense), NPe, blo, width, boff, Wd, Fd, None if pixels is None else pixels.ctypes.data)
     if dense:
         fz.dense = Fd
         return fz

@@ -442,13 +442,17 @@ static int cmp_i32(const void *a, const void *b) { int32_t x = *(const int32_t *
  * pixel, capped at K1·K2·NP); writes cnt (Q) entries (m,4) uint16 [key, r, g, b] and scale (Q).
  * Dense live output (dense = 1, K2 = 1): Fd (Q, Wd) half floats, for each power n < NB a block of
  * 3·bw[n] columns at boff[n], [channel][slot − blo[n]] (freeze.Frozen); every live entry of power n
- * has its slot in [blo[n], blo[n] + bw[n]) (gi_powslots). */
+ * has its slot in [blo[n], blo[n] + bw[n]) (gi_powslots).
+ * sel (may be NULL): the P pixels to freeze are sel[0 … P−1] (indices into the per-pixel arrays
+ * and V), every live pixel among them; V's other rows are left as they are (the caller's, from a
+ * freeze whose units were the same there). */
 void gi_freeze(int64_t P, int nb, const uint64_t *a_off, const uint64_t *a_slot, const uint64_t *a_tail,
                const uint64_t *a_val, const uint64_t *a_scale, const uint64_t *a_kk, const uint64_t *a_pw,
                const uint64_t *a_A, int L, const int32_t *units, const float *weights, const int32_t *k0,
                const float *tt, const float *C1, int KT, int K1, int K2, int NP, int iu,
                const int64_t *qpos, const int64_t *ub, float *V, uint16_t *F, int32_t *cnt, float *fscale,
-               int dense, int NB, const int32_t *blo, const int32_t *bw, const int32_t *boff, int Wd, uint16_t *Fd) {
+               int dense, int NB, const int32_t *blo, const int32_t *bw, const int32_t *boff, int Wd, uint16_t *Fd,
+               const int64_t *sel) {
     const int64_t ncell = (int64_t)K1 * K2 * NP;
 #pragma omp parallel
     {
@@ -460,7 +464,8 @@ void gi_freeze(int64_t P, int nb, const uint64_t *a_off, const uint64_t *a_slot,
         double *Vb = (double *)malloc(sizeof(double) * 2 * NP * 3);
         float *fbuf = (float *)malloc(sizeof(float) * (Wd > 0 ? Wd : 1));
 #pragma omp for schedule(dynamic, 64)
-        for (int64_t p = 0; p < P; p++) {
+        for (int64_t jp = 0; jp < P; jp++) {
+            const int64_t p = sel ? sel[jp] : jp;
             /* frozen first-vertex coefficients of the other units, and this unit's weight */
             memset(cf, 0, sizeof(double) * K1 * 3);
             int live = qpos[p] >= 0;

@@ -9,6 +9,7 @@ import contextlib
 import hashlib
 import threading
 import time
+from collections import OrderedDict
 from dataclasses import dataclass
 from types import SimpleNamespace
 from typing import Any, Mapping
@@ -179,6 +180,11 @@ class GIData:
         return int(sum(b.nbytes for b in self.bounces))
 
 
+# painted-region layouts whose freezes are kept (GIRenderer._stash): a region fit's two (below the
+# region, with it) and the previous stroke's
+STASHED_FREEZES = 3
+
+
 def _same(a, b) -> bool:
     return a.model_dump(mode="json") == b.model_dump(mode="json")
 
@@ -265,6 +271,14 @@ class GIRenderer(Renderer):
         self.frozen: fzm.Frozen | None = None
         self._frozen_mats: list | None = None
         self._frozen_bounces = None
+        self._frozen_pu: fzm.PixelUnits | None = None
+        # the freezes of the last few painted-region layouts, by layout: a region fit alternates
+        # between the look below the region and the region with the stroke's new weights, and
+        # each stroke extends the region; a layout seen again takes its freeze back (still
+        # checked against the materials as any freeze is), and a new one recomputes only the
+        # pixels whose units changed since a kept freeze of the same live unit (``_freeze``)
+        self._stash: OrderedDict = OrderedDict()
+        self.last_freeze_pixels = 0
         self.last_timings: dict[str, float] = {}
         self._image = np.ascontiguousarray(self.prim.background.reshape(-1, 3), np.float32).copy()
         self._lock = threading.RLock()
@@ -370,7 +384,10 @@ class GIRenderer(Renderer):
         nb = self.max_bounces
         tables = fzm.tail_tables(i, nb, self.U, self.J2, d, second)
         bounces = self.data.bounces[:nb]
-        self.frozen = self.k.gi.freeze(bounces, tables, self.pu, C1, i, self.K1, self.K2, self.N)
+        pixels, V0 = self._refreeze_pixels(i, nb)
+        self.frozen = self.k.gi.freeze(bounces, tables, self.pu, C1, i, self.K1, self.K2, self.N, pixels, V0)
+        self.last_freeze_pixels = len(self.pu.k0) if pixels is None else len(pixels)
+        self._frozen_pu = self.pu
         if self.prune > 0 and i >= 0:
             self.frozen, self.last_pruned = fzm.prune_sparse(self.frozen, self.pu, C1[i], self.prune,
                                                              self._slot_weight(i))
@@ -380,6 +397,36 @@ class GIRenderer(Renderer):
         self._frozen_bounces = nb
         self.last_freeze_seconds = time.perf_counter() - t0
         return self.last_freeze_seconds
+
+    def _refreeze_pixels(self, i: int, nb: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """(pixels, V0) for a freeze of unit i: when a kept freeze of another layout (``_stash``)
+        had unit i live, the same bounces and every other unit's material the same, the hit
+        pixels whose units or weights differ from its layout's and those on unit i in either,
+        with its V. Elsewhere V, the part of the other units' frozen coefficients (eq. 27), is
+        what it was: it does not depend on unit i's material, and a painted region's weights
+        reach only the first vertex of its own pixels. (None, None): every pixel (no such
+        freeze, or half the image changed)."""
+        if i < 0 or not self._stash:
+            return None, None
+        mats = self._all_mats()
+        P = len(self.pu.k0)
+        for fz0, mats0, pu0, nb0 in reversed(self._stash.values()):
+            if (fz0.unit != i or nb0 != nb or mats0 is None or len(mats0) != len(mats) or fz0.V.shape[0] != P
+                    or any(v != i and v != self.U and not _same(mats[v], mats0[v]) for v in range(len(mats)))):
+                continue
+            L = max(pu0.units.shape[1], self.pu.units.shape[1])
+
+            def wide(pu):
+                u = np.full((P, L), -1, np.int32)
+                w = np.zeros((P, L), np.float32)
+                u[:, :pu.units.shape[1]], w[:, :pu.units.shape[1]] = pu.units, pu.weights
+                return u, w
+            (ua, wa), (ub, wb) = wide(pu0), wide(self.pu)
+            changed = (ua != ub).any(1) | (wa != wb).any(1) | (ub == i).any(1) | (ua == i).any(1)
+            if changed.sum() * 2 > P:
+                return None, None
+            return np.nonzero(changed)[0].astype(np.int64), fz0.V
+        return None, None
 
     def _slot_weight(self, i: int) -> np.ndarray:
         """(K1,) the largest |first-vertex coefficient| of each basis slot of unit i over probe
@@ -485,9 +532,20 @@ class GIRenderer(Renderer):
             self.pseudo = pseudo
             return
         self.pseudo = pseudo
+        if self.frozen is not None and self._frozen_pu is self.pu:
+            self._stash[self._painted_key] = (self.frozen, self._frozen_mats, self._frozen_pu, self._frozen_bounces)
+            self._stash.move_to_end(self._painted_key)
+            while len(self._stash) > STASHED_FREEZES:
+                self._stash.popitem(last=False)
         self._painted_key = key
+        kept = self._stash.pop(key, None)
+        self._sampled = []
+        if kept is not None:
+            self.frozen, self._frozen_mats, self.pu, self._frozen_bounces = kept
+            self._frozen_pu = self.pu
+            return
         self.pu = self.pu0 if lay is None else self._painted_units(lay, len(materials))
-        self.frozen, self._frozen_mats, self._sampled = None, None, []
+        self.frozen, self._frozen_mats = None, None
 
     def _painted_units(self, lay, n_objects: int) -> fzm.PixelUnits:
         """PixelUnits with each region object's own-unit weight at a camera hit split among its
