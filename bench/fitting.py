@@ -204,11 +204,13 @@ def _gi_frame_times(r, cam, lighting, materials: dict, frames: int) -> dict:
     return {"wall": wall, "cpu": cpu}
 
 
-def session_stroke(rnd, name: str, stroke, region: str | None = None) -> dict:
+def session_stroke(rnd, name: str, stroke, region: str | None = None, more: int = 0) -> dict:
     """One live stroke through a fresh session on the renderer (worker/jobs/runtime.py), as the
     studio sends it: milliseconds from the stroke message to its frame (the fit view built on
     the way), split into the stroke (its view), the fit and the frame. ``region``: the stroke
-    paints that region (the studio's Paint a region, turned on before it)."""
+    paints that region (the studio's Paint a region, turned on before it). ``more``: that many
+    strokes follow, each the same one moved down by a third of its diameter (a region grown
+    stroke by stroke), their stroke → frame in ``ms_more``."""
     from worker.jobs.runtime import SessionRuntime
     from worker.protocol import new_state
 
@@ -228,11 +230,20 @@ def session_stroke(rnd, name: str, stroke, region: str | None = None) -> dict:
     rt.frame(1)
     t3 = time.perf_counter()
     cpu = time.process_time() - c0
+    ms_more = []
+    for k in range(1, more + 1):
+        d = stroke.model_dump(mode="json", exclude={"view"})
+        d["points"] = [[x, y + k * stroke.diameter / 3] for x, y in d["points"]]
+        t4 = time.perf_counter()
+        rt.handle({"seq": 1 + k, "type": "stroke", "stroke": d})
+        rt.fit_if_needed()
+        rt.frame(1 + k)
+        ms_more.append((time.perf_counter() - t4) * 1e3)
     rt.close()
     if ev[0].get("rejected"):
         raise RuntimeError(f"stroke rejected: {ev[0]['notes']}")
     return {"ms_stroke_to_frame": (t3 - t0) * 1e3, "cpu_ms_stroke_to_frame": cpu * 1e3, "ms_view": (t1 - t0) * 1e3, "ms_fit": (t2 - t1) * 1e3,
-            "ms_frame": (t3 - t2) * 1e3, "steps": fit[0]["stats"].get("steps")}
+            "ms_frame": (t3 - t2) * 1e3, "steps": fit[0]["stats"].get("steps"), "ms_more": ms_more}
 
 
 def cmd_bench_strokes(a) -> int:
@@ -386,8 +397,8 @@ def cmd_bench_regions(a) -> int:
                             "blend_cost": cpu["regions_base_material"] / cpu["base"],
                             "wall_cost_vs_base": ms["regions"] / ms["base"]})
                 # stroke → frame in one session, the region's and the one BRDF's (the studio's paths)
-                res[-1]["session"] = {"region": session_stroke(rnd, name, st, region=label),
-                                      "one_brdf": session_stroke(rnd, name, st)}
+                res[-1]["session"] = {"region": session_stroke(rnd, name, st, region=label, more=2),
+                                      "one_brdf": session_stroke(rnd, name, st, more=2)}
                 if not a.json:
                     r = res[-1]
                     print(f"{r['scene']} {r['env']} {label}: region achieved {100 * got['achieved']:.0f}%, spill beyond D "
