@@ -430,3 +430,23 @@ def test_a_grown_region_refreezes_only_the_pixels_it_changed(sofa):
     sofa.apply_materials(regrown)
     sofa.freeze(u)
     assert sofa.last_freeze_pixels == P
+
+
+def test_kept_freezes_are_bounded(sofa, monkeypatch):
+    """At most STASHED_FREEZES layouts' freezes are kept, and while they weigh more than
+    STASHED_BYTES the oldest go (the newest stays whatever its size)."""
+    from worker.renderers.gi import renderer as gr
+
+    red = GGX(alpha=0.3, albedo=(0.6, 0.1, 0.1), specular=(0.2, 0.2, 0.2))
+    sofa._stash.clear()
+    for k in range(6):
+        mats = list(sofa.scene.materials)
+        mats[0] = _with_region(sofa, 0, red, frac=0.2 + 0.1 * k)
+        sofa.apply_materials(mats)
+        sofa.freeze(sofa._region_units[(0, "r")])
+    assert len(sofa._stash) == gr.STASHED_FREEZES
+    monkeypatch.setattr(gr, "STASHED_BYTES", 1)
+    mats = list(sofa.scene.materials)
+    mats[0] = _with_region(sofa, 0, red, frac=0.9)
+    sofa.apply_materials(mats)
+    assert len(sofa._stash) == 1, [v[0].nbytes for v in sofa._stash.values()]

@@ -181,8 +181,11 @@ class GIData:
 
 
 # painted-region layouts whose freezes are kept (GIRenderer._stash): a region fit's two (below the
-# region, with it) and the previous stroke's
+# region, with it) and the previous stroke's; and at most this many bytes of them, the newest kept
+# whatever its size (a renderer is a session's: a freeze of the test sofa at 320×240 with the
+# whole sofa live is 17 MB, most of it the live rows; with a region live, a few MB)
 STASHED_FREEZES = 3
+STASHED_BYTES = 64 << 20
 
 
 def _same(a, b) -> bool:
@@ -535,7 +538,8 @@ class GIRenderer(Renderer):
         if self.frozen is not None and self._frozen_pu is self.pu:
             self._stash[self._painted_key] = (self.frozen, self._frozen_mats, self._frozen_pu, self._frozen_bounces)
             self._stash.move_to_end(self._painted_key)
-            while len(self._stash) > STASHED_FREEZES:
+            while len(self._stash) > STASHED_FREEZES or (
+                    len(self._stash) > 1 and sum(v[0].nbytes for v in self._stash.values()) > STASHED_BYTES):
                 self._stash.popitem(last=False)
         self._painted_key = key
         kept = self._stash.pop(key, None)
