@@ -198,15 +198,7 @@ def solve(rows: list[FitRows], basis: SRBFBasis, albedo, constrained: bool = Tru
     if neutral:
         return _solve_neutral(rows, basis, albedo, constrained, n_l, prior, prox, warm, tol, fit_albedo)
     t0 = time.perf_counter()
-    rho = np.asarray(albedo, np.float64)
-    J = basis.J
-    prior = np.zeros((J, 3)) if prior is None else np.asarray(prior, np.float64)
-    G = basis.energy_rows(n_l)
-    if constrained and np.any(rho > 1):
-        raise ValueError(f"diffuse albedo {rho.tolist()} exceeds 1: no energy-conserving specular part exists")
-    # the rows are a quadrature: a margin for its error keeps the albedo within its bound by an
-    # independent quadrature too (basis.SRBFBasis.row_margin)
-    keep = 1.0 - basis.row_margin
+    rho, J, prior, G, keep = _problem(basis, albedo, prior, n_l, constrained)
     if fit_albedo:
         H_all, f_all = _augmented_normal_equations(rows)
         G = np.concatenate([G, np.full((len(G), 1), 1.0)], axis=1)     # Σ g c + ρ_d ≤ 1
@@ -244,6 +236,19 @@ def solve(rows: list[FitRows], basis: SRBFBasis, albedo, constrained: bool = Tru
     return _solve_result(rows, coef, rho, G, time.perf_counter() - t0, iters, constrained)
 
 
+def _problem(basis, albedo, prior, n_l: int, constrained: bool):
+    """What both solves start from: (ρ (3,), J, prior (J, 3), energy rows G (R, J), keep: the
+    share of each energy bound the rows may use)."""
+    rho = np.asarray(albedo, np.float64)
+    J = basis.J
+    prior = np.zeros((J, 3)) if prior is None else np.asarray(prior, np.float64)
+    if constrained and np.any(rho > 1):
+        raise ValueError(f"diffuse albedo {rho.tolist()} exceeds 1: no energy-conserving specular part exists")
+    # the rows are a quadrature: a margin for its error keeps the albedo within its bound by an
+    # independent quadrature too (basis.SRBFBasis.row_margin)
+    return rho, J, prior, basis.energy_rows(n_l), 1.0 - basis.row_margin
+
+
 def _solve_result(rows: list[FitRows], coef: np.ndarray, rho: np.ndarray, G: np.ndarray, seconds: float, iters,
                   constrained: bool) -> SolveResult:
     """SolveResult of coefficients coef (J, 3) and albedo rho (3,): the residual reported on the
@@ -267,13 +272,7 @@ def _solve_neutral(rows, basis, albedo, constrained, n_l, prior, prox, warm, tol
     subject to c ≥ 0 and Σ_j g_j^l c_j ≤ 1 − ρ_ch for every channel (eq. 18-19); with
     fit_albedo the unknowns are [c, ρ_R, ρ_G, ρ_B] and the rows Σ_j g_j^l c_j + ρ_ch ≤ 1."""
     t0 = time.perf_counter()
-    rho = np.asarray(albedo, np.float64)
-    J = basis.J
-    prior = np.zeros((J, 3)) if prior is None else np.asarray(prior, np.float64)
-    G = basis.energy_rows(n_l)
-    if constrained and np.any(rho > 1):
-        raise ValueError(f"diffuse albedo {rho.tolist()} exceeds 1: no energy-conserving specular part exists")
-    keep = 1.0 - basis.row_margin
+    rho, J, prior, G, keep = _problem(basis, albedo, prior, n_l, constrained)
     if fit_albedo:
         Ha, fa = _augmented_normal_equations(rows)
         n_var = J + 3
