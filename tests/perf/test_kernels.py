@@ -189,3 +189,34 @@ def test_intensity_change_scales_the_light_tables(bunny_renderer):
     np.testing.assert_allclose(nl, ref[0], rtol=1e-5, atol=1e-6 * ref[0].max())
     np.testing.assert_allclose(nw, ref[1], atol=1e-6)
     np.testing.assert_allclose(n8, ref[2], rtol=1e-5, atol=1e-6 * ref[0].max())
+
+
+def test_a_white_srbf_reads_one_table_for_three_channels(bunny):
+    """An srbf whose channels' coefficients are equal (the fit of a white stroke) is packed with
+    its texel quads and shaded from them once for all three channels (shade.c sum_table): the
+    radiance is bit for bit that of the three-channel lookup, and the reference's; a tinted one
+    keeps the three-channel path."""
+    from worker.core.render import TABLE_NEUTRAL
+    from worker.models import SRBF
+
+    cuts = bunny[1]
+    tree, k, (nl, nw, n8), vi, n, wo = _bunny_points(
+        bunny, 500, 11, [[0.3, 0.8, 3.0], [-3.0, 0.2, 0.5], [0.5, 3.0, -1.0]])
+    centers = [(0.0, 0.0, 1.0), (0.05, 0.0, 0.99875), (0.0, 0.3, 0.9539), (0.6, 0.0, 0.8)]
+    white = SRBF(centers=centers, bandwidths=[5000.0, 1300.0, 80.0, 20.0], bandwidth=80.0,
+                 coefficients=[(3.0, 3.0, 3.0), (1.0, 1.0, 1.0), (0.05, 0.05, 0.05), (0.2, 0.2, 0.2)],
+                 albedo=(0.5, 0.3, 0.2), static="smith", static_alpha=0.2)
+    tinted = white.model_copy(update={"coefficients": [(3.0, 2.0, 1.0), (1.0, 1.0, 1.0), (0.05, 0.05, 0.05),
+                                                       (0.2, 0.2, 0.2)]})
+    mats = MaterialTable([white.pack(), tinted.pack()])
+    assert mats.params[0, TABLE_NEUTRAL] == 1.0 and mats.params[1, TABLE_NEUTRAL] == 0.0
+    n_tab = white.pack().table.size
+    assert len(mats.tables) == 2 * n_tab + n_tab // 3 * 4          # the white one's quads after its table
+    mat_of = np.zeros(len(vi), np.int32)
+    got = k.shade_points(n, wo, vi, mat_of, cuts, nl, nw, tree, mats, node8=n8)
+    assert got.max() > 0
+    three = MaterialTable([white.pack()])
+    three.params[0, TABLE_NEUTRAL] = 0.0                             # the same table, read per channel
+    np.testing.assert_array_equal(got, k.shade_points(n, wo, vi, mat_of, cuts, nl, nw, tree, three, node8=n8))
+    ref = shade_points_numpy(n, wo, vi, mat_of, cuts, nl, nw, tree, mats)
+    np.testing.assert_allclose(got, ref, rtol=2e-4, atol=1e-6 * ref.max())

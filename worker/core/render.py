@@ -128,6 +128,26 @@ def _image_to_camera(px, py, fov_y_deg: float, width: int, height: int) -> np.nd
 # --- shading ----------------------------------------------------------------------------------
 
 
+TABLE_NEUTRAL = 6     # params index of a table material's flag: its channels' tables are equal
+
+
+def _neutral_table(table: np.ndarray) -> bool:
+    """Whether a (TABLE_N, TABLE_N, 3) table's three channels are equal, bit for bit (the
+    vector path then reads one of them, with the same result)."""
+    t = np.asarray(table, np.float32).reshape(-1, 3)
+    return bool(np.array_equal(t[:, 0], t[:, 1]) and np.array_equal(t[:, 0], t[:, 2]))
+
+
+def texel_quads(table: np.ndarray) -> np.ndarray:
+    """(N, N, 4) float32: per texel (i, j) of one channel of a (N, N, 3) table, the four texels
+    a bilinear lookup reads, (i, j), (i, j+1), (i+1, j), (i+1, j+1) (clamped at the last row and
+    column), so that the vector path loads them as one 16-byte row per lane (shade.c)."""
+    t = np.asarray(table, np.float32)[:, :, 0]
+    n = t.shape[0]
+    i1 = np.minimum(np.arange(n) + 1, n - 1)
+    return np.ascontiguousarray(np.stack([t, t[:, i1], t[i1, :], t[i1][:, i1]], -1))
+
+
 class MaterialTable:
     """Packed materials in the kernel's arrays: kind (M,) int32 (the library's branch id,
     −1 for a model without a C branch: shaded by its NumPy reference), params (M, 72) float32,
@@ -141,11 +161,18 @@ class MaterialTable:
         self.refine = np.array([min(p.refine_radius, 1e9) for p in packed], np.float32)
         self.extent = np.array([min(p.extent, 1e9) for p in packed], np.float32)
         offs, tabs, pos = [], [], 0
-        for p in packed:
+        for i, p in enumerate(packed):
             if p.table is None:
                 offs.append(-1)
-            else:
-                offs.append(pos); tabs.append(p.table.reshape(-1)); pos += p.table.size
+                continue
+            offs.append(pos); tabs.append(p.table.reshape(-1)); pos += p.table.size
+            # a table whose three channels are equal (a white specular part) is read once for
+            # all three by the vector shading path (shade.c sum_table), from its texel quads
+            # stored after it
+            if p.kernel == "table" and _neutral_table(p.table):
+                self.params[i, TABLE_NEUTRAL] = 1.0
+                q = texel_quads(p.table)
+                tabs.append(q.reshape(-1)); pos += q.size
         self.table_off = np.array(offs, np.int64)
         self.tables = np.concatenate(tabs).astype(np.float32) if tabs else np.zeros(1, np.float32)
 

@@ -366,14 +366,41 @@ T_AVX2 static inline __m256 load_q(const uint8_t *q) {
     return _mm256_mul_ps(_mm256_cvtepi32_ps(v), _mm256_set1_ps(1.0f / 255.0f));
 }
 
-T_AVX2 static inline void local_dirs(const float *node8, __m256i off, const frame8 *f, __m256 *lr, __m256 *lg,
+/* The records (l rgb, ω xyz, 0, 0) of eight clusters idx[0..8) as six columns c[0..6): each
+ * record is one aligned 32-byte row of node8, so eight row loads and an 8×8 transpose replace six
+ * 8-lane gathers (the gathers were a third of a sharp srbf's shading on Zen 4, where a gather
+ * costs a load per lane and the six re-read the same eight rows). */
+T_AVX2 static inline void cluster_rows(const float *node8, const int32_t *idx, __m256 c[6]) {
+    __m256 r0 = _mm256_loadu_ps(node8 + 8 * (int64_t)idx[0]), r1 = _mm256_loadu_ps(node8 + 8 * (int64_t)idx[1]);
+    __m256 r2 = _mm256_loadu_ps(node8 + 8 * (int64_t)idx[2]), r3 = _mm256_loadu_ps(node8 + 8 * (int64_t)idx[3]);
+    __m256 r4 = _mm256_loadu_ps(node8 + 8 * (int64_t)idx[4]), r5 = _mm256_loadu_ps(node8 + 8 * (int64_t)idx[5]);
+    __m256 r6 = _mm256_loadu_ps(node8 + 8 * (int64_t)idx[6]), r7 = _mm256_loadu_ps(node8 + 8 * (int64_t)idx[7]);
+    /* rows i = (a_i b_i c_i d_i | e_i f_i g_i h_i); lanes 0-3 of the output from rows 0-3, 4-7 from rows 4-7 */
+    __m256 t0 = _mm256_unpacklo_ps(r0, r1), t1 = _mm256_unpackhi_ps(r0, r1);     /* a0 a1 b0 b1 | e0 e1 f0 f1 ; c0 c1 d0 d1 | g0 g1 h0 h1 */
+    __m256 t2 = _mm256_unpacklo_ps(r2, r3), t3 = _mm256_unpackhi_ps(r2, r3);
+    __m256 t4 = _mm256_unpacklo_ps(r4, r5), t5 = _mm256_unpackhi_ps(r4, r5);
+    __m256 t6 = _mm256_unpacklo_ps(r6, r7), t7 = _mm256_unpackhi_ps(r6, r7);
+    __m256 a03 = _mm256_shuffle_ps(t0, t2, _MM_SHUFFLE(1, 0, 1, 0));              /* a0-3 | e0-3 */
+    __m256 b03 = _mm256_shuffle_ps(t0, t2, _MM_SHUFFLE(3, 2, 3, 2));              /* b0-3 | f0-3 */
+    __m256 c03 = _mm256_shuffle_ps(t1, t3, _MM_SHUFFLE(1, 0, 1, 0));              /* c0-3 | g0-3 */
+    __m256 a47 = _mm256_shuffle_ps(t4, t6, _MM_SHUFFLE(1, 0, 1, 0));
+    __m256 b47 = _mm256_shuffle_ps(t4, t6, _MM_SHUFFLE(3, 2, 3, 2));
+    __m256 c47 = _mm256_shuffle_ps(t5, t7, _MM_SHUFFLE(1, 0, 1, 0));
+    __m256 d03 = _mm256_shuffle_ps(t1, t3, _MM_SHUFFLE(3, 2, 3, 2)), d47 = _mm256_shuffle_ps(t5, t7, _MM_SHUFFLE(3, 2, 3, 2));
+    c[0] = _mm256_permute2f128_ps(a03, a47, 0x20);      /* l_r */
+    c[1] = _mm256_permute2f128_ps(b03, b47, 0x20);      /* l_g */
+    c[2] = _mm256_permute2f128_ps(c03, c47, 0x20);      /* l_b */
+    c[3] = _mm256_permute2f128_ps(d03, d47, 0x20);      /* ω_x */
+    c[4] = _mm256_permute2f128_ps(a03, a47, 0x31);      /* ω_y */
+    c[5] = _mm256_permute2f128_ps(b03, b47, 0x31);      /* ω_z */
+}
+
+T_AVX2 static inline void local_dirs(const float *node8, const int32_t *idx, const frame8 *f, __m256 *lr, __m256 *lg,
                                      __m256 *lb, __m256 *wt, __m256 *wb, __m256 *wn) {
-    *lr = _mm256_i32gather_ps(node8 + 0, off, 4);
-    *lg = _mm256_i32gather_ps(node8 + 1, off, 4);
-    *lb = _mm256_i32gather_ps(node8 + 2, off, 4);
-    __m256 x = _mm256_i32gather_ps(node8 + 3, off, 4);
-    __m256 y = _mm256_i32gather_ps(node8 + 4, off, 4);
-    __m256 z = _mm256_i32gather_ps(node8 + 5, off, 4);
+    __m256 col[6];
+    cluster_rows(node8, idx, col);
+    *lr = col[0]; *lg = col[1]; *lb = col[2];
+    __m256 x = col[3], y = col[4], z = col[5];
     __m256 ci = _mm256_fmadd_ps(x, f->nx, _mm256_fmadd_ps(y, f->ny, _mm256_mul_ps(z, f->nz)));
     __m256 t = _mm256_fmadd_ps(x, f->tx, _mm256_fmadd_ps(y, f->ty, _mm256_mul_ps(z, f->tz)));
     __m256 b = _mm256_fmadd_ps(x, f->bx, _mm256_fmadd_ps(y, f->by, _mm256_mul_ps(z, f->bz)));
@@ -566,10 +593,9 @@ T_AVX2 static void sum_ggx(int64_t cnt, const int32_t *idx, const uint8_t *qv, c
     const __m256 ot = _mm256_set1_ps((float)wol.x), ob = _mm256_set1_ps((float)wol.y), on = _mm256_set1_ps((float)wol.z);
     __m256 er = zero, eg = zero, eb = zero, sr = zero, sg = zero, sb = zero;
     for (int64_t j = 0; j < cnt; j += 8) {
-        __m256i off = _mm256_slli_epi32(_mm256_loadu_si256((const __m256i *)(idx + j)), 3);
         __m256 q = get_q(qv, qf, j);
         __m256 lr, lg, lb, wt, wb, ci;
-        local_dirs(node8, off, f, &lr, &lg, &lb, &wt, &wb, &ci);
+        local_dirs(node8, idx + j, f, &lr, &lg, &lb, &wt, &wb, &ci);
         lr = _mm256_mul_ps(lr, q); lg = _mm256_mul_ps(lg, q); lb = _mm256_mul_ps(lb, q);
         er = _mm256_add_ps(er, lr); eg = _mm256_add_ps(eg, lg); eb = _mm256_add_ps(eb, lb);
         __m256 ht = _mm256_add_ps(wt, ot), hb = _mm256_add_ps(wb, ob), hn = _mm256_add_ps(ci, on);
@@ -596,6 +622,8 @@ T_AVX2 static void sum_table(int64_t cnt, const int32_t *idx, const uint8_t *qv,
     /* prm[3] = F0; prm[4] = static (0 paper, 1 smith), prm[5] = the smith static's α */
     const float f0 = prm[3];
     const int smith = prm[4] > 0.5f;
+    const int neutral = prm[6] > 0.5f;
+    const float *quads = tab + 3 * TABLE_N * TABLE_N;
     const float sa2 = prm[5] * prm[5];
     const __m256 va2 = _mm256_set1_ps(sa2), v1ma2 = _mm256_set1_ps(1.0f - sa2);
     /* the smith static's ωo factor (cosθo + Λ(cosθo)) is the same for every cluster of the point */
@@ -609,10 +637,9 @@ T_AVX2 static void sum_table(int64_t cnt, const int32_t *idx, const uint8_t *qv,
     const float co = (float)wol.z;
     __m256 er = zero, eg = zero, eb = zero, sr = zero, sg = zero, sb = zero;
     for (int64_t j = 0; j < cnt; j += 8) {
-        __m256i off = _mm256_slli_epi32(_mm256_loadu_si256((const __m256i *)(idx + j)), 3);
         __m256 q = get_q(qv, qf, j);
         __m256 lr, lg, lb, wt, wb, ci;
-        local_dirs(node8, off, f, &lr, &lg, &lb, &wt, &wb, &ci);
+        local_dirs(node8, idx + j, f, &lr, &lg, &lb, &wt, &wb, &ci);
         lr = _mm256_mul_ps(lr, q); lg = _mm256_mul_ps(lg, q); lb = _mm256_mul_ps(lb, q);
         er = _mm256_add_ps(er, lr); eg = _mm256_add_ps(eg, lg); eb = _mm256_add_ps(eb, lb);
         __m256 ht = _mm256_add_ps(wt, ot), hb = _mm256_add_ps(wb, ob), hn = _mm256_add_ps(ci, on);
@@ -648,6 +675,28 @@ T_AVX2 static void sum_table(int64_t cnt, const int32_t *idx, const uint8_t *qv,
         __m256 sf = _mm256_div_ps(F, _mm256_max_ps(den, _mm256_set1_ps(1e-12f)));
         __m256 wa = _mm256_mul_ps(sf, _mm256_sub_ps(one, a)), wa1 = _mm256_mul_ps(sf, a);
         __m256 w1b = _mm256_sub_ps(one, b);
+        if (neutral) {
+            /* the channels' tables are equal (a white specular part): one lookup for all three,
+             * each lane's four texels one 16-byte row of the quads after the table
+             * (core/render.py texel_quads), transposed */
+            int32_t tx[8];
+            _mm256_storeu_si256((__m256i *)tx, _mm256_add_epi32(_mm256_mullo_epi32(i0, tn), j0));
+            __m256 R[4];
+            for (int k = 0; k < 4; k++)
+                R[k] = _mm256_insertf128_ps(_mm256_castps128_ps256(_mm_loadu_ps(quads + 4 * (int64_t)tx[k])),
+                                            _mm_loadu_ps(quads + 4 * (int64_t)tx[k + 4]), 1);
+            __m256 u0 = _mm256_unpacklo_ps(R[0], R[1]), u1 = _mm256_unpackhi_ps(R[0], R[1]);
+            __m256 u2 = _mm256_unpacklo_ps(R[2], R[3]), u3 = _mm256_unpackhi_ps(R[2], R[3]);
+            __m256 t00 = _mm256_shuffle_ps(u0, u2, _MM_SHUFFLE(1, 0, 1, 0));
+            __m256 t01 = _mm256_shuffle_ps(u0, u2, _MM_SHUFFLE(3, 2, 3, 2));
+            __m256 t10 = _mm256_shuffle_ps(u1, u3, _MM_SHUFFLE(1, 0, 1, 0));
+            __m256 t11 = _mm256_shuffle_ps(u1, u3, _MM_SHUFFLE(3, 2, 3, 2));
+            __m256 r0 = _mm256_fmadd_ps(t01, b, _mm256_mul_ps(t00, w1b));
+            __m256 r1 = _mm256_fmadd_ps(t11, b, _mm256_mul_ps(t10, w1b));
+            __m256 p = _mm256_fmadd_ps(r1, wa1, _mm256_mul_ps(r0, wa));
+            sr = _mm256_fmadd_ps(lr, p, sr); sg = _mm256_fmadd_ps(lg, p, sg); sb = _mm256_fmadd_ps(lb, p, sb);
+            continue;
+        }
         __m256 lq[3] = {lr, lg, lb};
         __m256 *acc[3] = {&sr, &sg, &sb};
         for (int c = 0; c < 3; c++) {
@@ -737,8 +786,7 @@ T_AVX2 static inline void clusters_pd(const __m256 g8[6], __m256 q8, int half, _
  * their visibilities */
 T_AVX2 static inline __m256 gather_clusters(const float *node8, const int32_t *idx, const uint8_t *qv, const float *qf,
                                             int64_t j, __m256 g8[6]) {
-    __m256i off = _mm256_slli_epi32(_mm256_loadu_si256((const __m256i *)(idx + j)), 3);
-    for (int c = 0; c < 6; c++) g8[c] = _mm256_i32gather_ps(node8 + c, off, 4);
+    cluster_rows(node8, idx + j, g8);
     return get_q(qv, qf, j);
 }
 
