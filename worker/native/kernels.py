@@ -151,13 +151,13 @@ class NativeKernels(_Families):
             raise RuntimeError("the C kernels are not built (make build)")
         self._shade = bind(
             "glk_shade_points", None, P=i64, normals=f32p, wo_dirs=f32p, cut_of=i32p, mat_of=i32p,
-            cut_off=i64p, cut_h=u8p, cut_q=u8p, node8=f32p, node_dir=f32p, node_radius=f32p, node_cs=f32p,
+            cut_off=i64p, cut_h=u8p, cut_q=u8p, node8=f32p, node_dir=f32p, node_radius=f32p, node_geo=f32p,
             level_off=i64p, H=i32, mat_kind=i32p, mat_params=f32p, mat_refine=f32p, mat_extent=f32p,
             tables=f32p, table_off=i64p, anc=f32p, alevel=i32, out=f32p)
         self._blend = bind(
             "glk_shade_blend", None, P=i64, normals=f32p, wo_dirs=f32p, verts=i32p, bary=f32p, mat_of=i32p,
             G=i64, group=i64p, cut_off=i64p, cut_h=u8p, cut_q=u8p, node8=f32p, node_dir=f32p, node_radius=f32p,
-            node_cs=f32p, level_off=i64p, H=i32, mat_kind=i32p, mat_params=f32p, mat_refine=f32p, mat_extent=f32p,
+            node_geo=f32p, level_off=i64p, H=i32, mat_kind=i32p, mat_params=f32p, mat_refine=f32p, mat_extent=f32p,
             tables=f32p, table_off=i64p, out=f32p)
         self._simd = bind("glk_shade_simd", i32, want=i32)
         self._light = bind(
@@ -232,7 +232,7 @@ class NativeKernels(_Families):
             cut_c[no_kernel] = -1                                      # the kernel writes zeros there
         self._shade(p, c(normals, np.float32), c(wo, np.float32), cut_c, mat_of, c(cuts.offsets, np.int64),
                     c(cuts.heights, np.uint8), c(cuts.quant, np.uint8), c(node8, np.float32),
-                    tree.node_dir, tree.node_radius, _node_cs(tree), c(tree.level_offset, np.int64),
+                    tree.node_dir, tree.node_radius, _node_geo(tree), c(tree.level_offset, np.int64),
                     tree.height, kind, mats.params, mats.refine, mats.extent, mats.tables, mats.table_off,
                     *_ancestor_bounds(tree), out)
         if no_kernel.any():
@@ -272,7 +272,7 @@ class NativeKernels(_Families):
         self._blend(p, c(np.asarray(normals)[order], np.float32), c(np.asarray(wo)[order], np.float32), c(vs, np.int32),
                     c(np.asarray(bary, np.float32).reshape(-1, 3)[order], np.float32), c(ms, np.int32),
                     len(group) - 1, group, c(cuts.offsets, np.int64), c(cuts.heights, np.uint8), c(cuts.quant, np.uint8),
-                    c(node8, np.float32), tree.node_dir, tree.node_radius, _node_cs(tree),
+                    c(node8, np.float32), tree.node_dir, tree.node_radius, _node_geo(tree),
                     c(tree.level_offset, np.int64), tree.height, kind, mats.params, mats.refine, mats.extent, mats.tables, mats.table_off, res)
         out[order] = res
         if no_kernel.any():
@@ -460,6 +460,23 @@ def _node_cs(tree) -> np.ndarray:
         r = tree.node_radius.astype(np.float64)
         _CS[id(tree)] = (tree, np.ascontiguousarray(np.stack([np.cos(r), np.sin(r)], 1), np.float32))
     return _CS[id(tree)][1]
+
+
+_GEO: dict = {}
+
+
+def _node_geo(tree) -> np.ndarray:
+    """(2N−1, 8) float32 per tree node: cos R, sin R, its direction (x, y, z), R, 0, 0 (R its
+    radius): what the shading kernel's cluster walk tests of a node, in one 32-byte row, so that
+    eight nodes are eight row loads rather than six gathers from three arrays (shade.c
+    cone_mask8); kept per tree."""
+    if id(tree) not in _GEO:
+        g = np.zeros((len(tree.node_radius), 8), np.float32)
+        g[:, :2] = _node_cs(tree)
+        g[:, 2:5] = tree.node_dir
+        g[:, 5] = tree.node_radius
+        _GEO[id(tree)] = (tree, g)
+    return _GEO[id(tree)][1]
 
 
 ANCESTORS = 32        # nodes of the level the shading kernel's ancestor test looks at (shade.c)

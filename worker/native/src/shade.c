@@ -151,23 +151,24 @@ static inline void brdf_eval(int kind, const float *p, const float *tab, v3 wi, 
  * tested), 80 of 122 CPU ms on the demo chair. */
 typedef struct {
     const int64_t *lev;
-    const float *node_dir, *node_radius, *node_cs;
+    const float *node_dir, *node_radius, *geo;   /* geo (2N−1, 8): cos R, sin R, dir xyz, R, 0, 0 */
     v3 r;
     double refine_r, extent, ce, se;
 } refine_ctx;
 
 static inline refine_ctx make_ctx(const int64_t *lev, const float *node_dir, const float *node_radius,
-                                  const float *node_cs, v3 r, double refine_r, double extent) {
-    refine_ctx c = {lev, node_dir, node_radius, node_cs, r, refine_r, extent, cos(extent), sin(extent)};
+                                  const float *geo, v3 r, double refine_r, double extent) {
+    refine_ctx c = {lev, node_dir, node_radius, geo, r, refine_r, extent, cos(extent), sin(extent)};
     return c;
 }
 
 /* whether node id (radius R > refine_r) is split: its cone reaches within the extent of r */
 static inline int cone_reaches(const refine_ctx *c, int64_t id) {
-    double R = c->node_radius[id];
+    const float *g = c->geo + 8 * id;
+    double R = g[5];
     if (R + c->extent >= PI) return 1;
-    double d = c->node_dir[3 * id] * c->r.x + c->node_dir[3 * id + 1] * c->r.y + c->node_dir[3 * id + 2] * c->r.z;
-    return d > c->node_cs[2 * id] * c->ce - c->node_cs[2 * id + 1] * c->se;
+    double d = g[2] * c->r.x + g[3] * c->r.y + g[4] * c->r.z;
+    return d > g[0] * c->ce - g[1] * c->se;
 }
 
 /* refine_node with the children's visibility written as q8 to qv, or (qv NULL) as the float qf to
@@ -181,7 +182,7 @@ static int64_t refine_node_q(int h0, int64_t s0, unsigned q8, float qf, const re
         int64_t s = st[--sp];
         int h = (int)st[--sp];
         int64_t id = c->lev[h] + (s >> h);
-        if (h > 0 && c->node_radius[id] > c->refine_r && cone_reaches(c, id)) {
+        if (h > 0 && c->geo[8 * id + 5] > c->refine_r && cone_reaches(c, id)) {
             int64_t half = (int64_t)1 << (h - 1);   /* right child first: the left pops first */
             st[sp++] = h - 1; st[sp++] = s + half;
             st[sp++] = h - 1; st[sp++] = s;
@@ -437,13 +438,12 @@ static void init_pack_perm(void) {
  * the mirror direction, most of them for a sharp lobe, take the vector path. */
 T_AVX2 static inline int cone_mask8(const refine_ctx *c, __m256i id, int cand) {
     if (!cand) return 0;
-    __m256 R = _mm256_i32gather_ps(c->node_radius, id, 4);
-    __m256i i2 = _mm256_add_epi32(id, id), i3 = _mm256_add_epi32(i2, id);
-    __m256 dx = _mm256_i32gather_ps(c->node_dir, i3, 4);
-    __m256 dy = _mm256_i32gather_ps(c->node_dir + 1, i3, 4);
-    __m256 dz = _mm256_i32gather_ps(c->node_dir + 2, i3, 4);
-    __m256 cr = _mm256_i32gather_ps(c->node_cs, i2, 4);
-    __m256 sr = _mm256_i32gather_ps(c->node_cs + 1, i2, 4);
+    /* the eight nodes' geometry rows, transposed (as the clusters' records: cluster_rows) */
+    int32_t ids[8];
+    _mm256_storeu_si256((__m256i *)ids, id);
+    __m256 g[6];
+    cluster_rows(c->geo, ids, g);
+    __m256 cr = g[0], sr = g[1], dx = g[2], dy = g[3], dz = g[4], R = g[5];
     __m256 d = _mm256_fmadd_ps(dx, _mm256_set1_ps((float)c->r.x),
                                _mm256_fmadd_ps(dy, _mm256_set1_ps((float)c->r.y),
                                                _mm256_mul_ps(dz, _mm256_set1_ps((float)c->r.z))));
@@ -1023,14 +1023,15 @@ static uint64_t ancestors_reaching(const float *anc, int alevel, int H, const in
 /* ---------------------------------------------------------------------------------------
  * normals, wo_dirs (P, 3) float32 unit; cut_of, mat_of (P,) int32 (cut −1: none → 0);
  * cut_off (V+1,) int64, cut_h, cut_q (entries) uint8; node8 (2N−1, 8) float32 (l rgb, ω xyz,
- * 0, 0); node_dir (2N−1, 3), node_radius (2N−1,) float32; level_off (H+2,) int64; materials
+ * 0, 0); node_dir (2N−1, 3), node_radius (2N−1,) float32; node_geo (2N−1, 8) float32 (cos R,
+ * sin R, direction, R, 0, 0: kernels.py _node_geo); level_off (H+2,) int64; materials
  * mat_kind (M,) int32, mat_params (M, N_PARAMS), mat_refine, mat_extent (M,) float32 radians,
  * tables float32 with table_off (M,) int64 (−1 none). Writes out (P, 3) float32 radiance.
  */
 void glk_shade_points(
     int64_t P, const float *normals, const float *wo_dirs, const int32_t *cut_of,
     const int32_t *mat_of, const int64_t *cut_off, const uint8_t *cut_h, const uint8_t *cut_q,
-    const float *node8, const float *node_dir, const float *node_radius, const float *node_cs,
+    const float *node8, const float *node_dir, const float *node_radius, const float *node_geo,
     const int64_t *level_off, int H, const int32_t *mat_kind, const float *mat_params,
     const float *mat_refine, const float *mat_extent, const float *tables, const int64_t *table_off,
     const float *anc, int alevel, float *out) {
@@ -1067,7 +1068,7 @@ void glk_shade_points(
                 double gpo = kind == K_GGX ? ggx_G1(co, 1.0, prm[6]) / (4.0 * co) : 0.0;
                 int64_t c0 = cut_off[cut_of[p]], c1 = cut_off[cut_of[p] + 1], cnt;
 #ifdef GLK_X86
-                const refine_ctx rc = make_ctx(level_off, node_dir, node_radius, node_cs, r, mat_refine[mi],
+                const refine_ctx rc = make_ctx(level_off, node_dir, node_radius, node_geo, r, mat_refine[mi],
                                                mat_extent[mi]);
                 if (simd && H <= 15)
                     cnt = collect_avx2(c0, c1, cut_h, cut_q, H, &rc, hr[mi],
@@ -1097,7 +1098,7 @@ void glk_shade_blend(
     int64_t P, const float *normals, const float *wo_dirs, const int32_t *verts, const float *bary,
     const int32_t *mat_of, int64_t G, const int64_t *group, const int64_t *cut_off, const uint8_t *cut_h,
     const uint8_t *cut_q, const float *node8, const float *node_dir, const float *node_radius,
-    const float *node_cs, const int64_t *level_off, int H, const int32_t *mat_kind, const float *mat_params,
+    const float *node_geo, const int64_t *level_off, int H, const int32_t *mat_kind, const float *mat_params,
     const float *mat_refine, const float *mat_extent, const float *tables, const int64_t *table_off,
     float *out) {
     const int simd = glk_shade_simd(-1);
@@ -1137,7 +1138,7 @@ void glk_shade_blend(
                     double gpo = kind == K_GGX ? ggx_G1(co, 1.0, prm[6]) / (4.0 * co) : 0.0;
                     const double w3[3] = {bary[3 * p], bary[3 * p + 1], bary[3 * p + 2]};
                     int64_t cnt;
-                    const refine_ctx rc = make_ctx(level_off, node_dir, node_radius, node_cs, r, mat_refine[mi],
+                    const refine_ctx rc = make_ctx(level_off, node_dir, node_radius, node_geo, r, mat_refine[mi],
                                                    mat_extent[mi]);
 #ifdef GLK_X86
                     if (simd)
