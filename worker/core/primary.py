@@ -91,10 +91,12 @@ def primary_hits_numpy(vertices, faces, cam, dirs, width: int, height: int, samp
     fi = np.nonzero(ok)[0]
     if len(fi) == 0:
         return tri, uv, t
-    c0 = np.clip(np.floor(box[fi, 0] - 0.5 - mg), 0, None).astype(np.int64)
-    c1 = np.clip(np.ceil(box[fi, 1] - 0.5 + mg), None, W - 1).astype(np.int64)
-    r0 = np.clip(np.floor(box[fi, 2] - 0.5 - mg), 0, None).astype(np.int64)
-    r1 = np.clip(np.ceil(box[fi, 3] - 0.5 + mg), None, H - 1).astype(np.int64)
+    # the pixels whose centre x + ½ lies within the bounds widened by mg (an empty range for a
+    # face between two sample centres)
+    c0 = np.clip(np.ceil(box[fi, 0] - 0.5 - mg), 0, None).astype(np.int64)
+    c1 = np.clip(np.floor(box[fi, 1] - 0.5 + mg), None, W - 1).astype(np.int64)
+    r0 = np.clip(np.ceil(box[fi, 2] - 0.5 - mg), 0, None).astype(np.int64)
+    r1 = np.clip(np.floor(box[fi, 3] - 0.5 + mg), None, H - 1).astype(np.int64)
     nw, nh = np.maximum(c1 - c0 + 1, 0), np.maximum(r1 - r0 + 1, 0)
     cnt = nw * nh
     # every (face, pixel of its bounds) pair, then its S samples

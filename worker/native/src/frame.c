@@ -25,7 +25,9 @@ void glk_background(int64_t n, const int64_t *sample, const float *dirs, const f
                     int Hm, int Wm, double rot, double intensity, const float *shadow, int G, double gx0,
                     double gz0, double gstep, double gy, double ex, double ey, double ez, float *out) {
     const double turns = rot / (2 * PI), rt = turns - floor(turns);
-#pragma omp parallel for schedule(static)
+    /* chunks dealt in turn: the samples come in image order, and the rays that go down through
+     * the shadow plane (twice the work) are the lower rows, which halves would give one thread */
+#pragma omp parallel for schedule(static, 4096)
     for (int64_t i = 0; i < n; i++) {
         double u = uv0[2 * i] + rt;            /* both in [0, 1) */
         if (u >= 1.0) u -= 1.0;

@@ -94,8 +94,15 @@ void glk_primary_hits(int64_t nv, const float *V, int64_t nf, const int32_t *F, 
                 b[0] = 1; b[1] = 0; b[2] = 1; b[3] = 0;    /* empty */
                 continue;
             }
-            double c0 = floor(bx[0] - 0.5 - mg), c1 = ceil(bx[1] - 0.5 + mg);
-            double r0 = floor(bx[2] - 0.5 - mg), r1 = ceil(bx[3] - 0.5 + mg);
+            /* the samples whose pixel centre x + ½ lies within the bounds widened by mg: a face
+             * under a pixel wide is tested at one or two samples, not the nine a rounded-out box
+             * of its pixels holds (rows the same) */
+            double c0 = ceil(bx[0] - 0.5 - mg), c1 = floor(bx[1] - 0.5 + mg);
+            double r0 = ceil(bx[2] - 0.5 - mg), r1 = floor(bx[3] - 0.5 + mg);
+            if (c0 > c1 || r0 > r1) {
+                b[0] = 1; b[1] = 0; b[2] = 1; b[3] = 0;    /* between sample centres: none */
+                continue;
+            }
             b[0] = (int32_t)(c0 < 0 ? 0 : c0);
             b[1] = (int32_t)(c1 > W - 1 ? W - 1 : c1);
             b[2] = (int32_t)(r0 < 0 ? 0 : r0);

@@ -586,7 +586,7 @@ class MovingFrames:
         t4 = time.perf_counter(); t["moving"] = (t4 - t3) * 1e3
         interpolate(v.tri, v.uv, mesh.faces, vert, img, r.k)
         t["interpolate"] = (time.perf_counter() - t4) * 1e3
-        obj = np.where(v.tri >= 0, r.scene.object_of_face[np.maximum(v.tri, 0)], -1).astype(np.int32)
+        obj = r.object_of(v.tri)
         self.last_stats = stats
         return Rendered(img.reshape(camera.height, camera.width, 3), obj.reshape(camera.height, camera.width), t,
                         {"lod": req.lod, "tau": DRAG_TAU if drag else d.tau, "width": camera.width,

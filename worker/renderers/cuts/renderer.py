@@ -254,8 +254,7 @@ class CutRenderer(Renderer):
             with self._lock:
                 mv = self._moving.view(camera, self._moving.W)
             v = View(camera, mv.tri, mv.uv, mv.dirs, mv.visible)
-            obj = np.where(mv.tri >= 0, self.scene.object_of_face[np.maximum(mv.tri, 0)], -1).astype(np.int32)
-            v.obj = obj.reshape(camera.height, camera.width)
+            v.obj = self.object_of(mv.tri).reshape(camera.height, camera.width)
             return v
         with self._lock:
             for v in self._views:
@@ -277,14 +276,21 @@ class CutRenderer(Renderer):
         bg = np.nonzero(tri < 0)[0]
         v = View(camera, tri, uv, d, visible, samples, wo, bg, env_coords(d, self.k, rows=bg), traced=traced)
         if samples == 1:
-            obj = np.where(tri >= 0, self.scene.object_of_face[np.maximum(tri, 0)], -1).astype(np.int32)
-            v.obj = obj.reshape(camera.height, camera.width)
+            v.obj = self.object_of(tri).reshape(camera.height, camera.width)
         else:
             v.obj = self._object_map(camera)
         with self._lock:
             self._views = [v] + [x for x in self._views if x is not v][:2]
             self._view = v
         return v
+
+    def object_of(self, tri: np.ndarray) -> np.ndarray:
+        """(…) int32 object index of each hit face in ``tri`` (int32, −1: a miss, which maps to −1):
+        one gather from the scene's face → object table with a −1 appended."""
+        t = getattr(self, "_object_of_face1", None)
+        if t is None:
+            t = self._object_of_face1 = np.append(self.scene.object_of_face, -1).astype(np.int32)
+        return t[tri]
 
     def _object_map(self, camera) -> np.ndarray:
         """(H, W) int32 object per pixel centre (−1 background) of a camera: the one-sample
@@ -300,7 +306,7 @@ class CutRenderer(Renderer):
         d = camera_dirs(camera.eye, camera.target, camera.up, camera.fov_y_deg, camera.width, camera.height, 1,
                         kernels=self.k)
         tri, _, _ = self._primary_hits(camera, 1, d)
-        obj = np.where(tri >= 0, self.scene.object_of_face[np.maximum(tri, 0)], -1).astype(np.int32)
+        obj = self.object_of(tri)
         return obj.reshape(camera.height, camera.width)
 
     def _primary_hits(self, camera, samples: int, d: np.ndarray):
