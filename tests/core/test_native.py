@@ -5,7 +5,7 @@ import pytest
 
 from worker import native
 from worker.core import render as R
-from worker.core.tonemap import tonemap, tonemap_numpy
+from worker.core.tonemap import CURVES, tonemap, tonemap_numpy
 from worker.native.kernels import kernels
 
 pytestmark = pytest.mark.skipif(not native.available(), reason="C kernels not built")
@@ -26,9 +26,15 @@ def test_interpolate_env_lookup_tonemap_agree(bunny):
     e2 = R.env_lookup(d, scene.envmap, 71.0, 0.7, mask=mask, kernels=kernels("numpy"))
     np.testing.assert_allclose(e1, e2, rtol=1e-4, atol=1e-5)
     x = (np.random.default_rng(1).random((1000, 3)) * 4).astype(np.float32)
+    big = (np.random.default_rng(3).random((480, 640, 3)) ** 3 * 6).astype(np.float32)
     for curve in ("linear", "aces", "neutral"):
         diff = np.abs(tonemap(x, 0.5, curve).astype(int) - tonemap_numpy(x, 0.5, curve).astype(int))
         assert diff.max() <= 1  # rounding of the last bit
+        # a frame's worth goes through the cached table (kernels.TONEMAP_LUT_MIN): within a level
+        # of the curve, and off by one at few values (a bucket straddling a level's edge)
+        diff = np.abs(tonemap(big, 0.5, curve).astype(int) - tonemap_numpy(big, 0.5, curve).astype(int))
+        assert diff.max() <= 1 and (diff > 0).mean() < 0.03, (curve, diff.max(), (diff > 0).mean())
+        assert (0.5, CURVES[curve]) in kernels("native")._luts          # the table was the path taken
 
 
 def test_tonemap_pair_agrees_and_its_half_is_the_linear_block_mean():

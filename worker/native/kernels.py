@@ -193,6 +193,8 @@ class NativeKernels(_Families):
         self._tonemap = bind("glk_tonemap", None, P=i64, rgb=f32p, exposure=f64, curve=i32, out=u8p)
         self._tonemap_pair = bind("glk_tonemap_pair", None, H=i64, W=i64, rgb=f32p, lut=u8p, out2=u8p, out1=u8p)
         self._tonemap_lut = bind("glk_tonemap_lut", None, exposure=f64, curve=i32, lut=u8p)
+        self._tonemap_apply = bind("glk_tonemap_apply", None, n=i64, rgb=f32p, lut=u8p, out=u8p)
+        self._luts: dict = {}
         self._tonemap_lut_size = bind("glk_tonemap_lut_size", i64)
 
     def simd(self, want: int = -1) -> int:
@@ -427,7 +429,18 @@ class NativeKernels(_Families):
 
         src = c(rgb, np.float32)
         out = np.empty(src.shape, np.uint8)
-        self._tonemap(src.size // 3, src, float(exposure), CURVES[curve], out)
+        key = (float(exposure), CURVES[curve])
+        lut = self._luts.get(key)
+        if lut is None and src.size >= TONEMAP_LUT_MIN:
+            # a frame's worth of values: the table (as glk_tonemap_pair's) pays for itself at once,
+            # and the next frames of the same exposure and curve read it
+            lut = self._luts[key] = self.tonemap_lut(*key)
+            while len(self._luts) > 4:
+                self._luts.pop(next(iter(self._luts)))
+        if lut is not None:
+            self._tonemap_apply(src.size, src, lut, out)
+        else:
+            self._tonemap(src.size // 3, src, key[0], key[1], out)
         return out
 
     def tonemap_pair(self, rgb, exposure, curve):
@@ -449,6 +462,8 @@ class NativeKernels(_Families):
         lut.setflags(write=False)
         return lut
 
+
+TONEMAP_LUT_MIN = 1 << 18     # values (a 300×300 frame) from which tonemap goes through the 2¹⁹-entry table
 
 _CS: dict = {}
 
