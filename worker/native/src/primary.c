@@ -154,14 +154,16 @@ void glk_primary_hits(int64_t nv, const float *V, int64_t nf, const int32_t *F, 
                             const float *d = dirs + 3 * row;
                             const double dx = d[0], dy = d[1], dz = d[2];
                             const double det = dx * nx + dy * ny + dz * nz;
-                            if (det == 0.0) continue;
+                            /* one branch on all the tests (a face's few samples hit or miss at
+                             * random: a branch per test mispredicted most of the time); det = 0
+                             * gives u infinite or NaN, which every test rejects */
                             const double inv = 1.0 / det;
                             const double u = (dx * ax + dy * ay + dz * az) * inv;
-                            if (u < 0.0 || u > 1.0) continue;
                             const double v = (qx * dx + qy * dy + qz * dz) * inv;
-                            if (v < 0.0 || u + v > 1.0) continue;
                             const double tt = qe2 * inv;
-                            if (!(tt > 0.0) || tt >= t[row]) continue;
+                            const int hit = (u >= 0.0) & (u <= 1.0) & (v >= 0.0) & (u + v <= 1.0) & (tt > 0.0) &
+                                            (tt < t[row]);
+                            if (!hit) continue;
                             t[row] = (float)tt;
                             tri[row] = (int32_t)f;
                             uv[2 * row] = (float)u;
