@@ -369,8 +369,8 @@ T_AVX2 static inline __m256 load_q(const uint8_t *q) {
 
 /* The records (l rgb, ω xyz, 0, 0) of eight clusters idx[0..8) as six columns c[0..6): each
  * record is one aligned 32-byte row of node8, so eight row loads and an 8×8 transpose replace six
- * 8-lane gathers (the gathers were a third of a sharp srbf's shading on Zen 4, where a gather
- * costs a load per lane and the six re-read the same eight rows). */
+ * 8-lane gathers, which re-read the same eight rows lane by lane (they were about a third of a
+ * sharp srbf's cluster sums on this machine's Zen 4). */
 T_AVX2 static inline void cluster_rows(const float *node8, const int32_t *idx, __m256 c[6]) {
     __m256 r0 = _mm256_loadu_ps(node8 + 8 * (int64_t)idx[0]), r1 = _mm256_loadu_ps(node8 + 8 * (int64_t)idx[1]);
     __m256 r2 = _mm256_loadu_ps(node8 + 8 * (int64_t)idx[2]), r3 = _mm256_loadu_ps(node8 + 8 * (int64_t)idx[3]);
@@ -623,7 +623,7 @@ T_AVX2 static void sum_table(int64_t cnt, const int32_t *idx, const uint8_t *qv,
     const float f0 = prm[3];
     const int smith = prm[4] > 0.5f;
     const int neutral = prm[6] > 0.5f;
-    const float *quads = tab + 3 * TABLE_N * TABLE_N;
+    const float *quads = neutral ? tab + 3 * TABLE_N * TABLE_N : NULL;   /* core/render.py texel_quads */
     const float sa2 = prm[5] * prm[5];
     const __m256 va2 = _mm256_set1_ps(sa2), v1ma2 = _mm256_set1_ps(1.0f - sa2);
     /* the smith static's ωo factor (cosθo + Λ(cosθo)) is the same for every cluster of the point */
