@@ -45,6 +45,15 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+def stroke_fields(i: int, W: int, H: int) -> dict:
+    """The benchmark's i-th stroke message fields on a W × H frame: a short white stroke (2× the
+    display white) across the middle of the demo chair, moved a little each time."""
+    y = H * (0.45 + 0.1 * ((i * 0.37) % 1.0))
+    x0 = W * (0.40 + 0.1 * ((i * 0.61) % 1.0))
+    return {"stroke": {"points": [[x0, y], [x0 + W * 0.08, y + 3]], "color": [2.0, 2.0, 2.0], "diameter": 16,
+                       "kappa": 0.05}}
+
+
 def pct(v, q):
     v = sorted(v)
     return v[min(len(v) - 1, int(round(q / 100 * (len(v) - 1))))] if v else None
@@ -226,11 +235,7 @@ class Stream:
             self._waiters = [w for w in self._waiters if w[0] is not fut]
 
     def stroke_fields(self, i: int) -> dict:
-        W, H = self.W, self.H
-        y = H * (0.45 + 0.1 * ((i * 0.37) % 1.0))
-        x0 = W * (0.40 + 0.1 * ((i * 0.61) % 1.0))
-        return {"stroke": {"points": [[x0, y], [x0 + W * 0.08, y + 3]], "color": [2.0, 2.0, 2.0], "diameter": 16,
-                           "kappa": 0.05}}
+        return stroke_fields(i, self.W, self.H)
 
     def orbit_eye(self, phase: float) -> list[float]:
         eye, tgt = self.cam["eye"], self.cam["target"]
