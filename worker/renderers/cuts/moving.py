@@ -46,6 +46,7 @@ import numpy as np
 from ...core import cuts as cutmod
 from ...core.cuts import DEFAULT_TAU, CutSet
 from ...core.directions import get_tree
+from ...core.primary import primary_hits
 from ...core.render import camera_rays, env_lookup, interpolate, shade_points
 from ...trace.embree import Tracer
 from ..base import Part, Rendered, Unsupported
@@ -426,8 +427,21 @@ class MovingFrames:
         tri0, uv0, t0, d = self.static_hits(camera)
         tri, uv, t = tri0.copy(), uv0.copy(), t0.copy()
         eye = np.asarray(camera.eye, np.float64)
+        project = getattr(self.r, "primary", "embree") == "project"
         for i in self.d.movable:
             sh = self.d.shapes[i]
+            if project:
+                # the object's faces placed in the world and projected (core.primary, as a static
+                # view's): no per-ray tracing, and its threads (embreex's first-hit queries keep
+                # the GIL: one thread)
+                wl = np.asarray(W[i], np.float64)
+                vw = (sh.vertices.astype(np.float64) @ wl[:3, :3].T + wl[:3, 3]).astype(np.float32)
+                tri_o, uv_o, t_o = primary_hits(vw, sh.faces, camera, 1, d, kernels=self.r.k)
+                p = np.nonzero((tri_o >= 0) & (t_o < t))[0]
+                tri[p] = self.d.first_face[i] + tri_o[p]
+                uv[p] = uv_o[p]
+                t[p] = t_o[p]
+                continue
             pix = self._candidates(camera, W[i], sh)
             if len(pix) == 0:
                 continue
