@@ -12,7 +12,127 @@
  */
 #include <math.h>
 #include <stdint.h>
+#if defined(__x86_64__)
+#include <immintrin.h>
+#define GLK_X86 1
+#endif
 #include "glint_common.h"
+
+int glk_env_simd(int want);
+
+#ifdef GLK_X86
+/* glk_background's samples [i0, i1) eight at a time in single precision (the map is float32;
+ * the coordinates' rounding is ~1e-7 of a turn, 1e-4 of a texel): the twelve map taps and, for
+ * rays that meet the shadow plane, the twelve grid taps by gathers. The scalar loop (double)
+ * is the reference's arithmetic and takes the tail. Returns the first sample not done. */
+/* The texel coordinate of eight map coordinates c (float32): f = (c + add, wrapped into [0, 1)
+ * when wrap) · n − ½ in double precision, as the scalar loop (a float's 1e-7 of a turn is 5e-5
+ * of a texel of a 512-wide map: 2e-4 of the radiance across the sun's edge); its floor i (f ≥
+ * −½: truncation of f + 1, minus 1) and the fraction f − i as float32. */
+__attribute__((target("avx2,fma"))) static inline void texel_pd(__m256 c, double add, int n, int wrap, __m256i *i,
+                                                              __m256 *frac) {
+    const __m256d one = _mm256_set1_pd(1.0), vadd = _mm256_set1_pd(add), vn = _mm256_set1_pd((double)n);
+    const __m256d half = _mm256_set1_pd(0.5);
+    __m256d h[2] = {_mm256_cvtps_pd(_mm256_castps256_ps128(c)), _mm256_cvtps_pd(_mm256_extractf128_ps(c, 1))};
+    __m128i k[2];
+    __m128 fr[2];
+    for (int j = 0; j < 2; j++) {
+        __m256d x = _mm256_add_pd(h[j], vadd);
+        if (wrap) x = _mm256_blendv_pd(x, _mm256_sub_pd(x, one), _mm256_cmp_pd(x, one, _CMP_GE_OQ));
+        __m256d f = _mm256_fmsub_pd(x, vn, half);
+        k[j] = _mm_sub_epi32(_mm256_cvttpd_epi32(_mm256_add_pd(f, one)), _mm_set1_epi32(1));
+        fr[j] = _mm256_cvtpd_ps(_mm256_sub_pd(f, _mm256_cvtepi32_pd(k[j])));
+    }
+    *i = _mm256_set_m128i(k[1], k[0]);
+    *frac = _mm256_set_m128(fr[1], fr[0]);
+}
+
+__attribute__((target("avx2,fma"))) static int64_t background_avx2(
+    int64_t i0, int64_t i1, const int64_t *sample, const float *dirs, const float *uv0, const float *map, int Hm,
+    int Wm, double rt, float intensity, const float *shadow, int G, float gx0, float gz0, float gstep, float gy,
+    float ex, float ey, float ez, float *out) {
+    const __m256 one = _mm256_set1_ps(1.0f), zero = _mm256_setzero_ps();
+    const __m256i iw = _mm256_set1_epi32(Wm), ihm1 = _mm256_set1_epi32(Hm - 1), izero = _mm256_setzero_si256();
+    const __m256i i1v = _mm256_set1_epi32(1), three = _mm256_set1_epi32(3);
+    const __m256 vint = _mm256_set1_ps(intensity);
+    const int down = shadow && ey > gy;
+    int64_t i = i0;
+    for (; i + 8 <= i1; i += 8) {
+        /* (u, v) pairs of eight samples, deinterleaved */
+        __m256 a = _mm256_loadu_ps(uv0 + 2 * i), b = _mm256_loadu_ps(uv0 + 2 * i + 8);
+        __m256 u = _mm256_castpd_ps(_mm256_permute4x64_pd(_mm256_castps_pd(_mm256_shuffle_ps(a, b, _MM_SHUFFLE(2, 0, 2, 0))), 0xD8));
+        __m256 v = _mm256_castpd_ps(_mm256_permute4x64_pd(_mm256_castps_pd(_mm256_shuffle_ps(a, b, _MM_SHUFFLE(3, 1, 3, 1))), 0xD8));
+        __m256i x0, y0;
+        __m256 ax, ay;
+        texel_pd(u, rt, Wm, 1, &x0, &ax);
+        texel_pd(v, 0.0, Hm, 0, &y0, &ay);
+        __m256i x1 = _mm256_add_epi32(x0, i1v);
+        x0 = _mm256_add_epi32(x0, _mm256_and_si256(_mm256_cmpgt_epi32(izero, x0), iw));           /* x0 < 0: + W */
+        x1 = _mm256_sub_epi32(x1, _mm256_andnot_si256(_mm256_cmpgt_epi32(iw, x1), iw));           /* x1 ≥ W: − W */
+        __m256i y1 = _mm256_add_epi32(y0, i1v);
+        y0 = _mm256_min_epi32(_mm256_max_epi32(y0, izero), ihm1);
+        y1 = _mm256_min_epi32(_mm256_max_epi32(y1, izero), ihm1);
+        __m256i r0 = _mm256_mullo_epi32(y0, iw), r1 = _mm256_mullo_epi32(y1, iw);
+        __m256i p00 = _mm256_mullo_epi32(_mm256_add_epi32(r0, x0), three), p01 = _mm256_mullo_epi32(_mm256_add_epi32(r0, x1), three);
+        __m256i p10 = _mm256_mullo_epi32(_mm256_add_epi32(r1, x0), three), p11 = _mm256_mullo_epi32(_mm256_add_epi32(r1, x1), three);
+        __m256 bx = _mm256_sub_ps(one, ax), by = _mm256_sub_ps(one, ay);
+        __m256 f[3] = {one, one, one};
+        if (down) {
+            int32_t rows[8];
+            for (int k = 0; k < 8; k++) rows[k] = (int32_t)(3 * sample[i + k]);
+            __m256i ro = _mm256_loadu_si256((const __m256i *)rows);
+            __m256 dx = _mm256_i32gather_ps(dirs, ro, 4), dy = _mm256_i32gather_ps(dirs + 1, ro, 4);
+            __m256 dz = _mm256_i32gather_ps(dirs + 2, ro, 4);
+            __m256 neg = _mm256_cmp_ps(dy, zero, _CMP_LT_OQ);
+            if (_mm256_movemask_ps(neg)) {
+                __m256 t = _mm256_div_ps(_mm256_set1_ps(gy - ey), _mm256_blendv_ps(_mm256_set1_ps(-1.0f), dy, neg));
+                __m256 inv = _mm256_set1_ps(1.0f / gstep);
+                __m256 gx = _mm256_mul_ps(_mm256_sub_ps(_mm256_fmadd_ps(t, dx, _mm256_set1_ps(ex)), _mm256_set1_ps(gx0)), inv);
+                __m256 gz = _mm256_mul_ps(_mm256_sub_ps(_mm256_fmadd_ps(t, dz, _mm256_set1_ps(ez)), _mm256_set1_ps(gz0)), inv);
+                __m256 top = _mm256_set1_ps((float)(G - 1));
+                __m256 in = _mm256_and_ps(neg, _mm256_and_ps(
+                    _mm256_and_ps(_mm256_cmp_ps(gx, zero, _CMP_GE_OQ), _mm256_cmp_ps(gz, zero, _CMP_GE_OQ)),
+                    _mm256_and_ps(_mm256_cmp_ps(gx, top, _CMP_LE_OQ), _mm256_cmp_ps(gz, top, _CMP_LE_OQ))));
+                if (_mm256_movemask_ps(in)) {
+                    gx = _mm256_and_ps(gx, in); gz = _mm256_and_ps(gz, in);        /* outside: texel 0, unused */
+                    __m256i gm2 = _mm256_set1_epi32(G - 2);
+                    __m256i ig = _mm256_min_epi32(_mm256_cvttps_epi32(gx), gm2), jg = _mm256_min_epi32(_mm256_cvttps_epi32(gz), gm2);
+                    __m256 ga = _mm256_sub_ps(gx, _mm256_cvtepi32_ps(ig)), gb = _mm256_sub_ps(gz, _mm256_cvtepi32_ps(jg));
+                    __m256i o0 = _mm256_mullo_epi32(_mm256_add_epi32(_mm256_mullo_epi32(ig, _mm256_set1_epi32(G)), jg), three);
+                    __m256i o1 = _mm256_add_epi32(o0, _mm256_set1_epi32(3 * G));
+                    __m256 gna = _mm256_sub_ps(one, ga), gnb = _mm256_sub_ps(one, gb);
+                    for (int c = 0; c < 3; c++) {
+                        __m256i cc = _mm256_set1_epi32(c);
+                        __m256i q0 = _mm256_add_epi32(o0, cc), q1 = _mm256_add_epi32(o1, cc);
+                        __m256 s00 = _mm256_i32gather_ps(shadow, q0, 4), s01 = _mm256_i32gather_ps(shadow, _mm256_add_epi32(q0, three), 4);
+                        __m256 s10 = _mm256_i32gather_ps(shadow, q1, 4), s11 = _mm256_i32gather_ps(shadow, _mm256_add_epi32(q1, three), 4);
+                        __m256 g0 = _mm256_fmadd_ps(s01, gb, _mm256_mul_ps(s00, gnb));
+                        __m256 g1 = _mm256_fmadd_ps(s11, gb, _mm256_mul_ps(s10, gnb));
+                        f[c] = _mm256_blendv_ps(one, _mm256_fmadd_ps(g1, ga, _mm256_mul_ps(g0, gna)), in);
+                    }
+                }
+            }
+        }
+        float res[3][8];
+        for (int c = 0; c < 3; c++) {
+            __m256i cc = _mm256_set1_epi32(c);
+            __m256 t00 = _mm256_i32gather_ps(map, _mm256_add_epi32(p00, cc), 4);
+            __m256 t01 = _mm256_i32gather_ps(map, _mm256_add_epi32(p01, cc), 4);
+            __m256 t10 = _mm256_i32gather_ps(map, _mm256_add_epi32(p10, cc), 4);
+            __m256 t11 = _mm256_i32gather_ps(map, _mm256_add_epi32(p11, cc), 4);
+            __m256 c0 = _mm256_fmadd_ps(t01, ax, _mm256_mul_ps(t00, bx));
+            __m256 c1 = _mm256_fmadd_ps(t11, ax, _mm256_mul_ps(t10, bx));
+            __m256 val = _mm256_fmadd_ps(c1, ay, _mm256_mul_ps(c0, by));
+            _mm256_storeu_ps(res[c], _mm256_mul_ps(_mm256_mul_ps(vint, val), f[c]));
+        }
+        for (int k = 0; k < 8; k++) {
+            float *o = out + 3 * sample[i + k];
+            o[0] = res[0][k]; o[1] = res[1][k]; o[2] = res[2][k];
+        }
+    }
+    return i;
+}
+#endif
 
 /* n background samples: sample (n,) int64 index into out (rows of 3) and into dirs (every row's
  * float32 unit world ray direction, read at the samples' rows), uv0 (n, 2) float32 map
@@ -27,8 +147,20 @@ void glk_background(int64_t n, const int64_t *sample, const float *dirs, const f
     const double turns = rot / (2 * PI), rt = turns - floor(turns);
     /* chunks dealt in turn: the samples come in image order, and the rays that go down through
      * the shadow plane (twice the work) are the lower rows, which halves would give one thread */
-#pragma omp parallel for schedule(static, 4096)
-    for (int64_t i = 0; i < n; i++) {
+    const int simd = glk_env_simd(-1);
+    enum { B = 4096 };
+#pragma omp parallel for schedule(static, 1)
+    for (int64_t blk = 0; blk < (n + B - 1) / B; blk++) {
+    const int64_t b0 = blk * B, b1 = b0 + B < n ? b0 + B : n;
+    int64_t i = b0;
+#ifdef GLK_X86
+    if (simd)
+        i = background_avx2(b0, b1, sample, dirs, uv0, map, Hm, Wm, rt, (float)intensity, shadow, G,
+                            (float)gx0, (float)gz0, (float)gstep, (float)gy, (float)ex, (float)ey, (float)ez, out);
+#else
+    (void)simd;
+#endif
+    for (; i < b1; i++) {
         double u = uv0[2 * i] + rt;            /* both in [0, 1) */
         if (u >= 1.0) u -= 1.0;
         double v = uv0[2 * i + 1];
@@ -65,6 +197,7 @@ void glk_background(int64_t n, const int64_t *sample, const float *dirs, const f
             double c1 = map[((int64_t)y1 * Wm + x0) * 3 + k] * (1 - ax) + map[((int64_t)y1 * Wm + x1) * 3 + k] * ax;
             o[k] = (float)(intensity * (c0 * (1 - ay) + c1 * ay) * f[k]);
         }
+    }
     }
 }
 
