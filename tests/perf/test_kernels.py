@@ -7,7 +7,14 @@ import pytest
 from worker import native
 from worker.core.directions import get_tree
 from worker.core.lighting import LeafLighting, light_tables
-from worker.core.render import MaterialTable, background, env_coords, env_lookup, resolve, shade_points_numpy
+from worker.core.render import (
+    MaterialTable,
+    background,
+    env_coords,
+    env_lookup,
+    resolve,
+    shade_points_numpy,
+)
 from worker.models import models
 from worker.native.kernels import kernels
 

@@ -27,11 +27,27 @@ converts angles to the C side's radians, and names the parameters as the C proto
 """
 from __future__ import annotations
 
+import threading
 from functools import cached_property, lru_cache
 
 import numpy as np
 
-from . import available, bind, c, f32p, f64, f64p, i32, i32p, i64, i64p, lib, model_id, u8p, voidp
+from . import (
+    available,
+    bind,
+    c,
+    f32p,
+    f64,
+    f64p,
+    i32,
+    i32p,
+    i64,
+    i64p,
+    lib,
+    model_id,
+    u8p,
+    voidp,
+)
 
 
 class _Families:
@@ -195,6 +211,7 @@ class NativeKernels(_Families):
         self._tonemap_lut = bind("glk_tonemap_lut", None, exposure=f64, curve=i32, lut=u8p)
         self._tonemap_apply = bind("glk_tonemap_apply", None, n=i64, rgb=f32p, lut=u8p, out=u8p)
         self._luts: dict = {}
+        self._luts_lock = threading.Lock()       # sessions' threads share the kernels
         self._tonemap_lut_size = bind("glk_tonemap_lut_size", i64)
 
     def simd(self, want: int = -1) -> int:
@@ -434,9 +451,11 @@ class NativeKernels(_Families):
         if lut is None and src.size >= TONEMAP_LUT_MIN:
             # a frame's worth of values: the table (as glk_tonemap_pair's) pays for itself at once,
             # and the next frames of the same exposure and curve read it
-            lut = self._luts[key] = self.tonemap_lut(*key)
-            while len(self._luts) > 4:
-                self._luts.pop(next(iter(self._luts)))
+            lut = self.tonemap_lut(*key)
+            with self._luts_lock:
+                self._luts[key] = lut
+                while len(self._luts) > 4:
+                    self._luts.pop(next(iter(self._luts)))
         if lut is not None:
             self._tonemap_apply(src.size, src, lut, out)
         else:

@@ -13,9 +13,11 @@ A scene file may set the field grid (``"cuts": {"field_grid": {"shells": K, "fac
 
 A frame (``MovingFrames.render``), for the objects placed by FrameRequest.transforms:
   1. **Primary visibility**: the static geometry's hits are kept per camera; each movable
-     object's own Embree scene (local frame) is traced with the camera rays turned into its
-     frame, only for the pixels inside its projected bounding box, and only nearer than what
-     was hit before (the ray's tfar). Barycentrics are the same in both frames.
+     object's faces, placed in the world, are projected into the image (core.primary, as a
+     static view's) and keep the samples they hit nearer than what was hit before. When the
+     renderer traces (``primary`` "embree"), the object's own Embree scene (local frame) is
+     traced instead with the camera rays turned into its frame, only for the pixels inside its
+     projected bounding box, nearer than the ray's tfar; barycentrics are the same in both.
   2. **Static vertices**: their radiance with the static cuts is kept per eye, lighting and
      materials; a moving object changes only the vertices whose stencils in its field survive
      culling (§V.B). For those, the combination kernel's delta mode gives what the fields take
@@ -50,8 +52,8 @@ from ...core.primary import primary_hits
 from ...core.render import camera_rays, env_lookup, interpolate, shade_points
 from ...trace.embree import Tracer
 from ..base import Part, Rendered, Unsupported
-from .combine import DEFAULT_HMIN, Combiner
 from ..layers import Layers
+from .combine import DEFAULT_HMIN, Combiner
 from .fields import (
     MoveError,
     ObjectShape,
