@@ -172,8 +172,8 @@ class NativeKernels(_Families):
             tables=f32p, table_off=i64p, anc=f32p, alevel=i32, out=f32p)
         self._blend = bind(
             "glk_shade_blend", None, P=i64, normals=f32p, wo_dirs=f32p, verts=i32p, bary=f32p, mat_of=i32p,
-            G=i64, group=i64p, cut_off=i64p, cut_h=u8p, cut_q=u8p, node8=f32p, node_dir=f32p, node_radius=f32p,
-            node_geo=f32p, level_off=i64p, H=i32, mat_kind=i32p, mat_params=f32p, mat_refine=f32p, mat_extent=f32p,
+            G=i64, group=i64p, cut_off=i64p, cut_h=u8p, cut_q=u8p, node8=f32p, node_radius=f32p, node_geo=f32p,
+            level_off=i64p, H=i32, mat_kind=i32p, mat_params=f32p, mat_refine=f32p, mat_extent=f32p,
             tables=f32p, table_off=i64p, out=f32p)
         self._simd = bind("glk_shade_simd", i32, want=i32)
         self._light = bind(
@@ -291,7 +291,7 @@ class NativeKernels(_Families):
         self._blend(p, c(np.asarray(normals)[order], np.float32), c(np.asarray(wo)[order], np.float32), c(vs, np.int32),
                     c(np.asarray(bary, np.float32).reshape(-1, 3)[order], np.float32), c(ms, np.int32),
                     len(group) - 1, group, c(cuts.offsets, np.int64), c(cuts.heights, np.uint8), c(cuts.quant, np.uint8),
-                    c(node8, np.float32), tree.node_dir, tree.node_radius, _node_geo(tree),
+                    c(node8, np.float32), tree.node_radius, _node_geo(tree),
                     c(tree.level_offset, np.int64), tree.height, kind, mats.params, mats.refine, mats.extent, mats.tables, mats.table_off, res)
         out[order] = res
         if no_kernel.any():

@@ -151,14 +151,14 @@ static inline void brdf_eval(int kind, const float *p, const float *tab, v3 wi, 
  * tested), 80 of 122 CPU ms on the demo chair. */
 typedef struct {
     const int64_t *lev;
-    const float *node_dir, *node_radius, *geo;   /* geo (2N−1, 8): cos R, sin R, dir xyz, R, 0, 0 */
+    const float *node_radius, *geo;   /* geo (2N−1, 8): cos R, sin R, dir xyz, R, 0, 0 */
     v3 r;
     double refine_r, extent, ce, se;
 } refine_ctx;
 
-static inline refine_ctx make_ctx(const int64_t *lev, const float *node_dir, const float *node_radius,
-                                  const float *geo, v3 r, double refine_r, double extent) {
-    refine_ctx c = {lev, node_dir, node_radius, geo, r, refine_r, extent, cos(extent), sin(extent)};
+static inline refine_ctx make_ctx(const int64_t *lev, const float *node_radius, const float *geo, v3 r,
+                                  double refine_r, double extent) {
+    refine_ctx c = {lev, node_radius, geo, r, refine_r, extent, cos(extent), sin(extent)};
     return c;
 }
 
@@ -1068,7 +1068,7 @@ void glk_shade_points(
                 double gpo = kind == K_GGX ? ggx_G1(co, 1.0, prm[6]) / (4.0 * co) : 0.0;
                 int64_t c0 = cut_off[cut_of[p]], c1 = cut_off[cut_of[p] + 1], cnt;
 #ifdef GLK_X86
-                const refine_ctx rc = make_ctx(level_off, node_dir, node_radius, node_geo, r, mat_refine[mi],
+                const refine_ctx rc = make_ctx(level_off, node_radius, node_geo, r, mat_refine[mi],
                                                mat_extent[mi]);
                 if (simd && H <= 15)
                     cnt = collect_avx2(c0, c1, cut_h, cut_q, H, &rc, hr[mi],
@@ -1097,8 +1097,8 @@ void glk_shade_points(
 void glk_shade_blend(
     int64_t P, const float *normals, const float *wo_dirs, const int32_t *verts, const float *bary,
     const int32_t *mat_of, int64_t G, const int64_t *group, const int64_t *cut_off, const uint8_t *cut_h,
-    const uint8_t *cut_q, const float *node8, const float *node_dir, const float *node_radius,
-    const float *node_geo, const int64_t *level_off, int H, const int32_t *mat_kind, const float *mat_params,
+    const uint8_t *cut_q, const float *node8, const float *node_radius, const float *node_geo,
+    const int64_t *level_off, int H, const int32_t *mat_kind, const float *mat_params,
     const float *mat_refine, const float *mat_extent, const float *tables, const int64_t *table_off,
     float *out) {
     const int simd = glk_shade_simd(-1);
@@ -1138,7 +1138,7 @@ void glk_shade_blend(
                     double gpo = kind == K_GGX ? ggx_G1(co, 1.0, prm[6]) / (4.0 * co) : 0.0;
                     const double w3[3] = {bary[3 * p], bary[3 * p + 1], bary[3 * p + 2]};
                     int64_t cnt;
-                    const refine_ctx rc = make_ctx(level_off, node_dir, node_radius, node_geo, r, mat_refine[mi],
+                    const refine_ctx rc = make_ctx(level_off, node_radius, node_geo, r, mat_refine[mi],
                                                    mat_extent[mi]);
 #ifdef GLK_X86
                     if (simd)
