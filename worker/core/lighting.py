@@ -118,17 +118,15 @@ class LeafLighting:
 
     def csr(self):
         """The assignment as one CSR pattern with four weights per entry, for the C kernel:
-        (indptr (N+1,) int64, pixel row, pixel column (nnz,) int32, weights (nnz, 4) float64 sr
-        and sr × direction x, y, z). Built once per LeafLighting."""
+        (indptr (N+1,) int64, pixel index y·W + x (nnz,) int32, weights (nnz, 4) float32 sr and
+        sr × direction x, y, z). Built once per LeafLighting."""
         if getattr(self, "_csr", None) is None:
             w_sr, wx, wy, wz = self._mats
             for m in (wx, wy, wz):     # built from the same (leaf, pixel) pairs: one pattern
                 if not (np.array_equal(m.indptr, w_sr.indptr) and np.array_equal(m.indices, w_sr.indices)):
                     raise AssertionError("leaf assignment matrices differ in pattern")
-            w = self.map.shape[1]
-            self._csr = (w_sr.indptr.astype(np.int64), (w_sr.indices // w).astype(np.int32),
-                         (w_sr.indices % w).astype(np.int32),
-                         np.ascontiguousarray(np.stack([w_sr.data, wx.data, wy.data, wz.data], 1), np.float64))
+            self._csr = (w_sr.indptr.astype(np.int64), w_sr.indices.astype(np.int32),
+                         np.ascontiguousarray(np.stack([w_sr.data, wx.data, wy.data, wz.data], 1), np.float32))
         return self._csr
 
     def leaf_radiance(self, rotation_deg: float = 0.0, intensity: float = 1.0):

@@ -177,8 +177,8 @@ class NativeKernels(_Families):
             tables=f32p, table_off=i64p, out=f32p)
         self._simd = bind("glk_shade_simd", i32, want=i32)
         self._light = bind(
-            "glk_light_tables", None, N=i64, indptr=i64p, prow=i32p, pcol=i32p, wts=f64p, map=f32p, Hm=i32, Wm=i32,
-            rot=f64, intensity=f64, H=i32, node_dir=f32p, scratch=f64p, node_l=f32p, node_w=f32p, node8=f32p)
+            "glk_light_tables", None, N=i64, indptr=i64p, pix=i32p, wts=f32p, map=f32p, Hm=i32, Wm=i32,
+            rot=f64, intensity=f64, H=i32, node_dir=f32p, scratch=f64p, node_l=f32p, node_w=f32p, node8=f32p, rmap=f32p)
         self._interp = bind("glk_interpolate", None, P=i64, tri=i32p, uv=f32p, faces=i32p, vert_rgb=f32p, out=f32p)
         self._background = bind(
             "glk_background", None, n=i64, sample=i64p, dirs=f32p, uv0=f32p, map=f32p, Hm=i32, Wm=i32, rot=f64,
@@ -221,7 +221,7 @@ class NativeKernels(_Families):
 
     def light_tables(self, lighting, rotation_deg, intensity, tree):
         """(node_l, node_w (2N−1, 3), node8 (2N−1, 8)) float32 (see core.lighting.light_tables_numpy)."""
-        indptr, prow, pcol, wts = lighting.csr()
+        indptr, pix, wts = lighting.csr()
         env = lighting.map
         hm, wm = env.shape[:2]
         m = len(tree.node_dir)
@@ -229,8 +229,9 @@ class NativeKernels(_Families):
         node_w = np.empty((m, 3), np.float32)
         node8 = np.empty((m, 8), np.float32)
         scratch = np.empty((m, 6), np.float64)
-        self._light(tree.n_leaves, indptr, prow, pcol, wts, c(env, np.float32), hm, wm, float(np.radians(rotation_deg)), float(intensity),
-                    tree.height, tree.node_dir, scratch, node_l, node_w, node8)
+        rmap = np.empty((hm * wm, 4), np.float32)
+        self._light(tree.n_leaves, indptr, pix, wts, c(env, np.float32), hm, wm, float(np.radians(rotation_deg)), float(intensity),
+                    tree.height, tree.node_dir, scratch, node_l, node_w, node8, rmap)
         return node_l, node_w, node8
 
     def shade_points(self, normals, wo, cut_of, mat_of, cuts, node_l, node_w, tree, mats, node8=None):

@@ -153,6 +153,16 @@ class View:
     # view, pix (n,) int64 the frame's pixels its rows belong to (rows i·S + s: pixel pix[i])
     edges: dict | None = None
     pix: np.ndarray | None = None
+    hits: tuple | None = None       # (rows (h,) int64 of the samples that hit, their faces (h,) int32)
+
+    def hit_rows(self) -> tuple[np.ndarray, np.ndarray]:
+        """(rows (h,) int64 ascending of the samples that hit a face, their faces (h,) int32),
+        made once per view: a refined frame reads its faces' weights there, not over the
+        whole image (the object is a tenth of the oak chair's)."""
+        if self.hits is None:
+            rows = np.flatnonzero(self.tri >= 0)
+            self.hits = (rows, self.tri[rows])
+        return self.hits
 
 
 @dataclass
@@ -171,6 +181,15 @@ class Samples:
 
     def __len__(self) -> int:
         return len(self.pix)
+
+
+def face_centres(faces, vertices, normals) -> tuple[np.ndarray, np.ndarray]:
+    """(centroids (F, 3), unit normals there (F, 3)) float32 of faces (F, 3) int, the normal the
+    normalised mean of the vertex normals (an interpolated normal at barycentre ⅓, ⅓, ⅓)."""
+    vx, vn = vertices[faces], normals[faces]
+    nrm = vn.sum(1)
+    nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), np.float32(1e-30))
+    return vx.mean(1).astype(np.float32), nrm.astype(np.float32)
 
 
 class CutRenderer(Renderer):
@@ -202,6 +221,7 @@ class CutRenderer(Renderer):
         self._ground_factor = None
         self._grounds: OrderedDict = OrderedDict()  # ground key -> (its LeafLighting, factor grid)
         self._vert = np.zeros((len(scene.mesh.vertices), 3), np.float32)
+        self._centres = None              # face centroids and their normals (a still scene's, for the probe)
         vx = np.asarray(scene.mesh.vertices, np.float64)
         self._bounds = (vx.min(0), vx.max(0)) if len(vx) else (np.zeros(3), np.zeros(3))
         self._mats_key = None
@@ -666,9 +686,10 @@ class CutRenderer(Renderer):
                                       if refinemod.PROBE is not None else None,
                                       probe_limit=refinemod.PROBE or 0.0)
             faces[ref.faces] = w_seen[:-1]
-        w = faces[v.tri]                     # row −1 (background) reads the last slot: 0
-        rows = np.nonzero(w > 0)[0]
-        weight = w[rows]
+        hit, hit_face = v.hit_rows()
+        w = faces[hit_face]
+        k = np.flatnonzero(w > 0)
+        rows, weight = hit[k], w[k]
         if not len(rows):
             return v.tri, rows, faces
         part = self._pixel_samples(v, camera, rows)
@@ -839,16 +860,18 @@ class CutRenderer(Renderer):
     def _centroid_samples(self, faces: np.ndarray, camera) -> Samples:
         """Samples at the centroids of faces (k,) int64, shaded like pixels (refine.py's probe)."""
         mesh = self.scene.mesh
-        vx, vn = self._geometry()
         f = mesh.faces[faces]
-        bary = np.full((len(faces), 3), np.float32(1.0 / 3.0), np.float32)
-        nrm = vn[f].sum(1)
-        nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), np.float32(1e-30))
-        pos = vx[f].mean(1)
+        if self._moving is None:        # a still scene's face centres, made once (~1 ms a frame)
+            if self._centres is None:
+                self._centres = face_centres(mesh.faces, mesh.vertices, mesh.normals)
+            pos, nrm = self._centres[0][faces], self._centres[1][faces]
+        else:
+            pos, nrm = face_centres(f, *self._geometry())
         wo = np.asarray(camera.eye, np.float32) - pos
         wo /= np.linalg.norm(wo, axis=1, keepdims=True)
-        return Samples(np.asarray(faces, np.int64), pos.astype(np.float32), nrm.astype(np.float32),
-                       wo.astype(np.float32), f.astype(np.int32), bary, np.asarray(faces, np.int32))
+        bary = np.full((len(faces), 3), np.float32(1.0 / 3.0), np.float32)
+        return Samples(np.asarray(faces, np.int64), pos, nrm, wo.astype(np.float32), f.astype(np.int32), bary,
+                       np.asarray(faces, np.int32))
 
     def surface_samples(self, camera, object_index: int, pixels: np.ndarray | None = None) -> Samples:
         """The object's pixels in a view at the camera's resolution, each with its own normal and
