@@ -258,7 +258,10 @@ void glf_rotate(int64_t n, const int32_t *ids, const int64_t *f_off, const uint8
  * Cells (combine.py cells_numpy): the eight rotated sample cuts at a cell's corners merged
  * once, for every vertex in the cell. Each sample cut comes as its non-free nodes (glf_rotate);
  * a cell is the list of stretches [start, end) where any corner is inside a non-free node,
- * split at every corner's node boundary, each with the eight corner values (uint8, 255 free).
+ * split where the eight corner values (uint8, 255 free) change. Adjacent nodes of equal value
+ * (a blocked region is many aligned nodes) make one stretch: the product walks every stretch
+ * bound of every occluder (a chair over the floor and beside a table: ~600 per vertex before,
+ * most between equal values), and a bound splits the base node it falls in.
  * corners[8·i + c] is the pool slot of corner c of cell i.
  */
 #define FAR ((int64_t)1 << 62)
@@ -301,9 +304,13 @@ void glf_cells(int64_t n, const int32_t *corners, const int64_t *p_off, const in
                     if (nxt[c] < next) next = nxt[c];
                 }
                 if (busy) {
-                    ta[k] = (int32_t)x; tb[k] = (int32_t)next;
-                    memcpy(tv + 8 * k, val, 8);
-                    k++;
+                    if (k && tb[k - 1] == x && !memcmp(tv + 8 * (k - 1), val, 8)) {
+                        tb[k - 1] = (int32_t)next;       /* the same eight values: one stretch */
+                    } else {
+                        ta[k] = (int32_t)x; tb[k] = (int32_t)next;
+                        memcpy(tv + 8 * k, val, 8);
+                        k++;
+                    }
                 }
             }
             counts[i] = (int32_t)k;

@@ -297,13 +297,17 @@ def _values_at(corner_nodes, x: int) -> tuple[list[int], bool]:
 def cells_numpy(corner_nodes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Reference of glf_cells for one cell: corner_nodes is a list of 8 (starts, heights, quant)
     non-free node lists. Returns (a (T,) int32, b (T,) int32, v (T, 8) uint8): the stretches
-    between consecutive node bounds where some corner is inside a non-free node."""
+    where some corner is inside a non-free node, between consecutive node bounds, adjacent ones
+    with the same eight values made one."""
     bounds = _bounds(corner_nodes)
     a, b, v = [], [], []
     for x0, x1 in pairwise(bounds):
         vals, busy = _values_at(corner_nodes, int(x0))
         if busy:
-            a.append(x0); b.append(x1); v.append(vals)
+            if b and b[-1] == x0 and v[-1] == vals:
+                b[-1] = x1
+            else:
+                a.append(x0); b.append(x1); v.append(vals)
     return np.array(a, np.int32), np.array(b, np.int32), np.array(v, np.uint8).reshape(-1, 8)
 
 
@@ -311,9 +315,9 @@ def cells_numpy(corner_nodes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def combine_numpy(base: CutSet, cut_of: np.ndarray, cells: np.ndarray, weights: np.ndarray,
                   pools: list[RotatedSamples], delta: bool = False) -> CutSet:
-    """Reference of glf_combine, from the rotated corner samples directly (not the merged
-    cells): the result's node bounds are the base cut's, plus the first and end leaf of every
-    non-free node of every corner sample, except inside base nodes of value 0; each stretch
+    """Reference of glf_combine, from the rotated corner samples: the result's node bounds are
+    the base cut's, plus the bounds of each occluder's cell stretches (``cells_numpy``: where its
+    eight corner values change), except inside base nodes of value 0; each stretch
     between bounds becomes maximal aligned tree nodes valued v_base · Π_o F_o, with
     F_o = Σ_c (w_oc / (255 Σ_c w_oc)) v_oc where some corner of o is inside a non-free node,
     else 1 (v_oc = 255 outside non-free nodes).
@@ -342,7 +346,8 @@ def combine_numpy(base: CutSet, cut_of: np.ndarray, cells: np.ndarray, weights: 
             for x in w:                       # summed in the kernel's order
                 ws += x
             occ.append(([pools[o].nodes(int(c)) for c in corners], w / (255.0 * ws)))
-        bounds = np.unique(np.concatenate([bs, [n]] + [_bounds(cn) for cn, _ in occ]))
+        bounds = np.unique(np.concatenate([bs, [n]] + [np.concatenate(cells_numpy(cn)[:2]).astype(np.int64)
+                                                       for cn, _ in occ]))
         bi = np.searchsorted(bs, bounds, side="right") - 1
         bi = np.minimum(bi, len(bs) - 1)
         bounds = bounds[(bounds == n) | (bq[bi] > 0) | (bounds == bs[bi])]
