@@ -264,22 +264,33 @@ static int64_t merge_cuts(const int64_t c[3], const uint8_t *cut_h, const uint8_
                           const float *node_radius, double refine_r, int hr, merged_cuts *mc) {
     const int64_t total = (int64_t)1 << H;
     const float k = 1.0f / 255.0f;
-    int64_t m[3], e[3];
-    int h[3];
-    for (int i = 0; i < 3; i++) { m[i] = c[i]; h[i] = cut_h[m[i]]; e[i] = (int64_t)1 << h[i]; }
+    /* locals, not mc's fields: the loop is one dependency chain (the next node's height needs
+     * this one's end), so every spill and every mispredicted branch is on it. A cut advances
+     * when its node ends here: a data-dependent branch, as a select (the dragon's 12,855
+     * refined pixels at 640×480: blend 22.9 → 21.0 ms) */
+    uint8_t *restrict uh = mc->uh, *restrict uf = mc->uf;
+    int64_t *restrict us = mc->us;
+    int32_t *restrict uid = mc->uid;
+    float *restrict q0 = mc->q0, *restrict q1 = mc->q1, *restrict q2 = mc->q2;
+    int64_t m0 = c[0], m1 = c[1], m2 = c[2];
+    int h0 = cut_h[m0], h1 = cut_h[m1], h2 = cut_h[m2];
+    int64_t e0 = (int64_t)1 << h0, e1 = (int64_t)1 << h1, e2 = (int64_t)1 << h2;
     int64_t u = 0, cur = 0;
     while (cur < total) {
-        int hh = h[0] < h[1] ? h[0] : h[1];
-        if (h[2] < hh) hh = h[2];
+        int hh = h0 < h1 ? h0 : h1;
+        if (h2 < hh) hh = h2;
         int64_t id = lev[hh] + (cur >> hh);
-        mc->uh[u] = (uint8_t)hh; mc->us[u] = cur; mc->uid[u] = (int32_t)id;
-        mc->uf[u] = (uint8_t)(hh >= hr && node_radius[id] > refine_r);
-        mc->q0[u] = k * cut_q[m[0]]; mc->q1[u] = k * cut_q[m[1]]; mc->q2[u] = k * cut_q[m[2]];
+        uh[u] = (uint8_t)hh; us[u] = cur; uid[u] = (int32_t)id;
+        uf[u] = (uint8_t)(hh >= hr && node_radius[id] > refine_r);
+        q0[u] = k * cut_q[m0]; q1[u] = k * cut_q[m1]; q2[u] = k * cut_q[m2];
         u++;
         cur += (int64_t)1 << hh;
         if (cur >= total) break;
-        for (int i = 0; i < 3; i++)
-            if (e[i] == cur) { m[i]++; h[i] = cut_h[m[i]]; e[i] = cur + ((int64_t)1 << h[i]); }
+        m0 += e0 == cur; m1 += e1 == cur; m2 += e2 == cur;
+        h0 = cut_h[m0]; h1 = cut_h[m1]; h2 = cut_h[m2];
+        e0 = e0 == cur ? cur + ((int64_t)1 << h0) : e0;
+        e1 = e1 == cur ? cur + ((int64_t)1 << h1) : e1;
+        e2 = e2 == cur ? cur + ((int64_t)1 << h2) : e2;
     }
     return u;
 }
