@@ -260,8 +260,8 @@ void glf_rotate(int64_t n, const int32_t *ids, const int64_t *f_off, const uint8
  * a cell is the list of stretches [start, end) where any corner is inside a non-free node,
  * split where the eight corner values (uint8, 255 free) change. Adjacent nodes of equal value
  * (a blocked region is many aligned nodes) make one stretch: the product walks every stretch
- * bound of every occluder (a chair over the floor and beside a table: ~600 per vertex before,
- * most between equal values), and a bound splits the base node it falls in.
+ * bound of every occluder, and a bound splits the base node it falls in (a chair over the
+ * floor and beside a table: ~600 stretches per vertex; 12% of the floor's were merged).
  * corners[8·i + c] is the pool slot of corner c of cell i.
  */
 #define FAR ((int64_t)1 << 62)
