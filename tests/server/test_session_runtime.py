@@ -126,6 +126,55 @@ def test_a_stroke_mid_drag_gets_a_quick_view_completed_after(bunny_renderer):
                                np.asarray(rt.materials[0].coefficients), rtol=1e-5, atol=1e-8)
 
 
+def test_a_quick_view_whose_full_build_fails_is_kept_and_the_session_settles(bunny_renderer):
+    """A stroke's quick view is built in full in the background; when that build fails (here
+    a disk error, in the field a renderer replaced mid-build), it is tried once more, then the
+    quick view stays, the studio is told, and the next frames settle. Before, every frame said
+    a refit was coming (never settled: the studio showed no final image) and the idle session
+    rebuilt the failing view again and again."""
+    from worker.jobs.fit_driver import BUILD_TRIES
+
+    rt = _runtime(bunny_renderer)
+    rt.quick_rows = 40
+    rt.handle({"seq": 1, "type": "view", "eye": [0.3, 0.6, 3.1], "drag": True})
+    assert not rt.handle({"seq": 2, "type": "stroke", "stroke": STROKE})[0]["rejected"]
+    rt.fit_if_needed()
+    rt.handle({"seq": 3, "type": "view", "eye": [0.3, 0.6, 3.1], "drag": False})
+    fx = rt.fitter
+    real = fx.build_view
+    full_builds = []
+
+    def failing(camera, rot, inten, select=None, coarse=False):
+        if select is None and not coarse:          # the full build of the quick view
+            full_builds.append(1)
+            raise OSError("no space left on device")
+        return real(camera, rot, inten, select=select, coarse=coarse)
+
+    fx.build_view = failing
+    for attempt in range(BUILD_TRIES):
+        assert rt.fit_pending(), attempt
+        rt.prefetch()
+        for _, _, fut in list(rt._completions.values()):
+            fut.result(timeout=120)
+        changed = rt.absorb()
+    assert len(full_builds) == BUILD_TRIES and changed and not rt.fit_pending()
+    assert fx.views[0].provisional                  # the quick view is what the strokes fit on
+    notes = [e for e in rt.take_events() if e["type"] == "note"]
+    assert notes and "could not be built (no space left on device)" in notes[0]["message"], notes
+    rt.prefetch()
+    assert not rt._completions and len(full_builds) == BUILD_TRIES      # not rebuilt while idle
+    hdr, _ = rt.frame(3)
+    while rt.needs_still_frame():
+        hdr, _ = rt.frame(3)
+    assert hdr["settled"], hdr
+    fx.build_view = real                            # a new stroke in the view tries the build again
+    assert not rt.handle({"seq": 4, "type": "stroke", "stroke": STROKE})[0]["rejected"]
+    assert rt.fit_pending()
+    _complete_views(rt)                             # built in full this time
+    rt.fit_if_needed()
+    assert not rt.fit_pending()
+
+
 def _complete_views(rt):
     """Wait for the background builds of the session's quick views and take them."""
     rt.prefetch()

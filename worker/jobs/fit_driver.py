@@ -23,7 +23,7 @@ from ..errors import GlintError
 from ..fit.brush import Stroke
 from ..fit.fitter import QUICK_ROWS, FitError, Fitter, painted_select, quick_select
 from ..fit.guidance import SHORT
-from ..protocol import CurveEvent, FitEvent, StrokeEvent
+from ..protocol import CurveEvent, FitEvent, NoteEvent, StrokeEvent
 from ..renderers.base import Lighting
 from ..scene import SRBF, Camera
 from .curves import _dump, brdf_curve
@@ -37,6 +37,9 @@ QUICK_ROWS_MIN = 100        # a quick view's unpainted rows under load (QUICK_RO
 # while the next message made it useless; below the still frame's wait (session_thread
 # STILL_DELAY_S), so the build starts with the settled frame
 VIEW_SETTLE_S = 0.1
+# a quick view's full build is tried this many times (a failure may be passing: the renderer
+# replaced mid-build); then the quick view stays and the session settles on it
+BUILD_TRIES = 2
 # the per-vertex transfer of a view is built once this many active strokes were painted in it
 VT_AFTER_STROKES = 2
 # how much lower the background builder's threads run than the session threads (nice levels)
@@ -79,6 +82,8 @@ class FitDriver:
         # fit views are valid for the placement they were built in (counted by moves)
         self._moves = 0
         self._view_moves: dict[int, int] = {}
+        # (view index, moves) -> failed full builds; after BUILD_TRIES the quick view is kept
+        self._build_failures: dict[tuple[int, int], int] = {}
         self._view_changed_at = -1e9    # time.monotonic() of the last camera or light change
 
     def _drop_fit_work(self) -> None:
@@ -89,6 +94,7 @@ class FitDriver:
     def _ensure_fitter(self) -> Fitter:
         if self.fitter is None:
             self._view_moves = {}
+            self._build_failures = {}
             try:
                 # a region's strokes fit over the region's own rows (fit/regions.py): the views
                 # need no transfer rows of the whole object
@@ -116,6 +122,8 @@ class FitDriver:
                     self._view_moves.get(i, 0) == self._moves:
                 if v.partial and sel is not None:
                     fx.extend_view(v, painted_select(sel))
+                if sel is not None:                # a new stroke tries a failed full build again
+                    self._build_failures.pop((i, self._moves), None)
                 return i
         key = ("view", self.state.epoch, self._moves, self._view_key(camera, rot, inten))
         fut = self._pending.pop(key, None)
@@ -157,8 +165,13 @@ class FitDriver:
         fx = self.fitter
         if fx is None or len(fx.history) == 0 or self.state.readonly:
             return False
-        return self._needs_fit or any(v.provisional and self._view_moves.get(i, 0) == self._moves
-                                      for i, v in enumerate(fx.views))
+        return self._needs_fit or any(self._to_complete(i, v) for i, v in enumerate(fx.views))
+
+    def _to_complete(self, i: int, v) -> bool:
+        """Whether view i (v) is a quick one whose full build is still to come: of this placement,
+        and not given up (its full build failed BUILD_TRIES times; the quick view stays)."""
+        return (v.provisional and self._view_moves.get(i, 0) == self._moves
+                and self._build_failures.get((i, self._moves), 0) < BUILD_TRIES)
 
     def _adopt(self, i: int, fut: Future) -> None:
         self._completions[i] = (self.fitter, self._moves, fut)
@@ -173,7 +186,19 @@ class FitDriver:
                 continue
             del self._completions[i]
             view = None if fut.cancelled() else fut.result()
-            if fx is not self.fitter or moves != self._moves or isinstance(view, Exception) or view is None:
+            if fx is not self.fitter or moves != self._moves:
+                continue
+            if isinstance(view, Exception) or view is None:
+                # tried again by the next prefetch; after BUILD_TRIES the quick view stays, said
+                # once, and the session settles on it (it waited for the build before, every
+                # frame unsettled, and rebuilt the failing view whenever it was idle)
+                n = self._build_failures[(i, moves)] = self._build_failures.get((i, moves), 0) + 1
+                if n == BUILD_TRIES:
+                    why = "cancelled" if view is None else _msg(view)
+                    self.events.append(NoteEvent(message=(
+                        f"the full fit view could not be built ({why}): the strokes stay fitted on their "
+                        "quick view (fewer pixels) until the next stroke in this view")).model_dump())
+                    changed = True        # the next frame is the settled one
                 continue
             if i < len(fx.views) and fx.views[i].provisional:
                 fx.views[i] = view
@@ -310,7 +335,7 @@ class FitDriver:
         cam, rot, inten = self.state.camera, self.state.rotation_deg, self.state.intensity
         fx = self.fitter
         for i, v in enumerate(fx.views):
-            if v.provisional and self._view_moves.get(i, 0) == self._moves:
+            if self._to_complete(i, v):
                 self._complete(i)
         wait = VIEW_SETTLE_S - (time.monotonic() - self._view_changed_at)
         if wait > 0:
