@@ -220,7 +220,8 @@ def settle(page, quiet_ms=600, timeout=60_000):
     still after it, so nothing more comes until a message changes its state) and no other
     frame has arrived for quiet_ms (the frame answering the test's last action, had it not been
     drawn yet, would come within that on this machine; a quick or drag frame is never settled)."""
-    waited, quiet, last = 0, 0, frame_no(page)
+    waited, quiet, first = 0, 0, frame_no(page)
+    last = first
     while waited < timeout:
         page.wait_for_timeout(150)
         waited += 150
@@ -229,7 +230,13 @@ def settle(page, quiet_ms=600, timeout=60_000):
         last = now
         if quiet >= quiet_ms and page.evaluate("() => document.getElementById('view').dataset.settled") == "true":
             return
-    raise TimeoutError("frames kept coming")
+    # which way it failed: frames still coming, or the last one not settled and nothing after it
+    # (a still that failed to render, a refit that never finished); the page says what it shows
+    seen = page.evaluate("""() => { const d = document.getElementById('view').dataset;
+        return {frame: d.frame, ack: d.ack, samples: d.samples, quick: d.quick, settled: d.settled,
+                status: (document.getElementById('status') || {}).textContent}; }""")
+    raise TimeoutError(f"no settled frame within {timeout} ms: {last - first} frames arrived meanwhile, the last "
+                       f"{quiet} ms before the end; the canvas shows {seen}")
 
 
 def drag(page, x, y, dx, dy, steps=8, step_ms=30):
