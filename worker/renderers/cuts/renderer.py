@@ -859,7 +859,7 @@ class CutRenderer(Renderer):
         u, w2 = v.uv[pix, 0:1], v.uv[pix, 1:2]
         bary = np.concatenate([1 - u - w2, u, w2], axis=1).astype(np.float32)
         # Σ_i b_i x_i term by term: (b[:, :, None] * x[f]).sum(1), in the same order, without the
-        # (n, 3, 3) temporaries and the strided reduction (1.3 → 0.4 ms for ~4K samples)
+        # (n, 3, 3) temporaries and the strided reduction (sofa2's ~3.8K refined samples: 1.3 → 0.8 ms)
         nrm, pos = _blend3(bary, vn, f), _blend3(bary, vx, f)
         nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
         wo = np.asarray(camera.eye, np.float32) - pos
