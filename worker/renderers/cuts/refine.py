@@ -172,8 +172,6 @@ def object_scale(visible, object_of_vertex, vert_rgb, n_objects: int) -> np.ndar
     radiance's largest channel (vert_rgb (V, 3) float32): the unit of the contrast test, the
     object's own, so that objects do not couple (0 for an object not in view)."""
     lum = np.asarray(vert_rgb, np.float32)[visible].max(1).astype(np.float64)
-    if n_objects == 1:
-        return np.array([lum.mean() if len(lum) else 0.0], np.float32)
     obj = np.asarray(object_of_vertex)[visible]
     cnt = np.bincount(obj, minlength=n_objects)
     tot = np.bincount(obj, weights=lum, minlength=n_objects)

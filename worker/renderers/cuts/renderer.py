@@ -900,8 +900,7 @@ class CutRenderer(Renderer):
             if pixels is not None:
                 o, d = o[pixels], d[pixels]
             tri, uv = self._first_hit(o, d)
-        obj_of = np.where(tri >= 0, self.scene.object_of_face[np.maximum(tri, 0)], -1)
-        pix = np.nonzero(obj_of == object_index)[0]
+        pix = np.nonzero(self.object_of(tri) == object_index)[0]
         return self._pixel_samples(View(camera, tri, uv, d, np.zeros(0, np.int32)), camera, pix)
 
     def vertex_samples(self, camera, object_index: int, samples: int = 1, antialias: str = "full") -> Samples:
