@@ -234,6 +234,12 @@ class Renderer(ABC):
         """(H, W) int32 object index per pixel, −1 background."""
         raise Unsupported(f"the {self.kind} renderer has no object mask")
 
+    def edge_mask(self, camera) -> np.ndarray | None:
+        """(H, W) bool: the pixels next to a silhouette, an occlusion or a crease, where the
+        radiance at the pixel centre is not the mean over the pixel (an image of the scene from
+        elsewhere, a photograph or Mitsuba, holds that mean); None when the renderer cannot tell."""
+        return None
+
 
 # --- what to precompute ------------------------------------------------------------------------
 

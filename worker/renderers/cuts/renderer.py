@@ -850,6 +850,15 @@ class CutRenderer(Renderer):
         """(H, W) int32 object index per pixel, −1 background."""
         return self.view(camera).obj
 
+    def edge_mask(self, camera) -> np.ndarray:
+        """(H, W) bool: the pixels the anti-aliased frame samples as edges (edges.edge_pixels:
+        next to a silhouette, an occlusion or a crease)."""
+        v = self.view(camera)
+        out = np.zeros(camera.height * camera.width, bool)
+        out[edge_pixels(v.tri, self.scene.mesh.faces, self.scene.object_of_face, camera.height, camera.width,
+                        self.k)] = True
+        return out.reshape(camera.height, camera.width)
+
     # -- what the fitter asks ------------------------------------------------------------------
     def _pixel_samples(self, v: View, camera, pix: np.ndarray) -> Samples:
         mesh = self.scene.mesh
@@ -902,6 +911,23 @@ class CutRenderer(Renderer):
             tri, uv = self._first_hit(o, d)
         pix = np.nonzero(self.object_of(tri) == object_index)[0]
         return self._pixel_samples(View(camera, tri, uv, d, np.zeros(0, np.int32)), camera, pix)
+
+    def area_samples(self, camera, object_index: int, pixels: np.ndarray, samples: int) -> Samples:
+        """S samples over each of the camera's pixels (flat indices, (n,) int64), at the
+        anti-aliased frame's offsets (render.sample_offsets), that see the object: Samples whose
+        ``pix`` is i·S + s for sample s of pixels[i], as ``surface_samples``'."""
+        if self._moving is not None:
+            raise Unsupported("samples over a pixel's area are not made for scenes with movable objects")
+        pix = np.asarray(pixels, np.int64)
+        S = int(samples)
+        d = pixel_dirs(camera.eye, camera.target, camera.up, camera.fov_y_deg, camera.width, camera.height, pix, S,
+                       kernels=self.k)
+        if len(d):
+            tri, uv = self._first_hit(np.broadcast_to(np.asarray(camera.eye, np.float32), d.shape).copy(), d)
+        else:
+            tri, uv = np.zeros(0, np.int32), np.zeros((0, 2), np.float32)
+        rows = np.nonzero(self.object_of(tri) == object_index)[0]
+        return self._pixel_samples(View(camera, tri, uv, d, np.zeros(0, np.int32)), camera, rows)
 
     def vertex_samples(self, camera, object_index: int, samples: int = 1, antialias: str = "full") -> Samples:
         """The object's vertices the camera sees (vertex-mode shading points): with samples S > 1,
