@@ -273,6 +273,49 @@ def test_bad_targets_are_refused(fitter):
         fitter.fit_targets([np.zeros((120, 160, 3)), np.zeros((120, 160, 3))])
 
 
+def test_edge_rows_become_the_mean_over_their_pixel(fitter):
+    """For a target image made elsewhere (a pixel's mean over its area), the rows at the edge
+    pixels the settled frame samples (silhouettes, occlusions, creases) become the mean of the
+    transfer rows of STILL_SAMPLES samples over the pixel; the other rows stay; the Gram follows;
+    a pixel whose samples are partly off the object is left out of a target's rows."""
+    from worker.fit.solve import gram
+    from worker.jobs.lod import STILL_SAMPLES
+
+    r = fitter.renderer
+    v = fitter.views[0]
+    cam = v.camera
+    T0, E0 = v.T.copy(), v.E.copy()
+    n = fitter.antialias_rows(0)
+    px = np.floor(v.xy[:, 1]).astype(np.int64) * cam.width + np.floor(v.xy[:, 0]).astype(np.int64)
+    edge = r.edge_mask(cam).reshape(-1)[px]
+    changed = (v.T != T0).any(axis=(0, 2)) | (v.E != E0).any(axis=1)
+    assert n > 20 and changed.sum() <= n, (n, int(changed.sum()))   # self-occlusions, not only outlines
+    assert not (changed & ~edge).any()
+    assert (v.mixed & edge).any() and not (v.mixed & ~edge).any()
+    # a row against its samples' transfer, computed apart
+    i = np.nonzero(changed)[0][len(np.nonzero(changed)[0]) // 2]
+    smp = r.area_samples(cam, fitter.obj, px[i:i + 1], STILL_SAMPLES)
+    assert len(smp) == STILL_SAMPLES
+    T, E = r.transfer(smp, fitter.basis, v.lighting)
+    np.testing.assert_allclose(v.T[:, i], T.mean(axis=1), rtol=1e-5, atol=1e-9)
+    np.testing.assert_allclose(v.E[i], E.mean(axis=0), rtol=1e-5, atol=1e-9)
+    np.testing.assert_allclose(v.gram, gram(v.T), rtol=1e-6, atol=1e-9 * np.abs(v.gram).max())
+    assert fitter.antialias_rows(0) == 0                                  # once per view
+    _, valid = fitter.target_rows(0, np.ones((cam.height, cam.width, 3), np.float32))
+    assert not (valid & v.mixed).any() and valid.any()
+
+
+def test_a_target_fit_averages_its_edge_rows(fitter):
+    """fit_targets (glint fit --target, the REST fit job) makes the edge rows area means first;
+    a bad target is refused before that work."""
+    v = fitter.views[0]
+    with pytest.raises(FitError, match="aspect"):
+        fitter.fit_targets([np.zeros((100, 100, 3), np.float32)])
+    assert not v.antialiased
+    fitter.fit_targets([np.full((v.camera.height, v.camera.width, 3), 0.2, np.float32)])
+    assert v.antialiased and v.mixed.any()
+
+
 def test_a_partial_view_extends_to_the_full_view(fitter, across):
     """Quick views: a view built for a few pixels, then extended under a stroke and
     completed, holds exactly the rows of the view built at once (transfer, Gram, base)."""
