@@ -44,8 +44,9 @@ def bunny_env(shared_assets, cache_dir):
 def _run(bunny_env, cache_dir, env, alpha, specular, albedo, **kw):
     r = recover(bunny_env(env), Case("bunny", env, alpha, specular, albedo), fit_scale=1.0, spp=SPP,
                 cache_dir=cache_dir / "mitsuba", **kw)
-    print(f"{env} α={alpha} s={specular} ρd={albedo}: fit {r['rel_rmse']:.4f} (vertex {r['rel_rmse_vertex']:.4f}), "
-          f"Glint's GGX {r['ggx_floor']:.4f}, noise {r['noise']:.4f}, residual {r['residual_rel']:.4f}, "
+    print(f"{env} α={alpha} s={specular} ρd={albedo}: fit {r['rel_rmse']:.4f} (vertex {r['rel_rmse_vertex']:.4f}, "
+          f"settled {r['rel_rmse_still']:.4f}), Glint's GGX {r['ggx_floor']:.4f} (settled {r['ggx_floor_still']:.4f}), "
+          f"noise {r['noise']:.4f}, residual {r['residual_rel']:.4f}, "
           f"energy {r['energy_fraction']:.4f} of its bound, static α {r['static_alpha']:.3f}")
     return r
 
@@ -53,13 +54,17 @@ def _run(bunny_env, cache_dir, env, alpha, specular, albedo, **kw):
 @pytest.mark.slow
 def test_sharp_gloss_under_a_sun(bunny_env, cache_dir):
     """α = 0.1 under a real sun (stinson-beach): the worst α ≥ 0.1 case of the matrix. Glint's
-    own GGX render is 27% off here (the sun's reflections on 2.8K vertices at 160×120); the fit is
-    closer to Mitsuba than that, but not within 8%. Energy conservation holds by an independent
-    quadrature."""
+    own GGX render is 24% off here with one sample per pixel, most of it the sun's reflections on
+    2.8K vertices aliasing at 160×120 against Mitsuba's pixel means: the settled frame (4 samples
+    at edges) is 6.8% off. The fit, its rows at edges the mean over their pixels, is closer to
+    Mitsuba than the one-sample GGX, and 10% off in the settled frame, not within 8%. Energy
+    conservation holds by an independent quadrature."""
     r = _run(bunny_env, cache_dir, "stinson-beach.hdr", 0.1, 0.95, (0.0, 0.0, 0.0))
     assert r["energy_ok"], r["energy"]
-    assert r["rel_rmse"] < r["ggx_floor"] + 0.015, (r["rel_rmse"], r["ggx_floor"])   # measured 0.177 vs 0.275
+    assert r["rel_rmse"] < r["ggx_floor"] + 0.015, (r["rel_rmse"], r["ggx_floor"])   # measured 0.176 vs 0.244
     assert r["rel_rmse"] < 0.2
+    assert r["ggx_floor_still"] < 0.5 * r["ggx_floor"], (r["ggx_floor_still"], r["ggx_floor"])   # 0.068 vs 0.244
+    assert r["rel_rmse_still"] < 0.12, r["rel_rmse_still"]                                       # measured 0.101
     assert 0.07 < r["static_alpha"] < 0.15            # the fitted shadowing roughness finds α
 
 
