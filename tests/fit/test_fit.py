@@ -300,9 +300,19 @@ def test_edge_rows_become_the_mean_over_their_pixel(fitter):
     np.testing.assert_allclose(v.T[:, i], T.mean(axis=1), rtol=1e-5, atol=1e-9)
     np.testing.assert_allclose(v.E[i], E.mean(axis=0), rtol=1e-5, atol=1e-9)
     np.testing.assert_allclose(v.gram, gram(v.T), rtol=1e-6, atol=1e-9 * np.abs(v.gram).max())
-    assert fitter.antialias_rows(0) == 0                                  # once per view
+    assert fitter.antialias_rows(0) == 0                                  # once per row
     _, valid = fitter.target_rows(0, np.ones((cam.height, cam.width, 3), np.float32))
     assert not (valid & v.mixed).any() and valid.any()
+    # a glint narrower than a pixel in the target: its row (and its neighbours') too
+    inner = np.nonzero(~v.averaged)[0]
+    k = inner[len(inner) // 2]
+    img = np.full((cam.height, cam.width, 3), 0.2, np.float32)
+    img[px[k] // cam.width, px[k] % cam.width] = 3.0
+    steep = fitter.steep_rows(0, img)
+    assert steep[k] and 1 <= steep.sum() <= 5, int(steep.sum())
+    assert not fitter.steep_rows(0, np.full_like(img, 0.2)).any()
+    assert fitter.antialias_rows(0, extra=steep) == int((steep & ~edge).sum()) >= 1
+    assert v.averaged[k] and (v.T[:, k] != T0[:, k]).any()
 
 
 def test_a_target_fit_averages_its_edge_rows(fitter):
@@ -311,9 +321,9 @@ def test_a_target_fit_averages_its_edge_rows(fitter):
     v = fitter.views[0]
     with pytest.raises(FitError, match="aspect"):
         fitter.fit_targets([np.zeros((100, 100, 3), np.float32)])
-    assert not v.antialiased
+    assert v.averaged is None
     fitter.fit_targets([np.full((v.camera.height, v.camera.width, 3), 0.2, np.float32)])
-    assert v.antialiased and v.mixed.any()
+    assert v.averaged.any() and v.mixed.any()
 
 
 def test_a_partial_view_extends_to_the_full_view(fitter, across):
