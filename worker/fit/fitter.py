@@ -598,9 +598,9 @@ class Fitter:
         from ..jobs.lod import STILL_SAMPLES
 
         v = self.views[view]
-        area = getattr(self.renderer, "area_samples", None)
-        if self.polynomial or not self.transfer_rows or area is None or v.partial:
+        if not self._averages_rows(view):
             return 0
+        area = self.renderer.area_samples
         S = int(samples or STILL_SAMPLES)
         t0 = time.perf_counter()
         cam = v.camera
@@ -644,6 +644,12 @@ class Fitter:
         v.cache = {}
         v.seconds_transfer += time.perf_counter() - t0
         return len(done)
+
+    def _averages_rows(self, view: int) -> bool:
+        """Whether ``antialias_rows`` can average a view's rows: a renderer with ``area_samples``,
+        a linear one (a polynomial renderer re-expands its rows from one point), a whole view."""
+        return (not self.polynomial and self.transfer_rows and hasattr(self.renderer, "area_samples")
+                and not self.views[view].partial)
 
     def steep_rows(self, view: int, image: np.ndarray) -> np.ndarray:
         """(N,) bool: the view's rows whose pixel in a target image (any resolution with the
@@ -706,7 +712,8 @@ class Fitter:
         masks = masks or [None] * len(images)
         images = [self._target_image(i, img) for i, img in enumerate(images)]     # refused before any work
         for i, img in enumerate(images):
-            self.antialias_rows(i, extra=self.steep_rows(i, img))
+            if self._averages_rows(i):
+                self.antialias_rows(i, extra=self.steep_rows(i, img))
         targets = []
         for i, (img, m) in enumerate(zip(images, masks)):
             tgt, valid = self.target_rows(i, img, m)
