@@ -756,18 +756,24 @@ class CutRenderer(Renderer):
             v.edges = {**(v.edges or {}), samples: e}
         return e
 
+    def _trace_pixels(self, cam, pix: np.ndarray, samples: int):
+        """The S sample rays through each of the camera's pixels pix (n,) int64 (rows i·S + s,
+        render.sample_offsets) traced through Embree: (dirs (n·S, 3) float32, tri (n·S,) int32
+        face or −1, uv (n·S, 2) float32)."""
+        d = pixel_dirs(cam.eye, cam.target, cam.up, cam.fov_y_deg, cam.width, cam.height, pix, samples,
+                       kernels=self.k)
+        if not len(d):
+            return d, np.zeros(0, np.int32), np.zeros((0, 2), np.float32)
+        tri, uv = self._first_hit(np.broadcast_to(np.asarray(cam.eye, np.float32), d.shape).copy(), d)
+        return d, tri, uv
+
     def _sample_view(self, v: View, pix: np.ndarray, samples: int) -> View:
         """A View of S samples through each of the pixels pix (n,) int64 of the one-sample view
         v (rows i·S + s of pixel pix[i]), traced through Embree: its ``visible`` only the vertices
         v does not see (``wo`` theirs), with its background rows, directions and map coordinates."""
         cam = v.camera
         mesh = self.scene.mesh
-        d = pixel_dirs(cam.eye, cam.target, cam.up, cam.fov_y_deg, cam.width, cam.height, pix, samples,
-                       kernels=self.k)
-        if len(d):
-            tri, uv = self._first_hit(np.broadcast_to(np.asarray(cam.eye, np.float32), d.shape).copy(), d)
-        else:
-            tri, uv = np.zeros(0, np.int32), np.zeros((0, 2), np.float32)
+        d, tri, uv = self._trace_pixels(cam, pix, samples)
         vmask = np.zeros(len(mesh.vertices), bool)
         vmask[mesh.faces[tri[tri >= 0]].reshape(-1)] = True
         vmask[v.visible] = False
@@ -918,14 +924,7 @@ class CutRenderer(Renderer):
         ``pix`` is i·S + s for sample s of pixels[i], as ``surface_samples``'."""
         if self._moving is not None:
             raise Unsupported("samples over a pixel's area are not made for scenes with movable objects")
-        pix = np.asarray(pixels, np.int64)
-        S = int(samples)
-        d = pixel_dirs(camera.eye, camera.target, camera.up, camera.fov_y_deg, camera.width, camera.height, pix, S,
-                       kernels=self.k)
-        if len(d):
-            tri, uv = self._first_hit(np.broadcast_to(np.asarray(camera.eye, np.float32), d.shape).copy(), d)
-        else:
-            tri, uv = np.zeros(0, np.int32), np.zeros((0, 2), np.float32)
+        d, tri, uv = self._trace_pixels(camera, np.asarray(pixels, np.int64), int(samples))
         rows = np.nonzero(self.object_of(tri) == object_index)[0]
         return self._pixel_samples(View(camera, tri, uv, d, np.zeros(0, np.int32)), camera, rows)
 
