@@ -21,8 +21,8 @@ def cmd_bench_render(a) -> int:
     """Frame time while the light and the BRDF change every frame, at full quality (the
     precomputed τ, full resolution, one sample), as the studio draws while something changes
     (``_quick``: one sample, interpolated, clusters no finer than the drag level's), at the drag
-    level of detail, and as the studio's settled frames (4 samples at edges and curved
-    highlights: ``_aa4``), after two warm-up frames (hit buffer, lighting matrices) that a
+    level of detail, and as the studio's settled frames (jobs/lod.py STILL_SAMPLES at edges and
+    curved highlights: ``_aa16``), after two warm-up frames (hit buffer, lighting matrices) that a
     user's first frame pays once."""
     import numpy as np
 
@@ -56,7 +56,7 @@ def cmd_bench_render(a) -> int:
             tonemap(out.radiance)
             times.append(time.perf_counter() - t0)
         ms = float(np.median(times) * 1000)
-        sfx = "_aa4" if samples > 1 else ("" if lod == "full" else f"_{lod}")
+        sfx = f"_aa{samples}" if samples > 1 else ("" if lod == "full" else f"_{lod}")
         res.update({f"ms_per_frame{sfx}": ms, f"fps{sfx}": 1000.0 / ms, f"p95_ms{sfx}": float(np.percentile(times, 95) * 1000)})
         if lod == "drag":
             res.update(width_drag=out.info["width"], height_drag=out.info["height"], tau_drag=out.info["tau"])

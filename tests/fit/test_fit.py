@@ -276,10 +276,10 @@ def test_bad_targets_are_refused(fitter):
 def test_edge_rows_become_the_mean_over_their_pixel(fitter):
     """For a target image made elsewhere (a pixel's mean over its area), the rows at the edge
     pixels the settled frame samples (silhouettes, occlusions, creases) become the mean of the
-    transfer rows of STILL_SAMPLES samples over the pixel; the other rows stay; the Gram follows;
+    transfer rows of AREA_SAMPLES samples over the pixel; the other rows stay; the Gram follows;
     a pixel whose samples are partly off the object is left out of a target's rows."""
+    from worker.fit.fitter import AREA_SAMPLES
     from worker.fit.solve import gram
-    from worker.jobs.lod import STILL_SAMPLES
 
     r = fitter.renderer
     v = fitter.views[0]
@@ -294,8 +294,8 @@ def test_edge_rows_become_the_mean_over_their_pixel(fitter):
     assert (v.mixed & edge).any() and not (v.mixed & ~edge).any()
     # a row against its samples' transfer, computed apart
     i = np.nonzero(changed)[0][len(np.nonzero(changed)[0]) // 2]
-    smp = r.area_samples(cam, fitter.obj, px[i:i + 1], STILL_SAMPLES)
-    assert len(smp) == STILL_SAMPLES
+    smp = r.area_samples(cam, fitter.obj, px[i:i + 1], AREA_SAMPLES)
+    assert len(smp) == AREA_SAMPLES
     T, E = r.transfer(smp, fitter.basis, v.lighting)
     np.testing.assert_allclose(v.T[:, i], T.mean(axis=1), rtol=1e-5, atol=1e-9)
     np.testing.assert_allclose(v.E[i], E.mean(axis=0), rtol=1e-5, atol=1e-9)

@@ -186,6 +186,7 @@ def test_a_session_left_alone_settles_on_the_anti_aliased_frame(two):
     designers and shoppers alike. The thread's cache here only hands out the loaded renderer."""
     import queue
 
+    from worker.jobs.lod import STILL_SAMPLES
     from worker.jobs.runner import SessionThread
 
     class _Loaded:
@@ -214,5 +215,5 @@ def test_a_session_left_alone_settles_on_the_anti_aliased_frame(two):
         finally:
             th.stop()
             th.join(30)
-        assert [f["samples"] for f in frames] == [1, 4], (readonly, frames)
+        assert [f["samples"] for f in frames] == [1, STILL_SAMPLES], (readonly, frames)
         assert frames[0]["quick"] and not frames[1]["quick"]

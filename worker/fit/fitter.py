@@ -39,6 +39,11 @@ DEFAULT_FIT_ALBEDO = False
 # (relative RMS over the fit rows) of the exact radiance, or after GN_STEPS solves
 GN_TOL = 2e-3
 GN_STEPS = 4
+# samples over a pixel whose mean is a target fit's row where the pixel's area matters
+# (Fitter.antialias_rows). Fewer than the settled frame's (jobs/lod.py STILL_SAMPLES): each costs
+# a transfer row, and a fit averaged over 4 and shown at 16 was as close to Mitsuba as its GGX
+# there (the dragon under stinson-beach's sun at α 0.1: 5.2% against 4.4%; BENCHMARKS.md)
+AREA_SAMPLES = 4
 
 
 def _take(smp, idx):
@@ -591,17 +596,15 @@ class Fitter:
         the pixel scale (``steep_rows``), and a fit that matched centre rows to area targets would
         bend its lobes to make up for it: the sofa2's piping, 2-3 pixels tall, took the settled
         frame of a fit to Mitsuba's GGX α 0.1 8.8% from it where the GGX itself is 7.3% (7.1%
-        with these rows). Those rows become the mean of ``samples`` (default the settled
-        frame's, jobs/lod.py STILL_SAMPLES) transfer rows over the pixel
+        with these rows). Those rows become the mean of ``samples`` (default AREA_SAMPLES)
+        transfer rows over the pixel
         (render.sample_offsets); a pixel whose samples are not all on the object is marked
         ``mixed``. Not thread-safe against a fit of the same view."""
-        from ..jobs.lod import STILL_SAMPLES
-
         v = self.views[view]
         if not self._averages_rows(view):
             return 0
         area = self.renderer.area_samples
-        S = int(samples or STILL_SAMPLES)
+        S = int(samples or AREA_SAMPLES)
         t0 = time.perf_counter()
         cam = v.camera
         edges = self.renderer.edge_mask(cam)

@@ -13,9 +13,15 @@ import time
 from collections import deque
 
 FRAME_BUDGET_MS = 33.0     # a frame while the user drags: 30 fps
-STILL_SAMPLES = 4          # anti-aliasing samples per pixel of a still frame
-# ... taken at the pixels next to a silhouette, occlusion or crease only (renderers/cuts/edges.py):
-# elsewhere more samples change nothing, and the settled frame after an orbit needs no 4-sample view
+# anti-aliasing samples per pixel of a still frame, taken at the pixels next to a silhouette,
+# occlusion or crease and where a highlight curves faster than the pixels (renderers/cuts/edges.py):
+# elsewhere more samples change nothing. 16, not 4: chosen on the recovery benchmark's bunny and
+# sofa2 against 512-spp Mitsuba means (a reference pixel is the mean over its area), where the
+# sofa2's 2-3 pixel piping was 7.3% off at 4 and 5.6% at 16 (GGX α 0.1, sunset); held out, the 23K
+# dragon under stinson-beach's sun 10.8% → 4.4% (BENCHMARKS.md). A still is drawn once per
+# settle and gives way to the next message: 640×480 costs 37 / 99 / 243 ms on the oak chair, the
+# couch and the dragon (28 / 48 / 123 at 4), and no more memory (only edge pixels take samples)
+STILL_SAMPLES = 16
 STILL_ANTIALIAS = "edges"
 REPROBE_S = 2.0            # while at the drag level of detail, try a full frame this often
 DRAG_SCALES = (2, 4)        # drag level of detail: half the resolution, a quarter under load
