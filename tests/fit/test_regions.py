@@ -97,6 +97,23 @@ def test_a_region_changes_what_the_stroke_covers(fitter, across, kind):
     assert got["spill_far"] == pytest.approx(out.spill_far, abs=0.01)
 
 
+def test_a_highlight_a_real_material_gives_is_painted_as_asked(fitter):
+    """The benchmark's glossy highlight (bench/fitting.py ``glossy_highlight``): the object's row
+    where a lacquer of its colour is brightest, asking for that lacquer's mean radiance there; a
+    real material makes it, so a region reaches it."""
+    from bench.fitting import glossy_highlight
+
+    label, st, gain = glossy_highlight(fitter)
+    v = fitter.views[0]
+    assert label == "glossy highlight" and gain > 1.2, gain          # a highlight: brighter than the base
+    fitter.add_stroke(st)
+    out = fit_region(fitter, name="lacquer", parts="auto")
+    got = rendered_effect(fitter.renderer, 0, v.camera, v.lighting, fitter.base_material, out.material, [st])
+    print(f"glossy highlight ({gain:.2f}× the base there): region {got['achieved']:.2f} / {got['spill_far']:.3f}")
+    # measured 0.86 / 0.079 (3.35× the base there): the issue's ≥ 0.8 and ≤ 0.10
+    assert got["achieved"] >= 0.8 and got["spill_far"] <= 0.10, got
+
+
 def test_extending_and_adding_regions(fitter, across):
     v = fitter.views[0]
     C = 2.0 * float(v.base.max())
