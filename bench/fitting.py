@@ -217,6 +217,38 @@ def glossy_highlight(fx, view: int = 0, alpha: float = 0.1):
     return "glossy highlight", st.model_copy(update={"color": tuple(float(x) for x in color)}), gain
 
 
+def paint_colour(fx, view: int = 0, tint=(1.6, 0.8, 0.5)):
+    """A colour change a real material gives: ("paint colour", Stroke, 1.0) for the fitter's
+    object. The base material with its diffuse albedo tinted by ``tint`` (the standard colour
+    change's factors), scaled down where needed so that albedo plus specular stays within 1 in
+    every channel (a paint of that hue as bright as energy allows), rendered; the standard stroke
+    asks for its mean radiance over the stroke's core (brush weight ≥ 0.5). The standard colour
+    change asks for the base's mean radiance tinted, one colour along a stroke whose light
+    varies, which needs an albedo above 1 where the light is dimmer; this one is within energy by
+    construction."""
+    import numpy as np
+
+    from worker.fit.brush import stroke_weights
+    from worker.renderers import FrameRequest
+
+    v = fx.views[view]
+    st = standard_strokes(fx, view)[2][1]
+    base = fx.base_material
+    albedo = np.asarray(base.albedo, np.float64) * np.asarray(tint, np.float64)
+    spec = float(np.max(getattr(base, "specular", (0.0, 0.0, 0.0))))
+    albedo *= min(1.0, (1.0 - spec) / max(float(albedo.max()), 1e-12))
+    paint = base.model_copy(update={"albedo": tuple(float(x) for x in albedo)})
+    r = fx.renderer
+    mats = list(r.scene.materials)
+    mats[fx.obj] = paint
+    img = r.render(FrameRequest(camera=v.camera, lighting=v.lighting, materials=mats)).radiance
+    px = np.floor(v.xy).astype(np.int64)
+    rad = img[px[:, 1], px[:, 0]].astype(np.float64)
+    core = stroke_weights(st, v.xy, v.footprint) >= 0.5
+    color = rad[core].mean(0)
+    return "paint colour", st.model_copy(update={"color": tuple(float(x) for x in color)}), 1.0
+
+
 def _gi_renderer(path, store, quiet, env=None):
     """The GI renderer of a scene file (precomputing into ``store`` when needed), under another
     environment map when ``env`` is given (GI tensors hold the lighting: one precomputation
@@ -389,9 +421,9 @@ def _frame_times(r, cam, lighting, materials: dict, frames: int) -> dict:
 
 
 def cmd_bench_regions(a) -> int:
-    """``glint bench strokes --regions``: per scene × map × standard stroke and the glossy
-    highlight (``glossy_highlight``: one a real material gives there), a region fit and a
-    one-BRDF fit (unpainted weight 0.25, albedo fitted), each measured in rendered frames at the
+    """``glint bench strokes --regions``: per scene × map × standard stroke, the glossy
+    highlight and the paint colour (``glossy_highlight``, ``paint_colour``: what a real material
+    gives there), a region fit and a one-BRDF fit (unpainted weight 0.25, albedo fitted), each measured in rendered frames at the
     view's resolution (worker/fit/regions.py ``rendered_effect``), and the frame cost of the
     object with its region against the same object with one material."""
     import os
@@ -412,7 +444,7 @@ def cmd_bench_regions(a) -> int:
             fx.add_view()
             v = fx.views[0]
             glossy = glossy_highlight(fx)
-            for label, st in standard_strokes(fx) + [glossy[:2]]:
+            for label, st in standard_strokes(fx) + [glossy[:2], paint_colour(fx)[:2]]:
                 fx.history.clear()
                 fx.add_stroke(st)
                 fx._last = None
