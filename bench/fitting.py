@@ -164,8 +164,25 @@ def standard_strokes(fx, view: int = 0):
             ("colour change", Stroke(points=pts, color=tuple(tint), diameter=d, kappa=0.05, view=view))]
 
 
+def _view_radiance(fx, material, view: int = 0):
+    """(n, 3) float64 radiance at the fit view's pixels with the fitter's object in ``material``
+    (a rendered frame of the view, read at its fit pixels)."""
+    import numpy as np
+
+    from worker.renderers import FrameRequest
+
+    v = fx.views[view]
+    r = fx.renderer
+    mats = list(r.scene.materials)
+    mats[fx.obj] = material
+    img = r.render(FrameRequest(camera=v.camera, lighting=v.lighting, materials=mats)).radiance
+    px = np.floor(v.xy).astype(np.int64)
+    return img[px[:, 1], px[:, 0]].astype(np.float64)
+
+
 def glossy_highlight(fx, view: int = 0, alpha: float = 0.1):
-    """A highlight a real material gives: ("glossy highlight", Stroke) for the fitter's object.
+    """A highlight a real material gives: ("glossy highlight", Stroke, its luminance over the
+    base's along the stroke) for the fitter's object.
 
     The object is rendered with its base's diffuse albedo under a white GGX lobe of roughness
     ``alpha`` holding the energy the albedo leaves (specular 1 − max albedo: a lacquer as bright
@@ -182,7 +199,6 @@ def glossy_highlight(fx, view: int = 0, alpha: float = 0.1):
     import numpy as np
 
     from worker.fit.brush import stroke_weights
-    from worker.renderers import FrameRequest
     from worker.scene import GGX
 
     luma = np.array([0.2126, 0.7152, 0.0722])
@@ -190,13 +206,7 @@ def glossy_highlight(fx, view: int = 0, alpha: float = 0.1):
     hl = standard_strokes(fx, view)[0][1]
     albedo = np.asarray(fx.base_material.albedo, np.float64)
     h = 1.0 - float(albedo.max())
-    lacquer = GGX(alpha=alpha, specular=(h, h, h), albedo=tuple(albedo.tolist()))
-    r = fx.renderer
-    mats = list(r.scene.materials)
-    mats[fx.obj] = lacquer
-    img = r.render(FrameRequest(camera=v.camera, lighting=v.lighting, materials=mats)).radiance
-    px = np.floor(v.xy).astype(np.int64)
-    rad = img[px[:, 1], px[:, 0]].astype(np.float64)
+    rad = _view_radiance(fx, GGX(alpha=alpha, specular=(h, h, h), albedo=tuple(albedo.tolist())), view)
     ys, d = v.xy[:, 1], hl.diameter
     best = None
     for y0 in np.arange(ys.min() + d / 2, ys.max() - d / 2, d / 2):
@@ -218,8 +228,8 @@ def glossy_highlight(fx, view: int = 0, alpha: float = 0.1):
 
 
 def paint_colour(fx, view: int = 0, tint=(1.6, 0.8, 0.5)):
-    """A colour change a real material gives: ("paint colour", Stroke, 1.0) for the fitter's
-    object. The base material with its diffuse albedo tinted by ``tint`` (the standard colour
+    """A colour change a real material gives: ("paint colour", Stroke, its luminance over the
+    base's along the stroke) for the fitter's object. The base material with its diffuse albedo tinted by ``tint`` (the standard colour
     change's factors), scaled down where needed so that albedo plus specular stays within 1 in
     every channel (a paint of that hue as bright as energy allows), rendered; the standard stroke
     asks for its mean radiance over the stroke's core (brush weight ≥ 0.5). The standard colour
@@ -229,7 +239,6 @@ def paint_colour(fx, view: int = 0, tint=(1.6, 0.8, 0.5)):
     import numpy as np
 
     from worker.fit.brush import stroke_weights
-    from worker.renderers import FrameRequest
 
     v = fx.views[view]
     st = standard_strokes(fx, view)[2][1]
@@ -237,16 +246,12 @@ def paint_colour(fx, view: int = 0, tint=(1.6, 0.8, 0.5)):
     albedo = np.asarray(base.albedo, np.float64) * np.asarray(tint, np.float64)
     spec = float(np.max(getattr(base, "specular", (0.0, 0.0, 0.0))))
     albedo *= min(1.0, (1.0 - spec) / max(float(albedo.max()), 1e-12))
-    paint = base.model_copy(update={"albedo": tuple(float(x) for x in albedo)})
-    r = fx.renderer
-    mats = list(r.scene.materials)
-    mats[fx.obj] = paint
-    img = r.render(FrameRequest(camera=v.camera, lighting=v.lighting, materials=mats)).radiance
-    px = np.floor(v.xy).astype(np.int64)
-    rad = img[px[:, 1], px[:, 0]].astype(np.float64)
+    rad = _view_radiance(fx, base.model_copy(update={"albedo": tuple(float(x) for x in albedo)}), view)
     core = stroke_weights(st, v.xy, v.footprint) >= 0.5
     color = rad[core].mean(0)
-    return "paint colour", st.model_copy(update={"color": tuple(float(x) for x in color)}), 1.0
+    luma = np.array([0.2126, 0.7152, 0.0722])
+    gain = float(color @ luma / max(float(v.base[core].mean(0) @ luma), 1e-12))
+    return "paint colour", st.model_copy(update={"color": tuple(float(x) for x in color)}), gain
 
 
 def _gi_renderer(path, store, quiet, env=None):
