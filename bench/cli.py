@@ -84,7 +84,7 @@ def cmd_bench_accuracy(a) -> int:
     GGX α (albedo 0.1, specular 0.8), with the reference's own noise and each mode's frame time
     (after a warm-up frame; light and BRDF fixed, so the view's refinement candidates are
     cached). Glint renders with ``samples`` per pixel where ``antialias`` puts them (default the
-    studio's settled frame: 4 at edges and curved highlights), since a reference pixel is the
+    studio's settled frame: STILL_SAMPLES at edges and curved highlights), since a reference pixel is the
     mean over its area: one sample against it counts the aliasing of fine detail as error."""
     import numpy as np
     from scipy.ndimage import binary_erosion
@@ -233,6 +233,7 @@ def add_bench_commands(bsub) -> None:
     ``glint bench``."""
     from worker.cli import fit_options
     from worker.core.cuts import DEFAULT_TAU
+    from worker.jobs.lod import STILL_SAMPLES
 
     br = bsub.add_parser("render", help="frame time while light and BRDF change")
     br.add_argument("scene"); br.add_argument("--frames", type=int, default=60); br.add_argument("--json", action="store_true")
@@ -247,9 +248,9 @@ def add_bench_commands(bsub) -> None:
     ba.add_argument("--spp", type=int, default=256, help="Mitsuba samples per pixel of each of its two renders")
     ba.add_argument("--cache", default="tests/.cache/mitsuba", help="where Mitsuba's renders are kept by content")
     ba.add_argument("--cuts"); ba.add_argument("--tau", type=float, default=DEFAULT_TAU)
-    ba.add_argument("--samples", type=int, default=4,
-                    help="Glint's samples per pixel (default 4, the studio's settled frame: Mitsuba's pixels "
-                         "are box-filtered means too)")
+    ba.add_argument("--samples", type=int, default=STILL_SAMPLES,
+                    help=f"Glint's samples per pixel (default {STILL_SAMPLES}, the studio's settled frame: Mitsuba's "
+                         "pixels are box-filtered means too)")
     ba.add_argument("--antialias", choices=["edges", "full"], default="edges")
     ba.add_argument("--json", action="store_true")
     ba.set_defaults(fn=cmd_bench_accuracy)
