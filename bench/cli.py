@@ -84,8 +84,9 @@ def cmd_bench_accuracy(a) -> int:
     GGX α (albedo 0.1, specular 0.8), with the reference's own noise and each mode's frame time
     (after a warm-up frame; light and BRDF fixed, so the view's refinement candidates are
     cached). Glint renders with ``samples`` per pixel where ``antialias`` puts them (default the
-    studio's settled frame: STILL_SAMPLES at edges and curved highlights), since a reference pixel is the
-    mean over its area: one sample against it counts the aliasing of fine detail as error."""
+    studio's settled frame: STILL_SAMPLES at edges and curved highlights), since a reference
+    pixel is the mean over its area: one sample against it counts the aliasing of fine detail as
+    error."""
     import numpy as np
     from scipy.ndimage import binary_erosion
 

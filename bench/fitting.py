@@ -229,13 +229,14 @@ def glossy_highlight(fx, view: int = 0, alpha: float = 0.1):
 
 def paint_colour(fx, view: int = 0, tint=(1.6, 0.8, 0.5)):
     """A colour change a real material gives: ("paint colour", Stroke, its luminance over the
-    base's along the stroke) for the fitter's object. The base material with its diffuse albedo tinted by ``tint`` (the standard colour
-    change's factors), scaled down where needed so that albedo plus specular stays within 1 in
-    every channel (a paint of that hue as bright as energy allows), rendered; the standard stroke
-    asks for its mean radiance over the stroke's core (brush weight ≥ 0.5). The standard colour
-    change asks for the base's mean radiance tinted, one colour along a stroke whose light
-    varies, which needs an albedo above 1 where the light is dimmer; this one is within energy by
-    construction."""
+    base's along the stroke) for the fitter's object.
+
+    The base material with its diffuse albedo tinted by ``tint`` (the standard colour change's
+    factors), scaled down where needed so that albedo plus specular stays within 1 in every
+    channel (a paint of that hue as bright as energy allows), rendered; the standard stroke asks
+    for its mean radiance over the stroke's core (brush weight ≥ 0.5). The standard colour change
+    asks for the base's mean radiance tinted, one colour along a stroke whose light varies, which
+    needs an albedo above 1 where the light is dimmer; this one is within energy by construction."""
     import numpy as np
 
     from worker.fit.brush import stroke_weights
@@ -426,10 +427,10 @@ def _frame_times(r, cam, lighting, materials: dict, frames: int) -> dict:
 
 
 def cmd_bench_regions(a) -> int:
-    """``glint bench strokes --regions``: per scene × map × standard stroke, the glossy
-    highlight and the paint colour (``glossy_highlight``, ``paint_colour``: what a real material
-    gives there), a region fit and a one-BRDF fit (unpainted weight 0.25, albedo fitted), each measured in rendered frames at the
-    view's resolution (worker/fit/regions.py ``rendered_effect``), and the frame cost of the
+    """``glint bench strokes --regions``: per scene × map × stroke (the standard strokes, the
+    glossy highlight and the paint colour: ``glossy_highlight``, ``paint_colour``, what a real
+    material gives there), a region fit and a one-BRDF fit (unpainted weight 0.25, albedo fitted),
+    each measured in rendered frames at the view's resolution (worker/fit/regions.py ``rendered_effect``), and the frame cost of the
     object with its region against the same object with one material."""
     import os
 
@@ -448,8 +449,9 @@ def cmd_bench_regions(a) -> int:
             fx = Fitter(rnd, name, fit_scale=a.fit_scale or rnd.stroke_fit_scale)
             fx.add_view()
             v = fx.views[0]
-            glossy = glossy_highlight(fx)
-            for label, st in standard_strokes(fx) + [glossy[:2], paint_colour(fx)[:2]]:
+            real = [glossy_highlight(fx), paint_colour(fx)]
+            gains = {label: gain for label, _, gain in real}
+            for label, st in standard_strokes(fx) + [(label, st) for label, st, _ in real]:
                 fx.history.clear()
                 fx.add_stroke(st)
                 fx._last = None
@@ -478,7 +480,7 @@ def cmd_bench_regions(a) -> int:
                 res.append({"scene": Path(s).stem, "renderer": sc.spec.renderer,
                             "env": Path(env).name if env else Path(sc.spec.environment.map).name,
                             "object": name, "vertices": int((sc.object_of_vertex == 0).sum()), "stroke": label,
-                            "ask_over_base": glossy[2] if label == glossy[0] else None,
+                            "ask_over_base": gains.get(label),
                             "region_vertices": sum(len(g.vertices) for g in reg.regions), "parts": reg.parts,
                             "tried": reg.tried,
                             "rendered": {k: got[k] for k in ("achieved", "spill", "spill_far")},
