@@ -180,6 +180,20 @@ def _view_radiance(fx, material, view: int = 0):
     return img[px[:, 1], px[:, 0]].astype(np.float64)
 
 
+def _ask_along(v, stroke, rad):
+    """What a stroke asks when it asks for the radiance ``rad`` (n, 3) of a view's fit pixels:
+    (its mean over the stroke's core (brush weight ≥ 0.5) (3,), that mean's luminance over the
+    base's there, the core's pixel count)."""
+    from worker.core.tonemap import LUMA
+    from worker.fit.brush import stroke_weights
+
+    core = stroke_weights(stroke, v.xy, v.footprint) >= 0.5
+    if not core.any():
+        return None, 0.0, 0
+    ask = rad[core].mean(0)
+    return ask, float(ask @ LUMA / max(float(v.base[core].mean(0) @ LUMA), 1e-12)), int(core.sum())
+
+
 def glossy_highlight(fx, view: int = 0, alpha: float = 0.1):
     """A highlight a real material gives: ("glossy highlight", Stroke, its luminance over the
     base's along the stroke) for the fitter's object.
@@ -198,10 +212,8 @@ def glossy_highlight(fx, view: int = 0, alpha: float = 0.1):
     not the light's."""
     import numpy as np
 
-    from worker.fit.brush import stroke_weights
     from worker.scene import GGX
 
-    luma = np.array([0.2126, 0.7152, 0.0722])
     v = fx.views[view]
     hl = standard_strokes(fx, view)[0][1]
     albedo = np.asarray(fx.base_material.albedo, np.float64)
@@ -215,12 +227,11 @@ def glossy_highlight(fx, view: int = 0, alpha: float = 0.1):
             continue
         x0, x1 = float(np.quantile(row, 0.25)), float(np.quantile(row, 0.75))
         st = hl.model_copy(update={"points": [(x0, float(y0)), (0.5 * (x0 + x1), float(y0) + 2.0), (x1, float(y0))]})
-        core = stroke_weights(st, v.xy, v.footprint) >= 0.5
-        if core.sum() < 8:
+        ask, gain, n = _ask_along(v, st, rad)
+        if n < 8:
             continue
-        gain = float(rad[core].mean(0) @ luma / max(float(v.base[core].mean(0) @ luma), 1e-12))
         if best is None or gain > best[0]:
-            best = (gain, st, rad[core].mean(0))
+            best = (gain, st, ask)
     if best is None:
         raise RuntimeError("the object is too small in the view for a stroke")
     gain, st, color = best
@@ -239,8 +250,6 @@ def paint_colour(fx, view: int = 0, tint=(1.6, 0.8, 0.5)):
     needs an albedo above 1 where the light is dimmer; this one is within energy by construction."""
     import numpy as np
 
-    from worker.fit.brush import stroke_weights
-
     v = fx.views[view]
     st = standard_strokes(fx, view)[2][1]
     base = fx.base_material
@@ -248,10 +257,7 @@ def paint_colour(fx, view: int = 0, tint=(1.6, 0.8, 0.5)):
     spec = float(np.max(getattr(base, "specular", (0.0, 0.0, 0.0))))
     albedo *= min(1.0, (1.0 - spec) / max(float(albedo.max()), 1e-12))
     rad = _view_radiance(fx, base.model_copy(update={"albedo": tuple(float(x) for x in albedo)}), view)
-    core = stroke_weights(st, v.xy, v.footprint) >= 0.5
-    color = rad[core].mean(0)
-    luma = np.array([0.2126, 0.7152, 0.0722])
-    gain = float(color @ luma / max(float(v.base[core].mean(0) @ luma), 1e-12))
+    color, gain, _ = _ask_along(v, st, rad)
     return "paint colour", st.model_copy(update={"color": tuple(float(x) for x in color)}), gain
 
 

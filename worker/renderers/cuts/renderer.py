@@ -749,12 +749,16 @@ class CutRenderer(Renderer):
             got = (v.edges or {}).get(samples)
         if got is not None:
             return got
-        cam = v.camera
-        e = self._sample_view(v, edge_pixels(v.tri, self.scene.mesh.faces, self.scene.object_of_face, cam.height,
-                                             cam.width, self.k), samples)
+        e = self._sample_view(v, self._edge_pixels(v), samples)
         with self._lock:
             v.edges = {**(v.edges or {}), samples: e}
         return e
+
+    def _edge_pixels(self, v: View) -> np.ndarray:
+        """(n,) int64 flat indices of a one-sample view's pixels next to a silhouette, an occlusion
+        or a crease (edges.edge_pixels): where the anti-aliased frame takes its samples."""
+        cam = v.camera
+        return edge_pixels(v.tri, self.scene.mesh.faces, self.scene.object_of_face, cam.height, cam.width, self.k)
 
     def _trace_pixels(self, cam, pix: np.ndarray, samples: int):
         """The S sample rays through each of the camera's pixels pix (n,) int64 (rows i·S + s,
@@ -859,10 +863,8 @@ class CutRenderer(Renderer):
     def edge_mask(self, camera) -> np.ndarray:
         """(H, W) bool: the pixels the anti-aliased frame samples as edges (edges.edge_pixels:
         next to a silhouette, an occlusion or a crease)."""
-        v = self.view(camera)
         out = np.zeros(camera.height * camera.width, bool)
-        out[edge_pixels(v.tri, self.scene.mesh.faces, self.scene.object_of_face, camera.height, camera.width,
-                        self.k)] = True
+        out[self._edge_pixels(self.view(camera))] = True
         return out.reshape(camera.height, camera.width)
 
     # -- what the fitter asks ------------------------------------------------------------------
