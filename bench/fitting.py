@@ -462,7 +462,7 @@ def cmd_bench_regions(a) -> int:
                 fx.add_stroke(st)
                 fx._last = None
                 t0 = time.perf_counter()
-                reg = fit_region_gi(fx, name=label) if gi else fit_region(fx, name=label, parts=a.parts)
+                reg = fit_region_gi(fx, name=label, parts=a.parts) if gi else fit_region(fx, name=label, parts=a.parts)
                 t_reg = time.perf_counter() - t0
                 one = fx.fit(unpainted_weight=0.25, fit_albedo=True)
                 got = rendered_effect(rnd, 0, v.camera, v.lighting, fx.base_material, reg.material, [st])

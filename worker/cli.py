@@ -201,10 +201,11 @@ def cmd_fit(a) -> int:
         uw = a.unpainted_weight if a.unpainted_weight is not None else (
             sf.unpainted_weight if sf.unpainted_weight is not None else DEFAULT_UNPAINTED_WEIGHT)
         if a.regions and r.can("polynomial_transfer"):
-            # GI: one part, its material fitted through the tensors
+            # GI: the region's material fitted through the tensors
             from .fit.regions import fit_region_gi
 
-            out = fit_region_gi(fx, name=a.region_name, unpainted_weight=uw, constrained=not a.unconstrained)
+            out = fit_region_gi(fx, name=a.region_name, unpainted_weight=uw, constrained=not a.unconstrained,
+                                parts=a.region_parts)
         elif a.regions:
             from .fit.regions import fit_region
 

@@ -129,6 +129,9 @@ class RegionOutcome:
     views: list = field(default_factory=list, repr=False)   # per view: (base, target, painted, far, pred)
     guidance: dict | None = None        # guidance.highlight_guidance of a brightening stroke
     tried: list = field(default_factory=list)                # (parts, achieved) of each attempt
+    # GI: relative RMS between the fit's model of the region's samples (its rows times the
+    # solution) and the frame drawn there (0 up to the tensors' half floats where it is exact)
+    model_gap: float | None = None
 
     @property
     def region(self) -> Region:
@@ -252,7 +255,7 @@ def fit_region(fx: Fitter, name: str = "region 1", unpainted_weight: float = DEF
 
 def fit_region_gi(fx: Fitter, name: str = "region 1", unpainted_weight: float = DEFAULT_UNPAINTED_WEIGHT,
                   fit_albedo: bool = DEFAULT_REGION_ALBEDO, constrained: bool = True,
-                  n_l: int = DEFAULT_NL) -> RegionOutcome:
+                  n_l: int = DEFAULT_NL, parts: int | str = 1) -> RegionOutcome:
     """``fit_region`` under global illumination (a renderer with ``polynomial_transfer``): the
     region from the strokes' footprint as in direct light, its material fitted through the GI
     tensors. The GI renderer draws a painted region at the camera hits as a unit of its own
@@ -262,7 +265,15 @@ def fit_region_gi(fx: Fitter, name: str = "region 1", unpainted_weight: float = 
     expansion of eq. 28, exact here) fits it. A region traced into the tensors (GI options
     ``painted``, its weights unchanged by the strokes) is that unit, tails included: the
     radiance is then polynomial in it, and Gauss-Newton steps re-expand it at each solution as
-    the one-BRDF fit does. One part; the rest keeps its material."""
+    the one-BRDF fit does. The rest keeps its material.
+
+    parts : as ``fit_region`` (its vertices grouped by mirror direction in the precomputed view,
+        a BRDF each). Each part is a unit drawn at the camera hits; its weight at a hit is its
+        vertices' share of the region's interpolated weight, so a pixel's rows are the one-part
+        rows times that share (the first vertex's transport does not depend on the unit). A
+        region traced into the tensors stays one part (its unit is the traced one)."""
+    if parts != "auto" and not (isinstance(parts, int) and 1 <= parts <= 16):
+        raise FitError(f"parts must be 1 to 16 or 'auto', got {parts!r}")
     r = fx.renderer
     t0 = time.perf_counter()
     fp = _footprint(fx, name, unpainted_weight)
@@ -270,22 +281,25 @@ def fit_region_gi(fx: Fitter, name: str = "region 1", unpainted_weight: float = 
     plain_below = below.base if has_regions(below) else below
     start = olds[0].material if olds else plain_below
     ids = np.nonzero(w > 0)[0]
-    wts = np.round(w[ids].astype(np.float64), 6).tolist()
     rest = list(below.regions) if has_regions(below) else []
 
-    def with_material(m):
-        reg = Region(name=name, material=m, vertices=ids.tolist(), weights=wts)
-        return reg, Regions(base=plain_below, vertex_count=n_o, regions=rest + [reg])
+    def with_regions(regs):
+        return Regions(base=plain_below, vertex_count=n_o, regions=rest + regs)
 
-    _, painted_start = with_material(start)
+    one_region = Region(name=name, material=start, vertices=ids.tolist(),
+                        weights=np.round(w[ids].astype(np.float64), 6).tolist())
     targets, _ = fx.targets()
     mats = list(r.objects_materials or [o.material for o in r.scene.spec.objects])
-    mats[fx.obj] = painted_start
+    mats[fx.obj] = with_regions([one_region])
     # only the pixels the region touches depend on its material (elsewhere a row is a constant):
     # the rows and the solve scale with the region, not the object
     inside = [np.nonzero((w[r.sample_corners(v.samples) - off] > 0).any(1))[0] for v in fx.views]
-    lin, steps = start, 0
+    counts = AUTO_PARTS if parts == "auto" else (parts,)
+    lin, steps, first = start, 0, None
     with r.painting(fx.obj, name, mats):
+        traced = r.region_traced(fx.obj, name)
+        if traced:
+            counts = (1,)
         while True:
             rows, lins = [], []
             for v, (tgt, painted), ins in zip(fx.views, targets, inside):
@@ -295,6 +309,7 @@ def fit_region_gi(fx: Fitter, name: str = "region 1", unpainted_weight: float = 
                 lins.append((smp, T, E, R0))
             if not any(np.any(x.weight > 0) for x in rows):
                 raise FitError("nothing to fit: no painted pixel and unpainted_weight is 0")
+            first = first or rows
             res = solve(rows, fx.basis, np.asarray(plain_below.albedo, np.float64), constrained=constrained,
                         n_l=n_l, prior=None, fit_albedo=fit_albedo)
             steps += 1
@@ -310,11 +325,105 @@ def fit_region_gi(fx: Fitter, name: str = "region 1", unpainted_weight: float = 
                 pred = alb * E + np.stack([T[c] @ res.coefficients[:, c] for c in range(3)], 1) + R0
                 num += float(((exact - pred) ** 2).sum())
                 den += float((exact ** 2).sum())
-            if np.sqrt(num / max(den, 1e-300)) <= GN_TOL or steps >= GN_STEPS:
+            gap = float(np.sqrt(num / max(den, 1e-300)))
+            if gap <= GN_TOL or steps >= GN_STEPS:
                 break
             lin = mat
-    region, material = with_material(mat)
-    mats[fx.obj] = material
+    n_rows = int(sum(len(x.weight) for x in first))
+    best, tried = None, []
+    mirror = None
+
+    def one_part():
+        region = Region(name=name, material=mat, vertices=one_region.vertices, weights=one_region.weights)
+        out = _gi_outcome(fx, with_regions([region]), [region], res, n_rows, targets)
+        out.model_gap = gap
+        return out
+
+    for k in counts:
+        if k == 1:
+            out = one_part()
+        else:
+            if mirror is None:
+                mirror = np.zeros((n_o, 3))
+                mirror[ids] = r.vertex_mirrors(ids + off)
+            out = _gi_parts(fx, first, inside, w, off, n_o, k, mirror, name, plain_below, with_regions, fit_albedo,
+                            constrained, n_l, n_rows, targets)
+            if out is None:
+                continue
+        tried.append((out.parts, out.achieved))
+        if best is None or (out.achieved or 0) > (best.achieved or 0) + 0.02:
+            best = out
+        if parts == "auto" and (best.achieved is None or best.achieved >= 0.8):
+            break
+    if best is None:                                  # the partition left one part
+        best = one_part()
+        tried.append((1, best.achieved))
+    best.tried = tried
+    best.extended = bool(olds)
+    best.seconds_transfer = time.perf_counter() - t0
+    if not traced:
+        best.notes.append("under global illumination this region is drawn where the camera sees it; the light it "
+                          "reflects on to other surfaces is the object's own material's until the design's regions "
+                          "are traced into the tensors (glint gi precompute --trace-regions)")
+    return best
+
+
+def _gi_parts(fx, rows, inside, w, off, n_o, k, mirror, name, plain_below, with_regions, fit_albedo, constrained,
+              n_l, n_rows, targets):
+    """The GI region fit in k parts (``fit_region_gi``): the one-part rows (FitRows per view over
+    the samples ``inside``) times each part's share of the region's weight at the sample, one
+    stacked solve (solve.solve_blocks). None when the partition leaves fewer than two parts."""
+    r = fx.renderer
+    lab = _partition(w, mirror, k)
+    used = [p for p in range(k) if np.any(lab == p)]
+    if len(used) < 2:
+        return None
+    k = len(used)
+    remap = np.full(max(used) + 2, -1)
+    remap[used] = np.arange(k)
+    lab = np.where(lab >= 0, remap[lab], -1)
+    J = fx.basis.J
+    As, tg, wt, r0 = [], [], [], []
+    for v, ins, x, (tgt, _) in zip(fx.views, inside, rows, targets):
+        smp = _take(v.samples, ins)
+        corners = r.sample_corners(smp) - off                     # (n, 3) object vertex ids
+        bw = r.sample_barycentrics(smp) * w[corners]              # (n, 3) each corner's weight there
+        hp = np.stack([(bw * (lab[corners] == i)).sum(1) for i in range(k)], 1)
+        share = hp / np.maximum(hp.sum(1, keepdims=True), 1e-300)  # (n, k)
+        A = np.zeros((3, len(ins), k * (J + 1)), np.float32)
+        for i in range(k):
+            for c in range(3):
+                A[c, :, i * (J + 1):i * (J + 1) + J] = share[:, i, None] * x.T[c]
+                A[c, :, i * (J + 1) + J] = share[:, i] * x.E[:, c]
+        As.append(A)
+        tg.append(x.target)
+        wt.append(x.weight)
+        r0.append(tgt[ins] - x.target)                            # the part no region unit changes
+    albedo = np.asarray(plain_below.albedo, np.float64)
+    res = solve_blocks(np.concatenate(As, axis=1), np.concatenate(tg), np.concatenate(wt), fx.basis, k,
+                       np.repeat(albedo[None], k, 0), constrained=constrained, n_l=n_l)
+    regions = []
+    for i in range(k):
+        vid = np.nonzero(lab == i)[0]
+        mat = SRBF.model_validate(fx.basis.to_material(res.coefficients[i], res.albedo[i]))
+        regions.append(Region(name=f"{name}/{i + 1}", material=mat, vertices=vid.tolist(),
+                              weights=np.round(w[vid].astype(np.float64), 6).tolist()))
+    out = _gi_outcome(fx, with_regions(regions), regions, res, n_rows, targets)
+    xs = np.concatenate([res.coefficients, res.albedo[:, None]], axis=1).reshape(k * (J + 1), 3)
+    num = den = 0.0
+    for A, R0, ins, view in zip(As, r0, inside, out.views):
+        model = np.stack([A[c].astype(np.float64) @ xs[:, c] for c in range(3)], 1) + R0
+        exact = view[4][ins]
+        num += float(((exact - model) ** 2).sum())
+        den += float((exact ** 2).sum())
+    out.model_gap = float(np.sqrt(num / max(den, 1e-300)))
+    return out
+
+
+def _gi_outcome(fx, material, regions, res, n_rows, targets) -> RegionOutcome:
+    """A GI region fit's outcome: the object's material drawn (exact GI frames at the views'
+    samples), achieved and spill against the strokes' targets."""
+    r = fx.renderer
     by_view = _strokes_by_view(fx)
     views = []
     for vi, (v, (tgt, painted)) in enumerate(zip(fx.views, targets)):
@@ -327,14 +436,9 @@ def fit_region_gi(fx: Fitter, name: str = "region 1", unpainted_weight: float = 
     achieved, spill = stroke_effect(bases, tgts, pnt, preds)
     _, spill_far = stroke_effect(bases, tgts, [~f for f in fars], preds)
     n_painted = int(sum(p.sum() for p in pnt))
-    out = RegionOutcome(material, [region], res, sum(v.n for v in fx.views), n_painted,
-                        int(sum(len(x.weight) for x in rows)), [], time.perf_counter() - t0, achieved, spill, spill_far,
-                        bool(olds), views)
+    out = RegionOutcome(material, regions, res, sum(v.n for v in fx.views), n_painted, n_rows, [], 0.0, achieved,
+                        spill, spill_far, False, views)
     out.notes = region_notes(achieved, res, 0, n_painted)
-    if not r.region_traced(fx.obj, name):
-        out.notes.append("under global illumination this region is drawn where the camera sees it; the light it "
-                         "reflects on to other surfaces is the object's own material's until the design's regions "
-                         "are traced into the tensors (glint gi precompute --trace-regions)")
     return out
 
 

@@ -728,6 +728,19 @@ class GIRenderer(Renderer):
         """(N, 3) int64 global vertex ids of the faces the samples' camera rays hit."""
         return self.geo.F[self.prim.face[samples.hit]]
 
+    def sample_barycentrics(self, samples: "GISamples") -> np.ndarray:
+        """(N, 3) float64 barycentric weights of the samples' hits in their faces (the corners
+        of ``sample_corners``): a painted region's weight at a sample is their blend."""
+        return self.prim.bary[samples.hit]
+
+    def vertex_mirrors(self, ids: np.ndarray) -> np.ndarray:
+        """(K, 3) float64 unit mirror directions of the precomputed view at vertices ``ids``
+        (global): the direction to the eye reflected about the vertex normal."""
+        n = self.geo.N[ids]
+        wo = np.asarray(self.scene.spec.camera.eye, np.float64) - self.geo.V[ids]
+        wo /= np.maximum(np.linalg.norm(wo, axis=1, keepdims=True), 1e-300)
+        return 2.0 * (n * wo).sum(1, keepdims=True) * n - wo
+
     def surface_samples(self, camera, object_index: int, pixels: np.ndarray | None = None) -> "GISamples":
         """The object's hit pixels of the precomputed view (the fitter's rows). pixels : (M,)
         int64 flat image indices to look at; ``pix`` then indexes ``pixels``."""
