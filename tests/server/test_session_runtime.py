@@ -675,3 +675,66 @@ def test_a_save_sends_the_settled_frame_again_without_drawing(bunny_renderer):
     rt.handle({"seq": 3, "type": "material", "material": Lambert(albedo=(0.3, 0.5, 0.2)).model_dump()})
     rt.frame(3)
     assert len(seen) == drawn + 2, seen
+
+
+def _settle_background(rt, ack: int, timeout: float = 240.0) -> list[dict]:
+    """Frames and background work until the session has nothing more to take (completed fit
+    views, a region fit in parts): the fit events it emitted meanwhile, in order."""
+    fits = []
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        rt.frame(ack)
+        rt.after_frame()
+        futs = [f for _, _, f in rt._completions.values()]
+        if rt._parts_future is not None:
+            futs.append(rt._parts_future[2])
+        for f in futs:
+            f.result(timeout=max(1.0, end - time.monotonic()))
+        if not rt.absorb() and not futs:
+            rt.prefetch()
+            if not rt._completions and rt._parts_future is None and rt._parts_pending is None:
+                return fits
+        fits += [e for e in rt.fit_if_needed() + rt.take_events() if e.get("type") == "fit"]
+    raise AssertionError(f"the session's background work did not settle in {timeout} s")
+
+
+def test_a_region_stroke_short_of_its_change_is_refitted_in_parts(bunny_renderer):
+    """A white highlight across the bunny painted as a region: on the stroke's path the region is
+    fitted in one part, which falls short of the change; after the frame the same strokes are
+    fitted in parts in the background (the fit's stats say one will follow), and the session
+    takes that fit (a fit event marked ``refined_in_parts``, the material with the parts) as it
+    reaches more of the change. Undo refits the strokes left, and a stale result is dropped."""
+    from worker.models import Regions
+
+    rt = _runtime(bunny_renderer)
+    rt.frame(0)
+    rt.handle({"seq": 1, "type": "region", "action": "paint", "name": "hl"})
+    rt.handle({"seq": 2, "type": "stroke", "stroke": STROKE})
+    first = rt.fit_if_needed()[0]["stats"]
+    assert first["parts"] == 1 and first["achieved"] < 0.8 and first["parts_later"], first
+    fits = _settle_background(rt, 2)
+    one = [f["stats"] for f in fits if not f["stats"].get("refined_in_parts")]
+    parts = [f["stats"] for f in fits if f["stats"].get("refined_in_parts")]
+    last_one = (one or [first])[-1]
+    print(f"region highlight in the session: one part {last_one['achieved']:.3f}, "
+          f"in parts {[(p['parts'], round(p['achieved'], 3)) for p in parts]}")
+    assert len(parts) == 1, fits
+    p = parts[0]
+    assert p["parts"] >= 2 and p["achieved"] >= last_one["achieved"] + 0.02, (last_one, p)
+    assert p["regions"] == ["hl"]                # one region in the studio's list, in parts
+    m = rt.state.materials[0]
+    assert isinstance(m, Regions) and [g.name for g in m.regions] == [f"hl/{i + 1}" for i in range(p["parts"])]
+    # a stroke after it: fitted in one part again, and a parts fit started for the old strokes
+    # is dropped when it arrives after a newer fit
+    rt.handle({"seq": 3, "type": "stroke", "stroke": {**STROKE, "points": [[60, 76], [86, 78]]}})
+    assert rt.fit_if_needed()[0]["stats"]["parts"] == 1
+    rt.frame(3)
+    rt.after_frame()
+    key = rt._parts_key()
+    rt._fit_serial += 1                          # as a newer fit would
+    if rt._parts_future is not None:
+        rt._parts_future[2].result(timeout=240)
+    assert not rt._absorb_parts() and rt._parts_key() != key
+    rt.handle({"seq": 4, "type": "undo"})
+    rt.handle({"seq": 5, "type": "undo"})
+    assert rt.fit_if_needed()[0]["material"]["model"] != "regions"

@@ -123,6 +123,9 @@ export function fitSummary(s) {
   const parts = [`fit: ${s.strokes} stroke(s), ${s.painted} painted px, solve ${s.ms_solve?.toFixed(1)} ms`];
   if (s.achieved != null) parts.push(`achieved ${Math.round(100 * s.achieved)}% of the change`);
   if (s.painting) parts.push(`region “${s.painting}”`);
+  // a region fit short of the change is fitted again in parts after its frame (a second fit event)
+  if (s.refined_in_parts) parts.push(`in ${s.parts} parts (one BRDF each)`);
+  else if (s.parts_later) parts.push("fitting it in parts…");
   if (s.spill != null) parts.push(`spill ${Math.round(100 * s.spill)}% onto unpainted pixels`);
   if (s.spill_far != null) parts.push(`${Math.round(100 * s.spill_far)}% beyond one brush diameter`);
   if (!s.constrained) parts.push("unconstrained");

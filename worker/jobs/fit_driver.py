@@ -13,6 +13,7 @@ reads: ``state``, ``renderer``, ``_drag``, ``closed`` and ``wake``.
 """
 from __future__ import annotations
 
+import copy
 import threading
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -44,6 +45,10 @@ BUILD_TRIES = 2
 VT_AFTER_STROKES = 2
 # how much lower the background builder's threads run than the session threads (nice levels)
 BUILDER_NICE = 10
+# a region stroke is fitted in one part on the path to its frame; when that reaches less than
+# SHORT of the change, the same strokes are fitted in parts (fit/regions.py, "auto") in the
+# background after the frame, and a fit that gains PARTS_GAIN replaces it with a frame of its own
+PARTS_GAIN = 0.02
 
 
 def _lower_priority() -> None:
@@ -85,11 +90,15 @@ class FitDriver:
         # (view index, moves) -> failed full builds; after BUILD_TRIES the quick view is kept
         self._build_failures: dict[tuple[int, int], int] = {}
         self._view_changed_at = -1e9    # time.monotonic() of the last camera or light change
+        self._fit_serial = 0            # counts fits: a background result of an older one is dropped
+        self._parts_pending = None      # (key, fit, kwargs, one-part outcome) to refit in parts
+        self._parts_future = None       # (key, one-part achieved, future of the parts fit)
 
     def _drop_fit_work(self) -> None:
         """Queued and finished background builds no longer apply (a new placement, epoch or renderer)."""
         self._pending.clear()
         self._completions.clear()
+        self._parts_pending = self._parts_future = None
 
     def _ensure_fitter(self) -> Fitter:
         if self.fitter is None:
@@ -204,7 +213,59 @@ class FitDriver:
                 fx.views[i] = view
                 self._needs_fit = bool(len(fx.history))
                 changed = True
-        return changed
+        return self._absorb_parts() or changed
+
+    def _parts_key(self) -> tuple:
+        """What a region fit in parts answers: the fit it refines, its region, base and fitter."""
+        return (self._fit_serial, self.state.region, id(self.state.base_material), id(self.fitter), self.state.epoch)
+
+    def _start_parts(self) -> None:
+        """After a region stroke's frame: fit the same strokes in parts in the background (a copy
+        of the fitter's strokes and views, so strokes arriving meanwhile do not change what it
+        reads), once no view of theirs is still being completed (that refits in one part)."""
+        pend = self._parts_pending
+        if pend is None or self.fit_pending() or self.closed:
+            return
+        self._parts_pending = None
+        key, fit, kwargs, one = pend
+        if key != self._parts_key():
+            return
+        fx = copy.copy(self.fitter)
+        fx.views = list(self.fitter.views)
+        fx.history = type(self.fitter.history)(self.fitter.history.strokes)
+
+        def run():
+            try:
+                return fit(fx, parts="auto", **kwargs)
+            except Exception as e:             # the one-part fit stays
+                return e
+        fut = self._submit(run)
+        self._parts_future = (key, one.achieved, fut)
+        fut.add_done_callback(lambda _f: self.wake())
+
+    def _absorb_parts(self) -> bool:
+        """A finished region fit in parts replaces the one-part fit it refines when that is still
+        the session's latest and the parts reach PARTS_GAIN more of the change: the material
+        is set and a fit event says so (its frame follows). Returns whether it did."""
+        pf = self._parts_future
+        if pf is None or not pf[2].done():
+            return False
+        self._parts_future = None
+        key, before, fut = pf
+        out = None if fut.cancelled() else fut.result()
+        if key != self._parts_key() or not hasattr(out, "achieved") or out.achieved is None:
+            return False
+        if out.parts < 2 or out.achieved < (before or 0.0) + PARTS_GAIN:
+            return False
+        st = self.state
+        self._set_material(st.object_index, out.material)
+        self._fitted = out.material
+        self._quick_next = False
+        self._curve_later(st.object, out.material)
+        self.events.append(FitEvent(object=st.object, material=_dump(out.material),
+                                    stats=self._region_stats(out, refined=True),
+                                    notes=out.notes).model_dump(exclude_none=True))
+        return True
 
     def _add_stroke(self, rec: dict, live: bool = False) -> StrokeEvent:
         """Add a stored or new (``live``) stroke record; a stroke that cannot apply is rejected
@@ -226,6 +287,8 @@ class FitDriver:
         if not self._needs_fit:
             return []
         self._needs_fit = False
+        self._fit_serial += 1
+        self._parts_pending = self._parts_future = None
         fx = self.fitter
         i = self.state.object_index
         if fx is None or len(fx.history) == 0:
@@ -276,7 +339,9 @@ class FitDriver:
                                   if short else None)
 
     def after_frame(self) -> list[dict]:
-        """Events that wait for the frame they follow (a fit's curve event; its guidance event)."""
+        """Events that wait for the frame they follow (a fit's curve event; its guidance event),
+        and a region fit in parts started (``_start_parts``)."""
+        self._start_parts()
         out = []
         if getattr(self, "_curve_pending", None) is not None:
             name, m = self._curve_pending
@@ -298,26 +363,38 @@ class FitDriver:
 
     def _fit_region(self) -> list[dict]:
         """The strokes make or extend the state's region (fit/regions.py): one part, so a stroke's
-        frame does not wait for a stacked solve; the rest of the object keeps its material."""
+        frame does not wait for a stacked solve; the rest of the object keeps its material. A fit
+        short of the change is fitted again in parts after the frame (``_start_parts``)."""
         from ..fit.regions import fit_region, fit_region_gi
-        from ..models.regions import region_names
 
         fx, st = self.fitter, self.state
         fit = fit_region_gi if self.renderer.can("polynomial_transfer") else fit_region
-        out = fit(fx, name=st.region, unpainted_weight=st.unpainted_weight, constrained=st.constrained)
+        kwargs = {"name": st.region, "unpainted_weight": st.unpainted_weight, "constrained": st.constrained}
+        out = fit(fx, **kwargs)
         self._set_material(st.object_index, out.material)
         self._fitted = out.material
         self._quick_next = True
-        s = out.solve
-        stats = {"strokes": len(fx.history), "pixels": out.pixels, "painted": out.painted, "views": len(fx.views),
-                 "ms_solve": s.seconds * 1e3, "ms_transfer": out.seconds_transfer * 1e3,
-                 "residual_rel": s.residual_rel, "energy_max": s.energy_max, "constrained": s.constrained,
-                 "achieved": out.achieved, "spill": out.spill, "spill_far": out.spill_far,
-                 "regions": region_names(out.material), "painting": st.region, "region": out.report()}
         self._curve_later(st.object, out.material)
         self._guidance_later(out.achieved, out.guidance, measure=False)
-        return [FitEvent(object=st.object, material=_dump(out.material), stats=stats,
+        traced = getattr(self.renderer, "region_traced", None)
+        if out.achieved is not None and out.achieved < SHORT and not (traced and traced(st.object_index, st.region)):
+            self._parts_pending = (self._parts_key(), fit, kwargs, out)
+        return [FitEvent(object=st.object, material=_dump(out.material), stats=self._region_stats(out),
                          notes=out.notes).model_dump(exclude_none=True)]
+
+    def _region_stats(self, out, refined: bool = False) -> dict:
+        """A region fit's stats for its fit event (``parts_later``: a fit in parts will follow;
+        ``refined``: this is that fit)."""
+        from ..models.regions import region_names
+
+        fx, st, s = self.fitter, self.state, out.solve
+        return {"strokes": len(fx.history), "pixels": out.pixels, "painted": out.painted, "views": len(fx.views),
+                "ms_solve": s.seconds * 1e3, "ms_transfer": out.seconds_transfer * 1e3,
+                "residual_rel": s.residual_rel, "energy_max": s.energy_max, "constrained": s.constrained,
+                "achieved": out.achieved, "spill": out.spill, "spill_far": out.spill_far,
+                "regions": region_names(out.material), "painting": st.region, "region": out.report(),
+                "parts": out.parts, "parts_later": self._parts_pending is not None and not refined,
+                "refined_in_parts": refined}
 
     # -- background work ----------------------------------------------------------------------------
     def prefetch(self) -> float:
