@@ -222,9 +222,10 @@ class FitDriver:
     def _start_parts(self) -> None:
         """After a region stroke's frame: fit the same strokes in parts in the background (a copy
         of the fitter's strokes and views, so strokes arriving meanwhile do not change what it
-        reads), once no view of theirs is still being completed (that refits in one part)."""
+        reads), once no view of theirs is still being completed (that refits in one part) and
+        the user is not dragging (the builder would take a core from the drag's frames)."""
         pend = self._parts_pending
-        if pend is None or self.fit_pending() or self.closed:
+        if pend is None or self.fit_pending() or self.closed or self._drag:
             return
         self._parts_pending = None
         key, fit, kwargs, one = pend
