@@ -78,7 +78,8 @@ def cli_page() -> str:
             default = "" if a.default in (None, argparse.SUPPRESS, False) or a.required else f"`{a.default}`"
             choices = ", ".join(f"`{c}`" for c in a.choices) if a.choices else ""
             req = "yes" if (a.required or not a.option_strings) else ""
-            rows.append(f"| {flag} | {req} | {default} | {choices} | {cell(a.help)} |\n")
+            # argparse's help strings escape % as %% (they are %-formatted when printed)
+            rows.append(f"| {flag} | {req} | {default} | {choices} | {cell((a.help or '').replace('%%', '%'))} |\n")
         if rows:
             out.append("| argument | required | default | choices | help |\n|---|---|---|---|---|\n")
             out.extend(rows)
