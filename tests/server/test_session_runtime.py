@@ -738,3 +738,31 @@ def test_a_region_stroke_short_of_its_change_is_refitted_in_parts(bunny_renderer
     rt.handle({"seq": 4, "type": "undo"})
     rt.handle({"seq": 5, "type": "undo"})
     assert rt.fit_if_needed()[0]["material"]["model"] != "regions"
+
+
+def test_a_fit_in_parts_that_gains_nothing_is_said(bunny_renderer, monkeypatch):
+    """The studio was told a fit in parts would follow (``parts_later``): when it reaches no more
+    of the change (here: a gain it cannot make), a note says so and the one-part fit stays."""
+    from worker.jobs import fit_driver
+
+    monkeypatch.setattr(fit_driver, "PARTS_GAIN", 10.0)
+    rt = _runtime(bunny_renderer)
+    rt.frame(0)
+    rt.handle({"seq": 1, "type": "region", "action": "paint", "name": "hl"})
+    rt.handle({"seq": 2, "type": "stroke", "stroke": STROKE})
+    assert rt.fit_if_needed()[0]["stats"]["parts_later"]
+    notes = []
+    end = time.monotonic() + 240
+    while not notes and time.monotonic() < end:
+        rt.frame(2)
+        rt.after_frame()
+        for f in [f for _, _, f in rt._completions.values()] + ([rt._parts_future[2]] if rt._parts_future else []):
+            f.result(timeout=240)
+        if rt.absorb():
+            evs = rt.fit_if_needed() + rt.take_events()
+            assert not any(e.get("stats", {}).get("refined_in_parts") for e in evs), evs
+            notes += [e["message"] for e in evs if e["type"] == "note"]
+        else:
+            rt.prefetch()
+    assert len(notes) == 1 and notes[0].endswith("the region stays in one part"), notes
+    assert [g.name for g in rt.state.materials[0].regions] == ["hl"]

@@ -247,17 +247,30 @@ class FitDriver:
     def _absorb_parts(self) -> bool:
         """A finished region fit in parts replaces the one-part fit it refines when that is still
         the session's latest and the parts reach PARTS_GAIN more of the change: the material
-        is set and a fit event says so (its frame follows). Returns whether it did."""
+        is set and a fit event says so (its frame follows); otherwise a note says what became of
+        the fit the studio was told would follow. Returns whether there is an event to send."""
         pf = self._parts_future
         if pf is None or not pf[2].done():
             return False
         self._parts_future = None
         key, before, fut = pf
         out = None if fut.cancelled() else fut.result()
-        if key != self._parts_key() or not hasattr(out, "achieved") or out.achieved is None:
-            return False
-        if out.parts < 2 or out.achieved < (before or 0.0) + PARTS_GAIN:
-            return False
+        if key != self._parts_key():
+            return False                   # a newer fit's event has replaced the studio's status
+        if not hasattr(out, "achieved") or out.achieved is None or out.parts < 2 or \
+                out.achieved < (before or 0.0) + PARTS_GAIN:
+            # the studio said a fit in parts would follow: say what became of it
+            if isinstance(out, Exception):
+                why = f"the fit in parts failed ({_msg(out)})"
+            elif out is None or getattr(out, "achieved", None) is None:
+                why = "the fit in parts did not finish"
+            elif out.parts < 2:
+                why = f"more parts reach no more of the change than one BRDF ({(before or 0.0) * 100:.0f}%)"
+            else:
+                why = (f"in {out.parts} parts the region reaches {out.achieved * 100:.0f}% of the change, "
+                       f"with one BRDF {(before or 0.0) * 100:.0f}%")
+            self.events.append(NoteEvent(message=f"{why}: the region stays in one part").model_dump())
+            return True                    # a step sends it (its frame is the settled one again)
         st = self.state
         self._set_material(st.object_index, out.material)
         self._fitted = out.material
