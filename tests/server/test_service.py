@@ -147,6 +147,46 @@ def test_region_steps_survive_a_worker_restart(server, client, bunny_scene):
     assert (step["region_before"], step["region_after"]) == ("ear", "left ear")
 
 
+def test_a_short_region_stroke_is_refined_in_parts_over_the_stream(server, client, bunny_scene):
+    """Over the WebSocket: a white highlight painted as a region comes back fitted in one part
+    (its stats say a fit in parts will follow); after its frame the worker fits it in parts in
+    the background and, unprompted, sends that fit and its frame; the server's copy of the
+    session state takes it."""
+    ses = client.post("/v1/sessions", json={"scene_id": bunny_scene}).json()
+    sid, token = ses["id"], ses["token"]
+    stroke = {"points": [[62, 62], [88, 64]], "color": [4.0, 4.0, 4.0], "diameter": 10, "kappa": 0.05}
+
+    async def go():
+        async with connect(server, ses["stream"], token) as ws:
+            await ws.recv()                                          # hello
+            await next_frame(ws)
+            await ws.send(json.dumps({"seq": 1, "type": "region", "action": "paint", "name": "hl"}))
+            await next_frame(ws, 1)
+            ev = []
+            await ws.send(json.dumps({"seq": 2, "type": "stroke", "stroke": stroke}))
+            await next_frame(ws, 2, ev)
+            first = [e for e in ev if e["type"] == "fit"][-1]["stats"]
+            assert first["parts"] == 1 and first["parts_later"], first
+            # no message from the client: the fit in parts and its frame arrive by themselves
+            # (after the stroke's fit view is completed and refitted in one part)
+            got = []
+            while not any(e.get("stats", {}).get("refined_in_parts") or e["type"] == "note" for e in got):
+                await next_frame(ws, 2, got, timeout=120)
+            refined = [e for e in got if e.get("stats", {}).get("refined_in_parts")]
+            assert refined, got
+            return [f["stats"] for f in got if f["type"] == "fit"], refined[-1]
+
+    fits, refined = asyncio.run(go())
+    one = ([f for f in fits if not f.get("refined_in_parts")] or [None])[-1]
+    st = refined["stats"]
+    print(f"stream: one part {one and one['achieved']}, {st['parts']} parts {st['achieved']:.3f}")
+    assert st["parts"] >= 2 and [r["name"] for r in refined["material"]["regions"]] == \
+        [f"hl/{i + 1}" for i in range(st["parts"])]
+    got = client.get(f"/v1/sessions/{sid}", headers={"X-Session-Token": token}).json()
+    assert [r["name"] for r in got["state"]["materials"][0]["regions"]] == \
+        [f"hl/{i + 1}" for i in range(st["parts"])]
+
+
 def test_stream_errors_keep_the_session_alive(server, client, bunny_scene):
     ses = client.post("/v1/sessions", json={"scene_id": bunny_scene}).json()
 
