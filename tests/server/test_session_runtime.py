@@ -679,7 +679,7 @@ def test_a_save_sends_the_settled_frame_again_without_drawing(bunny_renderer):
 
 def _settle_background(rt, ack: int, timeout: float = 240.0) -> list[dict]:
     """Frames and background work until the session has nothing more to take (completed fit
-    views, a region fit in parts): the fit events it emitted meanwhile, in order."""
+    views, a region fit in parts): the fit and note events it emitted meanwhile, in order."""
     fits = []
     end = time.monotonic() + timeout
     while time.monotonic() < end:
@@ -694,7 +694,7 @@ def _settle_background(rt, ack: int, timeout: float = 240.0) -> list[dict]:
             rt.prefetch()
             if not rt._completions and rt._parts_future is None and rt._parts_pending is None:
                 return fits
-        fits += [e for e in rt.fit_if_needed() + rt.take_events() if e.get("type") == "fit"]
+        fits += [e for e in rt.fit_if_needed() + rt.take_events() if e.get("type") in ("fit", "note")]
     raise AssertionError(f"the session's background work did not settle in {timeout} s")
 
 
@@ -712,7 +712,7 @@ def test_a_region_stroke_short_of_its_change_is_refitted_in_parts(bunny_renderer
     rt.handle({"seq": 2, "type": "stroke", "stroke": STROKE})
     first = rt.fit_if_needed()[0]["stats"]
     assert first["parts"] == 1 and first["achieved"] < 0.8 and first["parts_later"], first
-    fits = _settle_background(rt, 2)
+    fits = [e for e in _settle_background(rt, 2) if e["type"] == "fit"]
     one = [f["stats"] for f in fits if not f["stats"].get("refined_in_parts")]
     parts = [f["stats"] for f in fits if f["stats"].get("refined_in_parts")]
     last_one = (one or [first])[-1]
@@ -751,18 +751,8 @@ def test_a_fit_in_parts_that_gains_nothing_is_said(bunny_renderer, monkeypatch):
     rt.handle({"seq": 1, "type": "region", "action": "paint", "name": "hl"})
     rt.handle({"seq": 2, "type": "stroke", "stroke": STROKE})
     assert rt.fit_if_needed()[0]["stats"]["parts_later"]
-    notes = []
-    end = time.monotonic() + 240
-    while not notes and time.monotonic() < end:
-        rt.frame(2)
-        rt.after_frame()
-        for f in [f for _, _, f in rt._completions.values()] + ([rt._parts_future[2]] if rt._parts_future else []):
-            f.result(timeout=240)
-        if rt.absorb():
-            evs = rt.fit_if_needed() + rt.take_events()
-            assert not any(e.get("stats", {}).get("refined_in_parts") for e in evs), evs
-            notes += [e["message"] for e in evs if e["type"] == "note"]
-        else:
-            rt.prefetch()
+    evs = _settle_background(rt, 2)
+    assert not any(e.get("stats", {}).get("refined_in_parts") for e in evs), evs
+    notes = [e["message"] for e in evs if e["type"] == "note"]
     assert len(notes) == 1 and notes[0].endswith("the region stays in one part"), notes
     assert [g.name for g in rt.state.materials[0].regions] == ["hl"]

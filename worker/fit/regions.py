@@ -223,8 +223,7 @@ def fit_region(fx: Fitter, name: str = "region 1", unpainted_weight: float = DEF
         "auto": the fewest of AUTO_PARTS that achieve 80% of the requested change, else the best
         (a part must gain 2 points over fewer parts to be kept).
     """
-    if parts != "auto" and not (isinstance(parts, int) and 1 <= parts <= 16):
-        raise FitError(f"parts must be 1 to 16 or 'auto', got {parts!r}")
+    _check_parts(parts)
     fp = _footprint(fx, name, unpainted_weight)
     off, n_o, cur, olds, w, below = fp.off, fp.n_o, fp.cur, fp.olds, fp.w, fp.below
     prep = [_prepare_view(fx, vi, v, w, off, cur, below, unpainted_weight) for vi, v in enumerate(fx.views)]
@@ -232,16 +231,8 @@ def fit_region(fx: Fitter, name: str = "region 1", unpainted_weight: float = DEF
         raise FitError("nothing to fit: the region covers no painted pixel and unpainted_weight is 0")
     mirror = _mirror_directions(prep, off, n_o)
     counts = AUTO_PARTS if parts == "auto" else (parts,)
-    best, tried = None, []
-    for k in counts:
-        out = _fit_parts(fx, name, prep, w, off, n_o, cur, below, k, fit_albedo, constrained, n_l, mirror)
-        if out is None:
-            continue
-        tried.append((out.parts, out.achieved))
-        if best is None or (out.achieved or 0) > (best.achieved or 0) + 0.02:
-            best = out
-        if parts == "auto" and (best.achieved is None or best.achieved >= 0.8):
-            break
+    best, tried = _best_parts(counts, parts, lambda k: _fit_parts(fx, name, prep, w, off, n_o, cur, below, k,
+                                                                  fit_albedo, constrained, n_l, mirror))
     best.tried = tried
     best.extended = bool(olds)
     best.seconds_transfer = sum(p["seconds"] for p in prep)
@@ -272,8 +263,7 @@ def fit_region_gi(fx: Fitter, name: str = "region 1", unpainted_weight: float = 
         vertices' share of the region's interpolated weight, so a pixel's rows are the one-part
         rows times that share (the first vertex's transport does not depend on the unit). A
         region traced into the tensors stays one part (its unit is the traced one)."""
-    if parts != "auto" and not (isinstance(parts, int) and 1 <= parts <= 16):
-        raise FitError(f"parts must be 1 to 16 or 'auto', got {parts!r}")
+    _check_parts(parts)
     r = fx.renderer
     t0 = time.perf_counter()
     fp = _footprint(fx, name, unpainted_weight)
@@ -330,8 +320,9 @@ def fit_region_gi(fx: Fitter, name: str = "region 1", unpainted_weight: float = 
                 break
             lin = mat
     n_rows = int(sum(len(x.weight) for x in first))
-    best, tried = None, []
-    mirror = None
+    mirror = np.zeros((n_o, 3))
+    if any(k > 1 for k in counts):
+        mirror[ids] = r.vertex_mirrors(ids + off)
 
     def one_part():
         region = Region(name=name, material=mat, vertices=one_region.vertices, weights=one_region.weights)
@@ -339,22 +330,13 @@ def fit_region_gi(fx: Fitter, name: str = "region 1", unpainted_weight: float = 
         out.model_gap = gap
         return out
 
-    for k in counts:
+    def attempt(k):
         if k == 1:
-            out = one_part()
-        else:
-            if mirror is None:
-                mirror = np.zeros((n_o, 3))
-                mirror[ids] = r.vertex_mirrors(ids + off)
-            out = _gi_parts(fx, first, inside, w, off, n_o, k, mirror, name, plain_below, with_regions, fit_albedo,
-                            constrained, n_l, n_rows, targets)
-            if out is None:
-                continue
-        tried.append((out.parts, out.achieved))
-        if best is None or (out.achieved or 0) > (best.achieved or 0) + 0.02:
-            best = out
-        if parts == "auto" and (best.achieved is None or best.achieved >= 0.8):
-            break
+            return one_part()
+        return _gi_parts(fx, first, inside, w, off, n_o, k, mirror, name, plain_below, with_regions, fit_albedo,
+                         constrained, n_l, n_rows, targets)
+
+    best, tried = _best_parts(counts, parts, attempt)
     if best is None:                                  # the partition left one part
         best = one_part()
         tried.append((1, best.achieved))
@@ -374,14 +356,9 @@ def _gi_parts(fx, rows, inside, w, off, n_o, k, mirror, name, plain_below, with_
     the samples ``inside``) times each part's share of the region's weight at the sample, one
     stacked solve (solve.solve_blocks). None when the partition leaves fewer than two parts."""
     r = fx.renderer
-    lab = _partition(w, mirror, k)
-    used = [p for p in range(k) if np.any(lab == p)]
-    if len(used) < 2:
+    lab, k = _partition(w, mirror, k)
+    if k < 2:
         return None
-    k = len(used)
-    remap = np.full(max(used) + 2, -1)
-    remap[used] = np.arange(k)
-    lab = np.where(lab >= 0, remap[lab], -1)
     J = fx.basis.J
     As, tg, wt, r0 = [], [], [], []
     for v, ins, x, (tgt, _) in zip(fx.views, inside, rows, targets):
@@ -502,9 +479,10 @@ def _mirror_directions(prep, off: int, n_o: int) -> np.ndarray:
     return out
 
 
-def _partition(w: np.ndarray, mirror: np.ndarray, k: int) -> np.ndarray:
-    """(n_o,) int part of each region vertex (−1 outside): k-means of the mirror directions
-    (scipy.cluster.vq.kmeans2, seeded k-means++), vertices without one in part 0."""
+def _partition(w: np.ndarray, mirror: np.ndarray, k: int) -> tuple[np.ndarray, int]:
+    """(lab (n_o,) int part of each region vertex, −1 outside; the number of parts used): k-means
+    of the mirror directions (scipy.cluster.vq.kmeans2, seeded k-means++), vertices without one
+    in part 0, the parts that took a vertex numbered 0 … in their order."""
     from scipy.cluster.vq import kmeans2
 
     lab = np.full(len(w), -1)
@@ -513,16 +491,37 @@ def _partition(w: np.ndarray, mirror: np.ndarray, k: int) -> np.ndarray:
     seen = ids[np.linalg.norm(mirror[ids], axis=1) > 0]
     if k > 1 and len(seen) >= 2 * k:
         _, lab[seen] = kmeans2(mirror[seen], k, minit="++", seed=1)
-    return lab
+    used = np.unique(lab[lab >= 0])
+    remap = np.full(k + 1, -1)
+    remap[used] = np.arange(len(used))
+    return np.where(lab >= 0, remap[lab], -1), len(used)
+
+
+def _best_parts(counts, parts, attempt):
+    """The region fit kept among ``attempt(k)`` for k in counts (an outcome, or None when the
+    partition leaves fewer parts): the first, replaced by one that achieves 2 points more;
+    ``parts`` "auto" stops at the first that achieves 80%. Returns (best or None, tried)."""
+    best, tried = None, []
+    for k in counts:
+        out = attempt(k)
+        if out is None:
+            continue
+        tried.append((out.parts, out.achieved))
+        if best is None or (out.achieved or 0) > (best.achieved or 0) + 0.02:
+            best = out
+        if parts == "auto" and (best.achieved is None or best.achieved >= 0.8):
+            break
+    return best, tried
+
+
+def _check_parts(parts) -> None:
+    if parts != "auto" and not (isinstance(parts, int) and 1 <= parts <= 16):
+        raise FitError(f"parts must be 1 to 16 or 'auto', got {parts!r}")
 
 
 def _fit_parts(fx, name, prep, w, off, n_o, cur, below, k, fit_albedo, constrained, n_l, mirror):
     """One region fit with its vertices in k parts (k = 1: solve.solve; else solve_blocks)."""
-    lab = _partition(w, mirror, k)
-    used = [p for p in range(k) if np.any(lab == p)]
-    k = len(used)
-    remap = {p: i for i, p in enumerate(used)}
-    lab = np.where(lab >= 0, np.vectorize(lambda x: remap.get(x, -1))(lab), -1) if k else lab
+    lab, k = _partition(w, mirror, k)
     J = fx.basis.J
     rows, mats_rows = [], []
     for p in prep:
