@@ -95,3 +95,37 @@ def test_a_stroke_paints_a_region_and_the_rest_stays(server, bunny_scene, browse
     assert not page.locator("#region-paint").is_checked()
     assert not errors, errors
     ctx.close()
+
+
+def test_a_short_region_highlight_comes_back_in_parts(server, bunny_scene, browser, artifacts):
+    """A white highlight painted as a region falls short in one part; without another action the
+    studio receives its fit in parts: the status line says so ("in K parts"), the region is listed
+    once, and the frame changes where the stroke was. Screenshot: test-artifacts/web-region-parts.png."""
+    errors = []
+    ctx = browser.new_context(viewport={"width": 1280, "height": 720})
+    page = ctx.new_page()
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(server["base"] + "/")
+    wait_new_frame(page, 0)
+    settle(page)
+    if page.locator("#scene-select").input_value() != bunny_scene:
+        open_scene(page, bunny_scene)
+        settle(page)
+    page.fill("#region-name", "shine")
+    page.check("#region-paint")
+    _status_has(page, "no strokes")
+    page.check("#tool-brush")
+    page.select_option("#brush-mode", "color")          # the default white
+    page.fill("#brush-diameter", "30")
+    b = page.locator("#view").bounding_box()
+    drag(page, b["x"] + 0.42 * b["width"], b["y"] + 0.45 * b["height"], 0.14 * b["width"], 0, steps=10)
+    _status_has(page, "region “shine”")
+    _status_has(page, "parts (one BRDF each)", timeout=120_000)
+    n = frame_no(page)
+    _still(page, n - 1)
+    page.screenshot(path=str(artifacts / "web-region-parts.png"))
+    assert _regions(page) == ["shine"]
+    text = page.locator("#status").text_content()
+    assert "achieved" in text and "fitting it in parts" not in text, text
+    assert not errors, errors
+    ctx.close()
