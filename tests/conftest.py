@@ -62,6 +62,22 @@ POSTGRES_TOO = {
 }
 
 
+@pytest.fixture(autouse=True)
+def _background_work_ends_with_its_test():
+    """A session's background work (view builds, a region refit in parts: jobs/fit_driver.py's
+    one builder thread) ends before the next test: it runs on the renderer it was given, often a
+    module's or the session's shared one, and would otherwise change that renderer's state under
+    the next test (a GI region test once saw another unit frozen between two of its calls)."""
+    yield
+    import sys
+    fd = sys.modules.get("worker.jobs.fit_driver")
+    if fd is not None:
+        t0 = time.perf_counter()
+        fd._builder.submit(lambda: None).result(timeout=600)   # one thread, first in first out
+        if os.environ.get("GLINT_DEBUG_BG"):
+            print(f"\n[background work waited {time.perf_counter() - t0:.3f} s]")
+
+
 def pytest_configure(config):
     config.addinivalue_line("markers", "both_databases: run this service test on SQLite and on PostgreSQL")
 

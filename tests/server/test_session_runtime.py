@@ -740,6 +740,42 @@ def test_a_region_stroke_short_of_its_change_is_refitted_in_parts(bunny_renderer
     assert rt.fit_if_needed()[0]["material"]["model"] != "regions"
 
 
+def test_a_closed_session_drops_its_refit_in_parts(bunny_renderer):
+    """A region refit in parts still queued on the builder when the session closes is cancelled:
+    it never runs on the renderer the next session draws with, and nothing is taken from it."""
+    import threading
+
+    from worker.jobs import fit_driver
+
+    rt = _runtime(bunny_renderer)
+    rt.frame(0)
+    rt.handle({"seq": 1, "type": "region", "action": "paint", "name": "hl"})
+    rt.handle({"seq": 2, "type": "stroke", "stroke": STROKE})
+    assert rt.fit_if_needed()[0]["stats"]["parts_later"]
+    gate = threading.Event()
+    end = time.monotonic() + 240
+    while rt._parts_future is None and time.monotonic() < end:
+        rt.frame(2)
+        if rt._parts_pending is not None and not rt.fit_pending():
+            busy = fit_driver._builder.submit(gate.wait)      # the builder busy: the refit queues
+            rt.after_frame()
+            break
+        rt.after_frame()
+        for _, _, f in list(rt._completions.values()):
+            f.result(timeout=240)
+        rt.absorb()
+        rt.fit_if_needed()
+    try:
+        assert rt._parts_future is not None, "the refit in parts was not started"
+        fut = rt._parts_future[2]
+        rt.close()
+        assert fut.cancelled() and rt._parts_future is None and rt._parts_pending is None
+    finally:
+        gate.set()
+        busy.result(timeout=60)
+    assert not rt._absorb_parts()
+
+
 def test_a_fit_in_parts_that_gains_nothing_is_said(bunny_renderer, monkeypatch):
     """The studio was told a fit in parts would follow (``parts_later``): when it reaches no more
     of the change (here: a gain it cannot make), a note says so and the one-part fit stays."""

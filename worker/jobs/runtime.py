@@ -251,17 +251,20 @@ class SessionRuntime(FitDriver):
         return ev
 
     def close(self) -> None:
-        """The session ended: its queued background builds are cancelled (a running one ends
-        with its current view; none starts after), and the renderer's cached primary hits of a
+        """The session ended: its queued background work (view builds, a region refit in parts)
+        is cancelled (a running build ends with its current view; none starts after, and a
+        finished refit is not taken), and the renderer's cached primary hits of a
         big camera are dropped (a build under way holds the fitter, so the renderer, until it
         ends), so the worker goes back to resting memory (the caller then releases memory,
         worker.memory.release_memory). Before, after an 8192×8192 stream closed its prefetch
         kept both cores busy ~60 s and the worker stayed at 7 GB."""
         self.closed = True
-        for fut in list(self._pending.values()) + [c[2] for c in self._completions.values()]:
+        futs = list(self._pending.values()) + [c[2] for c in self._completions.values()]
+        if self._parts_future is not None:
+            futs.append(self._parts_future[2])          # a region refit in parts not yet started
+        for fut in futs:
             fut.cancel()
-        self._pending.clear()
-        self._completions.clear()
+        self._drop_fit_work()
         self._vt = None
         self.fitter = None
         cam = self.state.camera
