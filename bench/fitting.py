@@ -194,53 +194,123 @@ def _ask_along(v, stroke, rad):
     return ask, float(ask @ LUMA / max(float(v.base[core].mean(0) @ LUMA), 1e-12)), int(core.sum())
 
 
+# a stroke the material that made its ask answers: the material itself delivers at least this
+# share of the ask on the painted pixels (the regions target's own bar, fixed before any run)
+ANSWERED = 0.8
+# a highlight: the ask at least this much brighter than the base along the stroke (luminance)
+HIGHLIGHT_GAIN = 1.1
+# stroke lengths tried for the glossy highlight, as fractions of the standard stroke's (the middle
+# half of the row): the standard one first, shorter ones (slid along the row) only where no row's
+# standard stroke is answered
+HIGHLIGHT_LENGTHS = (1.0, 0.5, 0.25)
+
+
+def _object_frames(fx, materials, view: int = 0):
+    """((P, 2) pixel centres of the fitter's object, [(P, 3) float64 radiance with the object in
+    each of ``materials``]) in frames of the view at its resolution, vertex-shaded: the frames
+    ``rendered_effect`` measures a fit on (a stroke's own frame in the studio)."""
+    import numpy as np
+
+    from worker.renderers import FrameRequest
+
+    v = fx.views[view]
+    r = fx.renderer
+    out = []
+    for m in materials:
+        mats = list(r.scene.materials)
+        mats[fx.obj] = m
+        out.append(r.render(FrameRequest(camera=v.camera, lighting=v.lighting, materials=mats, shading="vertex")))
+    on = out[0].object_id.reshape(-1) == fx.obj
+    yy, xx = np.divmod(np.nonzero(on)[0], v.camera.width)
+    xy = np.stack([xx + 0.5, yy + 0.5], 1).astype(np.float64)
+    return xy, [o.radiance.reshape(-1, 3)[on].astype(np.float64) for o in out]
+
+
+def own_share(stroke, xy, base, made) -> float | None:
+    """The share of a stroke's ask (eq. 23 on ``base``) that the material whose radiance is
+    ``made`` delivers itself, as ``brush.stroke_effect`` measures a fit (xy (P, 2) pixel
+    centres, base and made (P, 3)). A colour-mode stroke asks one colour along its length: where
+    the base is brighter than that colour it asks to darken, elsewhere to brighten, while a real
+    material's change varies along it with the light. Its own share can be far below 1, or
+    negative (a lacquer adds light where the ask darkens), even when the ask is its mean."""
+    from worker.fit.brush import apply_stroke, stroke_effect, stroke_weights
+
+    w = stroke_weights(stroke, xy)
+    t = apply_stroke(base.copy(), stroke, w)
+    return stroke_effect([base], [t], [w > 0], [made])[0]
+
+
 def glossy_highlight(fx, view: int = 0, alpha: float = 0.1):
-    """A highlight a real material gives: ("glossy highlight", Stroke, its luminance over the
-    base's along the stroke) for the fitter's object.
+    """A highlight a real material gives and answers: ("glossy highlight", Stroke or None, its
+    luminance over the base's along the stroke, the lacquer's own share of the ask) for the
+    fitter's object.
 
     The object is rendered with its base's diffuse albedo under a white GGX lobe of roughness
     ``alpha`` holding the energy the albedo leaves (specular 1 − max albedo: a lacquer as bright
-    as energy conservation allows on that colour). The stroke is the standard one (the
-    studio's default brush across the middle half of a row), on the object's row where that
-    material is brightest against the base (stepping half a brush diameter), and asks for the
-    lacquer's mean radiance over the stroke's core (brush weight ≥ 0.5) there. A uniform colour
-    along the stroke, as a designer paints it, while the lacquer varies along it: not every
-    pixel's ask is what the lacquer gives there, only their mean is.
-
-    The standard white highlight (twice the brightest base radiance) is beyond the light in most
-    scenes; this one is within it by construction, so a shortfall is the fit's or the region's,
-    not the light's."""
+    as energy conservation allows on that colour). A candidate stroke is the studio's default
+    brush along a row of the object (rows half a brush diameter apart): the standard stroke (the
+    middle half of the row), else shorter ones slid along it (HIGHLIGHT_LENGTHS); it asks for the
+    lacquer's mean radiance over its core (brush weight ≥ 0.5). A colour stroke asks one colour
+    along its length, while the base and the lacquer vary along it (the reflection moves, the
+    base's shading too), so the ask is a highlight a real material gives only where the lacquer
+    itself delivers ANSWERED of it (``own_share``, on the view's frames): the brightest such
+    candidate of the longest length that has one, at least HIGHLIGHT_GAIN over the base. None
+    for the stroke and the gain (with the best own share of any candidate bright enough) when no
+    stroke in the view is one: there one colour along any stroke asks the lacquer for what it
+    does not do."""
     import numpy as np
 
+    from worker.core.tonemap import LUMA
+    from worker.fit.brush import stroke_weights
     from worker.scene import GGX
 
     v = fx.views[view]
     hl = standard_strokes(fx, view)[0][1]
     albedo = np.asarray(fx.base_material.albedo, np.float64)
     h = 1.0 - float(albedo.max())
-    rad = _view_radiance(fx, GGX(alpha=alpha, specular=(h, h, h), albedo=tuple(albedo.tolist())), view)
+    lacquer = GGX(alpha=alpha, specular=(h, h, h), albedo=tuple(albedo.tolist()))
+    xy, (b, p) = _object_frames(fx, [fx.base_material, lacquer], view)
     ys, d = v.xy[:, 1], hl.diameter
-    best = None
-    for y0 in np.arange(ys.min() + d / 2, ys.max() - d / 2, d / 2):
-        row = v.xy[np.abs(ys - y0) <= v.footprint * 2, 0]
-        if len(row) < 8:
-            continue
-        x0, x1 = float(np.quantile(row, 0.25)), float(np.quantile(row, 0.75))
-        st = hl.model_copy(update={"points": [(x0, float(y0)), (0.5 * (x0 + x1), float(y0) + 2.0), (x1, float(y0))]})
-        ask, gain, n = _ask_along(v, st, rad)
-        if n < 8:
-            continue
-        if best is None or gain > best[0]:
-            best = (gain, st, ask)
-    if best is None:
-        raise RuntimeError("the object is too small in the view for a stroke")
-    gain, st, color = best
-    return "glossy highlight", st.model_copy(update={"color": tuple(float(x) for x in color)}), gain
+    best_own = None
+    for frac in HIGHLIGHT_LENGTHS:
+        best = None
+        for y0 in np.arange(ys.min() + d / 2, ys.max() - d / 2, d / 2):
+            row = v.xy[np.abs(ys - y0) <= v.footprint * 2, 0]
+            if len(row) < 8:
+                continue
+            x0, x1 = float(np.quantile(row, 0.25)), float(np.quantile(row, 0.75))
+            length = (x1 - x0) * frac
+            if length < 2 * d:
+                continue
+            starts = [x0] if frac == 1.0 else np.arange(float(row.min()), float(row.max()) - length + 1e-9, d / 2)
+            band = np.abs(xy[:, 1] - y0) <= d            # every pixel a stroke on this row reaches
+            xb, bb, pb = xy[band], b[band], p[band]
+            for s0 in starts:
+                pts = [(float(s0), float(y0)), (float(s0) + length / 2, float(y0) + 2.0), (float(s0) + length, float(y0))]
+                st = hl.model_copy(update={"points": pts})
+                core = stroke_weights(st, xb) >= 0.5
+                if core.sum() < 8:
+                    continue
+                ask = pb[core].mean(0)
+                gain = float(ask @ LUMA / max(float(bb[core].mean(0) @ LUMA), 1e-12))
+                if gain < HIGHLIGHT_GAIN:
+                    continue
+                st = st.model_copy(update={"color": tuple(float(x) for x in ask)})
+                own = own_share(st, xb, bb, pb)
+                if own is None:
+                    continue
+                best_own = own if best_own is None else max(best_own, own)
+                if own >= ANSWERED and (best is None or gain > best[0]):
+                    best = (gain, st, own)
+        if best is not None:
+            return "glossy highlight", best[1], best[0], best[2]
+    return "glossy highlight", None, None, best_own
 
 
 def paint_colour(fx, view: int = 0, tint=(1.6, 0.8, 0.5)):
     """A colour change a real material gives: ("paint colour", Stroke, its luminance over the
-    base's along the stroke) for the fitter's object.
+    base's along the stroke, the paint's own share of the ask: ``own_share``) for the fitter's
+    object.
 
     The base material with its diffuse albedo tinted by ``tint`` (the standard colour change's
     factors), scaled down where needed so that albedo plus specular stays within 1 in every
@@ -256,9 +326,12 @@ def paint_colour(fx, view: int = 0, tint=(1.6, 0.8, 0.5)):
     albedo = np.asarray(base.albedo, np.float64) * np.asarray(tint, np.float64)
     spec = float(np.max(getattr(base, "specular", (0.0, 0.0, 0.0))))
     albedo *= min(1.0, (1.0 - spec) / max(float(albedo.max()), 1e-12))
-    rad = _view_radiance(fx, base.model_copy(update={"albedo": tuple(float(x) for x in albedo)}), view)
+    paint = base.model_copy(update={"albedo": tuple(float(x) for x in albedo)})
+    rad = _view_radiance(fx, paint, view)
     color, gain, _ = _ask_along(v, st, rad)
-    return "paint colour", st.model_copy(update={"color": tuple(float(x) for x in color)}), gain
+    st = st.model_copy(update={"color": tuple(float(x) for x in color)})
+    xy, (b, p) = _object_frames(fx, [base, paint], view)
+    return "paint colour", st, gain, own_share(st, xy, b, p)
 
 
 def _gi_renderer(path, store, quiet, env=None):
@@ -417,7 +490,9 @@ def _frame_times(r, cam, lighting, materials: dict, frames: int) -> dict:
 
     from worker.renderers import FrameRequest
 
-    reqs = {k: FrameRequest(camera=cam, lighting=lighting, materials=m) for k, m in materials.items()}
+    # vertex mode named: the studio's frame after a stroke (FrameRequest's default is refined,
+    # the settled still's)
+    reqs = {k: FrameRequest(camera=cam, lighting=lighting, materials=m, shading="vertex") for k, m in materials.items()}
     for q in reqs.values():
         r.render(q)
     wall = {k: [] for k in reqs}
@@ -456,8 +531,18 @@ def cmd_bench_regions(a) -> int:
             fx.add_view()
             v = fx.views[0]
             real = [glossy_highlight(fx), paint_colour(fx)]
-            gains = {label: gain for label, _, gain in real}
-            for label, st in standard_strokes(fx) + [(label, st) for label, st, _ in real]:
+            gains = {label: gain for label, _, gain, _ in real}
+            owns = {label: own for label, _, _, own in real}
+            for label, st, _, own in real:
+                if st is None:                # reported: no stroke in the view the material answers
+                    res.append({"scene": Path(s).stem, "renderer": sc.spec.renderer,
+                                "env": Path(env).name if env else Path(sc.spec.environment.map).name,
+                                "object": name, "stroke": label, "answered_by_material": None,
+                                "best_material_own_share": own})
+                    if not a.json:
+                        print(f"{Path(s).stem} {res[-1]['env']} {label}: no stroke the material answers in this "
+                              f"view (its best own share {own if own is None else round(own, 2)})", file=sys.stderr)
+            for label, st in standard_strokes(fx) + [(label, st) for label, st, _, _ in real if st is not None]:
                 fx.history.clear()
                 fx.add_stroke(st)
                 fx._last = None
@@ -487,6 +572,7 @@ def cmd_bench_regions(a) -> int:
                             "env": Path(env).name if env else Path(sc.spec.environment.map).name,
                             "object": name, "vertices": int((sc.object_of_vertex == 0).sum()), "stroke": label,
                             "ask_over_base": gains.get(label),
+                            "material_own_share": owns.get(label),
                             "region_vertices": sum(len(g.vertices) for g in reg.regions), "parts": reg.parts,
                             "tried": reg.tried,
                             "rendered": {k: got[k] for k in ("achieved", "spill", "spill_far")},
@@ -509,15 +595,19 @@ def cmd_bench_regions(a) -> int:
                           f"frame CPU {cpu['regions']:.1f} ms vs {cpu['base']:.1f} ms base ({r['cost_vs_base']:.2f}×, blend "
                           f"{r['blend_cost']:.2f}×)", file=sys.stderr)
     summary = {}
-    if res:
-        summary = {"cases": len(res), "min_achieved": min(r["rendered"]["achieved"] for r in res),
-                   "min_achieved_by_stroke": {k: min(r["rendered"]["achieved"] for r in res if r["stroke"] == k)
-                                              for k in dict.fromkeys(r["stroke"] for r in res)},
-                   "max_spill_far": max(r["rendered"]["spill_far"] for r in res),
-                   "max_cost_vs_base": max(r["cost_vs_base"] for r in res),
-                   "max_blend_cost": max(r["blend_cost"] for r in res),
-                   "max_cost_vs_one_brdf": max(r["cost_vs_one_brdf"] for r in res),
+    fitted = [r for r in res if "rendered" in r]
+    if fitted:
+        summary = {"cases": len(fitted), "min_achieved": min(r["rendered"]["achieved"] for r in fitted),
+                   "min_achieved_by_stroke": {k: min(r["rendered"]["achieved"] for r in fitted if r["stroke"] == k)
+                                              for k in dict.fromkeys(r["stroke"] for r in fitted)},
+                   "max_spill_far": max(r["rendered"]["spill_far"] for r in fitted),
+                   "max_cost_vs_base": max(r["cost_vs_base"] for r in fitted),
+                   "max_blend_cost": max(r["blend_cost"] for r in fitted),
+                   "max_cost_vs_one_brdf": max(r["cost_vs_one_brdf"] for r in fitted),
                    "load_average": list(os.getloadavg())}
+    # strokes no real material answers in the view (glossy_highlight found none): not fitted
+    summary["unanswered"] = [{k: r[k] for k in ("scene", "env", "stroke", "best_material_own_share")}
+                             for r in res if "rendered" not in r]
     if a.json:
         print(json.dumps({"summary": summary, "results": res}))
     return 0
