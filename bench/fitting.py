@@ -195,7 +195,7 @@ def _ask_along(v, stroke, rad):
 
 
 # a stroke the material that made its ask answers: the material itself delivers at least this
-# share of the ask on the painted pixels (the regions target's own bar, fixed before any run)
+# share of the ask on the painted pixels (the regions target's own bar)
 ANSWERED = 0.8
 # a highlight: the ask at least this much brighter than the base along the stroke (luminance)
 HIGHLIGHT_GAIN = 1.1
@@ -283,7 +283,8 @@ def glossy_highlight(fx, view: int = 0, alpha: float = 0.1):
             if length < 2 * d:
                 continue
             starts = [x0] if frac == 1.0 else np.arange(float(row.min()), float(row.max()) - length + 1e-9, d / 2)
-            band = np.abs(xy[:, 1] - y0) <= d            # every pixel a stroke on this row reaches
+            # every pixel a stroke on this row reaches (its middle point is 2 px off the row)
+            band = np.abs(xy[:, 1] - y0) <= 0.5 * d + 3.0
             xb, bb, pb = xy[band], b[band], p[band]
             for s0 in starts:
                 pts = [(float(s0), float(y0)), (float(s0) + length / 2, float(y0) + 2.0), (float(s0) + length, float(y0))]
