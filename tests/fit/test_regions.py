@@ -37,6 +37,29 @@ def test_the_renderer_blends_the_layers_per_vertex(bunny_renderer, shading):
     np.testing.assert_allclose(c[inside], b.reshape(-1, 3)[inside], rtol=1e-5, atol=1e-6)
 
 
+def test_the_renderer_keeps_the_layers_of_alternating_material_lists(bunny_renderer):
+    """Sessions sharing a renderer alternate their material lists frame by frame: each list's
+    layers (weights, expansion, blend matrix) are kept, for the last LAYERS_KEPT lists, so a
+    region frame does not rebuild them; a list dropped is built again and draws the same."""
+    from worker.renderers.layers import LAYERS_KEPT
+
+    r = bunny_renderer
+    n = len(r.scene.mesh.vertices)
+    base, top = Lambert(albedo=(0.6, 0.6, 0.6)), GGX(alpha=0.2, albedo=(0.1, 0.2, 0.5))
+    mats = [Regions(base=base, vertex_count=n, regions=[Region(
+        name="r", material=top, vertices=list(range(50 * k, 50 * k + 400)), weights=[0.5] * 400)])
+        for k in range(LAYERS_KEPT + 1)]
+    a, b = r.layers([mats[0]]), r.layers([mats[1]])
+    img = _frame(r, mats[1])
+    for _ in range(3):                                  # two sessions' frames, alternating
+        assert r.layers([mats[1]]) is b and r.layers([mats[0]]) is a
+    for m in mats[2:]:                                  # LAYERS_KEPT − 1 more lists: 9 in all
+        r.layers([m])
+    assert r.layers([mats[0]]) is a                     # used last of the two: kept
+    assert r.layers([mats[1]]) is not b                 # the least recently used went
+    np.testing.assert_array_equal(_frame(r, mats[1]), img)
+
+
 def test_projection_inverts_the_camera_rays(bunny_renderer):
     """A surface point a pixel's ray hits projects back onto that pixel's centre."""
     r = bunny_renderer
