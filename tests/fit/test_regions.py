@@ -58,6 +58,12 @@ def test_the_renderer_keeps_the_layers_of_alternating_material_lists(bunny_rende
     assert r.layers([mats[0]]) is a                     # used last of the two: kept
     assert r.layers([mats[1]]) is not b                 # the least recently used went
     np.testing.assert_array_equal(_frame(r, mats[1]), img)
+    # bounded by bytes too: over LAYERS_BYTES only the newest list's layers stay
+    from worker.renderers.layers import LayersCache
+    small = LayersCache(r.scene, max_bytes=1)
+    for m in mats[:3]:
+        got = small.get([m])
+    assert len(small) == 1 and small.get([mats[2]]) is got and got.nbytes > 1
 
 
 def test_projection_inverts_the_camera_rays(bunny_renderer):

@@ -58,6 +58,18 @@ class Layers:
     def any(self) -> bool:
         return bool(self.objects)
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the arrays it holds: the weights, and the last frame's expansion, blend
+        matrix and gathered inputs (those grow with the points a view sees)."""
+        arrays = [a for _, a, _ in self.objects.values()]
+        if self._memo is not None:
+            _, exp, B = self._memo
+            arrays += [*exp, B.data, B.indices, B.indptr]
+        if self.gathered is not None:
+            arrays += [x for x in self.gathered[2:] if isinstance(x, np.ndarray)]
+        return sum(int(x.nbytes) for x in arrays)
+
     def needed(self, objects) -> list[int]:
         """The table slots the points of these objects are shaded with."""
         out = set(int(o) for o in objects)
@@ -138,17 +150,22 @@ def frame_layers(materials, object_of_vertex, sources=None) -> Layers | None:
 # and a benchmark's interleaved rounds alternate their lists frame by frame, and rebuilding a
 # list's layers (weights, expansion, blend matrix) cost a region frame 1.2-1.4 ms of a 3 ms one
 LAYERS_KEPT = 8
+# ... while they weigh at most this much (a view of a million vertices gathers ~30 MB of inputs
+# per list); the newest list's stay whatever their size
+LAYERS_BYTES = 64 << 20
 
 
 class LayersCache:
     """A renderer's layers of the last LAYERS_KEPT frames' material lists over a scene
     (scene.LoadedScene), kept while the same material objects come back (keyed by their
     identities; each list is kept so that the ids stay unique), the least recently used going
-    first. Thread-safe: sessions on different threads share a renderer."""
+    first, also while all weigh more than LAYERS_BYTES. Thread-safe: sessions on different
+    threads share a renderer."""
 
-    def __init__(self, scene, kept: int = LAYERS_KEPT):
+    def __init__(self, scene, kept: int = LAYERS_KEPT, max_bytes: int | None = None):
         self.scene = scene
         self.kept = kept
+        self.max_bytes = max_bytes
         self._entries: OrderedDict = OrderedDict()     # ids -> (Layers or None, the list)
         self._lock = threading.Lock()
 
@@ -163,6 +180,12 @@ class LayersCache:
         with self._lock:
             self._entries[key] = (layers, list(materials))
             self._entries.move_to_end(key)
-            while len(self._entries) > self.kept:
+            cap = LAYERS_BYTES if self.max_bytes is None else self.max_bytes
+            while len(self._entries) > self.kept or (
+                    len(self._entries) > 1 and sum(e[0].nbytes for e in self._entries.values()
+                                                   if e[0] is not None) > cap):
                 self._entries.popitem(last=False)
         return layers
+
+    def __len__(self) -> int:
+        return len(self._entries)
