@@ -156,17 +156,17 @@ LAYERS_BYTES = 64 << 20
 
 
 class LayersCache:
-    """A renderer's layers of the last LAYERS_KEPT frames' material lists over a scene
-    (scene.LoadedScene), kept while the same material objects come back (keyed by their
-    identities; each list is kept so that the ids stay unique), the least recently used going
-    first, also while all weigh more than LAYERS_BYTES. Thread-safe: sessions on different
-    threads share a renderer."""
+    """A renderer's layers of the last LAYERS_KEPT frames' material lists with painted regions
+    over a scene (scene.LoadedScene; lists without regions have none and take no place), kept
+    while the same material objects come back (keyed by their identities; each list is kept so
+    that the ids stay unique), the least recently used going first, also while all weigh more
+    than LAYERS_BYTES. Thread-safe: sessions on different threads share a renderer."""
 
     def __init__(self, scene, kept: int = LAYERS_KEPT, max_bytes: int | None = None):
         self.scene = scene
         self.kept = kept
         self.max_bytes = max_bytes
-        self._entries: OrderedDict = OrderedDict()     # ids -> (Layers or None, the list)
+        self._entries: OrderedDict = OrderedDict()     # ids -> (Layers, the list)
         self._lock = threading.Lock()
 
     def get(self, materials) -> Layers | None:
@@ -177,13 +177,14 @@ class LayersCache:
                 self._entries.move_to_end(key)
                 return hit[0]
         layers = frame_layers(materials, self.scene.object_of_vertex, self.scene.vertex_source)
+        if layers is None:
+            return None                  # no regions: one type check per object, nothing kept
         with self._lock:
             self._entries[key] = (layers, list(materials))
             self._entries.move_to_end(key)
             cap = LAYERS_BYTES if self.max_bytes is None else self.max_bytes
             while len(self._entries) > self.kept or (
-                    len(self._entries) > 1 and sum(e[0].nbytes for e in self._entries.values()
-                                                   if e[0] is not None) > cap):
+                    len(self._entries) > 1 and sum(e[0].nbytes for e in self._entries.values()) > cap):
                 self._entries.popitem(last=False)
         return layers
 
