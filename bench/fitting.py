@@ -205,27 +205,6 @@ HIGHLIGHT_GAIN = 1.1
 HIGHLIGHT_LENGTHS = (1.0, 0.5, 0.25)
 
 
-def _object_frames(fx, materials, view: int = 0):
-    """((P, 2) pixel centres of the fitter's object, [(P, 3) float64 radiance with the object in
-    each of ``materials``]) in frames of the view at its resolution, vertex-shaded: the frames
-    ``rendered_effect`` measures a fit on (a stroke's own frame in the studio)."""
-    import numpy as np
-
-    from worker.renderers import FrameRequest
-
-    v = fx.views[view]
-    r = fx.renderer
-    out = []
-    for m in materials:
-        mats = list(r.scene.materials)
-        mats[fx.obj] = m
-        out.append(r.render(FrameRequest(camera=v.camera, lighting=v.lighting, materials=mats, shading="vertex")))
-    on = out[0].object_id.reshape(-1) == fx.obj
-    yy, xx = np.divmod(np.nonzero(on)[0], v.camera.width)
-    xy = np.stack([xx + 0.5, yy + 0.5], 1).astype(np.float64)
-    return xy, [o.radiance.reshape(-1, 3)[on].astype(np.float64) for o in out]
-
-
 def own_share(stroke, xy, base, made) -> float | None:
     """The share of a stroke's ask (eq. 23 on ``base``) that the material whose radiance is
     ``made`` delivers itself, as ``brush.stroke_effect`` measures a fit (xy (P, 2) pixel
@@ -253,15 +232,16 @@ def glossy_highlight(fx, view: int = 0, alpha: float = 0.1):
     lacquer's mean radiance over its core (brush weight ≥ 0.5). A colour stroke asks one colour
     along its length, while the base and the lacquer vary along it (the reflection moves, the
     base's shading too), so the ask is a highlight a real material gives only where the lacquer
-    itself delivers ANSWERED of it (``own_share``, on the view's frames): the brightest such
-    candidate of the longest length that has one, at least HIGHLIGHT_GAIN over the base. None
-    for the stroke and the gain (with the best own share of any candidate bright enough) when no
-    stroke in the view is one: there one colour along any stroke asks the lacquer for what it
-    does not do."""
+    itself delivers ANSWERED of it (``own_share``, on the view's vertex-shaded frames, as
+    ``rendered_effect`` measures a fit): the brightest such candidate of the longest length
+    that has one, at least HIGHLIGHT_GAIN over the base. None for the stroke and the gain (with
+    the best own share of any candidate bright enough) when no stroke in the view is one: there
+    one colour along any stroke asks the lacquer for what it does not do."""
     import numpy as np
 
     from worker.core.tonemap import LUMA
     from worker.fit.brush import stroke_weights
+    from worker.fit.regions import object_frames
     from worker.scene import GGX
 
     v = fx.views[view]
@@ -269,7 +249,7 @@ def glossy_highlight(fx, view: int = 0, alpha: float = 0.1):
     albedo = np.asarray(fx.base_material.albedo, np.float64)
     h = 1.0 - float(albedo.max())
     lacquer = GGX(alpha=alpha, specular=(h, h, h), albedo=tuple(albedo.tolist()))
-    xy, (b, p) = _object_frames(fx, [fx.base_material, lacquer], view)
+    xy, (b, p), _ = object_frames(fx.renderer, fx.obj, v.camera, v.lighting, [fx.base_material, lacquer])
     ys, d = v.xy[:, 1], hl.diameter
     best_own = None
     for frac in HIGHLIGHT_LENGTHS:
@@ -321,6 +301,8 @@ def paint_colour(fx, view: int = 0, tint=(1.6, 0.8, 0.5)):
     needs an albedo above 1 where the light is dimmer; this one is within energy by construction."""
     import numpy as np
 
+    from worker.fit.regions import object_frames
+
     v = fx.views[view]
     st = standard_strokes(fx, view)[2][1]
     base = fx.base_material
@@ -331,7 +313,7 @@ def paint_colour(fx, view: int = 0, tint=(1.6, 0.8, 0.5)):
     rad = _view_radiance(fx, paint, view)
     color, gain, _ = _ask_along(v, st, rad)
     st = st.model_copy(update={"color": tuple(float(x) for x in color)})
-    xy, (b, p) = _object_frames(fx, [base, paint], view)
+    xy, (b, p), _ = object_frames(fx.renderer, fx.obj, v.camera, v.lighting, [base, paint])
     return "paint colour", st, gain, own_share(st, xy, b, p)
 
 

@@ -29,7 +29,8 @@ def _still(page, after: int, timeout=90_000):
     settle(page)
 
 
-def test_a_stroke_paints_a_region_and_the_rest_stays(server, bunny_scene, browser, artifacts):
+def _studio(server, bunny_scene, browser):
+    """(context, page, page errors) of the studio at 1280×720 on the bunny scene, settled."""
     errors = []
     ctx = browser.new_context(viewport={"width": 1280, "height": 720})
     page = ctx.new_page()
@@ -40,6 +41,11 @@ def test_a_stroke_paints_a_region_and_the_rest_stays(server, bunny_scene, browse
     if page.locator("#scene-select").input_value() != bunny_scene:
         open_scene(page, bunny_scene)
         settle(page)
+    return ctx, page, errors
+
+
+def test_a_stroke_paints_a_region_and_the_rest_stays(server, bunny_scene, browser, artifacts):
+    ctx, page, errors = _studio(server, bunny_scene, browser)
     _still(page, 0)
     g0 = canvas_grid(page)
     page.fill("#region-name", "belly")
@@ -101,16 +107,7 @@ def test_a_short_region_highlight_comes_back_in_parts(server, bunny_scene, brows
     """A white highlight painted as a region falls short in one part; without another action the
     studio receives its fit in parts: the status line says so ("in K parts"), the region is listed
     once, and the frame changes where the stroke was. Screenshot: test-artifacts/web-region-parts.png."""
-    errors = []
-    ctx = browser.new_context(viewport={"width": 1280, "height": 720})
-    page = ctx.new_page()
-    page.on("pageerror", lambda e: errors.append(str(e)))
-    page.goto(server["base"] + "/")
-    wait_new_frame(page, 0)
-    settle(page)
-    if page.locator("#scene-select").input_value() != bunny_scene:
-        open_scene(page, bunny_scene)
-        settle(page)
+    ctx, page, errors = _studio(server, bunny_scene, browser)
     page.fill("#region-name", "shine")
     page.check("#region-paint")
     _status_has(page, "no strokes")

@@ -617,20 +617,7 @@ def rendered_effect(renderer, obj: int, camera, lighting, before, after, strokes
     applied (eq. 23) at the object's pixel centres. Returns achieved (painted pixels), spill
     (every unpainted object pixel) and spill_far (object pixels farther than one brush diameter
     from every stroke), as brush.stroke_effect, and the pixel counts."""
-    from ..renderers import FrameRequest
-
-    mats = list(renderer.scene.materials)
-    frames = []
-    for m in (before, after):
-        mats[obj] = m
-        frames.append(renderer.render(FrameRequest(camera=camera, lighting=lighting, materials=list(mats),
-                                                   shading=shading)))
-    on = frames[0].object_id.reshape(-1) == obj
-    w = camera.width
-    yy, xx = np.divmod(np.nonzero(on)[0], w)
-    xy = np.stack([xx + 0.5, yy + 0.5], 1).astype(np.float64)
-    b = frames[0].radiance.reshape(-1, 3)[on].astype(np.float64)
-    p = frames[1].radiance.reshape(-1, 3)[on].astype(np.float64)
+    xy, (b, p), frames = object_frames(renderer, obj, camera, lighting, [before, after], shading)
     t = b.copy()
     painted = np.zeros(len(xy), bool)
     far = np.ones(len(xy), bool)
@@ -642,5 +629,23 @@ def rendered_effect(renderer, obj: int, camera, lighting, before, after, strokes
     achieved, spill = stroke_effect([b], [t], [painted], [p])
     _, spill_far = stroke_effect([b], [t], [~far], [p])
     return {"achieved": achieved, "spill": spill, "spill_far": spill_far, "painted_pixels": int(painted.sum()),
-            "far_pixels": int(far.sum()), "object_pixels": int(on.sum()),
+            "far_pixels": int(far.sum()), "object_pixels": len(xy),
             "ms_render": frames[1].timings}
+
+
+def object_frames(renderer, obj: int, camera, lighting, materials, shading: str = "vertex"):
+    """Frames of the scene with object ``obj`` in each of ``materials`` (the other objects as
+    the scene has them): ((P, 2) float64 centres of the pixels that see the object in the first
+    frame, [(P, 3) float64 radiance there, one per material], [the Rendered frames])."""
+    from ..renderers import FrameRequest
+
+    mats = list(renderer.scene.materials)
+    frames = []
+    for m in materials:
+        mats[obj] = m
+        frames.append(renderer.render(FrameRequest(camera=camera, lighting=lighting, materials=list(mats),
+                                                   shading=shading)))
+    on = frames[0].object_id.reshape(-1) == obj
+    yy, xx = np.divmod(np.nonzero(on)[0], camera.width)
+    xy = np.stack([xx + 0.5, yy + 0.5], 1).astype(np.float64)
+    return xy, [f.radiance.reshape(-1, 3)[on].astype(np.float64) for f in frames], frames
