@@ -98,3 +98,30 @@ def test_renderer_views_by_projection_equal_traced_views(bunny_renderer):
     assert float((p.tri != e.tri).mean()) <= 1e-3
     assert len(np.setxor1d(p.visible, e.visible)) <= 0.01 * len(e.visible)
     assert abs(len(p.bg) - len(e.bg)) <= 1e-3 * len(p.tri)
+
+
+@pytest.mark.parametrize("backend", ["native", "numpy"])
+def test_hits_drawn_over_earlier_hits_are_the_whole_meshs(meshes, backend):
+    """``into``: the sofa's second half of faces drawn over the hits of its first half (face
+    numbers offset by fbase) gives the hits of the whole mesh (a moved object drawn over the
+    static scene's kept hits), with the earlier hits kept where they are nearer."""
+    from worker.core.primary import primary_hits
+    from worker.core.render import camera_dirs
+    from worker.native.kernels import kernels
+
+    scene = meshes["sofa2.json"]
+    V, Fc = scene.mesh.vertices, scene.mesh.faces
+    k = len(Fc) // 2
+    for cname, cam in cameras(scene).items():
+        d = camera_dirs(cam.eye, cam.target, cam.up, cam.fov_y_deg, cam.width, cam.height, 1)
+        whole = primary_hits(V, Fc, cam, 1, d, kernels(backend))
+        first = tuple(np.ascontiguousarray(a) for a in primary_hits(V, Fc[:k], cam, 1, d, kernels(backend)))
+        n_first = int((first[0] >= 0).sum())
+        got = primary_hits(V, Fc[k:], cam, 1, d, kernels(backend), into=(*first, k))
+        assert got[0] is first[0]
+        same = got[0] == whole[0]
+        tie = ~same & np.isclose(got[2], whole[2], rtol=1e-6)
+        assert (same | tie).all(), f"{cname}: {(~(same | tie)).sum()} samples differ"
+        assert ((got[0] >= k).sum() > 0) and ((got[0] < k) & (got[0] >= 0)).sum() > 0 and n_first > 0
+        hit = same & (whole[0] >= 0)
+        assert np.abs(got[1][hit] - whole[1][hit]).max() < 1e-6

@@ -31,16 +31,20 @@ def camera_params(eye, target, up, fov_y_deg: float, width: int, height: int) ->
     return np.concatenate([eye, right, true_up, fwd, [w / (2.0 * t * (w / h)), h / (2.0 * t)]])
 
 
-def primary_hits(vertices, faces, camera, samples: int, dirs, kernels=None):
+def primary_hits(vertices, faces, camera, samples: int, dirs, kernels=None, into=None):
     """(tri (H·W·S,) int32 face or −1, uv (H·W·S, 2) float32 Embree barycentrics
     (hit = (1−u−v)·v0 + u·v1 + v·v2), t (H·W·S,) float32 distance along the unit ray or +inf)
     of the primary rays ``dirs`` (H·W·S, 3) float32 of ``camera`` (eye, target, up, fov_y_deg,
     width, height) with ``samples`` S per pixel, against the mesh vertices (V, 3) float32,
-    faces (F, 3) int32."""
+    faces (F, 3) int32.
+
+    into : (tri, uv, t, fbase) of hits already found (other geometry: C-contiguous arrays of
+        the shapes above), updated in place where this mesh is nearer, its face f written as
+        fbase + f; returned."""
     cam = camera_params(camera.eye, camera.target, camera.up, camera.fov_y_deg, camera.width, camera.height)
     omax = float(np.abs(sample_offsets(samples)).max())
     return (kernels or _kernels()).primary_hits(vertices, faces, cam, dirs, int(camera.width),
-                                                int(camera.height), int(samples), omax)
+                                                int(camera.height), int(samples), omax, into)
 
 
 def face_bounds_numpy(vertices, faces, cam) -> tuple[np.ndarray, np.ndarray]:
@@ -72,9 +76,19 @@ def face_bounds_numpy(vertices, faces, cam) -> tuple[np.ndarray, np.ndarray]:
     return box, ok.any(1)
 
 
-def primary_hits_numpy(vertices, faces, cam, dirs, width: int, height: int, samples: int, omax: float):
+def primary_hits_numpy(vertices, faces, cam, dirs, width: int, height: int, samples: int, omax: float,
+                       into=None):
     """Reference of glk_primary_hits: (tri, uv, t) as ``primary_hits``; cam (14,) float64 from
-    ``camera_params``; omax the largest sub-pixel offset |x| or |y| of the samples, in pixels."""
+    ``camera_params``; omax the largest sub-pixel offset |x| or |y| of the samples, in pixels;
+    into as ``primary_hits``'s (kept where not farther)."""
+    if into is not None:
+        tri0, uv0, t0, fbase = into
+        tri, uv, t = primary_hits_numpy(vertices, faces, cam, dirs, width, height, samples, omax)
+        p = np.nonzero((tri >= 0) & (t < t0))[0]
+        tri0[p] = fbase + tri[p]
+        uv0[p] = uv[p]
+        t0[p] = t[p]
+        return tri0, uv0, t0
     W, H, S = int(width), int(height), int(samples)
     V = np.asarray(vertices, np.float32)
     Fa = np.asarray(faces, np.int64)

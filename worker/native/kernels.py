@@ -117,9 +117,9 @@ class NumpyKernels(_Families):
         from ..core.render import resolve_numpy
         return resolve_numpy(tri, uv, faces, vert_rgb, bg, samples, out)
 
-    def primary_hits(self, vertices, faces, cam, dirs, width, height, samples, omax):
+    def primary_hits(self, vertices, faces, cam, dirs, width, height, samples, omax, into=None):
         from ..core.primary import primary_hits_numpy
-        return primary_hits_numpy(vertices, faces, cam, dirs, width, height, samples, omax)
+        return primary_hits_numpy(vertices, faces, cam, dirs, width, height, samples, omax, into)
 
     def rotate_dirs(self, dirs, basis):
         from ..core.render import rotate_dirs_numpy
@@ -184,7 +184,8 @@ class NativeKernels(_Families):
             "glk_background", None, n=i64, sample=i64p, dirs=f32p, uv0=f32p, map=f32p, Hm=i32, Wm=i32, rot=f64,
             intensity=f64, shadow=voidp, G=i32, gx0=f64, gz0=f64, gstep=f64, gy=f64, ex=f64, ey=f64, ez=f64, out=f32p)
         self._primary = bind("glk_primary_hits", None, nv=i64, V=f32p, nf=i64, F=i32p, cam=f64p, dirs=f32p,
-                             W=i32, H=i32, S=i32, omax=f64, tri=i32p, uv=f32p, t=f32p, box=i32p)
+                             W=i32, H=i32, S=i32, omax=f64, tri=i32p, uv=f32p, t=f32p, box=i32p, init=i32,
+                             fbase=i32)
         self._rotate = bind("glk_rotate_dirs", None, P=i64, src=f32p, basis=f32p, out=f32p)
         self._env_coords = bind("glk_env_coords", None, n=i64, dirs=f32p, out=f32p)
         self._env_coords_rows = bind("glk_env_coords_rows", None, n=i64, rows=i64p, dirs=f32p, out=f32p)
@@ -322,20 +323,25 @@ class NativeKernels(_Families):
                          grid.shape[0] if grid is not None else 0, *geo, *e, out)
         return out
 
-    def primary_hits(self, vertices, faces, cam, dirs, width, height, samples, omax):
+    def primary_hits(self, vertices, faces, cam, dirs, width, height, samples, omax, into=None):
         """(tri, uv, t) of the primary rays dirs (H·W·S, 3) by face projection (see
-        core.primary.primary_hits_numpy)."""
+        core.primary.primary_hits_numpy); into: (tri, uv, t, fbase) to update in place."""
         W, H, S = int(width), int(height), int(samples)
         d = c(dirs, np.float32)
         if d.shape != (W * H * S, 3):
             raise ValueError(f"dirs: {d.shape}, expected ({W * H * S}, 3)")
         V, F = c(vertices, np.float32), c(faces, np.int32)
         P = W * H * S
-        tri = np.empty(P, np.int32)
-        uv = np.empty((P, 2), np.float32)
-        t = np.empty(P, np.float32)
+        if into is None:
+            tri, uv, t, fbase = np.empty(P, np.int32), np.empty((P, 2), np.float32), np.empty(P, np.float32), 0
+        else:
+            tri, uv, t, fbase = into
+            for a, dt, shape in ((tri, np.int32, (P,)), (uv, np.float32, (P, 2)), (t, np.float32, (P,))):
+                if a.dtype != dt or a.shape != shape or not a.flags.c_contiguous or not a.flags.writeable:
+                    raise ValueError(f"into: a writeable contiguous {np.dtype(dt).name} array of shape {shape}")
         box = np.empty((len(F), 4), np.int32)
-        self._primary(len(V), V, len(F), F, c(cam, np.float64), d, W, H, S, float(omax), tri, uv, t, box)
+        self._primary(len(V), V, len(F), F, c(cam, np.float64), d, W, H, S, float(omax), tri, uv, t, box,
+                      int(into is None), int(fbase))
         return tri, uv, t
 
     def rotate_dirs(self, dirs, basis):

@@ -24,7 +24,7 @@
  * pixel (i, j) spans [i, i+1) × [j, j+1)); returns 0 when no part of the face lies in front of
  * the eye. cam: eye (3), right (3), up (3), fwd (3), sx = W/(2·tan·aspect), sy = H/(2·tan). */
 static int face_bounds(const float *V, const int32_t *F, int64_t f, const double *cam, double W, double H,
-                       double *bx) {
+                       double *bx, double *pg) {
     double q[3][3];   /* camera-space (x right, y up, z forward) */
     for (int k = 0; k < 3; k++) {
         const float *p = V + 3 * (int64_t)F[3 * f + k];
@@ -52,9 +52,11 @@ static int face_bounds(const float *V, const int32_t *F, int64_t f, const double
     }
     if (n == 0) return 0;
     double x0 = 1e300, x1 = -1e300, y0 = 1e300, y1 = -1e300;
+    pg[8] = n;
     for (int k = 0; k < n; k++) {
         double px = (poly[k][0] / poly[k][2]) * cam[12] + 0.5 * W;
         double py = 0.5 * H - (poly[k][1] / poly[k][2]) * cam[13];
+        pg[2 * k] = px; pg[2 * k + 1] = py;
         if (px < x0) x0 = px;
         if (px > x1) x1 = px;
         if (py < y0) y0 = py;
@@ -64,14 +66,46 @@ static int face_bounds(const float *V, const int32_t *F, int64_t f, const double
     return 1;
 }
 
+/* The x-extent [*xa, *xb] of the projected convex polygon pg (n = pg[8] points (x, y)) within
+ * the horizontal slab ylo ≤ y ≤ yhi; returns 0 when they do not meet. The slab's extent is
+ * reached at a vertex inside it or where an edge crosses one of its two lines. */
+static int slab_span(const double *pg, double ylo, double yhi, double *xa, double *xb) {
+    const int n = (int)pg[8];
+    double x0 = 1e300, x1 = -1e300;
+    for (int k = 0; k < n; k++) {
+        const double ax = pg[2 * k], ay = pg[2 * k + 1];
+        const int j = k + 1 < n ? k + 1 : 0;
+        const double bx = pg[2 * j], by = pg[2 * j + 1];
+        double s0 = 0.0, s1 = 1.0;        /* the part of the edge a + s (b − a) inside the slab */
+        if (ay == by) {
+            if (ay < ylo || ay > yhi) continue;
+        } else {
+            double ta = (ylo - ay) / (by - ay), tb = (yhi - ay) / (by - ay);
+            if (ta > tb) { double tmp = ta; ta = tb; tb = tmp; }
+            if (ta > s0) s0 = ta;
+            if (tb < s1) s1 = tb;
+            if (s0 > s1) continue;
+        }
+        const double xs = ax + s0 * (bx - ax), xe = ax + s1 * (bx - ax);
+        if (xs < x0) x0 = xs;
+        if (xs > x1) x1 = xs;
+        if (xe < x0) x0 = xe;
+        if (xe > x1) x1 = xe;
+    }
+    *xa = x0; *xb = x1;
+    return x0 <= x1;
+}
+
 /* Primary hits of the rays from eye (3) float32 along dirs (H·W·S, 3) float32 (rows p·S + s,
  * p = y·W + x, through sub-pixel offsets within ±omax pixels of the centre) against the mesh
  * V (nv, 3) float32, F (nf, 3) int32. cam (14) float64: eye, right, up, fwd (unit world axes),
  * W/(2·tan(fov/2)·aspect), H/(2·tan(fov/2)). Writes tri (H·W·S) int32 (−1 miss), uv (·, 2)
- * float32, t (·) float32 (+inf miss); box (nf, 4) int32 scratch. */
+ * float32, t (·) float32 (+inf miss); box (nf, 4) int32 scratch. init = 0: (tri, uv, t) already
+ * hold nearer hits of other geometry (the static scene under a moved object): they are kept
+ * where they are not farther, and the mesh's face f is written as fbase + f. */
 void glk_primary_hits(int64_t nv, const float *V, int64_t nf, const int32_t *F, const double *cam,
                       const float *dirs, int W, int H, int S, double omax, int32_t *tri, float *uv, float *t,
-                      int32_t *box) {
+                      int32_t *box, int init, int32_t fbase) {
     (void)nv;
     const int64_t P = (int64_t)W * H * S;
     const double mg = omax + 0.01;     /* sample offsets, and rounding of the float32 rays (~1e-6 px) */
@@ -81,15 +115,20 @@ void glk_primary_hits(int64_t nv, const float *V, int64_t nf, const int32_t *F, 
     const int nb = (H + band - 1) / band;
     int64_t *band_off = NULL;
     int32_t *band_faces = NULL;
+    /* each face's projected polygon: a row tests only the samples within the polygon's span
+     * on it (a long thin face's bounding box holds many times the samples it covers) */
+    double *polys = (double *)malloc(sizeof(double) * 9 * (size_t)(nf > 0 ? nf : 1));
 #pragma omp parallel
     {
+        if (init) {
 #pragma omp for schedule(static)
-        for (int64_t i = 0; i < P; i++) { tri[i] = -1; t[i] = INFINITY; uv[2 * i] = 0.0f; uv[2 * i + 1] = 0.0f; }
+            for (int64_t i = 0; i < P; i++) { tri[i] = -1; t[i] = INFINITY; uv[2 * i] = 0.0f; uv[2 * i + 1] = 0.0f; }
+        }
 #pragma omp for schedule(static)
         for (int64_t f = 0; f < nf; f++) {
             double bx[4];
             int32_t *b = box + 4 * f;
-            if (!face_bounds(V, F, f, cam, W, H, bx) || bx[1] < -mg || bx[0] > W + mg || bx[3] < -mg ||
+            if (!face_bounds(V, F, f, cam, W, H, bx, polys + 9 * f) || bx[1] < -mg || bx[0] > W + mg || bx[3] < -mg ||
                 bx[2] > H + mg) {
                 b[0] = 1; b[1] = 0; b[2] = 1; b[3] = 0;    /* empty */
                 continue;
@@ -147,8 +186,17 @@ void glk_primary_hits(int64_t nv, const float *V, int64_t nf, const int32_t *F, 
                 const double nx = e2y * e1z - e2z * e1y, ny = e2z * e1x - e2x * e1z, nz = e2x * e1y - e2y * e1x;
                 const double ax = e2y * sz - e2z * sy, ay = e2z * sx - e2x * sz, az = e2x * sy - e2y * sx;
                 const int ya = b[2] > y0 ? b[2] : y0, yb = b[3] < y1 ? b[3] : y1;
+                const double *pg = polys + 9 * f;
                 for (int y = ya; y <= yb; y++) {
-                    for (int x = b[0]; x <= b[1]; x++) {
+                    /* the samples of row y lie within mg of its centre line y + ½, and a sample
+                     * inside the polygon lies within the polygon's span on that slab */
+                    double sa, sb;
+                    if (!slab_span(pg, y + 0.5 - mg, y + 0.5 + mg, &sa, &sb)) continue;
+                    const double c0 = ceil(sa - 0.5 - mg), c1 = floor(sb - 0.5 + mg);
+                    const double xa_d = c0 > b[0] ? c0 : b[0], xb_d = c1 < b[1] ? c1 : b[1];
+                    if (!(xa_d <= xb_d)) continue;            /* (compared in double: no overflow) */
+                    const int xa = (int)xa_d, xb = (int)xb_d;
+                    for (int x = xa; x <= xb; x++) {
                         int64_t row = ((int64_t)y * W + x) * S;
                         for (int s = 0; s < S; s++, row++) {
                             const float *d = dirs + 3 * row;
@@ -165,7 +213,7 @@ void glk_primary_hits(int64_t nv, const float *V, int64_t nf, const int32_t *F, 
                                             (tt < t[row]);
                             if (!hit) continue;
                             t[row] = (float)tt;
-                            tri[row] = (int32_t)f;
+                            tri[row] = fbase + (int32_t)f;
                             uv[2 * row] = (float)u;
                             uv[2 * row + 1] = (float)v;
                         }
@@ -176,4 +224,5 @@ void glk_primary_hits(int64_t nv, const float *V, int64_t nf, const int32_t *F, 
     }
     free(band_off);
     free(band_faces);
+    free(polys);
 }
