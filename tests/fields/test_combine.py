@@ -125,6 +125,35 @@ def test_product_is_the_leaf_level_product(bunny_case, tree):
     assert worst <= 0.5 / 255 + 1e-6, worst
 
 
+@pytest.mark.parametrize("backend", [pytest.param("native", marks=native), "numpy"])
+@pytest.mark.parametrize("delta", [False, True])
+def test_cuts_left_where_the_kernel_put_them_are_the_receivers_cuts(bunny_case, tree, backend, delta):
+    """``placed``: the cuts as the kernel wrote them (in whatever order its threads took them)
+    and each receiver's index into them give every receiver the cut of the ordered output,
+    culled receivers and empty delta cuts included."""
+    n = 160 if backend == "native" else 12               # > 64: the kernel's threads take part
+    x, nrm = receivers(bunny_case, n, scale=2.5, seed=11)
+    base = vertex_cuts(tree, nrm, seed=11)
+    occ = [(bunny_case.field, similarity(rot_y(40), (0.1, 0.0, -0.2)))]
+    cb = Combiner(hmin=3, kernels=kernels(backend))
+    skip = skip_table(base) if delta else None
+    want = cb.combine(base, np.arange(n), x, nrm, occ, delta=delta, skip=skip)
+    got, cut_of = cb.combine(base, np.arange(n), x, nrm, occ, delta=delta, skip=skip, placed=True)
+    assert cut_of.dtype == np.int32 and sorted(cut_of.tolist()) == list(range(n))
+    assert got.n_nodes == want.n_nodes and (np.diff(got.offsets) >= 0).all()
+    culled = 0
+    for k in range(n):
+        h, v = got.cut(int(cut_of[k]))
+        hw, vw = want.cut(k)
+        np.testing.assert_array_equal(h, hw)
+        np.testing.assert_array_equal(v, vw)
+        if delta:
+            culled += not vw.any()
+        else:
+            culled += len(hw) == base.sizes()[k] and np.array_equal(vw, base.cut(k)[1])
+    assert 0 < culled < n, culled       # some receivers untouched, some combined
+
+
 def test_at_a_sample_point_the_product_is_exact(bunny_case, tree, trace_points):
     """A receiver on a sample point (weight 1 on one corner), unrotated, exact field cuts
     (h_min = 0): the combined cut is the base cut times the ray-traced occlusion, leaf by leaf."""

@@ -48,11 +48,13 @@ class NumpyFields:
         from ..renderers.cuts.combine import merge_cells_into_numpy
         merge_cells_into_numpy(rs, need, cslots)
 
-    def combine(self, base, cut_of, cells, weights, pools, delta=False, cap_hint=None, skip=None):
+    def combine(self, base, cut_of, cells, weights, pools, delta=False, cap_hint=None, skip=None, placed=False):
         """CutSet of the receivers' cuts with the occluders' fields multiplied in
-        (combine.combine_numpy; cap_hint and skip only size and speed up the C kernel)."""
+        (combine.combine_numpy; cap_hint and skip only size and speed up the C kernel). placed:
+        return (cuts, cut_of (K,) int32), receiver k's cut being cuts[cut_of[k]] (here arange)."""
         from ..renderers.cuts.combine import combine_numpy
-        return combine_numpy(base, cut_of, cells, weights, pools, delta)
+        out = combine_numpy(base, cut_of, cells, weights, pools, delta)
+        return (out, np.arange(out.n_vertices, dtype=np.int32)) if placed else out
 
 
 class NativeFields:
@@ -134,10 +136,12 @@ class NativeFields:
         for k in cp.names:
             self.gather(pos, counts, bufs[k], dst, getattr(cp, k))
 
-    def combine(self, base, cut_of, cells, weights, pools, delta=False, cap_hint=None, skip=None):
+    def combine(self, base, cut_of, cells, weights, pools, delta=False, cap_hint=None, skip=None, placed=False):
         """glf_combine (the pools' cells must be kept (ensure_cells); cap_hint: expected total
         output nodes; skip: ``combine.skip_table(base)``, which lets the delta mode pass untouched
-        base nodes a block at a time)."""
+        base nodes a block at a time). placed: return (cuts, cut_of (K,) int32) with the cuts
+        where the kernel put them, receiver k's cut being cuts[cut_of[k]]: no gather into
+        receiver order (a shader takes cut_of)."""
         from ..core.cuts import CutSet
         from ..renderers.cuts.combine import _placed
 
@@ -158,6 +162,17 @@ class NativeFields:
                           cap, b["h"], b["q"], pos, counts, used)
         cap = int(cap_hint or int(1.5 * base.sizes()[cut_of].sum()) + 1024)
         bufs, pos, counts = _placed(run, V, cap, {"h": (np.uint8, ()), "q": (np.uint8, ())})
+        if placed:
+            # the kernel took each item's room with an atomic add, so the items lie back to back
+            # from 0 in the order they were taken: sorted by offset they are a cut set as they
+            # are (an empty item before the one that starts where it does)
+            order = np.lexsort((counts, pos))
+            n = int(counts.sum(dtype=np.int64))
+            off = np.empty(V + 1, np.int64)
+            off[:V], off[V] = pos[order], n
+            rank = np.empty(V, np.int32)
+            rank[order] = np.arange(V, dtype=np.int32)
+            return CutSet(off, bufs["h"][:n], bufs["q"][:n], base.height), rank
         off = np.zeros(V + 1, np.int64)
         np.cumsum(counts, out=off[1:])
         h = np.empty(off[-1], np.uint8)

@@ -483,7 +483,8 @@ class Combiner:
         return cells, weights, segments
 
     def combine(self, base: CutSet, cut_ids: np.ndarray, positions: np.ndarray, normals: np.ndarray,
-                occluders, delta: bool = False, stencils=None, tag: str = "", skip: np.ndarray | None = None) -> CutSet:
+                occluders, delta: bool = False, stencils=None, tag: str = "", skip: np.ndarray | None = None,
+                placed: bool = False):
         """Cuts of K receiver vertices with the occluders multiplied in (cyber-worlds eq. 4).
 
         base : CutSet of the receivers' own cuts (over their frame's leaves); cut_ids (K,) int
@@ -495,7 +496,9 @@ class Combiner:
         skip : ``skip_table(base)`` for the delta mode (faster; the same result).
         tag : names the call site, whose output size sizes the next call's buffer.
         Returns a CutSet of K cuts over the receiver frame's leaves (cut k for receiver k),
-        ready for glk_shade_points with cut_of = arange(K). ``last_stats`` says what it cost.
+        ready for glk_shade_points with cut_of = arange(K); placed: (cuts, cut_of (K,) int32)
+        with receiver k's cut at cuts[cut_of[k]], as the kernel left them (no copy into receiver
+        order). ``last_stats`` says what it cost.
         """
         t0 = time.perf_counter()
         cut_ids = np.asarray(cut_ids, np.int32)
@@ -518,7 +521,9 @@ class Combiner:
             pools.append(pool)
         t2 = time.perf_counter()
         est = int(1.5 * base.sizes()[cut_ids].sum()) + 1024
-        out = self.k.fields.combine(base, cut_ids, cells, weights, pools, delta, max(est, self._caps.get(tag, 0)), skip)
+        res = self.k.fields.combine(base, cut_ids, cells, weights, pools, delta, max(est, self._caps.get(tag, 0)), skip,
+                                    placed=placed)
+        out = res[0] if placed else res
         self._caps[tag] = int(1.2 * out.n_nodes) + 1024
         t3 = time.perf_counter()
         self.last_stats = {"ms_lookup": 1e3 * (t2 - t0 - t_rot), "ms_rotate_and_cells": 1e3 * t_rot,
@@ -527,7 +532,7 @@ class Combiner:
                            "receivers_affected": int((cells >= 0).any(axis=1).sum()) if len(occluders) else 0,
                            "mean_cut_in": float(base.sizes()[cut_ids].mean()) if K else 0.0,
                            "mean_cut_out": float(out.sizes().mean()) if K else 0.0}
-        return out
+        return res
 
 
 def combined_cuts(base: CutSet, cut_ids, positions, normals, occluders, hmin: int = DEFAULT_HMIN,
