@@ -168,7 +168,7 @@ def add_field_commands(fsub) -> None:
     grid_options(b)
     b.add_argument("--receivers", type=int, default=10000)
     b.add_argument("--frames", type=int, default=10)
-    b.add_argument("--hmin", type=int, default=None, help="field cut coarseness (default 3)")
+    b.add_argument("--hmin", type=int, default=None, help="field cut coarseness: field cut nodes of ≥ 2^HMIN leaves (default 5)")
     b.set_defaults(fn=cmd_field_bench)
 
 

@@ -32,7 +32,13 @@ from .grid import cell_corners
 from .grid import lookup_numpy as grid_lookup_numpy
 from .rotate import LeafMap, rotate_samples_numpy, rotation_part
 
-DEFAULT_HMIN = 3       # field cuts are kept to nodes of ≥ 8 leaves (see fields.py)
+# field cuts are kept to nodes of ≥ 2^5 = 32 leaves (fields.py). Chosen on the sliding chair of
+# bench/move.json: frames 0.07-0.10% (relative RMS) from exact field cuts (h_min 3: 0.05-0.08%),
+# 0.366% from the static renderer of the same placement (h_min 0: 0.357%), a sliding frame a
+# fifth faster (glf_combine's stretch bounds are the field cuts' node bounds). Held out (the
+# sofa of bench/move-sofa.json): 0.28-0.30% from exact (h_min 3: 0.11%), 1.876% from the static
+# renderer (h_min 0: 1.859%): the fields' own interpolation dominates.
+DEFAULT_HMIN = 5
 
 
 # --- stencils ----------------------------------------------------------------------------------

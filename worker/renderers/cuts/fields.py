@@ -47,7 +47,7 @@ Rendering (combine.py, rotate.py; C kernels in worker/native/src/fields.c):
      environment turned into that frame (``frame_lighting``; a yaw is a column shift of the map,
      exact). A sample's binary cut is re-expressed over the receiver's leaves through the
      nearest-leaf map π_Q (receiver leaf j reads the source leaf nearest to Q^T d_j), touching
-     only its blocked leaves, and rebuilt with nodes of at least 2^h_min = 8 leaves: uniform
+     only its blocked leaves, and rebuilt with nodes of at least 2^h_min = 32 leaves: uniform
      nodes stay whole, mixed ones keep their free fraction, only non-free nodes are kept.
      ``glf_cells`` then merges a cell's 8 corners once for all the vertices in it. Samples and
      cells are cached per (field, rotation): translating an object re-uses them.
@@ -56,9 +56,11 @@ Rendering (combine.py, rotate.py; C kernels in worker/native/src/fields.c):
      where a stretch starts or ends inside them, dark base nodes (below the horizon,
      self-occluded) kept whole. The output is an ordinary CutSet over the receiver frame's
      leaves, shaded by glk_shade_points.
-  h_min = 3: the interpolation, not the coarser field nodes, dominates the error (shadow-shape
-  error 0.018-0.052 of the hemisphere at h_min = 0, +0.003-0.007 at h_min = 3; irradiance error
-  unchanged), and the field cuts get 2-3× shorter; h_min = 5 (+0.007-0.017) suits dragging.
+  h_min = 5: the interpolation, not the coarser field nodes, dominates the error (shadow-shape
+  error 0.018-0.052 of the hemisphere at h_min = 0, +0.003-0.007 at h_min = 3, +0.007-0.017 at
+  h_min = 5; irradiance error unchanged), the field cuts get 2-3× shorter at 3 and shorter
+  again at 5. Frames (BENCHMARKS.md, moving objects) differ from exact field cuts by ~0.1%
+  relative RMS at 3 and at 5; a sliding frame costs a fifth less at 5.
 
 Rotation, the options measured (BENCHMARKS.md "Cut fields", per frame at 10K receivers):
   * re-expressing each vertex's (or its combined) cut over rotated leaves: a 2^15-leaf gather
