@@ -40,6 +40,7 @@ import threading
 import time
 from collections import OrderedDict
 from collections.abc import Mapping
+from concurrent.futures import ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -313,6 +314,9 @@ class _Level:
     self_cuts: dict
     snap: float | None
     skip: np.ndarray | None = None      # combine.skip_table(static)
+    # the static receivers' own (they are combined on another thread: a Combiner is not
+    # thread-safe)
+    static_combiner: Combiner | None = None
 
 
 @dataclass
@@ -337,9 +341,12 @@ class MovingFrames:
         self.d = data
         k = renderer.k
         self.levels = {
-            "full": _Level(Combiner(DEFAULT_HMIN, kernels=k), data.static, data.self_cuts, None),
-            "drag": _Level(Combiner(DRAG_HMIN, kernels=k, max_pools=24), None, {}, SNAP_DEG),
+            "full": _Level(Combiner(DEFAULT_HMIN, kernels=k), data.static, data.self_cuts, None,
+                           static_combiner=Combiner(DEFAULT_HMIN, kernels=k)),
+            "drag": _Level(Combiner(DRAG_HMIN, kernels=k, max_pools=24), None, {}, SNAP_DEG,
+                           static_combiner=Combiner(DRAG_HMIN, kernels=k, max_pools=24)),
         }
+        self._pool: ThreadPoolExecutor | None = None
         self._hits: OrderedDict = OrderedDict()        # camera -> static hits
         self._static: dict[str, _StaticShading] = {}
         self._frame_light: OrderedDict = OrderedDict()
@@ -398,6 +405,14 @@ class MovingFrames:
             lv.skip = self.d.skip(lv.static)
         return lv
 
+    def _static_thread(self) -> ThreadPoolExecutor:
+        """The one thread a frame's static receivers are computed on (made on first use)."""
+        if self._pool is None:
+            # its kernels keep OpenMP's team of one thread per core, as the moved objects' do:
+            # measured faster than one thread for it (each part waits less for the other)
+            self._pool = ThreadPoolExecutor(1, thread_name_prefix="glint-moving-static")
+        return self._pool
+
     # -- primary visibility ------------------------------------------------------------------------
     def static_hits(self, camera):
         """(tri scene faces (P,), uv (P, 2), t (P,), dirs (P, 3)) of the static geometry (kept for
@@ -424,6 +439,15 @@ class MovingFrames:
             self._hits.popitem(last=False)
         return hit
 
+    def _visible(self, tri: np.ndarray) -> np.ndarray:
+        """(K,) int32 scene vertices of the faces in tri (−1: none)."""
+        mesh = self.r.scene.mesh
+        fm = np.zeros(len(mesh.faces) + 1, bool)
+        fm[tri] = True                             # a miss (−1) marks the extra last entry
+        vm = np.zeros(len(mesh.vertices), bool)
+        vm[mesh.faces[np.flatnonzero(fm[:-1])].reshape(-1)] = True
+        return np.flatnonzero(vm).astype(np.int32)
+
     def view(self, camera, W: list[np.ndarray]) -> MovingView:
         """Primary visibility with the movable objects placed by W (see the module docstring)."""
         tri0, uv0, t0, d = self.static_hits(camera)
@@ -438,11 +462,8 @@ class MovingFrames:
                 # the GIL: one thread)
                 wl = np.asarray(W[i], np.float64)
                 vw = (sh.vertices.astype(np.float64) @ wl[:3, :3].T + wl[:3, 3]).astype(np.float32)
-                tri_o, uv_o, t_o = primary_hits(vw, sh.faces, camera, 1, d, kernels=self.r.k)
-                p = np.nonzero((tri_o >= 0) & (t_o < t))[0]
-                tri[p] = self.d.first_face[i] + tri_o[p]
-                uv[p] = uv_o[p]
-                t[p] = t_o[p]
+                # drawn over the hits so far, where nearer (the kernel's z-buffer starts from them)
+                primary_hits(vw, sh.faces, camera, 1, d, kernels=self.r.k, into=(tri, uv, t, int(self.d.first_face[i])))
                 continue
             pix = self._candidates(camera, W[i], sh)
             if len(pix) == 0:
@@ -460,12 +481,7 @@ class MovingFrames:
             uv[p, 0] = u[hit]
             uv[p, 1] = vv[hit]
             t[p] = tl[hit]
-        mesh = self.r.scene.mesh
-        fm = np.zeros(len(mesh.faces), bool)
-        fm[tri[tri >= 0]] = True
-        vm = np.zeros(len(mesh.vertices), bool)
-        vm[mesh.faces[fm].reshape(-1)] = True
-        return MovingView(tri, uv, t, d, np.nonzero(vm)[0].astype(np.int32))
+        return MovingView(tri, uv, t, d, self._visible(tri))
 
     @staticmethod
     def _trace(tracer: Tracer, origin: np.ndarray, dirs: np.ndarray, far: np.ndarray):
@@ -560,46 +576,67 @@ class MovingFrames:
         stats = {"affected_static": 0, "visible_static": 0, "moving_vertices": 0, "samples_rotated": 0,
                  "cells_merged": 0}
 
-        # static vertices: kept radiance minus what the moved objects' fields take away
-        sv = vis[~d.is_movable[obj_of[vis]]]
-        if len(sv):
+        # static vertices: kept radiance minus what the moved objects' fields take away, on a
+        # thread of their own while this one does the moved objects' vertices (the kernels
+        # release the GIL: the NumPy and ray-test stretches of one overlap the other's kernels)
+        def static_part():
+            s0 = time.perf_counter()
+            sv = vis[~d.is_movable[obj_of[vis]]]
+            st = {"affected_static": 0, "visible_static": len(sv), "samples_rotated": 0, "cells_merged": 0}
+            if not len(sv):
+                return sv, None, st, 0.0
+            cb = lv.static_combiner
             rad = self._static_radiance(sv, eye, node_l, node_w, mats, lv, req.lod, node8, layers)
             occ = [(d.fields[i], Wf[i]) for i in d.movable]
             x, n = mesh.vertices[sv], mesh.normals[sv]
-            cells, wts, _ = lv.combiner.stencils(x, n, occ)
+            cells, wts, _ = cb.stencils(x, n, occ)
             aff = np.nonzero((cells >= 0).any(axis=1))[0]
-            stats.update(visible_static=len(sv), affected_static=len(aff))
+            st["affected_static"] = len(aff)
             if len(aff):
-                delta = lv.combiner.combine(lv.static, d.static_row[sv[aff]], x[aff], n[aff], occ, delta=True,
-                                            stencils=(cells[aff], wts[aff]), tag="static", skip=lv.skip)
-                self._count(stats, lv.combiner.last_stats)
+                delta, dcut = cb.combine(lv.static, d.static_row[sv[aff]], x[aff], n[aff], occ, delta=True,
+                                         stencils=(cells[aff], wts[aff]), tag="static", skip=lv.skip, placed=True)
+                self._count(st, cb.last_stats)
                 wo = _unit(eye - x[aff])
-                dr = _shade(n[aff], wo, np.arange(len(aff), dtype=np.int32), sv[aff], obj_of[sv[aff]], delta,
+                dr = _shade(n[aff], wo, dcut, sv[aff], obj_of[sv[aff]], delta,
                             node_l, node_w, r, mats, node8, layers)
                 rad = rad.copy()
                 rad[aff] = np.maximum(rad[aff] - dr, 0.0)
-            vert[sv] = rad
-        t3 = time.perf_counter(); t["static"] = (t3 - t2) * 1e3
+            return sv, rad, st, (time.perf_counter() - s0) * 1e3
+
+        static = self._static_thread().submit(static_part)
+        t3 = time.perf_counter()
 
         # each movable object's own vertices, in its frame, against every other object
-        for i in d.movable:
-            ids = vis[obj_of[vis] == i]
-            if not len(ids):
-                continue
-            local = (ids - d.first_vertex[i]).astype(np.int64)
-            sh = d.shapes[i]
-            inv = np.linalg.inv(Wf[i])
-            occ = [(d.fields[j], inv @ Wf[j]) for j in range(len(W)) if j != i]
-            cs = lv.combiner.combine(lv.self_cuts[i], local, sh.vertices[local], sh.normals[local], occ, tag=f"object {i}")
-            self._count(stats, lv.combiner.last_stats)
-            q, _ = rotation_part(Wf[i])
-            xw = sh.vertices[local].astype(np.float64) @ W[i][:3, :3].T + W[i][:3, 3]
-            wo = _unit((eye - xw) @ q)                                   # into the object's frame
-            nl, nw, n8 = self.frame_light_tables(q, req.lighting)
-            vert[ids] = _shade(sh.normals[local], wo, np.arange(len(ids), dtype=np.int32), ids, obj_of[ids], cs, nl, nw,
-                               r, mats, n8, layers)
-            stats["moving_vertices"] += len(ids)
+        try:
+            for i in d.movable:
+                ids = vis[obj_of[vis] == i]
+                if not len(ids):
+                    continue
+                local = (ids - d.first_vertex[i]).astype(np.int64)
+                sh = d.shapes[i]
+                inv = np.linalg.inv(Wf[i])
+                occ = [(d.fields[j], inv @ Wf[j]) for j in range(len(W)) if j != i]
+                cs, ccut = lv.combiner.combine(lv.self_cuts[i], local, sh.vertices[local], sh.normals[local], occ,
+                                               tag=f"object {i}", placed=True)
+                self._count(stats, lv.combiner.last_stats)
+                q, _ = rotation_part(Wf[i])
+                xw = sh.vertices[local].astype(np.float64) @ W[i][:3, :3].T + W[i][:3, 3]
+                wo = _unit((eye - xw) @ q)                                   # into the object's frame
+                nl, nw, n8 = self.frame_light_tables(q, req.lighting)
+                vert[ids] = _shade(sh.normals[local], wo, ccut, ids, obj_of[ids], cs, nl, nw,
+                                   r, mats, n8, layers)
+                stats["moving_vertices"] += len(ids)
+        except BaseException:
+            wait([static])                     # nothing of this frame runs on after it
+            raise
         t4 = time.perf_counter(); t["moving"] = (t4 - t3) * 1e3
+        sv, rad, st, t["static"] = static.result()
+        if rad is not None:
+            vert[sv] = rad
+        stats["visible_static"], stats["affected_static"] = st["visible_static"], st["affected_static"]
+        self._count(stats, st)
+        t5 = time.perf_counter(); t["static_wait"] = (t5 - t4) * 1e3     # what the static part took longer
+        t4 = t5
         interpolate(v.tri, v.uv, mesh.faces, vert, img, r.k)
         t["interpolate"] = (time.perf_counter() - t4) * 1e3
         obj = r.object_of(v.tri)
