@@ -3,7 +3,8 @@ camera, found by projecting the faces into the image instead of tracing the rays
 
 All primary rays start at the eye, so a face can only be met by the rays of the samples inside
 its projection. Each face's projected bounds (the part of the face in front of the eye)
-select those samples, and their rays are intersected with the face exactly (Möller–Trumbore,
+select those samples (the C kernel, row by row, only those within the projected polygon's span
+on the row), and their rays are intersected with the face exactly (Möller–Trumbore,
 double precision, with the very float32 directions ``core.render.camera_dirs`` gives the
 tracer), keeping the nearest distance per sample: a z-buffer in ray distance t. The result is
 the tracer's (face, Embree barycentrics (u, v), t) except for samples that lie on a shared edge

@@ -2,8 +2,9 @@
  * reference; tests/core/test_primary.py checks they agree, and that both agree with Embree).
  *
  * A pinhole camera's primary rays all start at the eye, so instead of walking a BVH per ray the
- * faces are projected into the image: each face's projection bounds (clipped to the half-space
- * in front of the eye) select the samples whose rays can meet it, and each such ray is
+ * faces are projected into the image: each face's projection (clipped to the half-space in
+ * front of the eye) selects the samples whose rays can meet it, row by row within the
+ * projected polygon's span on that row (its bounding box picks the rows), and each such ray is
  * intersected with the face exactly (Möller–Trumbore in double precision, with the same float32
  * ray directions the tracer would take), keeping the nearest t per sample (a z-buffer in ray
  * distance). The hit face, its barycentrics (u, v) (hit = (1−u−v)·v0 + u·v1 + v·v2, Embree's
