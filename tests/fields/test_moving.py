@@ -243,6 +243,50 @@ def test_drag_level_of_detail(room_scene, room_renderer):
     assert first > 100 and out.info["moving"]["samples_rotated"] < 0.05 * first, (first, out.info["moving"])
 
 
+def test_the_static_receivers_thread_draws_what_the_frames_own_thread_draws(room_scene, room_renderer):
+    """At full quality the static receivers are combined and shaded on a second thread beside
+    the moved object's vertices: the frame is bit for bit the one computed on the frame's own
+    thread, frame after frame (each part keeps its own rotated samples and cells), and the
+    second thread did the work."""
+    import threading
+    from concurrent.futures import Future
+
+    mf = room_renderer._moving
+    cam = room_scene.spec.camera.model_copy(update={"width": 160, "height": 120})
+    t0 = moved_transform(room_scene)
+    path = [Transform(scale=t0.scale, rotate_deg=t0.rotate_deg, translate=(t0.translate[0] + 3.0 * k,
+                                                                           t0.translate[1], t0.translate[2]))
+            for k in range(3)]
+    req = {"camera": cam, "materials": room_scene.materials}
+    threads = set()
+    real = mf._static_thread
+
+    class Recording:
+        def submit(self, fn):
+            def run():
+                threads.add(threading.current_thread().name)
+                return fn()
+            return real().submit(run)
+
+    class Inline:
+        def submit(self, fn):
+            f = Future()
+            f.set_result(fn())
+            return f
+
+    frames = {}
+    try:
+        for name, ex in (("thread", Recording()), ("inline", Inline())):
+            mf._static_thread = lambda ex=ex: ex
+            frames[name] = [room_renderer.render(FrameRequest(**req, transforms={"bunny": t})) for t in path]
+    finally:
+        del mf._static_thread
+    assert threads == {n for n in threads if n.startswith("glint-moving-static")} and threads
+    for a, b in zip(frames["thread"], frames["inline"]):
+        assert a.info["moving"]["affected_static"] > 0
+        np.testing.assert_array_equal(a.radiance, b.radiance)
+
+
 def test_moving_what_cannot_move_is_an_error(crate):
     scene = crate.load()
     r = open_renderer(scene)
