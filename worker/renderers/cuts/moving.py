@@ -26,11 +26,13 @@ A frame (``MovingFrames.render``), for the objects placed by FrameRequest.transf
      full product's radiance (the cluster sums are additive); for a glossy one the clusters an
      object splits are evaluated at their pieces' centroids in the subtracted part, as the full
      product would.
+     At full quality this part runs on a second thread beside part 3 (its own Combiner).
   3. **Each movable object's vertices**: its self cuts × every other object's field, in its own
      frame (fields.py), shaded with the light turned into that frame (``frame_lighting``,
      kept per yaw) and the view directions turned by world_from_frame^T.
-The drag level of detail uses the static and self cuts coarsened to τ = 16, field cuts of
-nodes ≥ 2^5 leaves (h_min = 5), half resolution, and the object's yaw snapped to SNAP_DEG for
+Both levels rebuild field cuts with nodes ≥ 2^5 leaves (h_min = 5, combine.DEFAULT_HMIN). The
+drag level of detail uses the static and self cuts coarsened to τ = 16, half resolution, part 2
+on the frame's own thread, and the object's yaw snapped to SNAP_DEG for
 the fields and the light (not for where it is drawn), so that a turn re-uses rotated samples,
 cells and frame lighting from earlier frames.
 """
