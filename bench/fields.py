@@ -119,6 +119,8 @@ def cmd_bench_move(a) -> int:
     spec = scene.spec
     light = Lighting(spec.environment.rotation_deg, spec.environment.intensity)
 
+    cpu: list[float] = []             # the process's CPU time of each frame of the current gesture
+
     def frame(tr, lod):
         t0, c0 = time.perf_counter(), time.process_time()
         out = r.render(FrameRequest(camera=spec.camera, lighting=light, materials=scene.materials, lod=lod,
@@ -126,8 +128,6 @@ def cmd_bench_move(a) -> int:
         tonemap(out.radiance, kernels=r.k)
         cpu.append(time.process_time() - c0)
         return time.perf_counter() - t0, out
-
-    cpu: list[float] = []
 
     res = {"scene": a.scene, "object": a.object, "frames": a.frames, "width": spec.camera.width,
            "height": spec.camera.height, "vertices": len(scene.mesh.vertices), "native": r.k.name == "native",

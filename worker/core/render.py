@@ -394,6 +394,16 @@ def shade_points(normals, wo, cut_of, mat_of, cuts: CutSet, node_l, node_w, tree
                                                 node8=node8)
 
 
+def seen_vertices(tri, faces, n_vertices: int) -> np.ndarray:
+    """(K,) int32 sorted vertices of the faces hit in ``tri`` (any shape, int32, −1: a miss),
+    faces (F, 3): by marking (O(P + F), no sort)."""
+    fm = np.zeros(len(faces) + 1, bool)
+    fm[np.asarray(tri).reshape(-1)] = True         # a miss (−1) marks the extra last entry
+    vm = np.zeros(n_vertices, bool)
+    vm[faces[np.flatnonzero(fm[:-1])].reshape(-1)] = True
+    return np.flatnonzero(vm).astype(np.int32)
+
+
 def interpolate_numpy(tri, uv, faces, vert_rgb, out):
     """Barycentric interpolation of per-vertex (V, 3) radiance into out (P, 3) where tri ≥ 0
     (NumPy reference of glk_interpolate)."""

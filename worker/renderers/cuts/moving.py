@@ -52,7 +52,13 @@ from ...core import cuts as cutmod
 from ...core.cuts import DEFAULT_TAU, CutSet
 from ...core.directions import get_tree
 from ...core.primary import primary_hits
-from ...core.render import camera_rays, env_lookup, interpolate, shade_points
+from ...core.render import (
+    camera_rays,
+    env_lookup,
+    interpolate,
+    seen_vertices,
+    shade_points,
+)
 from ...trace.embree import Tracer
 from ..base import Part, Rendered, Unsupported
 from ..layers import Layers
@@ -441,15 +447,6 @@ class MovingFrames:
             self._hits.popitem(last=False)
         return hit
 
-    def _visible(self, tri: np.ndarray) -> np.ndarray:
-        """(K,) int32 scene vertices of the faces in tri (−1: none)."""
-        mesh = self.r.scene.mesh
-        fm = np.zeros(len(mesh.faces) + 1, bool)
-        fm[tri] = True                             # a miss (−1) marks the extra last entry
-        vm = np.zeros(len(mesh.vertices), bool)
-        vm[mesh.faces[np.flatnonzero(fm[:-1])].reshape(-1)] = True
-        return np.flatnonzero(vm).astype(np.int32)
-
     def view(self, camera, W: list[np.ndarray]) -> MovingView:
         """Primary visibility with the movable objects placed by W (see the module docstring)."""
         tri0, uv0, t0, d = self.static_hits(camera)
@@ -483,7 +480,8 @@ class MovingFrames:
             uv[p, 0] = u[hit]
             uv[p, 1] = vv[hit]
             t[p] = tl[hit]
-        return MovingView(tri, uv, t, d, self._visible(tri))
+        mesh = self.r.scene.mesh
+        return MovingView(tri, uv, t, d, seen_vertices(tri, mesh.faces, len(mesh.vertices)))
 
     @staticmethod
     def _trace(tracer: Tracer, origin: np.ndarray, dirs: np.ndarray, far: np.ndarray):

@@ -70,19 +70,27 @@ from ...core.render import (
     env_coords,
     pixel_dirs,
     resolve,
+    seen_vertices,
     shade_blend,
     shade_points,
 )
 from ...models.base import packed
 from ...models.regions import has_regions
 from ...native.kernels import kernels as _kernels
-from ..base import FrameCancelled, FrameRequest, Lighting, Rendered, Renderer, Unsupported
+from ..base import (
+    FrameCancelled,
+    FrameRequest,
+    Lighting,
+    Rendered,
+    Renderer,
+    Unsupported,
+)
+from ..layers import Layers, LayersCache
 from . import DECLARATION
 from . import edges as edgemod
-from .edges import edge_pixels
-from ..layers import Layers, LayersCache
-from .precompute import CutData
 from . import refine as refinemod
+from .edges import edge_pixels
+from .precompute import CutData
 from .refine import Refinement
 
 DRAG_REFINE = 0.1   # drag level of detail: clusters refined to no finer than 0.1 rad (a GGX α = 0.05's)
@@ -293,12 +301,7 @@ class CutRenderer(Renderer):
                         samples, kernels=self.k)
         tri, uv, traced = self._primary_hits(camera, samples, d)
         mesh = self.scene.mesh
-        # faces and vertices seen, by marking (O(P + F), no sort)
-        fmask = np.zeros(len(mesh.faces), bool)
-        fmask[tri[tri >= 0]] = True
-        vmask = np.zeros(len(mesh.vertices), bool)
-        vmask[mesh.faces[fmask].reshape(-1)] = True
-        visible = np.nonzero(vmask)[0].astype(np.int32)
+        visible = seen_vertices(tri, mesh.faces, len(mesh.vertices))
         wo = np.asarray(camera.eye, np.float32) - mesh.vertices[visible]
         wo /= np.linalg.norm(wo, axis=1, keepdims=True)
         bg = np.nonzero(tri < 0)[0]
